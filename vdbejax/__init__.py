@@ -1,0 +1,1 @@
+"""vdbejax: a JAX experiment engine for exploration strategies in tabular RL."""

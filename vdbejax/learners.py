@@ -1,0 +1,98 @@
+"""Q-learning and SARSA as pure functions of one transition (rlax style).
+
+``discount`` is γ for a non-terminal transition and 0 for a terminal one, so terminal
+transitions use the target ``r`` and truncated ones still bootstrap.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from vdbejax._pytree import pytree_dataclass
+
+Array = jax.Array
+
+LEARNERS = ("qlearning", "sarsa")
+PAPER_ALPHA = 0.8
+PAPER_GAMMA = 0.9
+
+
+def q_learning_target(reward: Array, discount: Array, q_next: Array) -> Array:
+    """Q-learning target ``r + discount · max_b Q(s', b)``.
+
+    Args:
+      reward: reward of the transition.
+      discount: γ, or 0 if ``s'`` is terminal.
+      q_next: ``[num_actions]`` Q row of ``s'``.
+
+    Returns:
+      the scalar target.
+    """
+    return reward + discount * jnp.max(q_next)
+
+
+def sarsa_target(reward: Array, discount: Array, q_next: Array, next_action: Array) -> Array:
+    """SARSA target ``r + discount · Q(s', a')``.
+
+    Args:
+      reward: reward of the transition.
+      discount: γ, or 0 if ``s'`` is terminal.
+      q_next: ``[num_actions]`` Q row of ``s'``.
+      next_action: the action ``a'`` the agent takes in ``s'``.
+
+    Returns:
+      the scalar target.
+    """
+    return reward + discount * q_next[next_action]
+
+
+def td_update(q_value: Array, target: Array, alpha: Array) -> tuple[Array, Array]:
+    """Move ``Q(s,a)`` toward ``target`` by step size α.
+
+    Args:
+      q_value: current Q(s, a).
+      target: learning target.
+      alpha: step size in (0, 1].
+
+    Returns:
+      ``(new_q_value, delta_q)`` with ``delta_q = α·(target − Q(s,a))``.
+    """
+    delta_q = alpha * (target - q_value)
+    return q_value + delta_q, delta_q
+
+
+@pytree_dataclass
+class LearnerParams:
+    """Learner hyperparameters as vmappable leaves.
+
+    Attributes:
+      alpha: step size α.
+      gamma: discount γ.
+      sarsa: True for SARSA, False for Q-learning.
+      q_init: initial value of every Q entry.
+    """
+
+    alpha: Array
+    gamma: Array
+    sarsa: Array
+    q_init: Array
+
+
+def make_learner(
+    name: str, *, alpha: float = PAPER_ALPHA, gamma: float = PAPER_GAMMA, q_init: float = 0.0
+) -> LearnerParams:
+    """Learner hyperparameters from a name (``qlearning`` or ``sarsa``).
+
+    Raises:
+      ValueError: unknown name or out-of-range α, γ, q_init.
+    """
+    from vdbejax.validation import check_learner
+
+    check_learner(name, alpha=alpha, gamma=gamma, q_init=q_init)
+    f32 = jnp.float32
+    return LearnerParams(
+        alpha=jnp.asarray(alpha, f32),
+        gamma=jnp.asarray(gamma, f32),
+        sarsa=jnp.asarray(name == "sarsa"),
+        q_init=jnp.asarray(q_init, f32),
+    )
