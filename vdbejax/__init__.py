@@ -1,1 +1,27 @@
-"""vdbejax: a JAX experiment engine for exploration strategies in tabular RL."""
+"""vdbejax: a JAX experiment engine for exploration strategies in tabular RL.
+
+Quick start::
+
+    import vdbejax
+    rep = vdbejax.reproduce("out/paper")          # the paper's full grid
+    print(rep.claims[0].verdict)
+"""
+from vdbejax.agents import AgentOptions, AgentParams, Setting, make_agent, paper_settings
+from vdbejax.envs import TabularMDP, compile_env, make_tabular_mdp
+from vdbejax.experiment import GridResult, run_grid
+from vdbejax.reproduce import reproduce
+
+__all__ = [
+    "AgentOptions",
+    "AgentParams",
+    "GridResult",
+    "Setting",
+    "TabularMDP",
+    "compile_env",
+    "make_agent",
+    "make_tabular_mdp",
+    "paper_settings",
+    "reproduce",
+    "run_grid",
+]
+__version__ = "0.1.0"

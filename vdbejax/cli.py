@@ -1,0 +1,67 @@
+"""Command line: ``vdbejax reproduce --out DIR`` and friends.
+
+Bad input prints one ``error: …`` line and exits with status 2 (no traceback).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+
+def _add_reproduce(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("reproduce", help="run the paper's full grid and write figure, summary, report")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--seeds", type=int, default=20, help="agents per setting (default 20)")
+    p.add_argument("--episodes", type=int, default=1000, help="episodes per agent (default 1000)")
+    p.add_argument("--seed", type=int, default=0, help="root random seed (default 0)")
+    p.add_argument("--max-steps", type=int, default=100, help="episode truncation length (default 100)")
+    p.add_argument("--invalid-action", default="noop", help="noop (default) or fail")
+    p.add_argument("--tie-break", default="random", help="random (default) or first")
+    p.add_argument("--q-init", type=float, default=0.0, help="initial Q value (default 0)")
+    p.add_argument("--chunk-episodes", type=int, default=100, help="episodes per jitted chunk (default 100)")
+    p.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.npz")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _reproduce(args: argparse.Namespace) -> None:
+    from vdbejax.reproduce import reproduce
+
+    rep = reproduce(
+        args.out, seeds=args.seeds, episodes=args.episodes, seed=args.seed,
+        max_steps=args.max_steps, invalid_action=args.invalid_action, tie_break=args.tie_break,
+        q_init=args.q_init, chunk_episodes=args.chunk_episodes, resume=args.resume,
+        progress=not args.quiet,
+    )
+    for claim in rep.claims:
+        print(f"claim {claim.number}: {claim.verdict}")
+    print(f"elapsed: {rep.elapsed_seconds:.1f} s (training {rep.result.meta['elapsed_seconds']:.1f} s)")
+
+
+COMMANDS = {"reproduce": (_add_reproduce, _reproduce)}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="vdbejax", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for add, _ in COMMANDS.values():
+        add(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``vdbejax`` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        COMMANDS[args.command][1](args)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted: rerun with --resume to continue from the last checkpoint", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,93 @@
+"""Result files: atomic writes, ``returns.npz``, ``configs.csv``, ``meta.json``.
+
+Every file is written to a temporary file in the same folder and renamed into place, so a
+run killed at any moment never leaves a half-written result.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vdbejax.agents import Setting
+
+RETURNS_FILE = "returns.npz"
+CONFIGS_FILE = "configs.csv"
+META_FILE = "meta.json"
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (temporary file + rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_savez(path: str | os.PathLike, **arrays: Any) -> None:
+    """``np.savez_compressed`` written atomically."""
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def write_csv(path: str | os.PathLike, rows: list[dict[str, Any]], columns: list[str]) -> None:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({c: _format(row[c]) for c in columns})
+    atomic_write_text(path, buffer.getvalue())
+
+
+def _format(value: Any) -> Any:
+    if isinstance(value, (float, np.floating)):
+        return f"{float(value):.6g}"
+    return value
+
+
+def read_csv(path: str | os.PathLike) -> list[dict[str, str]]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def save_settings(path: str | os.PathLike, settings: list[Setting]) -> None:
+    """``configs.csv``: ``config,learner,explorer,param``, one row per config index."""
+    rows = [
+        {"config": i, "learner": s.learner, "explorer": s.explorer, "param": s.param}
+        for i, s in enumerate(settings)
+    ]
+    write_csv(path, rows, ["config", "learner", "explorer", "param"])
+
+
+def load_settings(path: str | os.PathLike) -> list[Setting]:
+    rows = sorted(read_csv(path), key=lambda r: int(r["config"]))
+    return [Setting(r["learner"], r["explorer"], float(r["param"])) for r in rows]
+
+
+def save_json(path: str | os.PathLike, data: dict[str, Any]) -> None:
+    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
+
+
+def load_json(path: str | os.PathLike) -> dict[str, Any]:
+    with open(path) as f:
+        return json.load(f)
