@@ -1,8 +1,9 @@
 """Grid runs: many settings × seeds through the engine, with checkpoints and resume.
 
-PureJaxRL-style: the jitted engine advances all agents one chunk of episodes at a time;
-this module's Python loop shows progress and, after every chunk, atomically writes a
-checkpoint from which ``resume=True`` continues bit-identically.
+PureJaxRL-style: the jitted engine advances all agents one chunk of episodes at a time,
+sharded over every device (:mod:`vdbejax.distributed`) and in sequential batches when they
+do not fit the memory budget (:mod:`vdbejax.batching`); after every chunk this module
+atomically writes a checkpoint from which ``resume=True`` continues bit-identically.
 """
 from __future__ import annotations
 
@@ -22,16 +23,24 @@ import numpy as np
 
 from vdbejax import io
 from vdbejax.agents import AgentOptions, Setting, make_agent, stack_agents
+from vdbejax.batching import (
+    SweepProgress,
+    agents_per_batch,
+    bytes_per_agent,
+    default_memory_budget,
+    mdp_bytes,
+    run_batched,
+)
+from vdbejax.distributed import select_devices
 from vdbejax.engine import (
     AgentState,
     ProgressCallback,
     agent_keys,
     broadcast_agents,
-    run_agents,
     text_progress,
 )
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.validation import check_int
+from vdbejax.validation import check_bool, check_int
 
 
 @dataclasses.dataclass
@@ -103,24 +112,77 @@ def _fingerprint(description: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def _save_checkpoint(path: Path, fingerprint: str, done: int, agents: AgentState,
-                     returns: np.ndarray, lengths: np.ndarray) -> None:
-    leaves = {f"agent_{f.name}": np.asarray(getattr(agents, f.name))
-              for f in dataclasses.fields(AgentState)}
-    io.atomic_savez(path, fingerprint=np.asarray(fingerprint), episodes_done=np.asarray(done),
-                    returns=returns, lengths=lengths, **leaves)
+#: Version of the checkpoint layout (a checkpoint of another version is refused).
+CHECKPOINT_VERSION = 2
 
 
-def _load_checkpoint(path: Path, fingerprint: str) -> tuple[int, AgentState, np.ndarray, np.ndarray]:
-    with np.load(path) as data:
-        found = str(data["fingerprint"])
-        if found != fingerprint:
-            raise ValueError(
-                f"checkpoint {str(path)!r} belongs to a different run (fingerprint {found},"
-                f" expected {fingerprint}): use the same settings, seeds and options, or a new --out"
+def _save_checkpoint(path: Path, fingerprint: str, sweep: SweepProgress) -> None:
+    """Write the sweep's progress atomically (temp file + rename: never half-written)."""
+    leaves = {}
+    if sweep.state is not None:
+        leaves = {f"agent_{f.name}": np.asarray(getattr(sweep.state, f.name))
+                  for f in dataclasses.fields(AgentState)}
+    io.atomic_savez(
+        path, fingerprint=np.asarray(fingerprint), version=np.asarray(CHECKPOINT_VERSION),
+        returns=sweep.returns, lengths=sweep.lengths, episodes_done=sweep.episodes_done,
+        nonfinite=sweep.nonfinite, state_rows=sweep.state_rows, **leaves,
+    )
+
+
+def _load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int]) -> SweepProgress:
+    """Read a checkpoint written by :func:`_save_checkpoint` for the same run.
+
+    Raises:
+      ValueError: unreadable, of another run (fingerprint) or of another layout.
+    """
+    hint = "delete it or use a new output folder"
+    try:
+        with np.load(path) as data:
+            found = str(data["fingerprint"])
+            if found != fingerprint:
+                raise ValueError(
+                    f"checkpoint {str(path)!r} belongs to a different run (fingerprint {found},"
+                    f" expected {fingerprint}): use the same settings, seeds and options, or {hint}"
+                )
+            version = int(data["version"]) if "version" in data else 1
+            if version != CHECKPOINT_VERSION:
+                raise ValueError(f"checkpoint {str(path)!r} has layout version {version},"
+                                 f" expected {CHECKPOINT_VERSION}: {hint}")
+            state = None
+            if "agent_q" in data:
+                state = AgentState(**{f.name: data[f"agent_{f.name}"]
+                                      for f in dataclasses.fields(AgentState)})
+            sweep = SweepProgress(
+                returns=data["returns"], lengths=data["lengths"],
+                episodes_done=data["episodes_done"], nonfinite=data["nonfinite"],
+                state_rows=data["state_rows"], state=state,
             )
-        agents = AgentState(**{f.name: data[f"agent_{f.name}"] for f in dataclasses.fields(AgentState)})
-        return int(data["episodes_done"]), agents, data["returns"], data["lengths"]
+    except ValueError:
+        raise
+    except Exception as error:  # a damaged file: zip, pickle or key errors
+        raise ValueError(f"checkpoint {str(path)!r} is unreadable ({error}): {hint}") from None
+    if sweep.returns.shape != shape:
+        raise ValueError(f"checkpoint {str(path)!r} holds {sweep.returns.shape} returns,"
+                         f" expected {shape}: {hint}")
+    return sweep
+
+
+def nonfinite_message(settings: Sequence[Setting], nonfinite: np.ndarray,
+                      options: AgentOptions) -> str | None:
+    """One line naming every config whose agents saw NaN/inf in Q or ε, or None.
+
+    Args:
+      settings: the grid's configurations.
+      nonfinite: bool ``[configs, seeds]``.
+      options: the options shared by all agents (part of the config that produced it).
+    """
+    counts = np.asarray(nonfinite).sum(axis=1)
+    bad = [f"{settings[c].label} ({counts[c]}/{nonfinite.shape[1]} agents)"
+           for c in np.flatnonzero(counts)]
+    if not bad:
+        return None
+    return (f"NaN or inf appeared in Q or ε for: {'; '.join(bad)}"
+            f" [options {dataclasses.asdict(options)}]")
 
 
 def run_grid(
@@ -135,12 +197,15 @@ def run_grid(
     progress: bool | ProgressCallback = False,
     checkpoint: str | os.PathLike | None = None,
     resume: bool = False,
+    memory_budget_bytes: int | None = None,
+    devices: int | None = None,
 ) -> GridResult:
     """Train ``num_seeds`` agents for every setting, all in one vectorized program.
 
     Agent ``(config c, seed i)`` uses key ``fold_in(PRNGKey(seed), i)``: the same seed
     index shares its random stream across configs (common random numbers), and an agent
-    gives bit-identical results whether run alone or inside any grid.
+    gives bit-identical results whether run alone or inside any grid, in any batch, on
+    any number of devices, resumed or not.
 
     Args:
       mdp: the task.
@@ -153,6 +218,11 @@ def run_grid(
       progress: True for a progress bar on stderr, or a callback.
       checkpoint: file to write after every chunk (atomically).
       resume: continue from ``checkpoint`` if it exists.
+      memory_budget_bytes: device memory the agents may use, per device (default:
+        half of the free memory of the smallest device). Agents that do not fit run
+        in sequential batches; the results do not depend on it.
+      devices: number of devices to shard the agents over (default: all of
+        ``jax.devices()``, every host's after ``jax.distributed.initialize``).
 
     Returns:
       :class:`GridResult`.
@@ -161,14 +231,30 @@ def run_grid(
       ValueError: invalid settings, counts, or a checkpoint from a different run.
     """
     settings = list(settings)
+    if not isinstance(mdp, TabularMDP):
+        raise ValueError(f"mdp={type(mdp).__name__} is invalid: must be a TabularMDP"
+                         " (see make_tabular_mdp, compile_env)")
     check_int("num_seeds", num_seeds, 1)
     check_int("num_episodes", num_episodes, 1)
     check_int("seed", seed, 0)
     check_int("chunk_episodes", chunk_episodes, 1)
+    check_bool("resume", resume)
+    if memory_budget_bytes is not None:
+        check_int("memory_budget_bytes", memory_budget_bytes, 1)
     if not settings:
         raise ValueError("settings is empty: need at least one setting")
+    for s in settings:
+        if not isinstance(s, Setting):
+            raise ValueError(f"settings holds {s!r}: must hold Setting(learner, explorer, param)")
+    device_list = select_devices(devices)
     params = broadcast_agents(stack_agents([make_agent(s, options) for s in settings]), num_seeds)
     keys = np.tile(agent_keys(seed, num_seeds), (len(settings), 1))
+    num_agents = len(settings) * num_seeds
+    budget = default_memory_budget(device_list) if memory_budget_bytes is None else memory_budget_bytes
+    batch_size = agents_per_batch(
+        num_agents, bytes_per_agent(mdp, min(chunk_episodes, num_episodes)), budget,
+        len(device_list), fixed_bytes=mdp_bytes(mdp),
+    )
     description = {
         "mdp": mdp.name,
         "mdp_tables": _fingerprint_arrays(mdp),
@@ -178,35 +264,40 @@ def run_grid(
         "seed": seed,
         "options": dataclasses.asdict(options),
     }
+    # Chunk size, batch size and devices are left out: results do not depend on them.
     fingerprint = _fingerprint(description)
-    initial = None
-    on_chunk = None
+    sweep = None
+    on_checkpoint = None
     if checkpoint is not None:
         checkpoint = Path(checkpoint)
         if resume and checkpoint.exists():
-            initial = _load_checkpoint(checkpoint, fingerprint)
+            sweep = _load_checkpoint(checkpoint, fingerprint, (num_agents, num_episodes))
 
-        def on_chunk(done: int, agents: AgentState, returns: np.ndarray, lengths: np.ndarray) -> None:
-            _save_checkpoint(checkpoint, fingerprint, done,
-                             jax.tree.map(np.asarray, agents), returns, lengths)
+        def on_checkpoint(progress_now: SweepProgress) -> None:
+            _save_checkpoint(checkpoint, fingerprint, progress_now)
 
+    resumed_from = 0 if sweep is None else int(sweep.episodes_done.sum())
     callback = text_progress() if progress is True else (progress or None)
     started = time.perf_counter()
-    run = run_agents(mdp, params, keys, num_episodes, chunk_episodes=chunk_episodes,
-                     progress=callback, on_chunk=on_chunk, initial=initial)
+    sweep, batches = run_batched(
+        mdp, params, keys, num_episodes, batch_size=batch_size, devices=device_list,
+        chunk_episodes=chunk_episodes, progress=callback, sweep=sweep,
+        on_checkpoint=on_checkpoint,
+    )
     elapsed = time.perf_counter() - started
     shape = (len(settings), num_seeds, num_episodes)
-    nonfinite = run.nonfinite.reshape(shape[:2])
-    if nonfinite.any():
-        bad = sorted({settings[c].label for c, _ in zip(*np.nonzero(nonfinite))})
-        warnings.warn("NaN or inf appeared in Q or ε for: " + "; ".join(bad), RuntimeWarning,
-                      stacklevel=2)
+    nonfinite = sweep.nonfinite.reshape(shape[:2])
+    message = nonfinite_message(settings, nonfinite, options)
+    if message:
+        warnings.warn(message, RuntimeWarning, stacklevel=2)
     meta = dict(description, fingerprint=fingerprint, elapsed_seconds=elapsed,
-                resumed_from_episode=initial[0] if initial else 0,
-                lockstep_iterations=run.iterations, max_steps=int(mdp.max_steps),
+                resumed_from_agent_episodes=resumed_from, max_steps=int(mdp.max_steps),
+                nonfinite_agents=int(nonfinite.sum()), nonfinite_message=message,
+                devices=len(device_list), batches=batches, agents_per_batch=batch_size,
+                memory_budget_bytes=int(budget),
                 jax_version=jax.__version__, backend=jax.default_backend())
     meta.pop("mdp_tables")
-    return GridResult(settings, run.returns.reshape(shape), run.lengths.reshape(shape),
+    return GridResult(settings, sweep.returns.reshape(shape), sweep.lengths.reshape(shape),
                       nonfinite, meta)
 
 

@@ -6,8 +6,12 @@ is allowed, so the CLI can print it and exit 2.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 
 def _fail(name: str, value: Any, allowed: str) -> None:
@@ -17,12 +21,13 @@ def _fail(name: str, value: Any, allowed: str) -> None:
 def _is_number(value: Any) -> bool:
     try:
         float(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return False
-    return not isinstance(value, (bool, str))
+    return not isinstance(value, (bool, np.bool_, str, bytes))
 
 
 def check_choice(name: str, value: Any, allowed: Iterable[str]) -> str:
+    """Check ``value`` is one of the names ``allowed``."""
     allowed = tuple(allowed)
     if value not in allowed:
         _fail(name, value, "must be one of " + ", ".join(allowed))
@@ -52,6 +57,7 @@ def check_in_range(
 
 
 def check_positive(name: str, value: Any, *, allow_inf: bool = False) -> float:
+    """Check ``value`` is a number > 0 (finite unless ``allow_inf``)."""
     if not _is_number(value) or math.isnan(float(value)) or float(value) <= 0:
         _fail(name, value, "must be a number > 0")
     if math.isinf(float(value)) and not allow_inf:
@@ -60,19 +66,85 @@ def check_positive(name: str, value: Any, *, allow_inf: bool = False) -> float:
 
 
 def check_finite(name: str, value: Any) -> float:
+    """Check ``value`` is a finite number."""
     if not _is_number(value) or not math.isfinite(float(value)):
         _fail(name, value, "must be a finite number")
     return float(value)
 
 
 def check_int(name: str, value: Any, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int,)) and not (
-        hasattr(value, "__index__")
-    ):
+    """Check ``value`` is an integer (not a bool, float or string) >= ``minimum``."""
+    if isinstance(value, (bool, np.bool_)) or not hasattr(value, "__index__"):
         _fail(name, value, f"must be an integer >= {minimum}")
     if int(value) < minimum:
         _fail(name, value, f"must be an integer >= {minimum}")
     return int(value)
+
+
+def check_bool(name: str, value: Any) -> bool:
+    """Check ``value`` is True or False."""
+    if not isinstance(value, (bool, np.bool_)):
+        _fail(name, value, "must be True or False")
+    return bool(value)
+
+
+def check_writable_dir(name: str, path: Any) -> Path:
+    """Create folder ``path`` if needed and check files can be written into it.
+
+    Raises:
+      ValueError: the folder cannot be created or is not writable (a file of that name
+        exists, a parent is a file, permissions, read-only file system, …).
+    """
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        _fail(name, path, "must be a folder path")
+    folder = Path(path)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / f".write-test-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as error:
+        _fail(name, str(folder), f"must be a writable folder ({error.strerror or error})")
+    return folder
+
+
+#: Suffixes accepted by :func:`parse_bytes` (binary multiples).
+BYTE_UNITS = {"": 1, "k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40}
+
+
+def parse_bytes(name: str, text: Any) -> int:
+    """A memory size from ``1000``, ``512M``, ``2G``, ``1.5GiB`` … (binary units) in bytes.
+
+    Raises:
+      ValueError: not a positive size.
+    """
+    if hasattr(text, "__index__") and not isinstance(text, (bool, np.bool_)):
+        return check_int(name, text, 1)
+    allowed = "must be a size in bytes > 0, e.g. 1000000, 512M, 2G"
+    raw = str(text).strip().lower().removesuffix("ib").removesuffix("b")
+    unit = raw[-1:] if raw[-1:] in BYTE_UNITS and raw[-1:] else ""
+    number = raw[: len(raw) - len(unit)]
+    try:
+        value = float(number) * BYTE_UNITS[unit]
+    except ValueError:
+        _fail(name, text, allowed)
+    if not math.isfinite(value) or value < 1:
+        _fail(name, text, allowed)
+    return int(value)
+
+
+def parse_cli_number(text: str) -> Any:
+    """argparse ``type`` for numeric options: int, else float, else the raw text.
+
+    Nothing is rejected here, so the library's checks produce the one-line error (with
+    the parameter name and what is allowed) for the CLI and for Python alike.
+    """
+    for convert in (int, float):
+        try:
+            return convert(text)
+        except ValueError:
+            pass
+    return text
 
 
 def check_explorer(

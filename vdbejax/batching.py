@@ -1,0 +1,249 @@
+"""Memory-aware batching: run a sweep in sequential batches that fit a memory budget.
+
+A sweep's agents are independent, so they can run in any grouping with the same results.
+When the per-device memory of all agents (Q tables, VDBE ε tables, chunk buffers) exceeds
+the budget, :func:`run_batched` runs them in sequential batches of at most
+:func:`agents_per_batch` agents, each batch sharded over all devices
+(:mod:`vdbejax.distributed`). Progress is kept in a :class:`SweepProgress`, which is what
+a checkpoint stores: any run can be resumed whatever the batch size or device count.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import numpy as np
+
+from vdbejax.distributed import run_sharded
+from vdbejax.engine import AgentState, ProgressCallback
+from vdbejax.envs.tabular import TabularMDP
+from vdbejax.validation import check_int
+
+#: Fraction of a device's free memory used when no budget is given.
+DEFAULT_MEMORY_FRACTION = 0.5
+#: Working copies of the agent state the engine may hold at once (the state, its
+#: compacted copy, the loop's double buffer): the estimate is deliberately conservative.
+STATE_COPIES = 3
+#: Bytes of the per-agent scalars (state fields, key, hyperparameters), rounded up.
+SCALAR_BYTES = 128
+
+
+def bytes_per_agent(mdp: TabularMDP, chunk_episodes: int) -> int:
+    """Estimated device memory of one agent: Q and ε tables, scalars, chunk buffers."""
+    tables = 4 * mdp.num_states * mdp.num_actions + 4 * mdp.num_states
+    chunk_buffers = 8 * chunk_episodes  # float32 return + int32 length per episode
+    return STATE_COPIES * (tables + SCALAR_BYTES + chunk_buffers)
+
+
+def mdp_bytes(mdp: TabularMDP) -> int:
+    """Device memory of the MDP tables (replicated on every device)."""
+    return int(sum(np.asarray(leaf).nbytes for leaf in jax.tree.leaves(mdp)))
+
+
+def _host_available_bytes() -> int:
+    """Free host RAM: ``MemAvailable`` from /proc/meminfo, else total physical memory."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def device_free_bytes(device: jax.Device) -> int:
+    """Free memory of ``device``; CPU devices share the host's free RAM equally."""
+    stats = None
+    try:
+        stats = device.memory_stats()
+    except Exception:  # backends without memory statistics (CPU) raise or return None
+        stats = None
+    if stats and "bytes_limit" in stats:
+        return int(stats["bytes_limit"]) - int(stats.get("bytes_in_use", 0))
+    same_host = [d for d in jax.local_devices() if d.platform == device.platform]
+    return _host_available_bytes() // max(len(same_host), 1)
+
+
+def default_memory_budget(devices: Sequence[jax.Device] | None = None) -> int:
+    """``DEFAULT_MEMORY_FRACTION`` of the smallest free memory among ``devices`` (bytes)."""
+    devices = list(jax.local_devices() if devices is None else devices)
+    local = [d for d in devices if d.process_index == jax.process_index()] or devices
+    return int(DEFAULT_MEMORY_FRACTION * min(device_free_bytes(d) for d in local))
+
+
+def agents_per_batch(
+    num_agents: int, per_agent_bytes: int, budget_bytes: int, num_devices: int,
+    fixed_bytes: int = 0,
+) -> int:
+    """Largest batch whose agents fit ``budget_bytes`` on each of ``num_devices`` devices.
+
+    Args:
+      num_agents: agents of the whole sweep (no batch is larger).
+      per_agent_bytes: device memory of one agent (:func:`bytes_per_agent`).
+      budget_bytes: memory budget per device.
+      num_devices: devices the batch is sharded over.
+      fixed_bytes: memory every device needs whatever the batch (the MDP tables).
+
+    Returns:
+      the batch size (a multiple of ``num_devices`` unless it covers every agent).
+
+    Raises:
+      ValueError: not even one agent per device fits the budget.
+    """
+    per_device = (budget_bytes - fixed_bytes) // per_agent_bytes
+    if per_device < 1:
+        raise ValueError(
+            f"memory_budget_bytes={budget_bytes} is invalid: one agent needs about"
+            f" {per_agent_bytes + fixed_bytes} bytes per device"
+        )
+    return int(min(num_agents, per_device * num_devices))
+
+
+@dataclasses.dataclass
+class SweepProgress:
+    """Where a (possibly batched) sweep stands: what a checkpoint stores.
+
+    Attributes:
+      returns: float32 ``[agents, episodes]`` (zeros past each agent's ``episodes_done``).
+      lengths: int32 ``[agents, episodes]``.
+      episodes_done: int64 ``[agents]`` completed episodes per agent.
+      nonfinite: bool ``[agents]``: NaN/inf appeared (final for finished agents).
+      state_rows: int64 ``[m]`` agents that are started but unfinished.
+      state: their :class:`~vdbejax.engine.AgentState` (numpy leaves, leading axis m),
+        or None when m = 0.
+    """
+
+    returns: np.ndarray
+    lengths: np.ndarray
+    episodes_done: np.ndarray
+    nonfinite: np.ndarray
+    state_rows: np.ndarray
+    state: AgentState | None
+
+    @classmethod
+    def fresh(cls, num_agents: int, num_episodes: int) -> SweepProgress:
+        """Nothing done yet."""
+        return cls(
+            returns=np.zeros((num_agents, num_episodes), np.float32),
+            lengths=np.zeros((num_agents, num_episodes), np.int32),
+            episodes_done=np.zeros(num_agents, np.int64),
+            nonfinite=np.zeros(num_agents, bool),
+            state_rows=np.zeros(0, np.int64),
+            state=None,
+        )
+
+    @property
+    def num_episodes(self) -> int:
+        return int(self.returns.shape[1])
+
+    def record(self, rows: np.ndarray, done: int, agents: AgentState,
+               returns: np.ndarray, lengths: np.ndarray) -> None:
+        """Store a batch's progress after a chunk (agents ``rows`` have ``done`` episodes)."""
+        self.returns[rows, :done] = returns
+        self.lengths[rows, :done] = lengths
+        self.episodes_done[rows] = done
+        self.nonfinite[rows] = np.asarray(agents.nonfinite)
+        keep = ~np.isin(self.state_rows, rows)
+        row_parts, state_parts = [], []
+        if keep.any():
+            row_parts.append(self.state_rows[keep])
+            state_parts.append(_take(self.state, keep))
+        if done < self.num_episodes:  # finished agents need no state
+            row_parts.append(np.asarray(rows, np.int64))
+            state_parts.append(jax.tree.map(np.asarray, agents))
+        self.state_rows = np.concatenate(row_parts) if row_parts else np.zeros(0, np.int64)
+        self.state = (jax.tree.map(lambda *leaves: np.concatenate(leaves), *state_parts)
+                      if state_parts else None)
+
+    def states_of(self, rows: np.ndarray) -> AgentState:
+        """The stored states of agents ``rows`` (each must be started and unfinished)."""
+        position = {int(r): i for i, r in enumerate(self.state_rows)}
+        try:
+            index = np.asarray([position[int(r)] for r in rows])
+        except KeyError as missing:
+            raise ValueError(f"checkpoint lacks the state of agent {missing}") from None
+        return _take(self.state, index)
+
+
+def _take(tree: Any, index: np.ndarray) -> Any:
+    return jax.tree.map(lambda leaf: np.asarray(leaf)[index], tree)
+
+
+def next_batch(progress: SweepProgress, batch_size: int) -> np.ndarray:
+    """Agents of the next batch: up to ``batch_size`` unfinished agents that have all
+    done the same number of episodes (in-progress agents first, then fresh ones)."""
+    pending = np.flatnonzero(progress.episodes_done < progress.num_episodes)
+    if pending.size == 0:
+        return pending
+    done = progress.episodes_done[pending]
+    group = pending[done == done.max()]
+    return group[:batch_size]
+
+
+def run_batched(
+    mdp: TabularMDP,
+    params: Any,
+    keys: np.ndarray,
+    num_episodes: int,
+    *,
+    batch_size: int,
+    devices: Sequence[jax.Device] | None = None,
+    chunk_episodes: int = 100,
+    progress: ProgressCallback | None = None,
+    sweep: SweepProgress | None = None,
+    on_checkpoint: Callable[[SweepProgress], None] | None = None,
+) -> tuple[SweepProgress, int]:
+    """Train all agents in sequential batches of at most ``batch_size`` agents.
+
+    Args:
+      mdp: the task.
+      params: batched hyperparameters (leading axis = agents).
+      keys: uint32 ``[agents, 2]``.
+      num_episodes: episodes per agent.
+      batch_size: agents per batch (:func:`agents_per_batch`); results do not depend on it.
+      devices: devices each batch is sharded over (default: all).
+      chunk_episodes: episodes per engine chunk (checkpoint granularity).
+      progress: ``progress(done_agent_episodes, total, elapsed)`` over the whole sweep.
+      sweep: resume from this progress (default: fresh).
+      on_checkpoint: called with the progress after every chunk of every batch.
+
+    Returns:
+      ``(final progress, number of batches run)``.
+    """
+    check_int("batch_size", batch_size, 1)
+    keys = np.asarray(keys, np.uint32)
+    num_agents = int(keys.shape[0])
+    sweep = SweepProgress.fresh(num_agents, num_episodes) if sweep is None else sweep
+    total = num_agents * num_episodes
+    started = time.perf_counter()
+    batches = 0
+    while (rows := next_batch(sweep, batch_size)).size:
+        done = int(sweep.episodes_done[rows[0]])
+        initial = None
+        if done:
+            initial = (done, sweep.states_of(rows), sweep.returns[rows, :done],
+                       sweep.lengths[rows, :done])
+        others_done = int(sweep.episodes_done.sum() - sweep.episodes_done[rows].sum())
+
+        def on_chunk(chunk_done: int, agents: AgentState, returns: np.ndarray,
+                     lengths: np.ndarray, rows: np.ndarray = rows) -> None:
+            sweep.record(rows, chunk_done, jax.tree.map(np.asarray, agents), returns, lengths)
+            if on_checkpoint is not None:
+                on_checkpoint(sweep)
+
+        batch_progress = None
+        if progress is not None:
+            def batch_progress(done_here: int, _total: int, _elapsed: float,
+                               base: int = others_done) -> None:
+                progress(base + done_here, total, time.perf_counter() - started)
+
+        run_sharded(mdp, _take(params, rows), keys[rows], num_episodes, devices=devices,
+                    initial=initial, on_chunk=on_chunk, chunk_episodes=chunk_episodes,
+                    progress=batch_progress)
+        batches += 1
+    return sweep, batches
