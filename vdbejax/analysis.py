@@ -1,95 +1,87 @@
-"""Statistics over learning curves: smoothing, final return, convergence, bootstrap CIs.
+"""Statistics of a grid (:class:`~vdbejax.experiment.GridResult`): the summary table,
+pairwise comparisons, truncation diagnostics and ε(s) snapshots.
 
-Conventions (used everywhere, stated once):
-
-* **Smoothing**: trailing moving average over ``window`` episodes (the paper uses 20);
-  the first ``window − 1`` points average the episodes available so far.
-* **Final return**: mean return over the last ``last`` episodes (default 100).
-* **Convergence episode**: the first episode (1-based) at which the moving average of the
-  seed-mean curve reaches ``L − (1 − fraction)·|L|``, with ``L`` the final return and
-  ``fraction = 0.95`` ("95% of its final level", also meaningful when ``L < 0``).
-* **Bootstrap intervals** resample seeds with replacement (percentile method).
+The array-level statistics and their conventions (smoothing, final return, convergence
+episode, bootstrap intervals, IQM, probability of improvement) live in
+:mod:`vdbejax.stats` and are re-exported here.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from vdbejax.agents import AgentOptions, Setting, make_agent, stack_agents
+from vdbejax.engine import AgentState, agent_keys, broadcast_agents, run_agents
+from vdbejax.envs.tabular import TabularMDP
 from vdbejax.experiment import GridResult
-
-WINDOW = 20
-LAST = 100
-FRACTION = 0.95
-LEVEL = 0.95
-NUM_RESAMPLES = 2000
-
-
-def moving_average(x: np.ndarray, window: int = WINDOW, axis: int = -1) -> np.ndarray:
-    """Trailing moving average along ``axis`` (partial windows at the start)."""
-    x = np.moveaxis(np.asarray(x, np.float64), axis, -1)
-    csum = np.cumsum(x, axis=-1)
-    out = csum.copy()
-    out[..., window:] = csum[..., window:] - csum[..., :-window]
-    counts = np.minimum(np.arange(1, x.shape[-1] + 1), window)
-    return np.moveaxis(out / counts, -1, axis)
-
-
-def final_return(returns: np.ndarray, last: int = LAST) -> np.ndarray:
-    """Mean over the last ``last`` episodes (the episode axis is the last one)."""
-    return np.asarray(returns, np.float64)[..., -last:].mean(-1)
+from vdbejax.stats import (  # noqa: F401  (re-exported: the historical home of these names)
+    FRACTION,
+    LAST,
+    LEVEL,
+    NUM_RESAMPLES,
+    WINDOW,
+    bootstrap_ci,
+    bootstrap_indices,
+    convergence_ci,
+    convergence_episode,
+    convergence_episodes,
+    final_return,
+    final_return_ci,
+    interquartile_mean,
+    mean_curve_ci,
+    moving_average,
+    probability_of_improvement_ci,
+)
 
 
-def convergence_episode(
-    curve: np.ndarray, window: int = WINDOW, last: int = LAST, fraction: float = FRACTION
-) -> int:
-    """First episode (1-based) at which the smoothed ``curve`` gets within
-    ``(1 − fraction)·|L|`` of its final level ``L``."""
-    curve = np.asarray(curve, np.float64)
-    level = curve[-last:].mean()
-    threshold = level - (1.0 - fraction) * abs(level)
-    reached = np.flatnonzero(moving_average(curve, window) >= threshold - 1e-12)
-    return int(reached[0]) + 1 if reached.size else len(curve)
+def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = LAST) -> np.ndarray:
+    """Fraction of the last ``last`` episodes that ran into ``max_steps`` (per leading index).
 
-
-def bootstrap_indices(num_seeds: int, num_resamples: int = NUM_RESAMPLES, seed: int = 0) -> np.ndarray:
-    """``[num_resamples, num_seeds]`` seed indices drawn with replacement."""
-    rng = np.random.default_rng(seed)
-    return rng.integers(0, num_seeds, size=(num_resamples, num_seeds))
-
-
-def bootstrap_ci(
-    samples: np.ndarray, level: float = LEVEL, num_resamples: int = NUM_RESAMPLES, seed: int = 0
-) -> tuple[float, float]:
-    """Percentile bootstrap interval of the mean of ``samples`` (one value per seed)."""
-    samples = np.asarray(samples, np.float64)
-    means = samples[bootstrap_indices(len(samples), num_resamples, seed)].mean(-1)
-    alpha = (1.0 - level) / 2.0
-    low, high = np.quantile(means, [alpha, 1.0 - alpha])
-    return float(low), float(high)
+    An agent stuck in a loop (e.g. SARSA + VDBE with all actions valued ≈ −0.1) shows up
+    as a fraction near 1. ``max_steps=None`` (unknown) gives NaN.
+    """
+    lengths = np.asarray(lengths)[..., -last:]
+    if max_steps is None:
+        return np.full(lengths.shape[:-1], np.nan)
+    return (lengths >= max_steps).mean((-1,))
 
 
 def summarize(result: GridResult, last: int = LAST, window: int = WINDOW) -> list[dict]:
-    """One row per config: final return with its 95% bootstrap CI and the convergence episode.
+    """One row per config: final return and convergence episode, each with its 95%
+    bootstrap CI over seeds, and diagnostics.
 
-    Columns: ``config, learner, explorer, param, final_return, final_ci_low,
-    final_ci_high, convergence_episode, mean_length, nonfinite_agents``.
+    Args:
+      result: the grid.
+      last: episodes defining the final return.
+      window: smoothing window of the convergence criterion.
+
+    Returns:
+      rows with the columns of :data:`SUMMARY_COLUMNS`: ``config, learner, explorer,
+      param, final_return, final_ci_low, final_ci_high, final_iqm, convergence_episode,
+      convergence_ci_low, convergence_ci_high, truncated_fraction, mean_length,
+      nonfinite_agents``.
     """
     rows = []
     last = min(last, result.num_episodes)
+    max_steps = result.meta.get("max_steps")
     for c, setting in enumerate(result.settings):
-        per_seed = final_return(result.returns[c], last)
-        low, high = bootstrap_ci(per_seed)
+        returns = result.returns[c]
+        final, final_low, final_high = final_return_ci(returns, last)
+        episode, episode_low, episode_high = convergence_ci(returns, window, last)
         rows.append(
             {
                 "config": c,
                 "learner": setting.learner,
                 "explorer": setting.explorer,
                 "param": setting.param,
-                "final_return": float(per_seed.mean()),
-                "final_ci_low": low,
-                "final_ci_high": high,
-                "convergence_episode": convergence_episode(
-                    result.returns[c].mean(0), window, last
-                ),
+                "final_return": final,
+                "final_ci_low": final_low,
+                "final_ci_high": final_high,
+                "final_iqm": float(interquartile_mean(final_return(returns, last))),
+                "convergence_episode": episode,
+                "convergence_ci_low": episode_low,
+                "convergence_ci_high": episode_high,
+                # Fraction over all seeds of the last episodes cut off at max_steps.
+                "truncated_fraction": float(truncated_fraction(result.lengths[c], max_steps, last).mean()),
                 "mean_length": float(result.lengths[c].mean()),
                 "nonfinite_agents": int(result.nonfinite[c].sum()),
             }
@@ -105,7 +97,76 @@ SUMMARY_COLUMNS = [
     "final_return",
     "final_ci_low",
     "final_ci_high",
+    "final_iqm",
     "convergence_episode",
+    "convergence_ci_low",
+    "convergence_ci_high",
+    "truncated_fraction",
     "mean_length",
     "nonfinite_agents",
 ]
+
+
+def probability_of_improvement_matrix(
+    result: GridResult, configs: list[int] | None = None, last: int = LAST
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairwise probability that config i beats config j on final return, with CIs.
+
+    Args:
+      result: the grid.
+      configs: config indices to compare (default all).
+      last: episodes defining the final return.
+
+    Returns:
+      ``(p, low, high)``, each ``[k, k]`` for the ``k`` configs (diagonal 0.5).
+    """
+    configs = list(range(len(result.settings))) if configs is None else list(configs)
+    finals = final_return(result.returns[configs], min(last, result.num_episodes))
+    k = len(configs)
+    p, low, high = (np.full((k, k), 0.5) for _ in range(3))
+    for i in range(k):
+        for j in range(k):
+            if i != j:
+                p[i, j], low[i, j], high[i, j] = probability_of_improvement_ci(finals[i], finals[j])
+    return p, low, high
+
+
+def epsilon_snapshots(
+    mdp: TabularMDP,
+    setting: Setting,
+    *,
+    num_seeds: int = 5,
+    num_episodes: int = 300,
+    every: int = 10,
+    seed: int = 0,
+    options: AgentOptions | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Train one setting and record the agents' per-state ε(s) every ``every`` episodes.
+
+    Uses the engine's ``on_chunk`` callback, so the learning itself is the ordinary run
+    (bit-identical to the same agents inside any grid).
+
+    Args:
+      mdp: the task (:class:`~vdbejax.envs.tabular.TabularMDP`).
+      setting: a :class:`~vdbejax.agents.Setting` (VDBE or VDBE-Softmax to see ε(s) move).
+      num_seeds: agents.
+      num_episodes: episodes per agent.
+      every: episodes between snapshots (the chunk size).
+      seed: root seed.
+      options: :class:`~vdbejax.agents.AgentOptions` (spec defaults if None).
+
+    Returns:
+      ``(episodes, epsilon, returns)``: ``[k]`` episode counts of the snapshots,
+      ``[k, seeds, S]`` ε(s) after those episodes, ``[seeds, episodes]`` returns.
+    """
+    options = AgentOptions() if options is None else options
+    params = broadcast_agents(stack_agents([make_agent(setting, options)]), num_seeds)
+    episodes, snapshots = [], []
+
+    def record(done: int, agents: AgentState, returns: np.ndarray, lengths: np.ndarray) -> None:
+        episodes.append(done)
+        snapshots.append(np.array(agents.epsilon))
+
+    run = run_agents(mdp, params, agent_keys(seed, num_seeds), num_episodes,
+                     chunk_episodes=every, on_chunk=record)
+    return np.asarray(episodes), np.stack(snapshots), run.returns

@@ -1,0 +1,110 @@
+"""Statistics against hand-computed values (vdbejax.stats)."""
+import numpy as np
+import pytest
+
+from vdbejax import stats
+
+
+def test_moving_average_partial_windows():
+    # Window 2 over [1, 3, 5]: the first point averages what is available.
+    np.testing.assert_allclose(stats.moving_average([1.0, 3.0, 5.0], window=2), [1.0, 2.0, 4.0])
+
+
+def test_final_return_is_mean_of_last_episodes():
+    returns = np.array([[0.0, 1.0, 2.0, 3.0], [4.0, 4.0, 0.0, 2.0]])
+    np.testing.assert_allclose(stats.final_return(returns, last=2), [2.5, 1.0])
+
+
+def test_convergence_episode_step_curve():
+    # Level L = 1 (last 10 episodes); threshold 0.95. With window 4 the moving average of a
+    # step at episode 11 (index 10) reaches 0.95 once 4 ones are in the window: episode 14.
+    curve = np.r_[np.zeros(10), np.ones(20)]
+    assert stats.convergence_episode(curve, window=4, last=10) == 14
+    # Batched form gives the same per row, and a never-reaching row gets the length.
+    batch = np.stack([curve, curve])
+    np.testing.assert_array_equal(stats.convergence_episodes(batch, window=4, last=10), [14, 14])
+
+
+def test_convergence_episode_negative_level():
+    # L = −1: the threshold is −1 − 0.05 = −1.05, met at once by a flat curve.
+    assert stats.convergence_episode(-np.ones(50), window=5, last=10) == 1
+
+
+def test_bootstrap_weights_match_indices():
+    idx = stats.bootstrap_indices(4, 50, seed=3)
+    w = stats.bootstrap_weights(4, 50, seed=3)
+    x = np.array([1.0, 2.0, 5.0, 7.0])
+    np.testing.assert_allclose(w @ x, x[idx].mean(-1))
+    np.testing.assert_allclose(w.sum(-1), 1.0)
+
+
+def test_bootstrap_ci_degenerate_and_contains_mean():
+    assert stats.bootstrap_ci(np.full(10, 0.3)) == pytest.approx((0.3, 0.3))
+    x = np.arange(20.0)
+    low, high = stats.bootstrap_ci(x)
+    assert low < x.mean() < high
+    assert stats.bootstrap_ci(x) == (low, high)  # deterministic (fixed seed)
+
+
+def test_mean_curve_ci_identical_seeds_has_zero_width():
+    curve = np.linspace(-1, 1, 30)
+    mean, low, high = stats.mean_curve_ci(np.tile(curve, (5, 1)), window=3)
+    np.testing.assert_allclose(mean, stats.moving_average(curve, 3))
+    np.testing.assert_allclose(low, mean)
+    np.testing.assert_allclose(high, mean)
+
+
+def test_mean_curve_ci_brackets_mean():
+    rng = np.random.default_rng(0)
+    returns = rng.normal(size=(10, 40))
+    mean, low, high = stats.mean_curve_ci(returns, window=5)
+    assert np.all(low <= mean + 1e-12) and np.all(mean <= high + 1e-12)
+    assert np.all(high - low > 0)
+
+
+def test_final_return_ci():
+    returns = np.array([[0.0, 1.0], [0.0, 3.0]])
+    mean, low, high = stats.final_return_ci(returns, last=1)
+    assert mean == 2.0 and low >= 1.0 and high <= 3.0
+
+
+def test_convergence_ci_identical_seeds():
+    curve = np.r_[np.zeros(10), np.ones(20)]
+    point, low, high = stats.convergence_ci(np.tile(curve, (4, 1)), window=4, last=10)
+    assert (point, low, high) == (14, 14.0, 14.0)
+
+
+def test_interquartile_mean_by_hand():
+    # n = 8: trim 2 from each end → mean(3, 4, 5, 6) = 4.5.
+    assert stats.interquartile_mean(np.arange(1.0, 9.0)) == 4.5
+    # Robust to the outlier: mean(2, 3, 4, 5) = 3.5.
+    assert stats.interquartile_mean([0, 1, 2, 3, 4, 5, 6, 100]) == 3.5
+    # n = 5: ⌊5/4⌋ = 1 trimmed each end → mean(2, 3, 4) = 3.
+    assert stats.interquartile_mean([5, 1, 4, 2, 3]) == 3.0
+    # Along an axis.
+    np.testing.assert_allclose(stats.interquartile_mean(np.array([[1, 2, 3, 4], [0, 0, 8, 8]]), axis=1),
+                               [2.5, 4.0])
+
+
+def test_interquartile_mean_ci_constant():
+    assert stats.interquartile_mean_ci(np.full(8, 2.0)) == (2.0, 2.0, 2.0)
+
+
+def test_probability_of_improvement_by_hand():
+    # Pairs of x = [1, 2, 3] against y = [2, 2, 0]:
+    #   1: <, <, > → 1;  2: =, =, > → 2;  3: >, >, > → 3.   Total 6 of 9.
+    assert stats.probability_of_improvement([1, 2, 3], [2, 2, 0]) == pytest.approx(6 / 9)
+    assert stats.probability_of_improvement([1, 1], [1, 1]) == 0.5
+    assert stats.probability_of_improvement([2, 3], [0, 1]) == 1.0
+    # Complementary: P(X > Y) + P(Y > X) = 1.
+    x, y = np.array([0.1, 0.5, 0.5, 0.9]), np.array([0.5, 0.2])
+    assert stats.probability_of_improvement(x, y) + stats.probability_of_improvement(y, x) == pytest.approx(1)
+
+
+def test_probability_of_improvement_ci():
+    p, low, high = stats.probability_of_improvement_ci([2.0, 3.0, 4.0], [0.0, 1.0])
+    assert (p, low, high) == (1.0, 1.0, 1.0)
+    rng = np.random.default_rng(1)
+    x, y = rng.normal(0.2, 1, 20), rng.normal(0, 1, 20)
+    p, low, high = stats.probability_of_improvement_ci(x, y)
+    assert 0 <= low <= p <= high <= 1 and high > low

@@ -1,0 +1,252 @@
+"""Statistics over learning curves (numpy only): smoothing, final return, convergence,
+bootstrap intervals over seeds, interquartile mean and probability of improvement.
+
+Conventions (used everywhere, stated once):
+
+* **Smoothing**: trailing moving average over ``window`` episodes (the paper uses 20);
+  the first ``window − 1`` points average the episodes available so far.
+* **Final return**: mean return over the last ``last`` episodes (default 100).
+* **Convergence episode**: the first episode (1-based) at which the moving average of the
+  seed-mean curve reaches ``L − (1 − fraction)·|L|``, with ``L`` the final return and
+  ``fraction = 0.95`` ("95% of its final level", also meaningful when ``L < 0``).
+* **Bootstrap intervals** resample seeds with replacement (percentile method, ``level``
+  0.95, 2000 resamples, fixed seed so that every figure and table is deterministic).
+* **Interquartile mean** (IQM, Agarwal et al. 2021, "rliable"): the mean of the middle
+  half of the values — ``⌊n/4⌋`` are trimmed from each end, as ``scipy.stats.trim_mean(x,
+  0.25)`` does.
+* **Probability of improvement** ``P(X > Y)``: over all pairs of one seed of X and one of
+  Y, the fraction where X's value is larger, ties counting one half (rliable).
+
+Array layout: seeds on the first axis, episodes on the last (``[seeds, episodes]``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+WINDOW = 20
+LAST = 100
+FRACTION = 0.95
+LEVEL = 0.95
+NUM_RESAMPLES = 2000
+IQM_TRIM = 0.25
+
+
+def moving_average(x: np.ndarray, window: int = WINDOW, axis: int = -1) -> np.ndarray:
+    """Trailing moving average along ``axis`` (partial windows at the start).
+
+    Args:
+      x: values.
+      window: number of episodes averaged.
+      axis: the episode axis.
+
+    Returns:
+      float64 array of ``x``'s shape.
+    """
+    x = np.moveaxis(np.asarray(x, np.float64), axis, -1)
+    csum = np.cumsum(x, axis=-1)
+    out = csum.copy()
+    out[..., window:] = csum[..., window:] - csum[..., :-window]
+    counts = np.minimum(np.arange(1, x.shape[-1] + 1), window)
+    return np.moveaxis(out / counts, -1, axis)
+
+
+def final_return(returns: np.ndarray, last: int = LAST) -> np.ndarray:
+    """Mean over the last ``last`` episodes (the episode axis is the last one)."""
+    return np.asarray(returns, np.float64)[..., -last:].mean(-1)
+
+
+def convergence_episodes(
+    curves: np.ndarray, window: int = WINDOW, last: int = LAST, fraction: float = FRACTION
+) -> np.ndarray:
+    """Convergence episode of every curve in a batch (episode axis last).
+
+    Args:
+      curves: ``[..., episodes]`` raw (unsmoothed) mean-return curves.
+      window: smoothing window.
+      last: episodes defining the final level ``L``.
+      fraction: the smoothed curve must reach ``L − (1 − fraction)·|L|``.
+
+    Returns:
+      int ``[...]`` 1-based episodes (the curve length if never reached).
+    """
+    curves = np.asarray(curves, np.float64)
+    level = curves[..., -last:].mean(-1, keepdims=True)
+    threshold = level - (1.0 - fraction) * np.abs(level)
+    reached = moving_average(curves, window) >= threshold - 1e-12
+    # argmax finds the first True; rows that never reach get the curve length.
+    first = np.argmax(reached, axis=-1) + 1
+    return np.where(reached.any(-1), first, curves.shape[-1])
+
+
+def convergence_episode(
+    curve: np.ndarray, window: int = WINDOW, last: int = LAST, fraction: float = FRACTION
+) -> int:
+    """First episode (1-based) at which the smoothed ``curve`` gets within
+    ``(1 − fraction)·|L|`` of its final level ``L``."""
+    return int(convergence_episodes(curve, window, last, fraction))
+
+
+def bootstrap_indices(num_seeds: int, num_resamples: int = NUM_RESAMPLES, seed: int = 0) -> np.ndarray:
+    """``[num_resamples, num_seeds]`` seed indices drawn with replacement."""
+    rng = np.random.default_rng(seed)
+    return rng.integers(0, num_seeds, size=(num_resamples, num_seeds))
+
+
+def bootstrap_weights(num_seeds: int, num_resamples: int = NUM_RESAMPLES, seed: int = 0) -> np.ndarray:
+    """``[num_resamples, num_seeds]`` weights (multiplicity / n) of the same resamples as
+    :func:`bootstrap_indices`, so that ``weights @ x`` is the resampled mean of ``x``.
+
+    A matrix product instead of fancy indexing keeps memory at ``resamples × episodes``
+    rather than ``resamples × seeds × episodes`` for whole curves.
+    """
+    indices = bootstrap_indices(num_seeds, num_resamples, seed)
+    counts = np.zeros((num_resamples, num_seeds))
+    np.add.at(counts, (np.arange(num_resamples)[:, None], indices), 1.0)
+    return counts / num_seeds
+
+
+def _interval(values: np.ndarray, level: float, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    alpha = (1.0 - level) / 2.0
+    low, high = np.quantile(values, [alpha, 1.0 - alpha], axis=axis)
+    return low, high
+
+
+def bootstrap_ci(
+    samples: np.ndarray, level: float = LEVEL, num_resamples: int = NUM_RESAMPLES, seed: int = 0
+) -> tuple[float, float]:
+    """Percentile bootstrap interval of the mean of ``samples`` (one value per seed)."""
+    samples = np.asarray(samples, np.float64)
+    means = samples[bootstrap_indices(len(samples), num_resamples, seed)].mean(-1)
+    low, high = _interval(means, level)
+    return float(low), float(high)
+
+
+def mean_curve_ci(
+    returns: np.ndarray,
+    window: int = WINDOW,
+    level: float = LEVEL,
+    num_resamples: int = NUM_RESAMPLES,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Smoothed seed-mean learning curve with a pointwise bootstrap band.
+
+    Args:
+      returns: ``[seeds, episodes]`` episode returns.
+      window: moving-average window applied to each resampled mean curve.
+      level: confidence level.
+      num_resamples: bootstrap resamples.
+      seed: resampling seed.
+
+    Returns:
+      ``(mean, low, high)``, each ``[episodes]``: the smoothed mean curve and the band's
+      lower and upper edges.
+    """
+    returns = np.asarray(returns, np.float64)
+    mean = moving_average(returns.mean(0), window)
+    resampled = moving_average(bootstrap_weights(len(returns), num_resamples, seed) @ returns, window)
+    low, high = _interval(resampled, level)
+    return mean, low, high
+
+
+def final_return_ci(
+    returns: np.ndarray, last: int = LAST, level: float = LEVEL,
+    num_resamples: int = NUM_RESAMPLES, seed: int = 0,
+) -> tuple[float, float, float]:
+    """Final return (mean over seeds of each seed's last-``last``-episode mean) and its CI.
+
+    Args:
+      returns: ``[seeds, episodes]`` episode returns.
+      last: episodes averaged at the end.
+      level, num_resamples, seed: bootstrap settings.
+
+    Returns:
+      ``(mean, low, high)``.
+    """
+    per_seed = final_return(returns, last)
+    low, high = bootstrap_ci(per_seed, level, num_resamples, seed)
+    return float(per_seed.mean()), low, high
+
+
+def convergence_ci(
+    returns: np.ndarray, window: int = WINDOW, last: int = LAST, fraction: float = FRACTION,
+    level: float = LEVEL, num_resamples: int = NUM_RESAMPLES, seed: int = 0,
+) -> tuple[int, float, float]:
+    """Convergence episode of the seed-mean curve, with a bootstrap interval.
+
+    Each resample of seeds gives a mean curve and hence a convergence episode; the
+    interval is the percentile interval of those episodes.
+
+    Args:
+      returns: ``[seeds, episodes]`` episode returns.
+      window, last, fraction: see :func:`convergence_episodes`.
+      level, num_resamples, seed: bootstrap settings.
+
+    Returns:
+      ``(episode, low, high)``.
+    """
+    returns = np.asarray(returns, np.float64)
+    point = convergence_episode(returns.mean(0), window, last, fraction)
+    resampled = bootstrap_weights(len(returns), num_resamples, seed) @ returns
+    low, high = _interval(convergence_episodes(resampled, window, last, fraction).astype(np.float64), level)
+    return point, float(low), float(high)
+
+
+def interquartile_mean(values: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Mean of the middle half: ``⌊n/4⌋`` values trimmed from each end along ``axis``.
+
+    Args:
+      values: the samples (e.g. one final return per seed).
+      axis: the sample axis.
+
+    Returns:
+      the IQM (float64, ``axis`` removed).
+    """
+    values = np.sort(np.asarray(values, np.float64), axis=axis)
+    n = values.shape[axis]
+    cut = int(IQM_TRIM * n)
+    return np.take(values, np.arange(cut, n - cut), axis=axis).mean(axis)
+
+
+def interquartile_mean_ci(
+    values: np.ndarray, level: float = LEVEL, num_resamples: int = NUM_RESAMPLES, seed: int = 0
+) -> tuple[float, float, float]:
+    """IQM of ``values`` (one per seed) with a percentile bootstrap interval."""
+    values = np.asarray(values, np.float64)
+    resampled = interquartile_mean(values[bootstrap_indices(len(values), num_resamples, seed)])
+    low, high = _interval(resampled, level)
+    return float(interquartile_mean(values)), float(low), float(high)
+
+
+def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``P(X > Y) + ½ P(X = Y)`` over all pairs of one value of ``x`` and one of ``y``.
+
+    Args:
+      x: ``[..., n]`` values of setting X (one per seed; leading axes batch resamples).
+      y: ``[..., m]`` values of setting Y.
+
+    Returns:
+      float64 ``[...]`` probabilities in [0, 1].
+    """
+    x = np.asarray(x, np.float64)[..., :, None]
+    y = np.asarray(y, np.float64)[..., None, :]
+    return ((x > y) + 0.5 * (x == y)).mean((-2, -1))
+
+
+def probability_of_improvement_ci(
+    x: np.ndarray, y: np.ndarray, level: float = LEVEL,
+    num_resamples: int = NUM_RESAMPLES, seed: int = 0,
+) -> tuple[float, float, float]:
+    """Probability that X beats Y with a bootstrap interval.
+
+    The seeds of X and of Y are resampled independently (stratified bootstrap, as rliable
+    does), since the two settings' runs are separate samples.
+
+    Returns:
+      ``(probability, low, high)``.
+    """
+    x = np.asarray(x, np.float64)
+    y = np.asarray(y, np.float64)
+    rx = x[bootstrap_indices(len(x), num_resamples, seed)]
+    ry = y[bootstrap_indices(len(y), num_resamples, seed + 1)]
+    low, high = _interval(probability_of_improvement(rx, ry), level)
+    return float(probability_of_improvement(x, y)), float(low), float(high)
