@@ -8,12 +8,13 @@ import time
 from pathlib import Path
 
 from vdbejax import io
-from vdbejax.agents import AgentOptions, paper_settings
+from vdbejax.agents import AgentOptions, make_agent, paper_settings
 from vdbejax.analysis import SUMMARY_COLUMNS, summarize
 from vdbejax.claims import ClaimResult, evaluate_claims, render_report
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import GridResult, run_grid
 from vdbejax.solvers import best_return
+from vdbejax.validation import check_bool, check_writable_dir
 
 SUMMARY_FILE = "summary.csv"
 FIGURE_FILE = "fig3.png"
@@ -62,28 +63,38 @@ def reproduce(
     chunk_episodes: int = 100,
     resume: bool = False,
     progress: bool = True,
+    memory_budget_bytes: int | None = None,
+    devices: int | None = None,
 ) -> Reproduction:
     """Run the paper's 46 settings × ``seeds`` agents × ``episodes`` and write all outputs.
 
     Writes into ``out_dir``: ``returns.npz``, ``configs.csv``, ``meta.json``,
     ``summary.csv``, ``fig3.png``, ``report.md``. A checkpoint (``checkpoint.npz``) is
     written after every chunk and removed once the results are saved; ``resume=True``
-    continues an interrupted run bit-identically.
+    continues an interrupted run bit-identically. ``memory_budget_bytes`` (per device)
+    and ``devices`` are passed to :func:`~vdbejax.experiment.run_grid`; they change only
+    the speed, never the results.
 
     Raises:
-      ValueError: an invalid option (message names it and what is allowed).
+      ValueError: an invalid option (message names it and what is allowed), or an
+        output folder that cannot be written.
     """
     mdp = make_mdp(max_steps=max_steps, invalid_action=invalid_action)
     options = AgentOptions(q_init=q_init, tie_break=tie_break)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    # Check every option before creating anything, so bad input leaves no trace.
+    make_agent(paper_settings()[0], options)
+    check_bool("progress", progress)
+    out = check_writable_dir("out", out_dir)
     checkpoint = out / CHECKPOINT_FILE
     started = time.perf_counter()
     result = run_grid(
         mdp, paper_settings(), num_seeds=seeds, num_episodes=episodes, seed=seed,
         options=options, chunk_episodes=chunk_episodes, progress=progress,
-        checkpoint=checkpoint, resume=resume,
+        checkpoint=checkpoint, resume=resume, memory_budget_bytes=memory_budget_bytes,
+        devices=devices,
     )
+    if result.meta.get("nonfinite_message"):
+        print(f"warning: {result.meta['nonfinite_message']}", file=sys.stderr)
     result.meta["invalid_action"] = invalid_action
     result.save(out)
     checkpoint.unlink(missing_ok=True)
