@@ -8,18 +8,27 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from vdbejax.validation import parse_cli_number
+
 
 def _add_reproduce(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("reproduce", help="run the paper's full grid and write figure, summary, report")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--seeds", type=int, default=20, help="agents per setting (default 20)")
-    p.add_argument("--episodes", type=int, default=1000, help="episodes per agent (default 1000)")
-    p.add_argument("--seed", type=int, default=0, help="root random seed (default 0)")
-    p.add_argument("--max-steps", type=int, default=100, help="episode truncation length (default 100)")
+    # Numbers are parsed leniently and checked by reproduce(): one clear error line.
+    number = parse_cli_number
+    p.add_argument("--seeds", type=number, default=20, help="agents per setting (default 20)")
+    p.add_argument("--episodes", type=number, default=1000, help="episodes per agent (default 1000)")
+    p.add_argument("--seed", type=number, default=0, help="root random seed (default 0)")
+    p.add_argument("--max-steps", type=number, default=100, help="episode truncation length (default 100)")
     p.add_argument("--invalid-action", default="noop", help="noop (default) or fail")
     p.add_argument("--tie-break", default="random", help="random (default) or first")
-    p.add_argument("--q-init", type=float, default=0.0, help="initial Q value (default 0)")
-    p.add_argument("--chunk-episodes", type=int, default=100, help="episodes per jitted chunk (default 100)")
+    p.add_argument("--q-init", type=number, default=0.0, help="initial Q value (default 0)")
+    p.add_argument("--chunk-episodes", type=number, default=100, help="episodes per jitted chunk (default 100)")
+    p.add_argument("--memory-budget", default=None,
+                   help="device memory per device for the agents, e.g. 512M, 2G (default: half"
+                        " the free memory); agents that do not fit run in sequential batches")
+    p.add_argument("--devices", type=number, default=None,
+                   help="devices to shard the agents over (default: all)")
     p.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.npz")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -31,7 +40,7 @@ def _reproduce(args: argparse.Namespace) -> None:
         args.out, seeds=args.seeds, episodes=args.episodes, seed=args.seed,
         max_steps=args.max_steps, invalid_action=args.invalid_action, tie_break=args.tie_break,
         q_init=args.q_init, chunk_episodes=args.chunk_episodes, resume=args.resume,
-        progress=not args.quiet,
+        progress=not args.quiet, memory_budget_bytes=args.memory_budget, devices=args.devices,
     )
     for claim in rep.claims:
         print(f"claim {claim.number}: {claim.verdict}")

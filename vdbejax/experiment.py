@@ -40,7 +40,7 @@ from vdbejax.engine import (
     text_progress,
 )
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.validation import check_bool, check_int
+from vdbejax.validation import check_bool, check_int, parse_bytes
 
 
 @dataclasses.dataclass
@@ -185,6 +185,25 @@ def nonfinite_message(settings: Sequence[Setting], nonfinite: np.ndarray,
             f" [options {dataclasses.asdict(options)}]")
 
 
+def check_run_options(
+    *, num_seeds: Any, num_episodes: Any, seed: Any, chunk_episodes: Any, resume: Any,
+    memory_budget_bytes: Any,
+) -> int | None:
+    """Check :func:`run_grid`'s counts and flags (one-line ``ValueError`` on bad input).
+
+    Returns:
+      the memory budget in bytes (``"512M"``-style sizes parsed), or None.
+    """
+    check_int("num_seeds", num_seeds, 1)
+    check_int("num_episodes", num_episodes, 1)
+    check_int("seed", seed, 0)
+    check_int("chunk_episodes", chunk_episodes, 1)
+    check_bool("resume", resume)
+    if memory_budget_bytes is None:
+        return None
+    return parse_bytes("memory_budget_bytes", memory_budget_bytes)
+
+
 def run_grid(
     mdp: TabularMDP,
     settings: Sequence[Setting],
@@ -197,7 +216,7 @@ def run_grid(
     progress: bool | ProgressCallback = False,
     checkpoint: str | os.PathLike | None = None,
     resume: bool = False,
-    memory_budget_bytes: int | None = None,
+    memory_budget_bytes: int | str | None = None,
     devices: int | None = None,
 ) -> GridResult:
     """Train ``num_seeds`` agents for every setting, all in one vectorized program.
@@ -219,8 +238,9 @@ def run_grid(
       checkpoint: file to write after every chunk (atomically).
       resume: continue from ``checkpoint`` if it exists.
       memory_budget_bytes: device memory the agents may use, per device (default:
-        half of the free memory of the smallest device). Agents that do not fit run
-        in sequential batches; the results do not depend on it.
+        half of the free memory of the smallest device); an int or a size such as
+        ``"512M"``. Agents that do not fit run in sequential batches; the results do
+        not depend on it.
       devices: number of devices to shard the agents over (default: all of
         ``jax.devices()``, every host's after ``jax.distributed.initialize``).
 
@@ -234,13 +254,10 @@ def run_grid(
     if not isinstance(mdp, TabularMDP):
         raise ValueError(f"mdp={type(mdp).__name__} is invalid: must be a TabularMDP"
                          " (see make_tabular_mdp, compile_env)")
-    check_int("num_seeds", num_seeds, 1)
-    check_int("num_episodes", num_episodes, 1)
-    check_int("seed", seed, 0)
-    check_int("chunk_episodes", chunk_episodes, 1)
-    check_bool("resume", resume)
-    if memory_budget_bytes is not None:
-        check_int("memory_budget_bytes", memory_budget_bytes, 1)
+    memory_budget_bytes = check_run_options(
+        num_seeds=num_seeds, num_episodes=num_episodes, seed=seed,
+        chunk_episodes=chunk_episodes, resume=resume, memory_budget_bytes=memory_budget_bytes,
+    )
     if not settings:
         raise ValueError("settings is empty: need at least one setting")
     for s in settings:

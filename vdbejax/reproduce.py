@@ -12,12 +12,14 @@ from vdbejax.agents import AgentOptions, make_agent, paper_settings
 from vdbejax.analysis import SUMMARY_COLUMNS, summarize
 from vdbejax.claims import ClaimResult, evaluate_claims, render_report
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import GridResult, run_grid
+from vdbejax.distributed import select_devices
+from vdbejax.experiment import GridResult, check_run_options, run_grid
 from vdbejax.solvers import best_return
-from vdbejax.validation import check_bool, check_writable_dir
+from vdbejax.validation import check_bool, check_int, check_writable_dir
 
 SUMMARY_FILE = "summary.csv"
 FIGURE_FILE = "fig3.png"
+SENSITIVITY_FILE = "sensitivity.png"
 REPORT_FILE = "report.md"
 CHECKPOINT_FILE = "checkpoint.npz"
 
@@ -34,17 +36,38 @@ class Reproduction:
     elapsed_seconds: float
 
 
-def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float) -> tuple[list[dict], list[ClaimResult]]:
-    """Write ``summary.csv``, ``fig3.png`` and ``report.md`` for a (saved) result."""
-    from vdbejax.plotting import figure3  # matplotlib only when plotting
+def _save_figure(fig: "matplotlib.figure.Figure", path: Path) -> None:  # noqa: F821
+    """Save atomically (temporary file + rename), then free the figure's memory."""
+    import matplotlib.pyplot as plt
+
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    os.replace(tmp, path)
+    plt.close(fig)
+
+
+def write_outputs(
+    result: GridResult, out_dir: str | os.PathLike, best: float, bands: bool = True
+) -> tuple[list[dict], list[ClaimResult]]:
+    """Write ``summary.csv``, ``fig3.png``, ``sensitivity.png`` and ``report.md`` for a
+    (saved) result.
+
+    Args:
+      result: the grid.
+      out_dir: output folder.
+      best: the best possible return (reference lines, "near" in the claims).
+      bands: Figure 3 with 95% bootstrap bands over agents.
+
+    Returns:
+      the summary rows and the scored claims.
+    """
+    from vdbejax.plotting import figure3, sensitivity  # matplotlib only when plotting
 
     out = Path(out_dir)
     summary = summarize(result)
     io.write_csv(out / SUMMARY_FILE, summary, SUMMARY_COLUMNS)
-    fig = figure3(result, best_return=best)
-    tmp = out / f".{FIGURE_FILE}.tmp.png"
-    fig.savefig(tmp, dpi=110)
-    os.replace(tmp, out / FIGURE_FILE)
+    _save_figure(figure3(result, best_return=best, bands=bands), out / FIGURE_FILE)
+    _save_figure(sensitivity(summary, best_return=best), out / SENSITIVITY_FILE)
     claims = evaluate_claims(summary, best)
     io.atomic_write_text(out / REPORT_FILE, render_report(claims, result.meta, best))
     return summary, claims
@@ -63,13 +86,13 @@ def reproduce(
     chunk_episodes: int = 100,
     resume: bool = False,
     progress: bool = True,
-    memory_budget_bytes: int | None = None,
+    memory_budget_bytes: int | str | None = None,
     devices: int | None = None,
 ) -> Reproduction:
     """Run the paper's 46 settings × ``seeds`` agents × ``episodes`` and write all outputs.
 
     Writes into ``out_dir``: ``returns.npz``, ``configs.csv``, ``meta.json``,
-    ``summary.csv``, ``fig3.png``, ``report.md``. A checkpoint (``checkpoint.npz``) is
+    ``summary.csv``, ``fig3.png`` (with bootstrap bands), ``sensitivity.png``, ``report.md``. A checkpoint (``checkpoint.npz``) is
     written after every chunk and removed once the results are saved; ``resume=True``
     continues an interrupted run bit-identically. ``memory_budget_bytes`` (per device)
     and ``devices`` are passed to :func:`~vdbejax.experiment.run_grid`; they change only
@@ -83,6 +106,12 @@ def reproduce(
     options = AgentOptions(q_init=q_init, tie_break=tie_break)
     # Check every option before creating anything, so bad input leaves no trace.
     make_agent(paper_settings()[0], options)
+    check_int("seeds", seeds, 1)  # named as the caller knows them
+    check_int("episodes", episodes, 1)
+    check_run_options(num_seeds=seeds, num_episodes=episodes, seed=seed,
+                      chunk_episodes=chunk_episodes, resume=resume,
+                      memory_budget_bytes=memory_budget_bytes)
+    select_devices(devices)
     check_bool("progress", progress)
     out = check_writable_dir("out", out_dir)
     checkpoint = out / CHECKPOINT_FILE
@@ -95,10 +124,11 @@ def reproduce(
     )
     if result.meta.get("nonfinite_message"):
         print(f"warning: {result.meta['nonfinite_message']}", file=sys.stderr)
+    best = best_return(mdp)
     result.meta["invalid_action"] = invalid_action
+    result.meta["best_return"] = best  # lets `vdbejax plot` redraw without the MDP
     result.save(out)
     checkpoint.unlink(missing_ok=True)
-    best = best_return(mdp)
     summary, claims = write_outputs(result, out, best)
     elapsed = time.perf_counter() - started
     if progress:
