@@ -47,7 +47,56 @@ def _reproduce(args: argparse.Namespace) -> None:
     print(f"elapsed: {rep.elapsed_seconds:.1f} s (training {rep.result.meta['elapsed_seconds']:.1f} s)")
 
 
-COMMANDS = {"reproduce": (_add_reproduce, _reproduce)}
+def _add_plot(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("plot", help="redraw figures, summary and report from saved results (no training)")
+    p.add_argument("--results", required=True, help="folder with returns.npz, configs.csv, meta.json")
+    p.add_argument("--out", default=None, help="output folder (default: the results folder)")
+    p.add_argument("--bands", action="store_true", help="95%% bootstrap bands on Figure 3")
+
+
+def _plot(args: argparse.Namespace) -> None:
+    from vdbejax.reproduce import replot
+
+    written = replot(args.results, args.out, bands=args.bands)
+    for path in written:
+        print(path)
+
+
+def _add_ablate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("ablate", help="claims scorecard across the spec's options; writes REPRODUCTION.md")
+    p.add_argument("--out", required=True, help="document folder: REPRODUCTION.md and ablation/<variant>/")
+    p.add_argument("--results", default=None,
+                   help="folder for the raw results of every variant (default: OUT/ablation)")
+    p.add_argument("--seeds", type=parse_cli_number, default=20, help="agents per setting (default 20)")
+    p.add_argument("--episodes", type=parse_cli_number, default=1000, help="episodes per agent (default 1000)")
+    p.add_argument("--seed", type=parse_cli_number, default=0, help="root random seed (default 0)")
+    p.add_argument("--variants", default=None,
+                   help="comma-separated variant names (default: all; see vdbejax.ablation.VARIANTS)")
+    p.add_argument("--notes", default=None,
+                   help="hand-written discussion appended to the document"
+                        " (default: docs/reproduction_notes.md if it exists)")
+    p.add_argument("--rerun", action="store_true", help="ignore saved results of the same variant and size")
+    p.add_argument("--quiet", action="store_true", help="no status lines")
+
+
+def _ablate(args: argparse.Namespace) -> None:
+    from pathlib import Path
+
+    from vdbejax.ablation import DEFAULT_NOTES, ablate, select_variants
+
+    notes = args.notes if args.notes is not None else (DEFAULT_NOTES if Path(DEFAULT_NOTES).is_file() else None)
+    results = ablate(args.out, results_dir=args.results, variants=select_variants(args.variants),
+                     seeds=args.seeds, episodes=args.episodes, seed=args.seed, notes=notes,
+                     reuse=not args.rerun, progress=not args.quiet)
+    for result in results:
+        print(f"{result.variant.name}: " + ", ".join(f"{c.number} {c.verdict}" for c in result.claims))
+
+
+COMMANDS = {
+    "reproduce": (_add_reproduce, _reproduce),
+    "plot": (_add_plot, _plot),
+    "ablate": (_add_ablate, _ablate),
+}
 
 
 def build_parser() -> argparse.ArgumentParser:

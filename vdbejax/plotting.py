@@ -1,4 +1,8 @@
-"""Figures: the paper's Figure 3 (one panel per learner × explorer)."""
+"""Figures: the paper's Figure 3 (one panel per learner × explorer, optional bootstrap
+bands), the parameter-sensitivity plot, and ε(s) heatmaps.
+
+Every function returns the matplotlib figure and, given ``path``, saves it as PNG.
+"""
 from __future__ import annotations
 
 import os
@@ -10,7 +14,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vdbejax.agents import PARAMETER_NAMES  # noqa: E402
-from vdbejax.analysis import WINDOW, moving_average  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
+from typing import Any  # noqa: E402
+
+from vdbejax.analysis import WINDOW, mean_curve_ci, moving_average  # noqa: E402
 from vdbejax.experiment import GridResult  # noqa: E402
 
 EXPLORER_TITLES = {
@@ -28,6 +35,7 @@ def figure3(
     best_return: float | None = None,
     window: int = WINDOW,
     path: str | os.PathLike | None = None,
+    bands: bool = False,
 ) -> plt.Figure:
     """Average return per episode (moving average over ``window``), one curve per parameter.
 
@@ -36,6 +44,7 @@ def figure3(
       best_return: reference line (the best possible return), if given.
       window: smoothing window (the paper: 20).
       path: save the figure there (PNG) if given.
+      bands: shade each curve's pointwise 95% bootstrap interval over seeds.
 
     Returns:
       the matplotlib figure.
@@ -53,7 +62,11 @@ def figure3(
             indices = result.select(learner, explorer)
             colors = plt.cm.viridis(np.linspace(0, 0.9, max(len(indices), 1)))
             for color, c in zip(colors, indices):
-                curve = moving_average(result.returns[c].mean(0), window)
+                if bands:
+                    curve, low, high = mean_curve_ci(result.returns[c], window)
+                    ax.fill_between(episodes, low, high, color=color, alpha=0.25, lw=0)
+                else:
+                    curve = moving_average(result.returns[c].mean(0), window)
                 symbol = PARAMETER_SYMBOLS[PARAMETER_NAMES[explorer]]
                 ax.plot(episodes, curve, color=color, lw=1.2, label=f"{symbol}={result.settings[c].param:g}")
             if best_return is not None:
@@ -65,10 +78,129 @@ def figure3(
                 ax.set_xlabel("episode")
             if col == 0:
                 ax.set_ylabel(f"average return (MA {window})")
+    band_note = " (bands: 95% bootstrap CI over agents)" if bands else ""
     fig.suptitle(
         f"{result.meta.get('mdp', 'task')}: {result.num_seeds} agents × {result.num_episodes} episodes"
+        + band_note
     )
+    return _finish(fig, path)
+
+
+def _finish(fig: plt.Figure, path: str | os.PathLike | None) -> plt.Figure:
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=110)
     return fig
+
+
+SENSITIVITY_METRICS = (
+    ("final_return", "final_ci_low", "final_ci_high", "final return (last 100 ep.)"),
+    ("convergence_episode", "convergence_ci_low", "convergence_ci_high", "convergence episode"),
+)
+LEARNER_STYLES = {"qlearning": ("tab:blue", "o"), "sarsa": ("tab:orange", "s")}
+
+
+def sensitivity(
+    rows: Sequence[dict[str, Any]],
+    best_return: float | None = None,
+    path: str | os.PathLike | None = None,
+    title: str | None = None,
+) -> plt.Figure:
+    """Final return and convergence episode against each explorer's parameter.
+
+    One column per explorer (its own parameter on a log x axis), one row per metric, one
+    line per learner with its 95% bootstrap interval as error bars. A flat line near the
+    best return means "robust to parametrization".
+
+    Args:
+      rows: summary rows (:func:`vdbejax.analysis.summarize` or ``summary.csv``; values
+        may be strings).
+      best_return: reference line on the final-return row, if given.
+      path: save the figure there (PNG) if given.
+      title: figure title.
+
+    Returns:
+      the matplotlib figure.
+    """
+    explorers = [e for e in EXPLORER_TITLES if any(r["explorer"] == e for r in rows)]
+    learners = list(dict.fromkeys(r["learner"] for r in rows))
+    fig, axes = plt.subplots(len(SENSITIVITY_METRICS), len(explorers), squeeze=False,
+                             figsize=(3.6 * len(explorers), 6.0), sharey="row")
+    for col, explorer in enumerate(explorers):
+        for row, (key, low_key, high_key, label) in enumerate(SENSITIVITY_METRICS):
+            ax = axes[row, col]
+            for learner in learners:
+                points = sorted((r for r in rows if r["learner"] == learner and r["explorer"] == explorer),
+                                key=lambda r: float(r["param"]))
+                if not points:
+                    continue
+                x = np.array([float(r["param"]) for r in points])
+                y = np.array([float(r[key]) for r in points])
+                # Intervals may be missing from older summaries: plot without error bars then.
+                has_ci = all(low_key in r and high_key in r for r in points)
+                yerr = (np.abs(np.array([[float(r[low_key]) for r in points],
+                                         [float(r[high_key]) for r in points]]) - y)
+                        if has_ci else None)
+                color, marker = LEARNER_STYLES.get(learner, (None, "o"))
+                ax.errorbar(x, y, yerr=yerr, color=color, marker=marker, ms=4, capsize=3, lw=1.2,
+                            label=LEARNER_TITLES.get(learner, learner))
+            ax.set_xscale("log")
+            if key == "final_return" and best_return is not None:
+                ax.axhline(best_return, color="crimson", ls="--", lw=1, label=f"best {best_return:.2f}")
+            if row == 0:
+                ax.set_title(EXPLORER_TITLES[explorer])
+            if row == len(SENSITIVITY_METRICS) - 1:
+                ax.set_xlabel(PARAMETER_SYMBOLS[PARAMETER_NAMES[explorer]] + " (log scale)")
+            if col == 0:
+                ax.set_ylabel(label)
+            ax.grid(alpha=0.3, which="both")
+            ax.legend(fontsize=7)
+    fig.suptitle(title or "Sensitivity to the exploration parameter (95% bootstrap CI over agents)")
+    return _finish(fig, path)
+
+
+def epsilon_heatmap(
+    epsilon: np.ndarray,
+    episodes: np.ndarray,
+    states: np.ndarray | None = None,
+    state_labels: Sequence[str] | None = None,
+    ax: plt.Axes | None = None,
+    title: str = "VDBE ε(s)",
+    path: str | os.PathLike | None = None,
+) -> plt.Figure:
+    """Heatmap of per-state exploration probabilities over episodes (states × episodes).
+
+    Args:
+      epsilon: ``[snapshots, S]`` ε(s) (e.g. averaged over agents) or ``[snapshots,
+        agents, S]`` (averaged here).
+      episodes: ``[snapshots]`` episode count of each snapshot.
+      states: state indices to show (rows), e.g. the reachable ones (default all).
+      state_labels: one label per shown state.
+      ax: draw into these axes (default: a new figure).
+      title: axes title.
+      path: save the figure there (PNG) if given.
+
+    Returns:
+      the matplotlib figure.
+    """
+    epsilon = np.asarray(epsilon, np.float64)
+    if epsilon.ndim == 3:
+        epsilon = epsilon.mean(1)
+    states = np.arange(epsilon.shape[-1]) if states is None else np.asarray(states)
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(8, max(3.0, 0.12 * len(states) + 1.5)))
+    else:
+        fig = ax.figure
+    image = ax.imshow(epsilon[:, states].T, aspect="auto", origin="lower", cmap="magma",
+                      vmin=0.0, vmax=1.0, interpolation="nearest",
+                      extent=(0.5, len(episodes) + 0.5, -0.5, len(states) - 0.5))
+    # Tick labels show episode counts, not snapshot indices.
+    ticks = np.unique(np.linspace(1, len(episodes), min(len(episodes), 6)).round().astype(int))
+    ax.set_xticks(ticks, [str(int(episodes[t - 1])) for t in ticks])
+    if state_labels is not None and len(states) <= 60:
+        ax.set_yticks(np.arange(len(states)), list(state_labels), fontsize=5)
+    ax.set_xlabel("episode")
+    ax.set_ylabel("state")
+    ax.set_title(title)
+    fig.colorbar(image, ax=ax, label="ε(s)")
+    return _finish(fig, path)

@@ -1,10 +1,13 @@
 """One call reproduces the paper: the full grid, Figure 3, the summary and the claims report."""
 from __future__ import annotations
 
+import csv
 import dataclasses
+import json
 import os
 import sys
 import time
+import zipfile
 from pathlib import Path
 
 from vdbejax import io
@@ -136,3 +139,52 @@ def reproduce(
               f"training {result.meta['elapsed_seconds']:.1f} s, total {elapsed:.1f} s "
               f"→ {out}", file=sys.stderr)
     return Reproduction(result, summary, claims, best, out, elapsed)
+
+
+def saved_best_return(result: GridResult) -> float:
+    """The best possible return of a saved result's task.
+
+    Read from ``meta.json`` (written by :func:`reproduce`); older table-cleaning results
+    without it are recomputed from their options with the exact solver.
+
+    Raises:
+      ValueError: neither is possible (unknown task).
+    """
+    meta = result.meta
+    if "best_return" in meta:
+        return float(meta["best_return"])
+    if meta.get("mdp") == "table_cleaning":
+        return best_return(make_mdp(max_steps=int(meta.get("max_steps", 100)),
+                                    invalid_action=meta.get("invalid_action", "noop")))
+    raise ValueError("meta.json has no best_return and the task is not table_cleaning: "
+                     "cannot draw the reference line or score the claims")
+
+
+def replot(
+    results_dir: str | os.PathLike, out_dir: str | os.PathLike | None = None, bands: bool = False
+) -> list[Path]:
+    """Redraw Figure 3, the sensitivity plot, the summary and the report from saved results.
+
+    Nothing is retrained: only ``returns.npz``, ``configs.csv`` and ``meta.json`` are read.
+
+    Args:
+      results_dir: a folder written by :func:`reproduce` (or :meth:`GridResult.save`).
+      out_dir: where to write (default: ``results_dir``).
+      bands: 95% bootstrap bands on Figure 3.
+
+    Returns:
+      the files written.
+
+    Raises:
+      ValueError: missing or unreadable result files, or an unwritable output folder.
+    """
+    try:
+        result = GridResult.load(results_dir)
+    except (ValueError, OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, csv.Error) as error:
+        raise ValueError(f"cannot read results in {str(results_dir)!r}: {error}") from None
+    if result.returns.ndim != 3 or result.returns.shape[0] != len(result.settings):
+        raise ValueError(f"returns.npz in {str(results_dir)!r} does not match configs.csv "
+                         f"({result.returns.shape} for {len(result.settings)} configs)")
+    out = check_writable_dir("out", results_dir if out_dir is None else out_dir)
+    write_outputs(result, out, saved_best_return(result), bands=bands)
+    return [out / name for name in (FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE, REPORT_FILE)]
