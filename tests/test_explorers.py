@@ -1,0 +1,143 @@
+"""Explorers: action frequencies against their formulas, under jit and vmap (chex.variants)."""
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from absl.testing import parameterized
+
+from vdbejax import explorers
+
+NUM_DRAWS = 20_000
+Q = jnp.array([0.1, 0.5, -0.2, 0.3, 0.0, -1.0, 0.45])  # unique maximum: action 1
+
+
+def frequencies(fn, key=0):
+    """Empirical action distribution of ``fn(key)`` over NUM_DRAWS fixed keys."""
+    keys = jax.random.split(jax.random.PRNGKey(key), NUM_DRAWS)
+    actions = np.asarray(jax.jit(jax.vmap(fn))(keys))
+    return np.bincount(actions, minlength=7) / NUM_DRAWS
+
+
+def assert_matches(freq, probs):
+    probs = np.asarray(probs, np.float64)
+    # 5 binomial standard deviations (plus a floor for p ≈ 0): fixed keys, so no flakes.
+    tolerance = 5 * np.sqrt(probs * (1 - probs) / NUM_DRAWS) + 1e-4
+    np.testing.assert_array_less(np.abs(freq - probs), tolerance)
+
+
+def greedy_onehot(q):
+    return np.eye(7)[int(np.argmax(q))]
+
+
+@pytest.mark.parametrize("epsilon", [0.0, 0.1, 0.3, 1.0])
+def test_egreedy_frequencies(epsilon):
+    freq = frequencies(lambda k: explorers.egreedy(k, Q, epsilon))
+    assert_matches(freq, (1 - epsilon) * greedy_onehot(Q) + epsilon / 7)
+
+
+@pytest.mark.parametrize("tau", [0.05, 0.3, 1.0, 10.0])
+def test_softmax_frequencies(tau):
+    freq = frequencies(lambda k: explorers.softmax(k, Q, tau))
+    logits = np.asarray(Q, np.float64) / tau
+    probs = np.exp(logits - logits.max())
+    assert_matches(freq, probs / probs.sum())
+    np.testing.assert_allclose(explorers.softmax_probabilities(Q, tau), probs / probs.sum(), rtol=1e-5)
+
+
+@pytest.mark.parametrize("state_epsilon", [0.0, 0.25, 0.9])
+def test_vdbe_frequencies(state_epsilon):
+    freq = frequencies(lambda k: explorers.vdbe(k, Q, state_epsilon))
+    assert_matches(freq, (1 - state_epsilon) * greedy_onehot(Q) + state_epsilon / 7)
+
+
+@pytest.mark.parametrize("state_epsilon, tau", [(0.5, 0.2), (0.3, 1.0)])
+def test_vdbe_softmax_frequencies(state_epsilon, tau):
+    freq = frequencies(lambda k: explorers.vdbe_softmax(k, Q, state_epsilon, tau))
+    soft = np.asarray(explorers.softmax_probabilities(Q, tau), np.float64)
+    assert_matches(freq, (1 - state_epsilon) * greedy_onehot(Q) + state_epsilon * soft)
+
+
+def test_random_tie_break_is_uniform_among_maxima_and_first_picks_lowest():
+    q = jnp.array([0.0, 0.7, 0.2, 0.7, 0.7, -1.0, 0.0])
+    freq = frequencies(lambda k: explorers.egreedy(k, q, 0.0))
+    assert_matches(freq, [0, 1 / 3, 0, 1 / 3, 1 / 3, 0, 0])
+    freq = frequencies(lambda k: explorers.egreedy(k, q, 0.0, tie_break="first"))
+    assert_matches(freq, [0, 1, 0, 0, 0, 0, 0])
+
+
+@pytest.mark.parametrize("tau", [0.0001, 0.001])
+def test_tiny_tau_is_stable(tau):
+    q = jnp.array([0.86, 0.8599, -1.0, 0.5, 0.86, 0.1, -0.01])
+    weights = explorers.softmax_weights(q, tau)
+    assert bool(jnp.all(jnp.isfinite(weights)))
+    probs = explorers.softmax_probabilities(q, tau)
+    assert bool(jnp.all(jnp.isfinite(probs))) and float(probs.sum()) == pytest.approx(1.0)
+    freq = frequencies(lambda k: explorers.softmax(k, q, tau))
+    assert_matches(freq, np.asarray(probs, np.float64))
+    # Huge value gaps: still finite, all mass on the maximum.
+    assert int(explorers.softmax(jax.random.PRNGKey(0), jnp.array([1e4, -1e4, 0.0]), tau)) == 0
+
+
+def test_sample_categorical_never_returns_zero_weight():
+    weights = jnp.array([0.0, 1.0, 0.0, 2.0, 0.0])
+    edge_uniforms = jnp.array([0.0, 1 / 3 - 1e-7, 1 / 3, 1.0 - 2.0**-23])
+    picks = jax.vmap(lambda u: explorers.sample_categorical(weights, u))(edge_uniforms)
+    assert set(np.asarray(picks).tolist()) <= {1, 3}
+    assert int(picks[-1]) == 3
+
+
+def test_vdbe_epsilon_update_hand_computed():
+    # f = (1 − e^{−0.96}) / (1 + e^{−0.96}) = 0.446245; ε' = 0.1·f + 0.9·1
+    assert float(explorers.vdbe_epsilon_update(1.0, 0.096, 0.1, 0.1)) == pytest.approx(0.9446244, abs=1e-6)
+    # Sign of ΔQ does not matter; σ = 1, ε = 0.5: f = tanh(0.24)
+    assert float(explorers.vdbe_epsilon_update(0.5, -0.48, 1.0, 0.1)) == pytest.approx(0.4735496, abs=1e-6)
+    # No change → f = 0 → ε decays by (1 − δ); tiny σ → f = 1 without NaN.
+    assert float(explorers.vdbe_epsilon_update(0.5, 0.0, 0.01, 0.1)) == pytest.approx(0.45)
+    assert float(explorers.vdbe_epsilon_update(0.0, 0.5, 1e-30, 0.1)) == pytest.approx(0.1)
+
+
+def test_make_explorer_maps_to_the_single_rule():
+    e = explorers.make_explorer("egreedy", 0.1)
+    assert (float(e.epsilon), float(e.tau), bool(e.adaptive)) == (pytest.approx(0.1), np.inf, False)
+    s = explorers.make_explorer("softmax", 0.01)
+    assert (float(s.epsilon), float(s.tau), bool(s.adaptive)) == (1.0, pytest.approx(0.01), False)
+    v = explorers.make_explorer("vdbe", 10.0)
+    assert (float(v.tau), bool(v.adaptive), float(v.sigma)) == (np.inf, True, 10.0)
+    vs = explorers.make_explorer("vdbe_softmax", 0.1)
+    assert (float(vs.tau), bool(vs.adaptive)) == (pytest.approx(0.001), True)
+    for name, bad in [("egreedy", 1.5), ("softmax", 0.0), ("vdbe", -1.0), ("nope", 1.0)]:
+        with pytest.raises(ValueError):
+            explorers.make_explorer(name, bad)
+
+
+class ExplorerVariantsTest(parameterized.TestCase):
+    """Every explorer function gives the same result with and without jit, and under vmap."""
+
+    @chex.variants(with_jit=True, without_jit=True)
+    @parameterized.named_parameters(
+        ("egreedy", lambda k, q: explorers.egreedy(k, q, 0.2)),
+        ("softmax", lambda k, q: explorers.softmax(k, q, 0.3)),
+        ("vdbe", lambda k, q: explorers.vdbe(k, q, 0.4)),
+        ("vdbe_softmax", lambda k, q: explorers.vdbe_softmax(k, q, 0.4, 0.2)),
+        ("greedy", lambda k, q: explorers.greedy(q, jax.random.uniform(k))),
+    )
+    def test_jit_and_vmap_agree(self, fn):
+        keys = jax.random.split(jax.random.PRNGKey(3), 64)
+        qs = jax.random.normal(jax.random.PRNGKey(4), (64, 7))
+        reference = np.array([int(fn(k, q)) for k, q in zip(keys, qs)])
+        variant = self.variant(fn)
+        single = np.array([int(variant(k, q)) for k, q in zip(keys[:8], qs[:8])])
+        np.testing.assert_array_equal(single, reference[:8])
+        batched = np.asarray(jax.vmap(fn)(keys, qs))
+        np.testing.assert_array_equal(batched, reference)
+
+    @chex.variants(with_jit=True, without_jit=True)
+    def test_vdbe_update_variants(self):
+        update = self.variant(explorers.vdbe_epsilon_update)
+        got = update(jnp.float32(1.0), jnp.float32(0.096), jnp.float32(0.1), jnp.float32(0.1))
+        np.testing.assert_allclose(got, 0.9446244, atol=1e-6)
+        batched = jax.vmap(explorers.vdbe_epsilon_update)(
+            jnp.array([1.0, 0.5]), jnp.array([0.096, -0.48]), jnp.array([0.1, 1.0]), jnp.array([0.1, 0.1])
+        )
+        np.testing.assert_allclose(batched, [0.9446244, 0.4735496], atol=1e-6)

@@ -1,0 +1,119 @@
+"""`vdbejax reproduce` end to end (small --seeds/--episodes), every output file checked."""
+import csv
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import vdbejax
+from vdbejax.agents import PAPER_PARAMETERS, paper_settings
+
+SEEDS, EPISODES = 2, 30
+
+
+def run_cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "vdbejax", *args], capture_output=True, text=True, cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def cli_out(tmp_path_factory):
+    out = tmp_path_factory.mktemp("paper")
+    done = run_cli("reproduce", "--out", str(out), "--seeds", str(SEEDS), "--episodes", str(EPISODES))
+    assert done.returncode == 0, done.stderr
+    return out, done
+
+
+def test_paper_grid_has_46_settings():
+    settings = paper_settings()
+    assert len(settings) == 46
+    assert sum(len(v) for v in PAPER_PARAMETERS.values()) == 23
+
+
+def test_returns_npz(cli_out):
+    out, _ = cli_out
+    with np.load(out / "returns.npz") as data:
+        assert data["returns"].shape == (46, SEEDS, EPISODES)
+        assert data["lengths"].shape == (46, SEEDS, EPISODES)
+        assert np.issubdtype(data["returns"].dtype, np.floating)
+        assert np.issubdtype(data["lengths"].dtype, np.integer)
+        assert data["lengths"].min() >= 1 and data["lengths"].max() <= 100
+        assert np.all(data["returns"] <= 0.86 + 1e-5)
+
+
+def test_configs_csv(cli_out):
+    out, _ = cli_out
+    rows = list(csv.DictReader(open(out / "configs.csv")))
+    assert list(rows[0]) == ["config", "learner", "explorer", "param"]
+    assert [int(r["config"]) for r in rows] == list(range(46))
+    assert {r["learner"] for r in rows} == {"qlearning", "sarsa"}
+    assert {r["explorer"] for r in rows} == {"egreedy", "softmax", "vdbe", "vdbe_softmax"}
+    for row, setting in zip(rows, paper_settings()):
+        assert (row["learner"], row["explorer"], float(row["param"])) == (
+            setting.learner, setting.explorer, setting.param)
+
+
+def test_summary_csv(cli_out):
+    out, _ = cli_out
+    rows = list(csv.DictReader(open(out / "summary.csv")))
+    assert len(rows) == 46
+    with np.load(out / "returns.npz") as data:
+        returns = data["returns"]
+    for row in rows:
+        c = int(row["config"])
+        final = returns[c, :, -100:].mean()
+        assert float(row["final_return"]) == pytest.approx(final, abs=1e-4)
+        assert float(row["final_ci_low"]) <= float(row["final_return"]) + 1e-6 <= float(row["final_ci_high"]) + 2e-6
+        assert 1 <= int(row["convergence_episode"]) <= EPISODES
+
+
+def test_fig3_png(cli_out):
+    out, _ = cli_out
+    data = (out / "fig3.png").read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    import matplotlib.image
+
+    image = matplotlib.image.imread(out / "fig3.png")
+    assert image.shape[0] > 300 and image.shape[1] > 800  # a 2 × 4 panel figure
+
+
+def test_report_md(cli_out):
+    out, done = cli_out
+    report = (out / "report.md").read_text()
+    for number in range(1, 7):
+        assert f"## Claim {number}:" in report
+    assert "Paper:" in report and "Measured:" in report
+    for line in done.stdout.splitlines()[:6]:
+        assert line.split(": ")[1] in {"reproduced", "partly", "not reproduced"}
+    assert "elapsed" in done.stdout
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["num_seeds"] == SEEDS and meta["num_episodes"] == EPISODES
+    assert not (out / "checkpoint.npz").exists()
+
+
+def test_python_api_matches_cli(cli_out, tmp_path):
+    out, _ = cli_out
+    rep = vdbejax.reproduce(tmp_path, seeds=SEEDS, episodes=EPISODES, progress=False)
+    with np.load(out / "returns.npz") as data:
+        np.testing.assert_array_equal(rep.result.returns, data["returns"])
+    assert len(rep.claims) == 6 and rep.best_return == pytest.approx(0.86)
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--seeds", "0"], "seeds=0"),
+        (["--episodes", "-5"], "episodes=-5"),
+        (["--max-steps", "0"], "max_steps=0"),
+        (["--invalid-action", "explode"], "invalid_action='explode'"),
+        (["--tie-break", "last"], "tie_break='last'"),
+        (["--q-init", "nan"], "q_init"),
+    ],
+)
+def test_cli_bad_input_exits_2_with_one_line(tmp_path, args, message):
+    done = run_cli("reproduce", "--out", str(tmp_path / "x"), "--quiet", *args)
+    assert done.returncode == 2
+    assert "Traceback" not in done.stderr
+    assert message in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
