@@ -1,0 +1,51 @@
+"""Small, fast grids shared by the reliability tests (validation, resume, determinism,
+sharding, batching): one setting per explorer and learner, few seeds and episodes."""
+from __future__ import annotations
+
+from typing import Any
+
+from vdbejax.agents import Setting
+from vdbejax.envs.table_cleaning import make_mdp
+from vdbejax.experiment import GridResult, run_grid
+
+#: One setting of every explorer, both learners.
+SETTINGS = [
+    Setting("qlearning", "egreedy", 0.1),
+    Setting("sarsa", "softmax", 0.01),
+    Setting("qlearning", "vdbe", 1.0),
+    Setting("sarsa", "vdbe_softmax", 0.1),
+]
+SEEDS = 3
+EPISODES = 24
+MAX_STEPS = 20
+
+
+def small_mdp():
+    """The table-cleaning task with short episodes."""
+    return make_mdp(max_steps=MAX_STEPS)
+
+
+def run_small(**overrides: Any) -> GridResult:
+    """:func:`run_grid` over the small grid; keyword arguments override its defaults."""
+    options = dict(num_seeds=SEEDS, num_episodes=EPISODES, seed=3, chunk_episodes=8)
+    options.update(overrides)
+    mdp = options.pop("mdp", None) or small_mdp()
+    settings = options.pop("settings", SETTINGS)
+    return run_grid(mdp, settings, **options)
+
+
+def assert_same_curves(a: GridResult, b: GridResult) -> None:
+    """Bit-identical returns, lengths and NaN flags."""
+    import numpy as np
+
+    assert a.returns.dtype == b.returns.dtype
+    np.testing.assert_array_equal(a.returns, b.returns)
+    np.testing.assert_array_equal(a.lengths, b.lengths)
+    np.testing.assert_array_equal(a.nonfinite, b.nonfinite)
+
+
+def budget_for(mdp: Any, agents: int, chunk_episodes: int = 8) -> int:
+    """The per-device memory budget that fits exactly ``agents`` agents."""
+    from vdbejax.batching import bytes_per_agent, mdp_bytes
+
+    return mdp_bytes(mdp) + agents * bytes_per_agent(mdp, chunk_episodes)
