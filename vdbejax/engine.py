@@ -44,7 +44,7 @@ import numpy as np
 from vdbejax._pytree import pytree_dataclass
 from vdbejax.agents import AgentParams
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.explorers import select_action, vdbe_epsilon_update
+from vdbejax.explorers import sample_categorical, select_action, vdbe_epsilon_update
 from vdbejax.learners import q_learning_target, sarsa_target, td_update
 
 Array = jax.Array
@@ -102,10 +102,83 @@ def init_agent(mdp: TabularMDP, params: AgentParams, key: Array) -> AgentState:
     )
 
 
-def _uniforms(key: Array, counter: Array) -> Array:
-    bits = jax.random.bits(jax.random.fold_in(key, counter), (_NUM_UNIFORMS,), jnp.uint32)
-    # 23-bit mantissa: values in [0, 1 − 2⁻²³], which sample_categorical relies on.
-    return (bits >> 9).astype(jnp.float32) * jnp.float32(2.0**-23)
+def _mix32(x: Array) -> Array:
+    """lowbias32 integer finaliser (C. Wellons): a cheap, well-mixed uint32 bijection."""
+    x = x ^ (x >> 16)
+    x = x * jnp.uint32(0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = x * jnp.uint32(0x846CA68B)
+    return x ^ (x >> 16)
+
+
+def _uniforms(key: Array, counter: Array) -> tuple[Array, ...]:
+    """The ``_NUM_UNIFORMS`` uniforms of one agent iteration: a counter-based hash.
+
+    A pure function of the agent's key (``[..., 2]``) and its own iteration counter, so
+    results do not depend on the batch, the chunking or a resume; much cheaper than
+    threefry ``fold_in`` + ``bits``. Returns a tuple of arrays shaped like ``counter``
+    (one vector per draw, which XLA's CPU backend vectorises well).
+    """
+    key = key.astype(jnp.uint32)
+    counter = counter.astype(jnp.uint32)
+    base = _mix32(key[..., 1] ^ _mix32(key[..., 0] + counter * jnp.uint32(0x9E3779B9)))
+    draws = []
+    for j in range(_NUM_UNIFORMS):
+        bits = _mix32(base + jnp.uint32((j * 0x632BE5AB) % 2**32))
+        # 23-bit mantissa: values in [0, 1 − 2⁻²³], which sample_categorical relies on.
+        draws.append((bits >> 9).astype(jnp.float32) * jnp.float32(2.0**-23))
+    return tuple(draws)
+
+
+def _sample_columns(weights: list[Array], u: Array) -> Array:
+    """:func:`~vdbejax.explorers.sample_categorical` on a row given as columns."""
+    partial = [weights[0]]
+    for w in weights[1:]:
+        partial.append(partial[-1] + w)
+    threshold = u * partial[-1]
+    count = (partial[0] <= threshold).astype(jnp.int32)
+    for value in partial[1:]:
+        count = count + (value <= threshold).astype(jnp.int32)
+    return count
+
+
+def _max_columns(columns: list[Array]) -> Array:
+    out = columns[0]
+    for c in columns[1:]:
+        out = jnp.maximum(out, c)
+    return out
+
+
+def _select_action_columns(
+    q: list[Array],
+    explore_probability: Array,
+    tau: Array,
+    uniforms: tuple[Array, Array, Array],
+    tie_break: str,
+) -> Array:
+    """:func:`~vdbejax.explorers.select_action` on Q rows given as ``A`` column vectors.
+
+    The same arithmetic in the same order (bit-identical, see the tests), laid out so
+    that every operation is elementwise over the batch.
+    """
+    best = _max_columns(q)
+    weights = [jnp.exp((c - best) / tau) for c in q]
+    exploratory = _sample_columns(weights, uniforms[1])
+    if tie_break == "first":
+        greedy = jnp.zeros_like(exploratory)
+        for j in range(len(q) - 1, -1, -1):
+            greedy = jnp.where(q[j] == best, j, greedy)
+    else:
+        ties = [(c == best).astype(c.dtype) for c in q]
+        greedy = _sample_columns(ties, uniforms[2])
+    return jnp.where(uniforms[0] < explore_probability, exploratory, greedy).astype(jnp.int32)
+
+
+def _pick_column(columns: list[Array], index: Array) -> Array:
+    out = columns[0]
+    for j in range(1, len(columns)):
+        out = jnp.where(index == j, columns[j], out)
+    return out
 
 
 def agent_iteration(
@@ -114,6 +187,7 @@ def agent_iteration(
     agent: AgentState,
     chunk_start: Array,
     chunk_end: Array,
+    start_support: tuple[Array, Array] | None = None,
 ) -> tuple[AgentState, tuple[Array, Array, Array]]:
     """Advance one agent by one iteration (see the module docstring).
 
@@ -131,7 +205,10 @@ def agent_iteration(
     s_next, reward, terminal = mdp.transition(s, a, u[1])
     length = agent.episode_length + 1
     truncated = ~terminal & (length >= mdp.max_steps)
-    s_start = mdp.start(u[0])
+    if start_support is None:
+        s_start = mdp.start(u[0])
+    else:
+        s_start = start_support[0][sample_categorical(start_support[1], u[0])]
 
     q_sa = agent.q[s, a]
     q_next = agent.q[s_next]
@@ -153,7 +230,9 @@ def agent_iteration(
         act_epsilon,
     )
     explore_probability = jnp.where(explorer.adaptive, act_epsilon, explorer.epsilon)
-    next_action = select_action(act_q, explore_probability, explorer.tau, u[2:], explorer.tie_break)
+    next_action = select_action(
+        act_q, explore_probability, explorer.tau, jnp.stack(u[2:]), explorer.tie_break
+    )
 
     # Learn from (s, a, r, s').
     sarsa_value, sarsa_dq = td_update(
@@ -191,7 +270,181 @@ def agent_iteration(
     return new_agent, (slot, episode_return, length)
 
 
-@partial(jax.jit, static_argnames=("chunk_length",))
+def _start_support(mdp: TabularMDP) -> tuple[Array, Array]:
+    """States with a positive start probability and their weights (host side if possible).
+
+    Sampling from the support with :func:`sample_categorical` picks the same state as
+    sampling from the full distribution (zero weights add nothing to the partial sums),
+    but costs a few comparisons per agent instead of ``S``. Under a trace the support is
+    unknown and the full distribution is used.
+    """
+    probability = mdp.start_probability
+    if isinstance(probability, jax.core.Tracer):
+        return jnp.arange(mdp.num_states, dtype=jnp.int32), probability
+    probability = np.asarray(probability)
+    support = np.flatnonzero(probability > 0).astype(np.int32)
+    return jnp.asarray(support), jnp.asarray(probability[support])
+
+
+def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array) -> tuple[Array, Array, Array]:
+    """Batched :meth:`TabularMDP.transition` (flat 1-D gathers when deterministic)."""
+    if mdp.num_outcomes != 1:
+        return jax.vmap(mdp.transition)(s, a, u)
+    flat = s * mdp.num_actions + a
+
+    def take(table: Array) -> Array:
+        return table.reshape(-1).at[flat].get(mode="promise_in_bounds")
+
+    return take(mdp.next_state), take(mdp.reward), take(mdp.terminal)
+
+
+def _lockstep_iteration(
+    mdp: TabularMDP,
+    params: AgentParams,
+    agents: AgentState,
+    returns: Array,
+    lengths: Array,
+    chunk_start: Array,
+    chunk_end: Array,
+    start_support: tuple[Array, Array],
+) -> tuple[AgentState, Array, Array]:
+    """One lockstep iteration of a batch: :func:`agent_iteration` for every agent.
+
+    The same computation as ``vmap(agent_iteration)``, written for XLA's CPU backend:
+    ``agents.q``, ``agents.epsilon``, ``returns`` and ``lengths`` are flat 1-D arrays
+    (``[B·S·A]``, ``[B·S]``, ``[B·L]``) so that every table access is a 1-D gather or
+    scatter of one element per agent (or one row of ``A``).
+    """
+    learner, explorer = params.learner, params.explorer
+    num_agents = agents.episode.shape[0]
+    S, A = mdp.num_states, mdp.num_actions  # noqa: N806
+    chunk_length = returns.shape[0] // num_agents
+    lane = jnp.arange(num_agents, dtype=jnp.int32)
+    q_base, eps_base = lane * (S * A), lane * S
+
+    def q_row(state: Array) -> list[Array]:
+        base = q_base + state * A
+        return [agents.q.at[base + j].get(mode="promise_in_bounds") for j in range(A)]
+
+    def eps_at(state: Array) -> Array:
+        return agents.epsilon.at[eps_base + state].get(mode="promise_in_bounds")
+
+    active = agents.episode < chunk_end
+    u = _uniforms(agents.key, agents.counter)
+    resetting = agents.pending_reset
+    learn = active & ~resetting
+    s, a = agents.state, agents.action
+
+    s_next, reward, terminal = _transition(mdp, s, a, u[1])
+    length = agents.episode_length + 1
+    truncated = ~terminal & (length >= mdp.max_steps)
+    support, weights = start_support
+    s_start = support.at[sample_categorical(weights, u[0])].get(mode="promise_in_bounds")
+
+    sa_index = q_base + s * A + a
+    q_sa = agents.q.at[sa_index].get(mode="promise_in_bounds")
+    q_next = q_row(s_next)
+    discount = jnp.where(terminal, 0.0, learner.gamma)
+    q_learning_value, q_learning_dq = td_update(
+        q_sa, reward + discount * _max_columns(q_next), learner.alpha
+    )
+
+    act_state = jnp.where(resetting | terminal, s_start, s_next)
+    act_q = q_row(act_state)
+    act_epsilon = eps_at(act_state)
+    patch = ~learner.sarsa & ~resetting & (act_state == s)
+    act_q = [jnp.where(patch & (a == j), q_learning_value, c) for j, c in enumerate(act_q)]
+    act_epsilon = jnp.where(
+        patch & explorer.adaptive,
+        vdbe_epsilon_update(act_epsilon, q_learning_dq, explorer.sigma, explorer.delta),
+        act_epsilon,
+    )
+    explore_probability = jnp.where(explorer.adaptive, act_epsilon, explorer.epsilon)
+    next_action = _select_action_columns(
+        act_q, explore_probability, explorer.tau, u[2:], explorer.tie_break
+    )
+
+    sarsa_value, sarsa_dq = td_update(
+        q_sa, reward + discount * _pick_column(q_next, next_action), learner.alpha
+    )
+    new_q_sa = jnp.where(learner.sarsa, sarsa_value, q_learning_value)
+    delta_q = jnp.where(learner.sarsa, sarsa_dq, q_learning_dq)
+    eps_s = eps_at(s)
+    new_eps_s = vdbe_epsilon_update(eps_s, delta_q, explorer.sigma, explorer.delta)
+    q = agents.q.at[sa_index].set(
+        jnp.where(learn, new_q_sa, q_sa), mode="promise_in_bounds", unique_indices=True
+    )
+    epsilon = agents.epsilon.at[eps_base + s].set(
+        jnp.where(learn & explorer.adaptive, new_eps_s, eps_s),
+        mode="promise_in_bounds",
+        unique_indices=True,
+    )
+
+    episode_return = agents.episode_return + reward
+    done = learn & (terminal | truncated)
+    slot = agents.episode - chunk_start
+    out = jnp.where(done, lane * chunk_length + slot, returns.shape[0])  # past the end: dropped
+    returns = returns.at[out].set(episode_return, mode="drop")
+    lengths = lengths.at[out].set(length, mode="drop")
+
+    def keep(new: Array, old: Array) -> Array:
+        return jnp.where(active, new, old)
+
+    agents = AgentState(
+        q=q,
+        epsilon=epsilon,
+        state=keep(act_state, s),
+        action=keep(next_action, a),
+        pending_reset=keep(learn & truncated, resetting),
+        episode=agents.episode + done.astype(jnp.int32),
+        episode_return=jnp.where(learn, jnp.where(done, 0.0, episode_return), agents.episode_return),
+        episode_length=jnp.where(learn, jnp.where(done, 0, length), agents.episode_length),
+        counter=agents.counter + active.astype(jnp.uint32),
+        key=agents.key,
+        nonfinite=agents.nonfinite
+        | (learn & ~(jnp.isfinite(new_q_sa) & jnp.isfinite(new_eps_s))),
+    )
+    return agents, returns, lengths
+
+
+def _run_loop(mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations,
+              unroll, start_support):
+    """``while`` any agent is active and fewer than ``max_iterations`` iterations ran.
+
+    The body runs ``unroll`` iterations (fewer loop trips); iterations of an agent that
+    is no longer active change nothing, so overshooting is harmless.
+    """
+    q_shape, eps_shape, out_shape = agents.q.shape, agents.epsilon.shape, returns.shape
+    agents = dataclasses.replace(
+        agents, q=agents.q.reshape(-1), epsilon=agents.epsilon.reshape(-1)
+    )
+
+    def cond(carry: tuple) -> Array:
+        agents, _, _, iterations = carry
+        return jnp.any(agents.episode < chunk_end) & (iterations < max_iterations)
+
+    def body(carry: tuple) -> tuple:
+        agents, returns, lengths, iterations = carry
+        for _ in range(unroll):
+            agents, returns, lengths = _lockstep_iteration(
+                mdp, params, agents, returns, lengths, chunk_start, chunk_end, start_support
+            )
+        return agents, returns, lengths, iterations + unroll
+
+    zero = jnp.asarray(0, jnp.int32)
+    agents, returns, lengths, iterations = jax.lax.while_loop(
+        cond, body, (agents, returns.reshape(-1), lengths.reshape(-1), zero)
+    )
+    agents = dataclasses.replace(
+        agents, q=agents.q.reshape(q_shape), epsilon=agents.epsilon.reshape(eps_shape)
+    )
+    return agents, returns.reshape(out_shape), lengths.reshape(out_shape), iterations
+
+
+#: Lockstep iterations per while-loop trip (amortises XLA's per-trip overhead).
+DEFAULT_UNROLL = 1
+
+
 def run_chunk(
     mdp: TabularMDP,
     params: AgentParams,
@@ -199,8 +452,12 @@ def run_chunk(
     chunk_start: Array,
     chunk_end: Array,
     chunk_length: int,
+    unroll: int = DEFAULT_UNROLL,
 ) -> tuple[AgentState, Array, Array, Array]:
     """Advance a batch of agents until each has completed ``chunk_end`` episodes.
+
+    One jitted program, no compaction (see :func:`run_agents` for the compacting
+    driver; both give identical results).
 
     Args:
       mdp: the task (shared by all agents).
@@ -209,32 +466,123 @@ def run_chunk(
       chunk_start: episode index of the chunk's first episode.
       chunk_end: episode count at which an agent stops (≤ ``chunk_start + chunk_length``).
       chunk_length: static buffer length.
+      unroll: lockstep iterations per loop trip (static; results do not depend on it).
 
     Returns:
       ``(agents, returns, lengths, iterations)``: returns/lengths are
       ``[agents, chunk_length]`` (episodes past ``chunk_end`` stay 0), ``iterations``
-      the number of lockstep iterations executed.
+      the number of lockstep iterations executed (a multiple of ``unroll``).
     """
+    return _run_chunk_jit(
+        mdp, params, agents, chunk_start, chunk_end, chunk_length, unroll, _start_support(mdp)
+    )
+
+
+@partial(jax.jit, static_argnames=("chunk_length", "unroll"))
+def _run_chunk_jit(mdp, params, agents, chunk_start, chunk_end, chunk_length, unroll,
+                   start_support):
     num_agents = agents.episode.shape[0]
-    rows = jnp.arange(num_agents)
-    step = jax.vmap(agent_iteration, in_axes=(None, 0, 0, None, None))
-
-    def cond(carry: tuple) -> Array:
-        return jnp.any(carry[0].episode < chunk_end)
-
-    def body(carry: tuple) -> tuple:
-        agents, returns, lengths, iterations = carry
-        agents, (slot, episode_return, episode_length) = step(
-            mdp, params, agents, chunk_start, chunk_end
-        )
-        slot = jnp.where(slot < 0, chunk_length, slot)  # out of bounds: dropped
-        returns = returns.at[rows, slot].set(episode_return, mode="drop")
-        lengths = lengths.at[rows, slot].set(episode_length, mode="drop")
-        return agents, returns, lengths, iterations + 1
-
     returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
     lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
-    return jax.lax.while_loop(cond, body, (agents, returns, lengths, jnp.asarray(0, jnp.int32)))
+    big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
+    return _run_loop(
+        mdp, params, agents, returns, lengths, chunk_start, chunk_end, big, unroll, start_support
+    )
+
+
+@partial(jax.jit, static_argnames=("unroll",))
+def _run_block(mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations,
+               unroll, start_support):
+    """Up to ``max_iterations`` lockstep iterations; also returns each lane's activity."""
+    agents, returns, lengths, iterations = _run_loop(
+        mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations, unroll,
+        start_support,
+    )
+    return agents, returns, lengths, iterations, agents.episode < chunk_end
+
+
+@jax.jit
+def _gather_rows(tree: Any, index: Array) -> Any:
+    return jax.tree.map(lambda leaf: jnp.take(leaf, index, axis=0, mode="clip"), tree)
+
+
+@partial(jax.jit, donate_argnums=(0,))
+def _scatter_rows(tree: Any, index: Array, rows: Any) -> Any:
+    return jax.tree.map(lambda leaf, new: leaf.at[index].set(new, mode="drop"), tree, rows)
+
+
+def _next_power_of_two(n: int) -> int:
+    return 1 << max(0, (n - 1).bit_length())
+
+
+def _run_chunk_compacting(
+    mdp: TabularMDP,
+    params: AgentParams,
+    agents: AgentState,
+    chunk_start: int,
+    chunk_end: int,
+    chunk_length: int,
+    *,
+    block_iterations: int,
+    unroll: int,
+    min_batch: int,
+) -> tuple[AgentState, Array, Array, int, int]:
+    """:func:`run_chunk` with compaction of the still-active agents between blocks.
+
+    The batch runs ``block_iterations`` lockstep iterations at a time. When at most half
+    of its lanes are still active, the active agents are gathered into a batch of the next
+    power-of-two size (at least ``min_batch``; padding lanes duplicate a real agent and are
+    never written back), so few shapes are compiled. Each agent's computation depends only
+    on its own lane, hence the results are identical to :func:`run_chunk`.
+
+    Returns:
+      ``(agents, returns, lengths, iterations, lane_iterations)``.
+    """
+    num_agents = int(agents.episode.shape[0])
+    full = (agents, jnp.zeros((num_agents, chunk_length), jnp.float32),
+            jnp.zeros((num_agents, chunk_length), jnp.int32))
+    index = None  # rows of the full batch held by the current batch (None: all, in order)
+    cur_params, cur = params, full
+    size = num_agents
+    iterations = lane_iterations = 0
+    start, end = jnp.int32(chunk_start), jnp.int32(chunk_end)
+    block = jnp.int32(block_iterations)
+    support = _start_support(mdp)
+    while True:
+        cur_agents, cur_returns, cur_lengths, done_iterations, active = _run_block(
+            mdp, cur_params, *cur, start, end, block, unroll, support
+        )
+        cur = (cur_agents, cur_returns, cur_lengths)
+        done_iterations = int(done_iterations)
+        iterations += done_iterations
+        lane_iterations += done_iterations * size
+        active = np.array(active)
+        if index is not None:
+            active &= index < num_agents  # padding lanes do not count
+        num_active = int(active.sum())
+        if num_active == 0:
+            break
+        target = max(_next_power_of_two(num_active), min_batch)
+        if target * 2 > size:
+            continue
+        # Write the current batch back, then gather the active agents.
+        if index is None:
+            full = cur
+            keep = np.flatnonzero(active)
+        else:
+            full = _scatter_rows(full, jnp.asarray(index), cur)
+            keep = index[active]
+        index = np.full(target, num_agents, np.int32)
+        index[: keep.size] = keep
+        gather = np.where(index < num_agents, index, keep[0]).astype(np.int32)
+        cur_params = _gather_rows(params, jnp.asarray(gather))
+        cur = _gather_rows(full, jnp.asarray(gather))
+        size = target
+    if index is not None:
+        full = _scatter_rows(full, jnp.asarray(index), cur)
+    else:
+        full = cur
+    return (*full, iterations, lane_iterations)
 
 
 @dataclasses.dataclass
@@ -247,6 +595,8 @@ class RunResult:
       nonfinite: bool ``[agents]``: a NaN or inf appeared in the agent's Q or ε.
       iterations: lockstep iterations executed (for efficiency statistics).
       final_state: the agents' states after the last episode (numpy leaves).
+      lane_iterations: Σ over executed lockstep iterations of the batch width (the
+        agent-iterations paid for, idle lanes included; lower with compaction).
     """
 
     returns: np.ndarray
@@ -254,6 +604,7 @@ class RunResult:
     nonfinite: np.ndarray
     iterations: int
     final_state: AgentState
+    lane_iterations: int = 0
 
 
 ProgressCallback = Callable[[int, int, float], None]
@@ -294,6 +645,10 @@ def run_agents(
     progress: ProgressCallback | None = None,
     on_chunk: Callable[[int, AgentState, np.ndarray, np.ndarray], None] | None = None,
     initial: tuple[int, AgentState, np.ndarray, np.ndarray] | None = None,
+    compact: bool = True,
+    block_iterations: int = 256,
+    unroll: int = DEFAULT_UNROLL,
+    min_batch: int = 8,
 ) -> RunResult:
     """Train a batch of agents for ``num_episodes`` episodes each.
 
@@ -308,6 +663,11 @@ def run_agents(
       on_chunk: called after each chunk with ``(episodes_done, agents, returns, lengths)``
         (numpy arrays covering episodes ``[0, episodes_done)``); used for checkpoints.
       initial: resume from ``(episodes_done, agents, returns, lengths)``.
+      compact: between blocks of ``block_iterations`` lockstep iterations, gather the
+        still-active agents into a smaller power-of-two batch (at least ``min_batch``
+        lanes) once at most half the lanes are active, so finished agents stop costing
+        work. ``unroll``: lockstep iterations per loop trip. None of these four change the
+        results, only the speed.
 
     Returns:
       :class:`RunResult`.
@@ -327,15 +687,25 @@ def run_agents(
     else:
         done, agents, returns[:, : initial[0]], lengths[:, : initial[0]] = initial
         agents = jax.tree.map(jnp.asarray, agents)
-    iterations = 0
+    iterations = lane_iterations = 0
     started = time.perf_counter()
     if progress:
         progress(done * num_agents, num_episodes * num_agents, 0.0)
     while done < num_episodes:
         end = min(done + chunk, num_episodes)
-        agents, chunk_returns, chunk_lengths, chunk_iterations = run_chunk(
-            mdp, params, agents, jnp.int32(done), jnp.int32(end), chunk
-        )
+        if compact:
+            agents, chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes = (
+                _run_chunk_compacting(
+                    mdp, params, agents, done, end, chunk,
+                    block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
+                )
+            )
+        else:
+            agents, chunk_returns, chunk_lengths, chunk_iterations = run_chunk(
+                mdp, params, agents, jnp.int32(done), jnp.int32(end), chunk, unroll
+            )
+            chunk_lanes = int(chunk_iterations) * num_agents
+        lane_iterations += chunk_lanes
         returns[:, done:end] = np.asarray(chunk_returns)[:, : end - done]
         lengths[:, done:end] = np.asarray(chunk_lengths)[:, : end - done]
         iterations += int(chunk_iterations)
@@ -345,7 +715,9 @@ def run_agents(
         if progress:
             progress(done * num_agents, num_episodes * num_agents, time.perf_counter() - started)
     final = jax.tree.map(np.asarray, agents)
-    return RunResult(returns, lengths, np.asarray(final.nonfinite), iterations, final)
+    return RunResult(
+        returns, lengths, np.asarray(final.nonfinite), iterations, final, lane_iterations
+    )
 
 
 def broadcast_agents(params: AgentParams, repeats: int) -> AgentParams:
