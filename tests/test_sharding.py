@@ -1,0 +1,134 @@
+"""The agent axis sharded over several devices: bit-identical to one device.
+
+Four CPU devices are simulated in a subprocess with
+``XLA_FLAGS=--xla_force_host_platform_device_count=4`` (the flag must be set before JAX
+starts, so it cannot run in the pytest process)."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from small_grid import SETTINGS, assert_same_curves, run_small
+from vdbejax.distributed import pad_agents, select_devices, unpad_agents
+from vdbejax.experiment import GridResult
+
+TESTS = Path(__file__).parent
+
+#: Runs in a process with 4 CPU devices; saves each result for comparison here.
+FOUR_DEVICE_SCRIPT = textwrap.dedent(
+    """
+    import json, sys
+    sys.path.insert(0, {tests!r})
+    import jax, numpy as np
+    from small_grid import SETTINGS, budget_for, run_small, small_mdp
+    from vdbejax.distributed import agent_mesh, shard_agents
+    from vdbejax.engine import agent_keys
+
+    out = sys.argv[1]
+    info = {{"devices": len(jax.devices())}}
+    keys = shard_agents(agent_keys(0, 8), agent_mesh())
+    info["key_shards"] = len(keys.sharding.device_set)
+    info["shard_rows"] = sorted(s.data.shape[0] for s in keys.addressable_shards)
+
+    run_small().save(out + "/all")                                  # 12 agents, 3 per device
+    run_small(settings=SETTINGS[:3]).save(out + "/padded")          # 9 agents padded to 12
+    # One agent per device: the grid does not fit at once, it runs in 3 sharded batches.
+    batched = run_small(memory_budget_bytes=budget_for(small_mdp(), 1))
+    batched.save(out + "/batched")
+    info["batched"] = [batched.meta["devices"], batched.meta["batches"],
+                       batched.meta["agents_per_batch"]]
+
+    class Stop(Exception):
+        pass
+
+    calls = []
+    def stop(done, total, elapsed):
+        calls.append(done)
+        if len(calls) == 5:
+            raise Stop
+    try:
+        run_small(memory_budget_bytes=budget_for(small_mdp(), 1), checkpoint=out + "/ckpt.npz",
+                  progress=stop)
+    except Stop:
+        pass
+    run_small(checkpoint=out + "/ckpt.npz", resume=True).save(out + "/resumed")
+    print(json.dumps(info))
+    """
+)
+
+
+@pytest.fixture(scope="module")
+def four_devices(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sharded")
+    script = out / "four_devices.py"
+    script.write_text(FOUR_DEVICE_SCRIPT.format(tests=str(TESTS)))
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4",
+               JAX_PLATFORMS="cpu")
+    done = subprocess.run([sys.executable, str(script), str(out)], env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    return out, json.loads(done.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return run_small()
+
+
+def test_agents_are_split_over_four_devices(four_devices):
+    _, info = four_devices
+    assert info["devices"] == 4
+    assert info["key_shards"] == 4
+    assert info["shard_rows"] == [2, 2, 2, 2]
+
+
+def test_four_devices_equal_one_device(four_devices, reference):
+    out, _ = four_devices
+    sharded = GridResult.load(out / "all")
+    assert sharded.meta["devices"] == 4
+    assert_same_curves(reference, sharded)
+
+
+def test_padding_agents_are_dropped(four_devices, reference):
+    out, _ = four_devices
+    padded = GridResult.load(out / "padded")
+    assert padded.returns.shape[0] == 3
+    np.testing.assert_array_equal(padded.returns, reference.returns[:3])
+    np.testing.assert_array_equal(padded.lengths, reference.lengths[:3])
+
+
+def test_grid_larger_than_one_device_budget_runs_in_sharded_batches(four_devices, reference):
+    out, info = four_devices
+    assert info["batched"] == [4, 3, 4]  # 4 devices, 3 batches of 4 agents
+    assert_same_curves(reference, GridResult.load(out / "batched"))
+
+
+def test_sharded_batched_run_resumes_bit_identically(four_devices, reference):
+    out, _ = four_devices
+    assert_same_curves(reference, GridResult.load(out / "resumed"))
+
+
+def test_pad_and_unpad_agents():
+    tree = {"a": np.arange(5), "b": np.arange(10).reshape(5, 2)}
+    padded, count = pad_agents(tree, 4)
+    assert count == 5
+    np.testing.assert_array_equal(padded["a"], [0, 1, 2, 3, 4, 4, 4, 4])
+    np.testing.assert_array_equal(padded["b"][-1], [8, 9])
+    np.testing.assert_array_equal(unpad_agents(padded, count)["b"], tree["b"])
+    same, _ = pad_agents(tree, 5)
+    assert same is tree
+
+
+def test_select_devices_checks_the_count():
+    assert len(select_devices()) >= 1
+    with pytest.raises(ValueError, match=r"devices=1000 is invalid: only \d+ device"):
+        select_devices(1000)
+    with pytest.raises(ValueError, match="devices=0 is invalid"):
+        select_devices(0)
