@@ -5,6 +5,11 @@ A :class:`TabularMDP` stores, for every state-action pair, ``K`` possible outcom
 The engine only needs :meth:`TabularMDP.start` and :meth:`TabularMDP.transition`,
 both pure functions of integer state indices and uniforms, so any finite MDP runs
 through the same code.
+
+:func:`compile_env` turns a functional environment (integer-coded states) into such tables,
+either over every state code or, with ``reachable_only=True``, over the codes reachable from
+its start distribution (found by a vectorised breadth-first search); the kept codes are then
+stored in :attr:`TabularMDP.state_codes` (state index ↔ environment code).
 """
 from __future__ import annotations
 
@@ -32,6 +37,9 @@ class TabularMDP:
       start_probability: float32 ``[S]`` initial-state distribution.
       max_steps: episode length at which an episode is truncated (bootstraps).
       name: label for reports (static).
+      state_codes: int32 ``[S]`` increasing environment code of each state index, or
+        ``None`` when state index = code (dense compilation, MDPs built from arrays).
+        ``None`` adds no pytree leaf, so such MDPs keep their fingerprints.
     """
 
     next_state: Array
@@ -41,6 +49,7 @@ class TabularMDP:
     start_probability: Array
     max_steps: Array
     name: str = static_field("mdp")
+    state_codes: Array | None = None
 
     @property
     def num_states(self) -> int:
@@ -53,6 +62,38 @@ class TabularMDP:
     @property
     def num_outcomes(self) -> int:
         return int(self.next_state.shape[2])
+
+    def index_of(self, codes: Any) -> np.ndarray:
+        """State indices of environment codes (numpy, outside jit).
+
+        Args:
+          codes: integer code(s) of the environment's state encoding.
+
+        Returns:
+          int64 indices, same shape as ``codes``.
+
+        Raises:
+          ValueError: a code that is not a state of this MDP.
+        """
+        codes = np.asarray(codes, np.int64)
+        if self.state_codes is None:
+            index = codes
+            known = (codes >= 0) & (codes < self.num_states)
+        else:
+            table = np.asarray(self.state_codes, np.int64)
+            index = np.minimum(np.searchsorted(table, codes), len(table) - 1)
+            known = table[index] == codes
+        if not np.all(known):
+            bad = codes[~known].ravel()[0]
+            raise ValueError(f"codes holds {bad}: not a state of MDP {self.name!r}")
+        return index
+
+    def code_of(self, index: Any) -> np.ndarray:
+        """Environment codes of state indices (numpy; identity without ``state_codes``)."""
+        index = np.asarray(index, np.int64)
+        if self.state_codes is None:
+            return index
+        return np.asarray(self.state_codes, np.int64)[index]
 
     def start(self, u: Array) -> Array:
         """Sample an initial state index with one uniform ``u`` in [0, 1)."""
@@ -80,6 +121,23 @@ class TabularMDP:
         )
 
 
+def _as_array(label: str, value: Any, dtype: Any = None) -> np.ndarray:
+    """``np.asarray`` whose failures (ragged lists, strings) name the parameter."""
+    try:
+        return np.asarray(value, dtype=dtype)
+    except (TypeError, ValueError) as err:
+        first_line = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise ValueError(f"{label} cannot be read as an array ({first_line}):"
+                         " must be a rectangular array of numbers") from None
+
+
+def _first_bad(label: str, arr: np.ndarray, bad: np.ndarray, allowed: str) -> None:
+    """Raise for the first element of ``arr`` where ``bad`` holds, naming its position."""
+    if np.any(bad):
+        where = tuple(int(i) for i in np.unravel_index(np.argmax(bad), bad.shape))
+        raise ValueError(f"{label}{list(where)} = {arr[where]!r}: {allowed}")
+
+
 def make_tabular_mdp(
     next_state: Any,
     reward: Any,
@@ -90,20 +148,43 @@ def make_tabular_mdp(
     max_steps: int = 100,
     name: str = "mdp",
     atol: float = 1e-5,
+    state_codes: Any | None = None,
 ) -> TabularMDP:
     """Build a validated :class:`TabularMDP` from arrays.
 
     Deterministic MDPs pass ``[S, A]`` arrays and no ``probability``; stochastic ones pass
-    ``[S, A, K]`` arrays and ``probability`` of the same shape. ``terminal`` may also be a
-    ``[S]`` array of terminal *states* (an outcome is terminal when its next state is).
+    ``[S, A, K]`` arrays and ``probability`` of the same shape (outcomes of probability 0
+    pad pairs with fewer than ``K`` outcomes). ``terminal`` may also be a ``[S]`` array of
+    terminal *states* (an outcome is terminal when its next state is).
+
+    Args:
+      next_state: int ``[S, A]`` or ``[S, A, K]`` next-state indices in ``[0, S)``.
+      reward: ``next_state``-shaped finite rewards.
+      terminal: ``next_state``-shaped (or ``[S]``) flags, bool or 0/1.
+      start_probability: ``[S]`` non-negative initial-state probabilities summing to 1.
+      probability: ``[S, A, K]`` non-negative outcome probabilities, each ``[s, a]`` row
+        summing to 1 (required when ``K > 1``).
+      max_steps: truncation length (integer >= 1).
+      name: label of the MDP.
+      atol: tolerance of the sums to 1 (sums are then renormalised exactly).
+      state_codes: optional ``[S]`` strictly increasing non-negative integer codes of the
+        states in some environment encoding (see :func:`compile_env`).
+
+    Returns:
+      the :class:`TabularMDP`.
 
     Raises:
-      ValueError: wrong shapes, out-of-range indices, probabilities that are negative or do
-        not sum to 1, non-finite rewards, or ``max_steps < 1``.
+      ValueError: one line naming the parameter, the offending shape or value, and what is
+        allowed (wrong shapes or dtypes, out-of-range indices, negative probabilities or
+        sums other than 1, non-finite rewards, ``max_steps < 1``, …).
     """
-    from vdbejax.validation import check_int
+    from vdbejax.validation import check_int, check_positive
 
-    next_state = np.asarray(next_state)
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"name={name!r} is invalid: must be a non-empty string")
+    check_positive("atol", atol)
+    check_int("max_steps", max_steps, 1)
+    next_state = _as_array("next_state", next_state)
     if next_state.ndim == 2:
         next_state = next_state[:, :, None]
     if next_state.ndim != 3:
@@ -114,63 +195,85 @@ def make_tabular_mdp(
         raise ValueError(f"next_state has dtype {next_state.dtype}: must hold integers")
     shape = next_state.shape
     num_states = shape[0]
-    if num_states < 1 or shape[1] < 1 or shape[2] < 1:
+    if min(shape) < 1:
         raise ValueError(f"next_state has shape {shape}: every dimension must be >= 1")
-    if next_state.min() < 0 or next_state.max() >= num_states:
-        raise ValueError(
-            f"next_state holds indices in [{next_state.min()}, {next_state.max()}]:"
-            f" must be in [0, {num_states - 1}]"
-        )
+    _first_bad("next_state", next_state, (next_state < 0) | (next_state >= num_states),
+               f"must be a state index in [0, {num_states - 1}]")
 
     def outcome_array(label: str, value: Any, dtype: Any) -> np.ndarray:
-        arr = np.asarray(value, dtype=dtype)
+        arr = _as_array(label, value)
         if arr.shape == shape[:2] and shape[2] == 1:
             arr = arr[:, :, None]
         if arr.shape != shape:
-            raise ValueError(
-                f"{label} has shape {np.shape(value)}: must match next_state {shape}"
-            )
-        return arr
+            allowed = f"{list(shape)}" + (f" or {list(shape[:2])}" if shape[2] == 1 else "")
+            raise ValueError(f"{label} has shape {np.shape(value)}: must be {allowed}"
+                             " (the shape of next_state)")
+        if not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+            raise ValueError(f"{label} has dtype {arr.dtype}: must hold numbers")
+        return arr.astype(dtype)
 
     if probability is None:
         if shape[2] != 1:
-            raise ValueError(f"probability is required when next_state has K={shape[2]} outcomes")
-        probability = np.ones(shape, np.float32)
+            raise ValueError(
+                f"probability is None but next_state has K={shape[2]} outcomes per pair:"
+                f" pass probability of shape {list(shape)}"
+            )
+        probability = np.ones(shape, np.float64)
     probability = outcome_array("probability", probability, np.float64)
-    if not np.all(np.isfinite(probability)) or probability.min() < 0:
-        raise ValueError("probability must hold finite non-negative values")
+    _first_bad("probability", probability, ~np.isfinite(probability) | (probability < 0),
+               "must be finite and >= 0")
     sums = probability.sum(-1)
-    worst = np.abs(sums - 1.0).max()
-    if worst > atol:
-        s, a = np.unravel_index(np.abs(sums - 1.0).argmax(), sums.shape)
+    error = np.abs(sums - 1.0)
+    if error.max() > atol:
+        s, a = np.unravel_index(error.argmax(), sums.shape)
         raise ValueError(
-            f"probability of state {s}, action {a} sums to {sums[s, a]:.6g}: must sum to 1"
+            f"probability[{s}, {a}] sums to {sums[s, a]:.6g}: the outcome probabilities of"
+            f" each state-action pair must sum to 1 (atol {atol:g})"
         )
-    reward = outcome_array("reward", reward, np.float32)
-    if not np.all(np.isfinite(reward)):
-        raise ValueError("reward must hold finite values")
-    terminal = np.asarray(terminal)
+    reward = outcome_array("reward", reward, np.float64)
+    _first_bad("reward", reward, ~np.isfinite(reward.astype(np.float32)),
+               "must be finite in float32")
+    terminal = _as_array("terminal", terminal)
     if terminal.shape == (num_states,):
-        terminal = terminal.astype(bool)[next_state]
-    terminal = outcome_array("terminal", terminal, bool)
-    start = np.asarray(start_probability, dtype=np.float64)
+        terminal = terminal[next_state]  # terminal states -> terminal outcomes
+    terminal = outcome_array("terminal", terminal, np.float64)
+    _first_bad("terminal", terminal, (terminal != 0) & (terminal != 1),
+               "must be a bool or 0/1")
+    start = _as_array("start_probability", start_probability)
     if start.shape != (num_states,):
         raise ValueError(
-            f"start_probability has shape {start.shape}: must be [{num_states}]"
+            f"start_probability has shape {start.shape}: must be [{num_states}] (one per state)"
         )
-    if not np.all(np.isfinite(start)) or start.min() < 0 or abs(start.sum() - 1.0) > atol:
+    if not np.issubdtype(start.dtype, np.number):
+        raise ValueError(f"start_probability has dtype {start.dtype}: must hold numbers")
+    start = start.astype(np.float64)
+    _first_bad("start_probability", start, ~np.isfinite(start) | (start < 0),
+               "must be finite and >= 0")
+    if abs(start.sum() - 1.0) > atol:
         raise ValueError(
-            f"start_probability sums to {start.sum():.6g}: must be non-negative and sum to 1"
+            f"start_probability sums to {start.sum():.6g}: must sum to 1 (atol {atol:g})"
         )
-    check_int("max_steps", max_steps, 1)
+    codes = None
+    if state_codes is not None:
+        codes = _as_array("state_codes", state_codes)
+        if codes.shape != (num_states,) or not np.issubdtype(codes.dtype, np.integer):
+            raise ValueError(f"state_codes has shape {codes.shape} and dtype {codes.dtype}:"
+                             f" must be [{num_states}] integers")
+        if num_states > 1 and not np.all(np.diff(codes) > 0) or codes[0] < 0:
+            raise ValueError("state_codes is not strictly increasing and >= 0:"
+                             " must list distinct non-negative codes in increasing order")
+        if codes[-1] > np.iinfo(np.int32).max:
+            raise ValueError(f"state_codes holds {codes[-1]}: must be < 2**31")
+        codes = jnp.asarray(codes, jnp.int32)
     return TabularMDP(
         next_state=jnp.asarray(next_state, jnp.int32),
         probability=jnp.asarray(probability / sums[..., None], jnp.float32),
         reward=jnp.asarray(reward, jnp.float32),
-        terminal=jnp.asarray(terminal, bool),
+        terminal=jnp.asarray(terminal.astype(bool)),
         start_probability=jnp.asarray(start / start.sum(), jnp.float32),
         max_steps=jnp.asarray(max_steps, jnp.int32),
         name=name,
+        state_codes=codes,
     )
 
 
@@ -186,21 +289,12 @@ class FunctionalEnv(Protocol):
     def start_distribution(self, params: Any) -> tuple[np.ndarray, np.ndarray]: ...
 
 
-def compile_env(env: FunctionalEnv, params: Any, *, name: str | None = None) -> TabularMDP:
-    """Compile a deterministic functional environment into dense tables.
+#: Largest number of state codes :func:`compile_env` handles (codes are int32 in JAX).
+MAX_CODES = 2**31 - 1
 
-    The environment's ``transition`` is vmapped over every state code and action, so the
-    tables are exactly the environment's step function (state index = mixed-radix code).
 
-    Args:
-      env: the environment (e.g. :class:`~vdbejax.envs.table_cleaning.TableCleaning`).
-      params: its ``EnvParams``; ``params.max_steps`` becomes the truncation length.
-      name: label of the MDP (default: the environment's class name).
-
-    Returns:
-      a deterministic :class:`TabularMDP` over all ``env.num_codes(params)`` codes.
-    """
-    codes = jnp.arange(env.num_codes(params), dtype=jnp.int32)
+def _code_stepper(env: FunctionalEnv, params: Any):
+    """Jitted ``codes [B] -> (next_codes [B, A], reward [B, A], terminal [B, A])``."""
     actions = jnp.arange(env.num_actions, dtype=jnp.int32)
 
     def one(code: Array, action: Array) -> tuple[Array, Array, Array]:
@@ -209,17 +303,113 @@ def compile_env(env: FunctionalEnv, params: Any, *, name: str | None = None) -> 
         return env.encode(next_fields, params), reward, terminal
 
     over_actions = jax.vmap(one, in_axes=(None, 0))
-    next_state, reward, terminal = jax.jit(jax.vmap(over_actions, in_axes=(0, None)))(
-        codes, actions
-    )
+    return jax.jit(jax.vmap(over_actions, in_axes=(0, None))), actions
+
+
+def _step_codes(step: Any, actions: Array, codes: np.ndarray, batch_size: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Apply ``step`` to ``codes`` in batches padded to ``batch_size`` or, for a short
+    last batch, to ``batch_size / 16``: two shapes at most, as each costs a compilation
+    (~1–3 s) while padding wastes run time (~0.5 s per 65536 codes of a large variant).
+    """
+    outputs = []
+    small = max(1, batch_size // 16)
+    for begin in range(0, len(codes), batch_size):
+        part = codes[begin: begin + batch_size]
+        padded = np.zeros(small if len(part) <= small else batch_size, np.int32)
+        padded[: len(part)] = part
+        next_codes, reward, terminal = step(jnp.asarray(padded), actions)
+        outputs.append((np.asarray(next_codes)[: len(part)], np.asarray(reward)[: len(part)],
+                        np.asarray(terminal)[: len(part)]))
+    return tuple(np.concatenate(arrays) for arrays in zip(*outputs))
+
+
+def _reachable_codes(step: Any, actions: Array, start_codes: np.ndarray, batch_size: int
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Closure of ``start_codes`` under every action: level-synchronous BFS over codes.
+
+    Terminal outcomes are followed too, so the kept codes are closed under the transition
+    table and the result is exactly the dense table restricted to them.
+
+    Returns:
+      ``(codes, next_codes, reward, terminal)`` with ``codes`` sorted increasingly and the
+      other arrays in the same row order.
+    """
+    seen = np.unique(start_codes.astype(np.int64))
+    frontier = seen
+    rows: list[tuple[np.ndarray, ...]] = []
+    while frontier.size:
+        next_codes, reward, terminal = _step_codes(step, actions, frontier, batch_size)
+        rows.append((frontier, next_codes, reward, terminal))
+        new = np.setdiff1d(np.unique(next_codes), seen, assume_unique=True)
+        seen = np.union1d(seen, new)
+        frontier = new
+    codes, next_codes, reward, terminal = (np.concatenate(arrays) for arrays in zip(*rows))
+    order = np.argsort(codes, kind="stable")
+    return codes[order], next_codes[order], reward[order], terminal[order]
+
+
+def compile_env(
+    env: FunctionalEnv,
+    params: Any,
+    *,
+    name: str | None = None,
+    reachable_only: bool = False,
+    batch_size: int = 1 << 14,
+) -> TabularMDP:
+    """Compile a deterministic functional environment into dense tables.
+
+    The environment's ``transition`` is vmapped over state codes and actions, so the
+    tables are exactly the environment's step function.
+
+    Args:
+      env: the environment (e.g. :class:`~vdbejax.envs.table_cleaning.TableCleaning`).
+      params: its ``EnvParams``; ``params.max_steps`` becomes the truncation length.
+      name: label of the MDP (default: the environment's class name).
+      reachable_only: keep only the codes reachable from the start distribution (a
+        vectorised breadth-first search that never enumerates the whole code space). State
+        ``i`` is then the ``i``-th smallest reachable code, kept in ``mdp.state_codes``
+        (see :meth:`TabularMDP.index_of`). Otherwise state index = code, over all
+        ``env.num_codes(params)`` codes.
+      batch_size: codes evaluated per jitted call (bounds memory, not the result).
+
+    Returns:
+      a deterministic :class:`TabularMDP`.
+
+    Raises:
+      ValueError: more than :data:`MAX_CODES` codes, or invalid ``batch_size``.
+    """
+    from vdbejax.validation import check_int
+
+    check_int("batch_size", batch_size, 1)
+    num_codes = int(env.num_codes(params))
+    if num_codes > MAX_CODES:
+        raise ValueError(f"env.num_codes(params)={num_codes} is invalid: must be <= 2**31 - 1"
+                         " (int32 state codes)")
+    step, actions = _code_stepper(env, params)
+    batch_size = min(batch_size, 1 << (num_codes - 1).bit_length())  # small envs: small pad
     start_codes, start_probs = env.start_distribution(params)
-    start = np.zeros(len(codes), np.float64)
-    np.add.at(start, np.asarray(start_codes), np.asarray(start_probs, np.float64))
+    start_codes = np.asarray(start_codes, np.int64)
+    if reachable_only:
+        state_codes, next_codes, reward, terminal = _reachable_codes(
+            step, actions, start_codes, batch_size
+        )
+        next_state = np.searchsorted(state_codes, next_codes)
+        start_index = np.searchsorted(state_codes, start_codes)
+    else:
+        state_codes = None
+        next_state, reward, terminal = _step_codes(
+            step, actions, np.arange(num_codes, dtype=np.int32), batch_size
+        )
+        start_index = start_codes
+    start = np.zeros(len(next_state), np.float64)
+    np.add.at(start, start_index, np.asarray(start_probs, np.float64))
     return make_tabular_mdp(
-        np.asarray(next_state),
-        np.asarray(reward),
-        np.asarray(terminal),
+        next_state,
+        reward,
+        terminal,
         start,
         max_steps=int(params.max_steps),
         name=name or type(env).__name__,
+        state_codes=state_codes,
     )

@@ -1,4 +1,4 @@
-"""The paper's table-cleaning task."""
+"""The paper's table-cleaning task and its generated variants (n sections, k goblets)."""
 from vdbejax.envs.table_cleaning.env import (
     ACTION_NAMES,
     FIELD_NAMES,
@@ -10,6 +10,12 @@ from vdbejax.envs.table_cleaning.env import (
     make_mdp,
     make_params,
 )
+from vdbejax.envs.table_cleaning.generator import (
+    TableCleaningGenerator,
+    TableCleaningVariant,
+    make_variant,
+    make_variant_mdp,
+)
 
 __all__ = [
     "ACTION_NAMES",
@@ -17,8 +23,12 @@ __all__ = [
     "EnvParams",
     "EnvState",
     "TableCleaning",
+    "TableCleaningGenerator",
+    "TableCleaningVariant",
     "decode",
     "encode",
     "make_mdp",
     "make_params",
+    "make_variant",
+    "make_variant_mdp",
 ]
