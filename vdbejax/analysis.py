@@ -7,6 +7,9 @@ episode, bootstrap intervals, IQM, probability of improvement) live in
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
 
 from vdbejax.agents import AgentOptions, Setting, make_agent, stack_agents
@@ -170,3 +173,56 @@ def epsilon_snapshots(
     run = run_agents(mdp, params, agent_keys(seed, num_seeds), num_episodes,
                      chunk_episodes=every, on_chunk=record)
     return np.asarray(episodes), np.stack(snapshots), run.returns
+
+
+def action_probabilities(
+    q: np.ndarray, explorer: str, param: float, state_epsilon: float = 1.0,
+    tie_break: str = "random",
+) -> np.ndarray:
+    """Exact probability of each action under an explorer (what ``select_action`` samples).
+
+    ``P = p·softmax_τ(Q) + (1 − p)·greedy(Q)``, with the explorer's exploration
+    probability ``p`` (ε, 1, or ``state_epsilon`` for the VDBE kinds) and temperature ``τ``
+    (∞ = uniform); greedy spreads its mass over the maximal actions (random tie-break) or
+    puts it on the first (``"first"``).
+
+    Args:
+      q: ``[num_actions]`` action values of one state.
+      explorer: ``egreedy``, ``softmax``, ``vdbe`` or ``vdbe_softmax``.
+      param: its swept parameter (ε, τ or σ).
+      state_epsilon: ε(s) for VDBE and VDBE-Softmax.
+      tie_break: ``"random"`` or ``"first"``.
+
+    Returns:
+      float64 ``[num_actions]`` probabilities summing to 1.
+    """
+    from vdbejax.explorers import make_explorer, softmax_probabilities
+
+    params = make_explorer(explorer, param, tie_break=tie_break)
+    q = np.asarray(q, np.float64)
+    explore = state_epsilon if bool(params.adaptive) else float(params.epsilon)
+    exploratory = np.asarray(softmax_probabilities(q, float(params.tau)), np.float64)
+    maximal = (q == q.max()).astype(np.float64)
+    if tie_break == "first":
+        maximal = np.eye(len(q))[np.argmax(q)]
+    greedy = maximal / maximal.sum()
+    return explore * exploratory + (1.0 - explore) * greedy
+
+
+def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[str], digits: int = 3) -> str:
+    """Rows as a markdown table (floats rounded to ``digits``), e.g. for notebooks.
+
+    Args:
+      rows: dictionaries holding at least ``columns``.
+      columns: the columns, in order.
+      digits: decimals of float cells.
+
+    Returns:
+      markdown text.
+    """
+    def cell(value: Any) -> str:
+        return f"{value:.{digits}f}" if isinstance(value, (float, np.floating)) else str(value)
+
+    lines = ["| " + " | ".join(columns) + " |", "| " + " | ".join("---" for _ in columns) + " |"]
+    lines += ["| " + " | ".join(cell(r[c]) for c in columns) + " |" for r in rows]
+    return "\n".join(lines)

@@ -6,10 +6,12 @@ Every function returns the matplotlib figure and, given ``path``, saves it as PN
 from __future__ import annotations
 
 import os
+import sys
 
 import matplotlib
 
-matplotlib.use("Agg")  # headless by default; notebooks may switch backends themselves
+if "ipykernel" not in sys.modules:  # headless by default; keep a notebook's inline backend
+    matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
