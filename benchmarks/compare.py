@@ -1,0 +1,417 @@
+"""Side-by-side benchmark: the same work through pure Python, Numba and vdbejax.
+
+    python -m benchmarks.compare --out benchmarks/RESULTS.md
+
+The work is the paper's full grid (46 settings × 20 seeds × 1000 episodes, spec defaults).
+Each peer runs in a fresh subprocess (clean timings and peak memory):
+
+* ``python``: :mod:`benchmarks.python_loop` on ``--python-seeds`` seeds per setting (all
+  46 settings); its full-grid time is extrapolated per agent-step (stated in the report).
+* ``numba``: :mod:`benchmarks.numba_loop`; compile time = the first (tiny) call, cold
+  (empty ``NUMBA_CACHE_DIR``) and warm (``cache=True`` hit).
+* ``vdbejax``: :func:`vdbejax.engine.run_agents`; compile time = the engine's
+  ``lower().compile()`` time, cold (empty JAX persistent compilation cache) and warm
+  (cache filled by the cold run).
+
+Every peer must reproduce vdbejax's learning curves (per-setting mean return over the
+first 300 and the last 100 episodes, bootstrap CI of the difference), otherwise its speed
+would mean nothing. ``--scaling`` adds throughput and memory against the number of agents
+(``--mdp-factory module:function`` swaps the task, e.g. for generated variants).
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib
+import json
+import os
+import platform
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_FACTORY = "vdbejax.envs.table_cleaning:make_mdp"
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _load_factory(spec: str):
+    module, _, name = spec.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+# --------------------------------------------------------------------------- workers
+def _worker_vdbejax(args) -> dict:
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", args.jax_cache)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    from vdbejax import engine
+    from vdbejax.agents import make_agent, paper_settings, stack_agents
+
+    rss_import = _peak_rss_mb()
+    started = time.perf_counter()
+    mdp = _load_factory(args.mdp_factory)()
+    settings = paper_settings()
+    if args.agents:  # scaling: agent i runs setting i mod 46 with its own key
+        n = args.agents
+        per = stack_agents([make_agent(s) for s in settings])
+        index = np.arange(n) % len(settings)
+        params = jax.tree.map(lambda leaf: leaf[index], per)
+        keys = engine.agent_keys(1, n)
+    else:
+        params = engine.broadcast_agents(
+            stack_agents([make_agent(s) for s in settings]), args.seeds
+        )
+        keys = np.tile(engine.agent_keys(0, args.seeds), (len(settings), 1))
+    result = engine.run_agents(mdp, params, keys, args.episodes)
+    wall = time.perf_counter() - started
+    compile_time = engine.compile_seconds()
+    steady = None
+    if args.agents:  # scaling: time a second, fully compiled run of the same work
+        again = time.perf_counter()
+        engine.run_agents(mdp, params, keys, args.episodes)
+        steady = time.perf_counter() - again
+    return {
+        "steady": steady,
+        "wall": wall,
+        "compile": compile_time,
+        "steps": int(result.lengths.sum()),
+        "iterations": int(result.iterations),
+        "lane_iterations": int(result.lane_iterations),
+        "peak_rss_mb": _peak_rss_mb(),
+        "rss_after_import_mb": rss_import,
+        "returns": result.returns,
+    }
+
+
+def _worker_numba(args) -> dict:
+    from benchmarks.numba_loop import run_grid
+    from vdbejax.agents import paper_settings
+
+    settings = paper_settings()
+    started = time.perf_counter()
+    run_grid(settings[:1], [0], 1)  # first call: compile, or load from the cache
+    compile_time = time.perf_counter() - started
+    returns, lengths = run_grid(settings, list(range(args.seeds)), args.episodes)
+    wall = time.perf_counter() - started
+    return {
+        "wall": wall,
+        "compile": compile_time,
+        "steps": int(lengths.sum()),
+        "peak_rss_mb": _peak_rss_mb(),
+        "returns": returns.astype(np.float32),
+    }
+
+
+def _worker_python(args) -> dict:
+    from benchmarks.python_loop import train_agent
+    from vdbejax.agents import paper_settings
+
+    settings = paper_settings()
+    started = time.perf_counter()
+    returns, steps = [], 0
+    for setting in settings:
+        for seed in range(args.python_seeds):
+            r, lengths = train_agent(
+                setting.learner, setting.explorer, setting.param, 1000 * seed + 7,
+                args.episodes,
+            )
+            returns.append(r)
+            steps += sum(lengths)
+    wall = time.perf_counter() - started
+    return {
+        "wall": wall,
+        "compile": 0.0,
+        "steps": steps,
+        "peak_rss_mb": _peak_rss_mb(),
+        "returns": np.asarray(returns, np.float32),
+    }
+
+
+WORKERS = {"vdbejax": _worker_vdbejax, "numba": _worker_numba, "python": _worker_python}
+
+
+def _spawn(kind: str, args, env_extra: dict | None = None, **overrides) -> dict:
+    out = Path(args.tmp) / f"{kind}-{time.time_ns()}.npz"
+    cmd = [
+        sys.executable, "-m", "benchmarks.compare", "--worker", kind, "--worker-out", str(out),
+        "--episodes", str(overrides.get("episodes", args.episodes)),
+        "--seeds", str(args.seeds), "--python-seeds", str(args.python_seeds),
+        "--jax-cache", args.jax_cache, "--mdp-factory", args.mdp_factory,
+        "--agents", str(overrides.get("agents", 0)),
+    ]
+    env = dict(os.environ, **(env_extra or {}))
+    env["PYTHONPATH"] = os.pathsep.join(
+        [str(ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])
+    )
+    subprocess.run(cmd, check=True, env=env, cwd=ROOT)
+    data = dict(np.load(out, allow_pickle=False))
+    meta = json.loads(str(data.pop("meta")))
+    meta.update(data)
+    return meta
+
+
+# --------------------------------------------------------------------------- checks
+def _bootstrap_agree(a: np.ndarray, b: np.ndarray, rng, *, tol: float, level: float = 0.999):
+    """Difference of means of two groups of agents, its bootstrap CI, and agreement."""
+    diff = a.mean() - b.mean()
+    ia = rng.integers(0, len(a), size=(2000, len(a)))
+    ib = rng.integers(0, len(b), size=(2000, len(b)))
+    boot = a[ia].mean(1) - b[ib].mean(1)
+    lo, hi = np.quantile(boot, [(1 - level) / 2, 1 - (1 - level) / 2])
+    return diff, lo, hi, bool((lo <= 0 <= hi) or abs(diff) <= tol)
+
+
+def agreement(peer: np.ndarray, reference: np.ndarray, settings, *, tol: float = 0.02):
+    """Per setting: do the peer's agents learn like vdbejax's? (first 300, last 100 eps)."""
+    rng = np.random.default_rng(0)
+    n = len(settings)
+    peer = peer.reshape(n, -1, peer.shape[-1])
+    reference = reference.reshape(n, -1, reference.shape[-1])
+    rows = []
+    for i, setting in enumerate(settings):
+        row = {"setting": setting.label}
+        for window, sl in (("early", slice(0, 300)), ("final", slice(-100, None))):
+            row[window] = _bootstrap_agree(
+                peer[i][:, sl].mean(1), reference[i][:, sl].mean(1), rng, tol=tol
+            )
+        rows.append(row)
+    return rows
+
+
+# --------------------------------------------------------------------------- report
+def _machine() -> list[str]:
+    import jax
+    import numba
+
+    cpu = "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    return [
+        f"- Machine: {platform.platform()}; CPU: {cpu}; {os.cpu_count()} logical cores; "
+        f"{mem:.1f} GiB RAM; no GPU (JAX CPU backend).",
+        f"- Versions: Python {platform.python_version()}, jax {jax.__version__}, "
+        f"numba {numba.__version__}, numpy {np.__version__}.",
+        f"- Date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC}.",
+    ]
+
+
+def _fmt_row(name, r, ref=None, note=""):
+    sps = r["steps"] / r["wall"]
+    cells = [name, f"{r['wall']:.2f}", f"{r['compile']:.2f}", f"{r['wall'] - r['compile']:.2f}",
+             f"{sps / 1e6:.2f}", f"{r['peak_rss_mb']:.0f}"]
+    if ref is not None:
+        cells.append(f"{r['wall'] / ref['wall']:.2f}×")
+    return "| " + " | ".join(cells) + f" | {note} |"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--out", default=str(ROOT / "benchmarks" / "RESULTS.md"))
+    p.add_argument("--episodes", type=int, default=1000)
+    p.add_argument("--seeds", type=int, default=20)
+    p.add_argument("--python-seeds", type=int, default=2,
+                   help="seeds per setting for the pure-Python peer (time extrapolated)")
+    p.add_argument("--skip-python", action="store_true")
+    p.add_argument("--scaling", default="1,10,100,1000,10000,100000",
+                   help="agent counts of the scaling benchmark ('' to skip)")
+    p.add_argument("--scaling-episodes", type=int, default=20)
+    p.add_argument("--mdp-factory", default=DEFAULT_FACTORY,
+                   help="module:function returning the TabularMDP (vdbejax runs)")
+    p.add_argument("--tmp", default=None)
+    p.add_argument("--jax-cache", default=None)
+    p.add_argument("--worker", choices=sorted(WORKERS), help=argparse.SUPPRESS)
+    p.add_argument("--worker-out", help=argparse.SUPPRESS)
+    p.add_argument("--agents", type=int, default=0, help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+
+    if args.worker:
+        res = WORKERS[args.worker](args)
+        returns = res.pop("returns")
+        np.savez(args.worker_out, returns=returns, meta=json.dumps(res))
+        return 0
+
+    from vdbejax.agents import paper_settings
+
+    command = "python -m benchmarks.compare " + " ".join(argv if argv is not None else sys.argv[1:])
+    tmp = Path(args.tmp or tempfile.mkdtemp(prefix="vdbejax-bench-"))
+    args.tmp = str(tmp)
+    args.jax_cache = args.jax_cache or str(tmp / "jax-cache")
+    numba_cache = tmp / "numba-cache"
+    shutil.rmtree(args.jax_cache, ignore_errors=True)
+    shutil.rmtree(numba_cache, ignore_errors=True)
+    load_before = os.getloadavg()
+    settings = paper_settings()
+    nenv = {"NUMBA_CACHE_DIR": str(numba_cache)}
+
+    print("numba (cold cache) ...", flush=True)
+    numba_cold = _spawn("numba", args, nenv)
+    print("vdbejax (cold cache) ...", flush=True)
+    jax_cold = _spawn("vdbejax", args)
+    print("numba (warm cache) ...", flush=True)
+    numba_warm = _spawn("numba", args, nenv)
+    print("vdbejax (warm cache) ...", flush=True)
+    jax_warm = _spawn("vdbejax", args)
+    python = None
+    if not args.skip_python:
+        print("python ...", flush=True)
+        python = _spawn("python", args)
+    load_after = os.getloadavg()
+
+    steps = jax_warm["steps"]
+    lines = ["# Benchmarks: vdbejax against a pure-Python and a Numba per-agent loop", ""]
+    lines += _machine()
+    lines += [
+        f"- Command: `{command}` (from the repository root, in the project venv).",
+        f"- Load average (1/5/15 min) before: {load_before[0]:.1f}/{load_before[1]:.1f}/"
+        f"{load_before[2]:.1f}, after: {load_after[0]:.1f}/{load_after[1]:.1f}/"
+        f"{load_after[2]:.1f}. The machine is shared; a load above the core count inflates "
+        "every wall time (all peers ran in the same session, one after another).",
+        "",
+        f"## Full paper grid: {len(settings)} settings × {args.seeds} seeds × "
+        f"{args.episodes} episodes",
+        "",
+        "Each peer ran in its own fresh subprocess. *Wall* = end to end (building the task "
+        "and agents, compiling, running, results on the host; interpreter start and imports "
+        "excluded); *compile* = Numba's first call / vdbejax's `lower().compile()` time; "
+        "*steps/s* = real environment steps (Σ `lengths`) / wall; *peak RSS* = the "
+        "subprocess's maximum resident memory (interpreter and libraries included).",
+        "",
+        "| peer | wall s | compile s | run s | M steps/s | peak RSS MB | vdbejax / peer "
+        "(wall) | note |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    rows = [("vdbejax (warm JAX cache)", jax_warm, ""),
+            ("vdbejax (cold JAX cache)", jax_cold, ""),
+            ("numba (warm cache=True)", numba_warm, ""),
+            ("numba (cold)", numba_cold, "")]
+    if python is not None:
+        agents = len(settings) * args.python_seeds
+        per_step = python["wall"] / python["steps"]
+        extrapolated = dict(python, wall=per_step * steps)
+        rows.append((f"python ({agents} agents measured)", python,
+                     f"{python['steps']:,} steps"))
+        rows.append(("python (extrapolated to the grid)", extrapolated,
+                     f"{per_step * 1e6:.2f} µs/step × {steps:,} steps"))
+    for name, r, note in rows:
+        lines.append(_fmt_row(name, r, None, note).replace(" |  |", " | – |", 0))
+    # ratios
+    lines += ["", "Ratios (peer wall / vdbejax wall; > 1 means vdbejax is faster):", ""]
+
+    def ratio(a, b):
+        return b["wall"] / a["wall"]
+
+    lines.append(f"- warm vs warm: Numba / vdbejax = **{ratio(jax_warm, numba_warm):.2f}×** "
+                 f"(target ≥ 2); run time only (compile excluded): "
+                 f"{(numba_warm['wall'] - numba_warm['compile']) / (jax_warm['wall'] - jax_warm['compile']):.2f}×")
+    lines.append(f"- cold vs cold: Numba / vdbejax = {ratio(jax_cold, numba_cold):.2f}×")
+    if python is not None:
+        lines.append(f"- Python (extrapolated) / vdbejax (warm) = **{ratio(jax_warm, extrapolated):.1f}×** "
+                     "(target ≥ 100)")
+    lines.append(f"- vdbejax lockstep: {jax_warm['iterations']:,} iterations, "
+                 f"{jax_warm['lane_iterations']:,} agent-lane iterations for {steps:,} real steps "
+                 f"(lane efficiency {steps / max(jax_warm['lane_iterations'], 1):.0%}).")
+
+    # agreement
+    lines += ["", "## Do the peers learn the same? (statistical check)", "",
+              "Per setting, the mean over agents of the return averaged over episodes 1–300 "
+              "(*early*, learning speed) and 901–1000 (*final*); a peer agrees when the 99.9 % "
+              "bootstrap CI of the difference to vdbejax contains 0 or |difference| ≤ 0.02. "
+              "Different random streams, so only distributions can agree.", ""]
+    checks = [("numba", numba_warm["returns"])]
+    if python is not None:
+        checks.append(("python", python["returns"]))
+    summary = {}
+    detail = ["| setting | " + " | ".join(f"{n} early Δ | {n} final Δ" for n, _ in checks) + " |",
+              "| --- |" + " --- | --- |" * len(checks)]
+    tables = {n: agreement(r, jax_warm["returns"], settings) for n, r in checks}
+    for n, t in tables.items():
+        ok = sum(row["early"][3] and row["final"][3] for row in t)
+        summary[n] = ok
+        lines.append(f"- {n}: {ok}/{len(settings)} settings agree on both windows.")
+    for i, setting in enumerate(settings):
+        cells = []
+        for n, _ in checks:
+            for w in ("early", "final"):
+                d, lo, hi, good = tables[n][i][w]
+                cells.append(f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]{'' if good else ' ✗'}")
+        detail.append(f"| {setting.label} | " + " | ".join(cells) + " |")
+    lines += ["", "<details><summary>per-setting differences (peer − vdbejax, 99.9 % CI)</summary>",
+              "", *detail, "", "</details>"]
+
+    # scaling
+    counts = [int(c) for c in args.scaling.split(",") if c.strip()]
+    if counts:
+        lines += ["", f"## Scaling: agents 1 → {counts[-1]:,} ({args.scaling_episodes} episodes "
+                  f"each, task `{args.mdp_factory}`)", "",
+                  "Agent *i* runs paper setting *i* mod 46 with its own key. Fresh subprocess "
+                  "per count; *wall* = first run (compiles, JAX cache warm where the shape was "
+                  "compiled before), *run s* = a second identical run in the same process "
+                  "(everything compiled); throughput = real steps / run s.", "",
+                  "| agents | wall s | compile s | run s | real steps | M steps/s (run) | "
+                  "lane efficiency | peak RSS MB | RSS after import MB |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        scale_rows = []
+        for n in counts:
+            print(f"scaling: {n} agents ...", flush=True)
+            try:
+                r = _spawn("vdbejax", args, agents=n, episodes=args.scaling_episodes)
+            except subprocess.CalledProcessError as err:  # e.g. out of memory
+                lines.append(f"| {n:,} | failed ({err.returncode}) | | | | | | | |")
+                break
+            run = r["steady"]
+            scale_rows.append((n, r["steps"] / run, r["peak_rss_mb"]))
+            lines.append(
+                f"| {n:,} | {r['wall']:.2f} | {r['compile']:.2f} | {run:.2f} | {r['steps']:,} | "
+                f"{r['steps'] / run / 1e6:.2f} | {r['steps'] / max(r['lane_iterations'], 1):.0%} | "
+                f"{r['peak_rss_mb']:.0f} | {r['rss_after_import_mb']:.0f} |")
+        if scale_rows:
+            png = Path(args.out).with_name("scaling.png")
+            _plot_scaling(scale_rows, png)
+            lines += ["", f"![throughput and memory against agents]({png.name})"]
+    Path(args.out).write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+def _plot_scaling(rows, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n, sps, rss = (np.array(x) for x in zip(*rows))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    a.loglog(n, sps, "o-")
+    a.set_xlabel("agents")
+    a.set_ylabel("real agent-steps / s (compile excluded)")
+    a.set_title("throughput")
+    a.grid(True, which="both", alpha=0.3)
+    b.loglog(n, rss, "o-", color="C1")
+    b.set_xlabel("agents")
+    b.set_ylabel("peak RSS (MB)")
+    b.set_title("memory")
+    b.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
