@@ -118,9 +118,11 @@ def parse_bytes(name: str, text: Any) -> int:
     Raises:
       ValueError: not a positive size.
     """
-    if hasattr(text, "__index__") and not isinstance(text, (bool, np.bool_)):
-        return check_int(name, text, 1)
     allowed = "must be a size in bytes > 0, e.g. 1000000, 512M, 2G"
+    if hasattr(text, "__index__") and not isinstance(text, (bool, np.bool_)):
+        if int(text) < 1:
+            _fail(name, text, allowed)
+        return int(text)
     raw = str(text).strip().lower().removesuffix("ib").removesuffix("b")
     unit = raw[-1:] if raw[-1:] in BYTE_UNITS and raw[-1:] else ""
     number = raw[: len(raw) - len(unit)]
