@@ -92,8 +92,10 @@ def _sort_small(values: Array) -> Array:
 
 
 def _first(mask: Array) -> Array:
-    """Only the first true entry of a boolean vector."""
-    return mask & (jnp.cumsum(mask) == 1)
+    """One-hot of the first true entry of a boolean vector (entry 0 when none is true:
+    then, on codes no episode reaches, the variant ``k = 1`` still acts like the paper's
+    single goblet field)."""
+    return jnp.arange(mask.shape[0]) == jnp.argmax(mask)
 
 
 @dataclasses.dataclass(frozen=True)
