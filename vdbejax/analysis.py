@@ -221,7 +221,10 @@ def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[str], digit
       markdown text.
     """
     def cell(value: Any) -> str:
-        return f"{value:.{digits}f}" if isinstance(value, (float, np.floating)) else str(value)
+        if not isinstance(value, (float, np.floating)):
+            return str(value)
+        # Tiny parameters (τ = 0.0001) would round to 0: show them in full.
+        return f"{value:g}" if 0 < abs(value) < 10.0 ** -digits else f"{value:.{digits}f}"
 
     lines = ["| " + " | ".join(columns) + " |", "| " + " | ".join("---" for _ in columns) + " |"]
     lines += ["| " + " | ".join(cell(r[c]) for c in columns) + " |" for r in rows]

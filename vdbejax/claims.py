@@ -156,7 +156,8 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
     add(4, "VDBE-Softmax: good for every σ tried, with either learner.",
         "every σ ends near 0.86", measured, checks)
 
-    # 5. Convergence speed.
+    # 5. Convergence speed. A setting that never gets near the best return has not
+    # "converged" in the paper's sense, however early its flat curve hits its own level.
     measured, checks = [], []
     paper_episode = {"qlearning": 280, "sarsa": 300}
     for learner in learners:
@@ -165,12 +166,30 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
         if best["vdbe_softmax"] is None:
             continue
         conv = {e: int(r["convergence_episode"]) for e, r in best.items() if r is not None}
+        good = {e: float(r["final_return"]) >= near for e, r in best.items() if r is not None}
         measured.append(f"{name} convergence episode of each explorer's best setting: " + ", ".join(
-            f"{e} {conv[e]}" for e in conv) + f" (paper: VDBE-Softmax ≈{paper_episode[learner]}, others ≈350)")
+            f"{e} {conv[e]}" + ("" if good[e] else " (not near best)") for e in conv)
+            + f" (paper: VDBE-Softmax ≈{paper_episode[learner]}, others ≈350)")
         others = [e for e in ("softmax", "vdbe") if e in conv]
-        checks.append(Check(f"{name}: VDBE-Softmax ({conv['vdbe_softmax']}) converges no later than "
-                            + ", ".join(f"{e} ({conv[e]})" for e in others),
-                            all(conv["vdbe_softmax"] <= conv[e] for e in others)))
+        # "No later" up to noise: the lower end of VDBE-Softmax's bootstrap interval (when
+        # the summary has one) must not exceed the other's convergence episode.
+        vs_row = best["vdbe_softmax"]
+        vs_low = float(vs_row.get("convergence_ci_low", conv["vdbe_softmax"]))
+        checks.append(Check(f"{name}: VDBE-Softmax ends near the best return and converges "
+                            f"({conv['vdbe_softmax']}, CI from {vs_low:g}) no later than "
+                            + ", ".join(f"{e} ({conv[e]}{'' if good[e] else ', never near best'})"
+                                        for e in others),
+                            good["vdbe_softmax"] and all(
+                                not good[e] or vs_low <= conv[e] for e in others)))
+        if learner == "qlearning" and "egreedy" in conv:
+            # "About as fast": within 25% of VDBE-Softmax (the paper's others are ~25% slower).
+            egreedy_final = float(best["egreedy"]["final_return"])
+            vs_final = float(best["vdbe_softmax"]["final_return"])
+            checks.append(Check(
+                f"{name}: ε-greedy converges about as fast (episode {conv['egreedy']} ≤ 1.25 × "
+                f"{conv['vdbe_softmax']}) to a worse return ({egreedy_final:.2f} < {vs_final:.2f})",
+                good["vdbe_softmax"] and conv["egreedy"] <= 1.25 * conv["vdbe_softmax"]
+                and egreedy_final < vs_final))
     add(5, "VDBE-Softmax converges fastest: its best average return after about 280 episodes "
            "(Q-learning) and 300 (SARSA); the others near 350; ε-greedy with Q-learning converges "
            "about as fast but to a worse return.",
