@@ -135,7 +135,7 @@ def _first_bad(label: str, arr: np.ndarray, bad: np.ndarray, allowed: str) -> No
     """Raise for the first element of ``arr`` where ``bad`` holds, naming its position."""
     if np.any(bad):
         where = tuple(int(i) for i in np.unravel_index(np.argmax(bad), bad.shape))
-        raise ValueError(f"{label}{list(where)} = {arr[where]!r}: {allowed}")
+        raise ValueError(f"{label}{list(where)} = {arr[where].item()!r}: {allowed}")
 
 
 def make_tabular_mdp(
