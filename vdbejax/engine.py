@@ -211,15 +211,17 @@ def agent_iteration(
         s_start = start_support[0][sample_categorical(start_support[1], u[0])]
 
     q_sa = agent.q[s, a]
-    q_next = agent.q[s_next]
+    # Choose the next action in s' (in the new episode's start state after a terminal
+    # step). Its Q row also gives the target: when the step is terminal the discount is 0,
+    # so which row it multiplies does not matter (for finite Q).
+    act_state = jnp.where(resetting | terminal, s_start, s_next)
+    q_next = agent.q[act_state]
     discount = jnp.where(terminal, 0.0, learner.gamma)
     q_learning_value, q_learning_dq = td_update(
         q_sa, q_learning_target(reward, discount, q_next), learner.alpha
     )
 
-    # Choose the next action (in the new episode's start state after a terminal step).
-    act_state = jnp.where(resetting | terminal, s_start, s_next)
-    act_q = agent.q[act_state]
+    act_q = q_next
     act_epsilon = agent.epsilon[act_state]
     # Q-learning chooses after its update: patch the row when acting in the updated state.
     patch = ~learner.sarsa & ~resetting & (act_state == s)
@@ -509,7 +511,7 @@ _COMPILE_SECONDS = [0.0]
 
 def _signature(args: Any) -> Any:
     leaves, treedef = jax.tree.flatten(args)
-    return treedef, tuple((np.shape(x), np.result_type(x).str) for x in leaves)
+    return treedef, tuple((np.shape(x), np.dtype(getattr(x, "dtype", None) or np.result_type(x)).str) for x in leaves)
 
 
 def _call_block(unroll: int, *args: Any) -> Any:
