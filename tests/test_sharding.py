@@ -132,3 +132,46 @@ def test_select_devices_checks_the_count():
         select_devices(1000)
     with pytest.raises(ValueError, match="devices=0 is invalid"):
         select_devices(0)
+
+
+#: One of two processes of a "multi-host" run on this machine (2 CPU devices each).
+TWO_PROCESS_SCRIPT = textwrap.dedent(
+    """
+    import sys
+    sys.path.insert(0, {tests!r})
+    import jax
+    port, process_id, out = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+    jax.distributed.initialize(coordinator_address="127.0.0.1:" + port, num_processes=2,
+                               process_id=process_id)
+    from small_grid import run_small
+    result = run_small(checkpoint=out + "/ckpt.npz")
+    assert result.meta["devices"] == 4 and result.meta["processes"] == 2, result.meta
+    result.save(out + f"/process{{process_id}}")
+    """
+)
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_two_processes_like_two_hosts_equal_one_process(tmp_path, reference):
+    script = tmp_path / "two_processes.py"
+    script.write_text(TWO_PROCESS_SCRIPT.format(tests=str(TESTS)))
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
+               JAX_PLATFORMS="cpu")
+    port = str(free_port())
+    processes = [subprocess.Popen([sys.executable, str(script), port, str(i), str(tmp_path)],
+                                  env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                  text=True) for i in range(2)]
+    for process in processes:
+        _, err = process.communicate(timeout=600)
+        assert process.returncode == 0, err
+    for i in range(2):  # every process holds the whole, gathered result
+        assert_same_curves(reference, GridResult.load(tmp_path / f"process{i}"))
+    assert sorted(p.name for p in tmp_path.glob("ckpt*")) == [
+        "ckpt.process0of2.npz", "ckpt.process1of2.npz"]

@@ -18,7 +18,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from vdbejax.distributed import run_sharded
+from vdbejax.distributed import run_sharded, take_agents
 from vdbejax.engine import AgentState, ProgressCallback
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.validation import check_int
@@ -152,7 +152,7 @@ class SweepProgress:
         row_parts, state_parts = [], []
         if keep.any():
             row_parts.append(self.state_rows[keep])
-            state_parts.append(_take(self.state, keep))
+            state_parts.append(take_agents(self.state, keep))
         if done < self.num_episodes:  # finished agents need no state
             row_parts.append(np.asarray(rows, np.int64))
             state_parts.append(jax.tree.map(np.asarray, agents))
@@ -167,11 +167,7 @@ class SweepProgress:
             index = np.asarray([position[int(r)] for r in rows])
         except KeyError as missing:
             raise ValueError(f"checkpoint lacks the state of agent {missing}") from None
-        return _take(self.state, index)
-
-
-def _take(tree: Any, index: np.ndarray) -> Any:
-    return jax.tree.map(lambda leaf: np.asarray(leaf)[index], tree)
+        return take_agents(self.state, index)
 
 
 def next_batch(progress: SweepProgress, batch_size: int) -> np.ndarray:
@@ -242,7 +238,7 @@ def run_batched(
                                base: int = others_done) -> None:
                 progress(base + done_here, total, time.perf_counter() - started)
 
-        run_sharded(mdp, _take(params, rows), keys[rows], num_episodes, devices=devices,
+        run_sharded(mdp, take_agents(params, rows), keys[rows], num_episodes, devices=devices,
                     initial=initial, on_chunk=on_chunk, chunk_episodes=chunk_episodes,
                     progress=batch_progress)
         batches += 1

@@ -9,12 +9,15 @@ advances its own slice of agents. Each agent's computation depends only on its o
 lane, hence the results are bit-identical to a single-device run.
 
 Multi-host: call ``jax.distributed.initialize()`` in every process before anything
-else (see the README); ``jax.devices()`` then lists the devices of all hosts and the
-same code shards over all of them.
+else (see the README). Each process then runs its contiguous share of the agents
+(:func:`process_share`) sharded over its own devices, with no communication during the
+run, and the results are all-gathered at the end (:func:`gather_agents`).
 """
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any, TypeVar
 
 import jax
@@ -73,9 +76,60 @@ def pad_agents(tree: Tree, multiple: int) -> tuple[Tree, int]:
     return jax.tree.map(pad, tree), count
 
 
+def take_agents(tree: Tree, index: Any) -> Tree:
+    """Agents ``index`` (indices or a boolean mask) of every leaf, as numpy."""
+    return jax.tree.map(lambda leaf: np.asarray(leaf)[index], tree)
+
+
+def process_share(num_agents: int) -> np.ndarray:
+    """Agent rows this process runs: a contiguous ``1/process_count`` of the sweep.
+
+    Agents are independent, so hosts need not talk during a run; results are gathered
+    once at the end (:func:`gather_agents`). One process: every row.
+    """
+    return np.array_split(np.arange(num_agents), jax.process_count())[jax.process_index()]
+
+
+def local_devices(devices: Sequence[jax.Device]) -> list[jax.Device]:
+    """The devices of ``devices`` attached to this process.
+
+    Raises:
+      ValueError: none of them is.
+    """
+    mine = [d for d in devices if d.process_index == jax.process_index()]
+    if not mine:
+        raise ValueError(f"devices={len(devices)} is invalid: selects no device of process"
+                         f" {jax.process_index()}; use all devices on several hosts")
+    return mine
+
+
+def gather_agents(local: np.ndarray, num_agents: int) -> np.ndarray:
+    """Concatenate every process's :func:`process_share` rows of ``local`` (all processes
+    receive the whole ``[num_agents, ...]`` array). One process: ``local`` itself."""
+    if jax.process_count() == 1:
+        return local
+    from jax.experimental import multihost_utils
+
+    sizes = [len(share) for share in np.array_split(np.arange(num_agents), jax.process_count())]
+    padded = np.zeros((max(sizes), *local.shape[1:]), local.dtype)
+    padded[: local.shape[0]] = local  # equal shapes for the all-gather
+    everything = np.asarray(multihost_utils.process_allgather(padded))
+    return np.concatenate([everything[p, :size] for p, size in enumerate(sizes)])
+
+
+def process_checkpoint_path(path: str | os.PathLike) -> Path:
+    """This process's checkpoint file: ``path`` itself, or ``stem.process<i>of<n>.npz``
+    when several processes each checkpoint their own share."""
+    path = Path(path)
+    if jax.process_count() == 1:
+        return path
+    return path.with_name(
+        f"{path.stem}.process{jax.process_index()}of{jax.process_count()}{path.suffix}")
+
+
 def unpad_agents(tree: Tree, count: int) -> Tree:
     """Drop padding rows: keep the first ``count`` agents of every leaf (as numpy)."""
-    return jax.tree.map(lambda leaf: np.asarray(leaf)[:count], tree)
+    return take_agents(tree, slice(0, count))
 
 
 def shard_agents(tree: Tree, mesh: Mesh) -> Tree:

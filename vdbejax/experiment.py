@@ -31,7 +31,14 @@ from vdbejax.batching import (
     mdp_bytes,
     run_batched,
 )
-from vdbejax.distributed import select_devices
+from vdbejax.distributed import (
+    gather_agents,
+    local_devices,
+    process_checkpoint_path,
+    process_share,
+    select_devices,
+    take_agents,
+)
 from vdbejax.engine import (
     AgentState,
     ProgressCallback,
@@ -267,10 +274,13 @@ def run_grid(
     params = broadcast_agents(stack_agents([make_agent(s, options) for s in settings]), num_seeds)
     keys = np.tile(agent_keys(seed, num_seeds), (len(settings), 1))
     num_agents = len(settings) * num_seeds
-    budget = default_memory_budget(device_list) if memory_budget_bytes is None else memory_budget_bytes
+    # Several processes (hosts): each runs its share of the agents on its own devices.
+    rows = process_share(num_agents)
+    my_devices = local_devices(device_list)
+    budget = default_memory_budget(my_devices) if memory_budget_bytes is None else memory_budget_bytes
     batch_size = agents_per_batch(
-        num_agents, bytes_per_agent(mdp, min(chunk_episodes, num_episodes)), budget,
-        len(device_list), fixed_bytes=mdp_bytes(mdp),
+        max(len(rows), 1), bytes_per_agent(mdp, min(chunk_episodes, num_episodes)), budget,
+        len(my_devices), fixed_bytes=mdp_bytes(mdp),
     )
     description = {
         "mdp": mdp.name,
@@ -283,39 +293,43 @@ def run_grid(
     }
     # Chunk size, batch size and devices are left out: results do not depend on them.
     fingerprint = _fingerprint(description)
+    # A process's checkpoint holds its share only: tie it to the process layout.
+    checkpoint_fingerprint = fingerprint if jax.process_count() == 1 else _fingerprint(
+        dict(description, process=[jax.process_index(), jax.process_count()]))
     sweep = None
     on_checkpoint = None
     if checkpoint is not None:
-        checkpoint = Path(checkpoint)
+        checkpoint = process_checkpoint_path(checkpoint)
         if resume and checkpoint.exists():
-            sweep = _load_checkpoint(checkpoint, fingerprint, (num_agents, num_episodes))
+            sweep = _load_checkpoint(checkpoint, checkpoint_fingerprint, (len(rows), num_episodes))
 
         def on_checkpoint(progress_now: SweepProgress) -> None:
-            _save_checkpoint(checkpoint, fingerprint, progress_now)
+            _save_checkpoint(checkpoint, checkpoint_fingerprint, progress_now)
 
     resumed_from = 0 if sweep is None else int(sweep.episodes_done.sum())
     callback = text_progress() if progress is True else (progress or None)
     started = time.perf_counter()
     sweep, batches = run_batched(
-        mdp, params, keys, num_episodes, batch_size=batch_size, devices=device_list,
-        chunk_episodes=chunk_episodes, progress=callback, sweep=sweep,
+        mdp, take_agents(params, rows), keys[rows], num_episodes, batch_size=batch_size,
+        devices=my_devices, chunk_episodes=chunk_episodes, progress=callback, sweep=sweep,
         on_checkpoint=on_checkpoint,
     )
     elapsed = time.perf_counter() - started
     shape = (len(settings), num_seeds, num_episodes)
-    nonfinite = sweep.nonfinite.reshape(shape[:2])
+    # [agents, episodes] → [configs, seeds, episodes]; nonfinite [agents] → [configs, seeds].
+    returns, lengths, nonfinite = (gather_agents(array, num_agents).reshape(shape[: array.ndim + 1])
+                                   for array in (sweep.returns, sweep.lengths, sweep.nonfinite))
     message = nonfinite_message(settings, nonfinite, options)
     if message:
         warnings.warn(message, RuntimeWarning, stacklevel=2)
     meta = dict(description, fingerprint=fingerprint, elapsed_seconds=elapsed,
                 resumed_from_agent_episodes=resumed_from, max_steps=int(mdp.max_steps),
                 nonfinite_agents=int(nonfinite.sum()), nonfinite_message=message,
-                devices=len(device_list), batches=batches, agents_per_batch=batch_size,
+                devices=len(device_list), processes=jax.process_count(), batches=batches, agents_per_batch=batch_size,
                 memory_budget_bytes=int(budget),
                 jax_version=jax.__version__, backend=jax.default_backend())
     meta.pop("mdp_tables")
-    return GridResult(settings, sweep.returns.reshape(shape), sweep.lengths.reshape(shape),
-                      nonfinite, meta)
+    return GridResult(settings, returns, lengths, nonfinite, meta)
 
 
 def _fingerprint_arrays(mdp: TabularMDP) -> str:

@@ -15,7 +15,8 @@ from vdbejax.agents import AgentOptions, make_agent, paper_settings
 from vdbejax.analysis import SUMMARY_COLUMNS, summarize
 from vdbejax.claims import ClaimResult, evaluate_claims, render_report
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.distributed import select_devices
+from vdbejax.learners import PAPER_ALPHA
+from vdbejax.distributed import process_checkpoint_path, select_devices
 from vdbejax.experiment import GridResult, check_run_options, run_grid
 from vdbejax.solvers import best_return
 from vdbejax.validation import check_bool, check_int, check_writable_dir
@@ -86,6 +87,7 @@ def reproduce(
     invalid_action: str = "noop",
     tie_break: str = "random",
     q_init: float = 0.0,
+    alpha: float = PAPER_ALPHA,
     chunk_episodes: int = 100,
     resume: bool = False,
     progress: bool = True,
@@ -106,7 +108,7 @@ def reproduce(
         output folder that cannot be written.
     """
     mdp = make_mdp(max_steps=max_steps, invalid_action=invalid_action)
-    options = AgentOptions(q_init=q_init, tie_break=tie_break)
+    options = AgentOptions(alpha=alpha, q_init=q_init, tie_break=tie_break)
     # Check every option before creating anything, so bad input leaves no trace.
     make_agent(paper_settings()[0], options)
     check_int("seeds", seeds, 1)  # named as the caller knows them
@@ -131,7 +133,7 @@ def reproduce(
     result.meta["invalid_action"] = invalid_action
     result.meta["best_return"] = best  # lets `vdbejax plot` redraw without the MDP
     result.save(out)
-    checkpoint.unlink(missing_ok=True)
+    process_checkpoint_path(checkpoint).unlink(missing_ok=True)
     summary, claims = write_outputs(result, out, best)
     elapsed = time.perf_counter() - started
     if progress:
