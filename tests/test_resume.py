@@ -159,3 +159,11 @@ def test_sigkill_mid_run_then_resume_is_bit_identical(tmp_path, reference):
     assert result.meta["resumed_from_agent_episodes"] == int(done.sum())
     assert result.returns.shape == (len(SETTINGS), SEEDS, EPISODES)
     assert_same_curves(reference, result)
+
+
+def test_atomic_files_get_the_usual_permissions(tmp_path):
+    target = tmp_path / "meta.json"
+    io.save_json(target, {"a": 1})
+    mask = os.umask(0)
+    os.umask(mask)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~mask
