@@ -229,3 +229,22 @@ def test_generator_and_compile_validation():
         TableCleaningGenerator(num_sections=3, num_goblets=0)
     with pytest.raises(ValueError, match=r"num_codes\(params\)=\d+ is invalid"):
         compile_env(make_variant(12, 6), make_params(), reachable_only=True)
+
+
+def test_gymnax_style_reset_and_step_truncate_at_max_steps():
+    env = make_variant(4, 2)
+    params = make_params(max_steps=2)
+    obs, state = env.reset(jax.random.PRNGKey(3), params)
+    assert obs.shape == (2 + 2 + 4,) and list(np.asarray(obs[:2])) == [0, 4]
+    obs, state, reward, done, info = env.step(jax.random.PRNGKey(0), state, 0, params)  # get sponge
+    assert int(obs[0]) == 1 and not bool(done) and float(reward) == pytest.approx(-0.01)
+    obs, state, reward, done, info = env.step(jax.random.PRNGKey(0), state, 2 + 4, params)  # stay home
+    assert bool(done) and bool(info["truncated"]) and not bool(info["terminal"])
+
+
+def test_batch_size_does_not_change_the_compiled_tables():
+    env, params = make_variant(3, 2), make_params()
+    a = compile_env(env, params, reachable_only=True)
+    b = compile_env(env, params, reachable_only=True, batch_size=7)
+    for leaf_a, leaf_b in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+        np.testing.assert_array_equal(leaf_a, leaf_b)
