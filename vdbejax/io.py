@@ -35,10 +35,24 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
+        _fsync_dir(path.parent)  # make the rename itself survive a power loss
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def _fsync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # platforms that cannot open folders
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def _umask() -> int:
@@ -48,6 +62,7 @@ def _umask() -> int:
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write UTF-8 ``text`` to ``path`` atomically."""
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
@@ -59,6 +74,7 @@ def atomic_savez(path: str | os.PathLike, **arrays: Any) -> None:
 
 
 def write_csv(path: str | os.PathLike, rows: list[dict[str, Any]], columns: list[str]) -> None:
+    """Write ``rows`` (dicts) with header ``columns`` atomically; floats with 6 digits."""
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
     writer.writeheader()
@@ -74,6 +90,7 @@ def _format(value: Any) -> Any:
 
 
 def read_csv(path: str | os.PathLike) -> list[dict[str, str]]:
+    """Rows of a CSV file as dicts of strings."""
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
 
@@ -88,14 +105,17 @@ def save_settings(path: str | os.PathLike, settings: list[Setting]) -> None:
 
 
 def load_settings(path: str | os.PathLike) -> list[Setting]:
+    """Settings of ``configs.csv`` in config-index order."""
     rows = sorted(read_csv(path), key=lambda r: int(r["config"]))
     return [Setting(r["learner"], r["explorer"], float(r["param"])) for r in rows]
 
 
 def save_json(path: str | os.PathLike, data: dict[str, Any]) -> None:
+    """Write ``data`` as indented, key-sorted JSON atomically."""
     atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
 
 
 def load_json(path: str | os.PathLike) -> dict[str, Any]:
+    """Read a JSON file."""
     with open(path) as f:
         return json.load(f)
