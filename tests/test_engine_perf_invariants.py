@@ -77,7 +77,7 @@ def test_compaction_chunking_and_batch_position_do_not_change_results(mdp):
     params, keys = _grid(2)
     base = engine.run_agents(mdp, params, keys, 12, chunk_episodes=12, compact=False)
     compacted = engine.run_agents(
-        mdp, params, keys, 12, chunk_episodes=5, block_iterations=8, min_batch=2
+        mdp, params, keys, 12, chunk_episodes=5, block_iterations=8, min_batch=2, max_batch=3
     )
     np.testing.assert_array_equal(base.returns, compacted.returns)
     np.testing.assert_array_equal(base.lengths, compacted.lengths)

@@ -10,9 +10,18 @@ Design (why it looks like this):
 * **Chunks.** A chunk runs until every agent has finished episode ``chunk_end``; the
   Python driver loops over chunks to show progress and write checkpoints. An agent's
   state at a chunk boundary is the same whatever the chunk size.
-* **Per-agent random streams.** Each iteration of an agent draws its uniforms from
-  ``fold_in(agent_key, agent_counter)``: results depend only on the agent's key and
-  hyperparameters, never on the batch, the chunking or a resume.
+* **Per-agent random streams.** Each iteration of an agent draws its uniforms from a
+  counter-based hash of ``(agent_key, agent_counter)`` (lowbias32 rounds, far cheaper than
+  threefry): results depend only on the agent's key and hyperparameters, never on the
+  batch, the chunking or a resume.
+* **Compaction.** Lockstep makes a batch run until its slowest agent finishes; finished
+  lanes would idle. :func:`run_agents` runs blocks of ``block_iterations`` iterations and,
+  once at most half the lanes are active, gathers the active agents into a batch of the
+  next power-of-two size (few shapes to compile). Bit-identical to running without it.
+* **CPU layout.** The batched step (:func:`_lockstep_iteration`) keeps Q, ε and the
+  output buffers flat (1-D) and handles a Q row as ``A`` column vectors, so every
+  operation is elementwise over the batch or a 1-D gather/scatter of one element per
+  agent; it is the same arithmetic as ``vmap(agent_iteration)`` (tested bit for bit).
 * **One code path for all agents.** Learners and explorers are data (pytree leaves), see
   :mod:`vdbejax.explorers`; nothing branches on the kind of agent.
 * Memory is bounded by agents × (table size + chunk length): only per-episode return
@@ -683,6 +692,7 @@ def run_agents(
     block_iterations: int = 256,
     unroll: int = DEFAULT_UNROLL,
     min_batch: int = 8,
+    max_batch: int = 4096,
 ) -> RunResult:
     """Train a batch of agents for ``num_episodes`` episodes each.
 
@@ -700,8 +710,11 @@ def run_agents(
       compact: between blocks of ``block_iterations`` lockstep iterations, gather the
         still-active agents into a smaller power-of-two batch (at least ``min_batch``
         lanes) once at most half the lanes are active, so finished agents stop costing
-        work. ``unroll``: lockstep iterations per loop trip. None of these four change the
-        results, only the speed.
+        work. ``unroll``: lockstep iterations per loop trip. ``max_batch``: with
+        compaction, agents run in groups of at most this many lanes, one group after
+        another (keeps each group's Q tables cache-sized, so throughput per agent-step
+        does not fall as the number of agents grows). None of these change the results,
+        only the speed.
 
     Returns:
       :class:`RunResult`.
@@ -710,6 +723,10 @@ def run_agents(
 
     check_int("num_episodes", num_episodes, 1)
     check_int("chunk_episodes", chunk_episodes, 1)
+    check_int("block_iterations", block_iterations, 1)
+    check_int("unroll", unroll, 1)
+    check_int("min_batch", min_batch, 1)
+    check_int("max_batch", max_batch, 1)
     keys = jnp.asarray(keys, jnp.uint32)
     num_agents = int(keys.shape[0])
     chunk = min(chunk_episodes, num_episodes)
@@ -728,12 +745,30 @@ def run_agents(
     while done < num_episodes:
         end = min(done + chunk, num_episodes)
         if compact:
-            agents, chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes = (
-                _run_chunk_compacting(
-                    mdp, params, agents, done, end, chunk,
+            # Groups of at most max_batch agents run one after another: a group's tables
+            # stay cache-sized, and per-agent results do not depend on the grouping.
+            pieces = []
+            chunk_iterations = chunk_lanes = 0
+            for lo in range(0, num_agents, max_batch):
+                hi = min(lo + max_batch, num_agents)
+                whole = lo == 0 and hi == num_agents
+
+                def part(tree: Any, lo: int = lo, hi: int = hi, whole: bool = whole) -> Any:
+                    return tree if whole else jax.tree.map(lambda leaf: leaf[lo:hi], tree)
+
+                *piece, group_iterations, group_lanes = _run_chunk_compacting(
+                    mdp, part(params), part(agents), done, end, chunk,
                     block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
                 )
-            )
+                pieces.append(piece)
+                chunk_iterations += group_iterations
+                chunk_lanes += group_lanes
+            if len(pieces) == 1:
+                agents, chunk_returns, chunk_lengths = pieces[0]
+            else:
+                agents, chunk_returns, chunk_lengths = jax.tree.map(
+                    lambda *leaves: jnp.concatenate(leaves), *pieces
+                )
         else:
             agents, chunk_returns, chunk_lengths, chunk_iterations = run_chunk(
                 mdp, params, agents, jnp.int32(done), jnp.int32(end), chunk, unroll
