@@ -101,6 +101,7 @@ RUN_GRID_CASES = [
     ("memory_budget_bytes", 0, "size in bytes"), ("memory_budget_bytes", "lots", "size in bytes"),
     ("memory_budget_bytes", 100, "one agent needs"),
     ("devices", 0, ">= 1"), ("devices", 1000, "device(s) available"),
+    ("progress", "yes", "callable"), ("checkpoint", 3, "file path"),
 ]
 
 
@@ -109,6 +110,14 @@ def test_run_grid_arguments(name, value, allowed):
     with pytest.raises(ValueError) as error:
         run_small(**{name: value})
     assert_one_line(error, f"{name}=", "is invalid", allowed)
+
+
+def test_run_grid_unwritable_checkpoint_folder_fails_before_training(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    with pytest.raises(ValueError) as error:
+        run_small(checkpoint=blocker / "ckpt.npz")
+    assert_one_line(error, "checkpoint folder=", "must be a writable folder")
 
 
 def test_run_grid_settings_and_mdp():

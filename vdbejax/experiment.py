@@ -47,7 +47,7 @@ from vdbejax.engine import (
     text_progress,
 )
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.validation import check_bool, check_int, parse_bytes
+from vdbejax.validation import check_bool, check_int, check_writable_dir, parse_bytes
 
 
 @dataclasses.dataclass
@@ -265,6 +265,9 @@ def run_grid(
         num_seeds=num_seeds, num_episodes=num_episodes, seed=seed,
         chunk_episodes=chunk_episodes, resume=resume, memory_budget_bytes=memory_budget_bytes,
     )
+    if not (isinstance(progress, bool) or callable(progress)):
+        raise ValueError(f"progress={progress!r} is invalid: must be True, False or a callable"
+                         " progress(done, total, elapsed)")
     if not settings:
         raise ValueError("settings is empty: need at least one setting")
     for s in settings:
@@ -299,6 +302,9 @@ def run_grid(
     sweep = None
     on_checkpoint = None
     if checkpoint is not None:
+        if not isinstance(checkpoint, (str, os.PathLike)):
+            raise ValueError(f"checkpoint={checkpoint!r} is invalid: must be a file path or None")
+        check_writable_dir("checkpoint folder", Path(checkpoint).parent)  # fail before training
         checkpoint = process_checkpoint_path(checkpoint)
         if resume and checkpoint.exists():
             sweep = _load_checkpoint(checkpoint, checkpoint_fingerprint, (len(rows), num_episodes))
