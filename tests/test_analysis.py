@@ -1,0 +1,75 @@
+"""Grid-level analysis helpers: exact action probabilities, truncation, ε(s) snapshots,
+markdown tables, probability-of-improvement matrices."""
+import numpy as np
+import pytest
+
+from synthetic_grid import synthetic_grid
+from vdbejax import analysis
+from vdbejax.agents import Setting
+from vdbejax.envs.table_cleaning import make_mdp
+
+Q = np.array([0.0, 1.0, 1.0, -1.0])
+
+
+def test_action_probabilities_by_hand():
+    # ε-greedy 0.2: 0.2/4 everywhere, greedy mass 0.8 split over the two maximal actions.
+    np.testing.assert_allclose(analysis.action_probabilities(Q, "egreedy", 0.2),
+                               [0.05, 0.45, 0.45, 0.05])
+    np.testing.assert_allclose(analysis.action_probabilities(Q, "egreedy", 0.2, tie_break="first"),
+                               [0.05, 0.85, 0.05, 0.05])
+    # Softmax τ = 1: weights e^(q − 1).
+    w = np.exp(Q - 1.0)
+    np.testing.assert_allclose(analysis.action_probabilities(Q, "softmax", 1.0), w / w.sum())
+    # VDBE uses ε(s), not its σ.
+    np.testing.assert_allclose(analysis.action_probabilities(Q, "vdbe", 10.0, state_epsilon=0.4),
+                               [0.1, 0.4, 0.4, 0.1])
+    # VDBE-Softmax: ε(s)·softmax(τ=0.001) + (1 − ε(s))·greedy → all mass on the maximal pair.
+    np.testing.assert_allclose(analysis.action_probabilities(Q, "vdbe_softmax", 1.0, state_epsilon=0.4),
+                               [0.0, 0.5, 0.5, 0.0], atol=1e-12)
+
+
+def test_truncated_fraction():
+    lengths = np.array([[100, 15, 100, 20], [15, 15, 15, 15]])
+    np.testing.assert_allclose(analysis.truncated_fraction(lengths, 100, last=2), [0.5, 0.0])
+    assert np.isnan(analysis.truncated_fraction(lengths, None)).all()
+
+
+def test_markdown_table():
+    text = analysis.markdown_table([{"a": 0.0001, "b": 1.23456, "c": "x"}], ["a", "b", "c"], digits=2)
+    assert text.splitlines() == ["| a | b | c |", "| --- | --- | --- |", "| 0.0001 | 1.23 | x |"]
+
+
+def test_probability_of_improvement_matrix():
+    grid = synthetic_grid()
+    # Configs 0 and 45 have the lowest and highest levels of the synthetic grid.
+    p, low, high = analysis.probability_of_improvement_matrix(grid, [0, 45], last=20)
+    assert p[1, 0] == 1.0 and p[0, 1] == 0.0 and p[0, 0] == 0.5
+    assert low[1, 0] <= p[1, 0] <= high[1, 0]
+
+
+def test_summarize_columns_and_intervals():
+    rows = analysis.summarize(synthetic_grid())
+    assert list(rows[0]) == analysis.SUMMARY_COLUMNS
+    for r in rows:
+        assert r["final_ci_low"] <= r["final_return"] <= r["final_ci_high"]
+        assert r["convergence_ci_low"] <= r["convergence_ci_high"]
+
+
+def test_epsilon_snapshots_follow_vdbe():
+    mdp = make_mdp(max_steps=20)
+    episodes, epsilon, returns = analysis.epsilon_snapshots(
+        mdp, Setting("qlearning", "vdbe", 1.0), num_seeds=2, num_episodes=6, every=2)
+    assert episodes.tolist() == [2, 4, 6]
+    assert epsilon.shape == (3, 2, mdp.num_states) and returns.shape == (2, 6)
+    assert np.all((epsilon >= 0) & (epsilon <= 1))
+    assert epsilon.min() < 1.0  # visited states have moved away from ε = 1
+    # ε-greedy keeps ε(s) at its initial 1 (no VDBE updates).
+    _, flat, _ = analysis.epsilon_snapshots(mdp, Setting("qlearning", "egreedy", 0.1),
+                                            num_seeds=1, num_episodes=2, every=1)
+    assert np.all(flat == 1.0)
+
+
+@pytest.mark.parametrize("explorer, param", [("softmax", 1e-4), ("vdbe_softmax", 100.0)])
+def test_action_probabilities_sum_to_one(explorer, param):
+    p = analysis.action_probabilities(np.array([0.3, -0.2, 0.3001, -1.0]), explorer, param, 0.7)
+    assert p.sum() == pytest.approx(1.0) and np.all(np.isfinite(p))
