@@ -36,6 +36,16 @@ FOUR_DEVICE_SCRIPT = textwrap.dedent(
     keys = shard_agents(agent_keys(0, 8), agent_mesh())
     info["key_shards"] = len(keys.sharding.device_set)
     info["shard_rows"] = sorted(s.data.shape[0] for s in keys.addressable_shards)
+    # The engine keeps the agent states split: each device advances its own agents.
+    import jax.numpy as jnp
+    from vdbejax.agents import make_agent, stack_agents
+    from vdbejax.engine import broadcast_agents, init_agent, run_chunk
+    params = broadcast_agents(stack_agents([make_agent(s) for s in SETTINGS]), 2)
+    params, keys = shard_agents((params, agent_keys(0, 8)), agent_mesh())
+    agents = jax.vmap(init_agent, in_axes=(None, 0, 0))(small_mdp(), params, keys)
+    agents = run_chunk(small_mdp(), params, agents, jnp.int32(0), jnp.int32(2), 2)[0]
+    info["state_spec"] = str(agents.q.sharding.spec)
+    info["state_shards"] = len(agents.q.sharding.device_set)
 
     run_small().save(out + "/all")                                  # 12 agents, 3 per device
     run_small(settings=SETTINGS[:3]).save(out + "/padded")          # 9 agents padded to 12
@@ -87,6 +97,7 @@ def test_agents_are_split_over_four_devices(four_devices):
     assert info["devices"] == 4
     assert info["key_shards"] == 4
     assert info["shard_rows"] == [2, 2, 2, 2]
+    assert info["state_shards"] == 4 and "agents" in info["state_spec"]
 
 
 def test_four_devices_equal_one_device(four_devices, reference):
