@@ -211,6 +211,40 @@ def check_run_options(
     return parse_bytes("memory_budget_bytes", memory_budget_bytes)
 
 
+def _check_grid_inputs(mdp: Any, settings: list[Any], progress: Any, checkpoint: Any) -> None:
+    """Check :func:`run_grid`'s task, settings, progress and checkpoint path."""
+    if not isinstance(mdp, TabularMDP):
+        raise ValueError(f"mdp={type(mdp).__name__} is invalid: must be a TabularMDP"
+                         " (see make_tabular_mdp, compile_env)")
+    if not (isinstance(progress, bool) or callable(progress)):
+        raise ValueError(f"progress={progress!r} is invalid: must be True, False or a callable"
+                         " progress(done, total, elapsed)")
+    if not settings:
+        raise ValueError("settings is empty: need at least one setting")
+    for s in settings:
+        if not isinstance(s, Setting):
+            raise ValueError(f"settings holds {s!r}: must hold Setting(learner, explorer, param)")
+    if checkpoint is not None:
+        if not isinstance(checkpoint, (str, os.PathLike)):
+            raise ValueError(f"checkpoint={checkpoint!r} is invalid: must be a file path or None")
+        check_writable_dir("checkpoint folder", Path(checkpoint).parent)  # fail before training
+
+
+def _checkpointing(
+    checkpoint: str | os.PathLike | None, fingerprint: str, resume: bool, shape: tuple[int, int]
+) -> tuple[SweepProgress | None, Any]:
+    """The progress to resume from (None: fresh) and the after-chunk checkpoint writer."""
+    if checkpoint is None:
+        return None, None
+    path = process_checkpoint_path(checkpoint)
+    sweep = _load_checkpoint(path, fingerprint, shape) if resume and path.exists() else None
+
+    def on_checkpoint(progress_now: SweepProgress) -> None:
+        _save_checkpoint(path, fingerprint, progress_now)
+
+    return sweep, on_checkpoint
+
+
 def run_grid(
     mdp: TabularMDP,
     settings: Sequence[Setting],
@@ -258,21 +292,11 @@ def run_grid(
       ValueError: invalid settings, counts, or a checkpoint from a different run.
     """
     settings = list(settings)
-    if not isinstance(mdp, TabularMDP):
-        raise ValueError(f"mdp={type(mdp).__name__} is invalid: must be a TabularMDP"
-                         " (see make_tabular_mdp, compile_env)")
     memory_budget_bytes = check_run_options(
         num_seeds=num_seeds, num_episodes=num_episodes, seed=seed,
         chunk_episodes=chunk_episodes, resume=resume, memory_budget_bytes=memory_budget_bytes,
     )
-    if not (isinstance(progress, bool) or callable(progress)):
-        raise ValueError(f"progress={progress!r} is invalid: must be True, False or a callable"
-                         " progress(done, total, elapsed)")
-    if not settings:
-        raise ValueError("settings is empty: need at least one setting")
-    for s in settings:
-        if not isinstance(s, Setting):
-            raise ValueError(f"settings holds {s!r}: must hold Setting(learner, explorer, param)")
+    _check_grid_inputs(mdp, settings, progress, checkpoint)
     device_list = select_devices(devices)
     params = broadcast_agents(stack_agents([make_agent(s, options) for s in settings]), num_seeds)
     keys = np.tile(agent_keys(seed, num_seeds), (len(settings), 1))
@@ -299,19 +323,8 @@ def run_grid(
     # A process's checkpoint holds its share only: tie it to the process layout.
     checkpoint_fingerprint = fingerprint if jax.process_count() == 1 else _fingerprint(
         dict(description, process=[jax.process_index(), jax.process_count()]))
-    sweep = None
-    on_checkpoint = None
-    if checkpoint is not None:
-        if not isinstance(checkpoint, (str, os.PathLike)):
-            raise ValueError(f"checkpoint={checkpoint!r} is invalid: must be a file path or None")
-        check_writable_dir("checkpoint folder", Path(checkpoint).parent)  # fail before training
-        checkpoint = process_checkpoint_path(checkpoint)
-        if resume and checkpoint.exists():
-            sweep = _load_checkpoint(checkpoint, checkpoint_fingerprint, (len(rows), num_episodes))
-
-        def on_checkpoint(progress_now: SweepProgress) -> None:
-            _save_checkpoint(checkpoint, checkpoint_fingerprint, progress_now)
-
+    sweep, on_checkpoint = _checkpointing(checkpoint, checkpoint_fingerprint, resume,
+                                          (len(rows), num_episodes))
     resumed_from = 0 if sweep is None else int(sweep.episodes_done.sum())
     callback = text_progress() if progress is True else (progress or None)
     started = time.perf_counter()
@@ -331,8 +344,8 @@ def run_grid(
     meta = dict(description, fingerprint=fingerprint, elapsed_seconds=elapsed,
                 resumed_from_agent_episodes=resumed_from, max_steps=int(mdp.max_steps),
                 nonfinite_agents=int(nonfinite.sum()), nonfinite_message=message,
-                devices=len(device_list), processes=jax.process_count(), batches=batches, agents_per_batch=batch_size,
-                memory_budget_bytes=int(budget),
+                devices=len(device_list), processes=jax.process_count(), batches=batches,
+                agents_per_batch=batch_size, memory_budget_bytes=int(budget),
                 jax_version=jax.__version__, backend=jax.default_backend())
     meta.pop("mdp_tables")
     return GridResult(settings, returns, lengths, nonfinite, meta)
