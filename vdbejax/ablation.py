@@ -25,11 +25,15 @@ from typing import Any
 
 from vdbejax import io
 from vdbejax.claims import LEARNER_NAMES, NEAR, ClaimResult
-from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import GridResult
 from vdbejax.learners import PAPER_ALPHA
-from vdbejax.reproduce import FIGURE_FILE, SENSITIVITY_FILE, reproduce, write_outputs
-from vdbejax.solvers import best_return
+from vdbejax.reproduce import (
+    FIGURE_FILE,
+    SENSITIVITY_FILE,
+    reproduce,
+    saved_best_return,
+    write_outputs,
+)
 
 DOCUMENT_FILE = "REPRODUCTION.md"
 FIGURES_DIR = "ablation"
@@ -117,8 +121,7 @@ def run_variant(
     meta_file = folder / io.META_FILE
     if reuse and meta_file.exists() and _matches(io.load_json(meta_file), variant, seeds, episodes, seed):
         result = GridResult.load(folder)
-        best = float(result.meta.get("best_return", best_return(
-            make_mdp(max_steps=variant.max_steps, invalid_action=variant.invalid_action))))
+        best = saved_best_return(result)
         summary, claims = write_outputs(result, folder, best)
     else:
         rep = reproduce(folder, seeds=seeds, episodes=episodes, seed=seed, progress=progress,
