@@ -188,6 +188,11 @@ def render_document(
             cells.append("—" if claim is None else
                          f"{VERDICT_MARKS[claim.verdict]} ({sum(k.passed for k in claim.checks)}/{len(claim.checks)})")
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
+    reproduced = {r.variant.name: sum(c.verdict == "reproduced" for c in r.claims) for r in results}
+    top = max(reproduced.values())
+    lines += ["", "Claims fully reproduced per variant: " + ", ".join(
+        f"`{name}` {count}/{len(first.claims)}" for name, count in reproduced.items())
+        + ". Most: " + ", ".join(f"`{n}`" for n, c in reproduced.items() if c == top) + "."]
     lines += ["", "Cells: verdict (checks passed / checks). The claims:", ""]
     for c in first.claims:
         lines.append(f"{c.number}. {c.claim}")
