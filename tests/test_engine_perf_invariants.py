@@ -33,7 +33,7 @@ def _grid(seeds: int):
 
 
 @pytest.mark.parametrize("tie_break", ["random", "first"])
-def test_column_select_action_matches_explorers(tie_break):
+def test_transposed_select_action_matches_explorers(tie_break):
     rng = np.random.default_rng(0)
     n, num_actions = 4096, 7
     q = rng.choice([0.0, -0.01, 0.5, 0.86, -1.0], size=(n, num_actions)).astype(np.float32)
@@ -44,9 +44,8 @@ def test_column_select_action_matches_explorers(tie_break):
     tau = rng.choice([1e-4, 1e-3, 0.1, 10.0, np.inf], size=n).astype(np.float32)
     u = (rng.integers(0, 2**23, size=(n, 3)) * 2.0**-23).astype(np.float32)
     expected = jax.vmap(select_action, in_axes=(0, 0, 0, 0, None))(q, p, tau, u, tie_break)
-    columns = [jnp.asarray(q[:, j]) for j in range(num_actions)]
-    got = jax.jit(engine._select_action_columns, static_argnums=4)(
-        columns, p, tau, tuple(jnp.asarray(u[:, j]) for j in range(3)), tie_break
+    got = jax.jit(engine._select_action_rows, static_argnums=4)(
+        jnp.asarray(q.T), p, tau, tuple(jnp.asarray(u[:, j]) for j in range(3)), tie_break
     )
     np.testing.assert_array_equal(np.asarray(got), np.asarray(expected))
 
