@@ -267,3 +267,17 @@ def test_finite_run_reports_nothing():
         warnings.simplefilter("error", RuntimeWarning)
         result = run_small()
     assert result.meta["nonfinite_agents"] == 0 and result.meta["nonfinite_message"] is None
+
+
+def test_cli_prints_the_nonfinite_configs(tmp_path, capsys, monkeypatch):
+    # `vdbejax.reproduce` the attribute is the function; patch the module's task factory.
+    reproduce_module = sys.modules["vdbejax.reproduce"]
+    monkeypatch.setattr(reproduce_module, "make_mdp", lambda **options: overflowing_mdp())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        status = cli.main(["reproduce", "--out", str(tmp_path), "--seeds", "1", "--episodes", "3",
+                           "--q-init", "3e38", "--quiet"])
+    assert status == 0
+    err = capsys.readouterr().err
+    assert "warning: NaN or inf appeared in Q or ε for: qlearning/egreedy/epsilon=0.01" in err
+    assert GridResult.load(tmp_path).meta["nonfinite_agents"] > 0
