@@ -281,3 +281,7 @@ def test_cli_prints_the_nonfinite_configs(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert "warning: NaN or inf appeared in Q or ε for: qlearning/egreedy/epsilon=0.01" in err
     assert GridResult.load(tmp_path).meta["nonfinite_agents"] > 0
+    from vdbejax import io
+
+    summary = io.read_csv(tmp_path / "summary.csv")
+    assert int(summary[0]["nonfinite_agents"]) == 1  # the summary shows it per config
