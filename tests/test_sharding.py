@@ -55,6 +55,12 @@ FOUR_DEVICE_SCRIPT = textwrap.dedent(
     info["batched"] = [batched.meta["devices"], batched.meta["batches"],
                        batched.meta["agents_per_batch"]]
 
+    # Same batch shape on one device (compacted) and sharded: no clash of compiled code.
+    one = run_small(num_seeds=4, devices=1)
+    four = run_small(num_seeds=4, memory_budget_bytes=budget_for(small_mdp(), 2))
+    info["same_shape_runs_equal"] = bool(np.array_equal(one.returns, four.returns))
+    four.save(out + "/seeds4")
+
     class Stop(Exception):
         pass
 
@@ -105,6 +111,14 @@ def test_four_devices_equal_one_device(four_devices, reference):
     sharded = GridResult.load(out / "all")
     assert sharded.meta["devices"] == 4
     assert_same_curves(reference, sharded)
+
+
+def test_one_device_and_sharded_batches_of_one_shape_coexist(four_devices, reference):
+    out, info = four_devices
+    assert info["same_shape_runs_equal"]
+    seeds4 = GridResult.load(out / "seeds4")
+    assert seeds4.meta["batches"] == 2
+    np.testing.assert_array_equal(seeds4.returns[:, :3], reference.returns)
 
 
 def test_padding_agents_are_dropped(four_devices, reference):
