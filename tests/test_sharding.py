@@ -55,11 +55,11 @@ FOUR_DEVICE_SCRIPT = textwrap.dedent(
     info["batched"] = [batched.meta["devices"], batched.meta["batches"],
                        batched.meta["agents_per_batch"]]
 
-    # Same batch shape on one device (compacted) and sharded: no clash of compiled code.
-    one = run_small(num_seeds=4, devices=1)
-    four = run_small(num_seeds=4, memory_budget_bytes=budget_for(small_mdp(), 2))
-    info["same_shape_runs_equal"] = bool(np.array_equal(one.returns, four.returns))
-    four.save(out + "/seeds4")
+    # Sharded batches of 16 then 8 agents, chunks long enough for the engine to compact
+    # the first batch down to 8 lanes: the two 8-lane programs must not be confused.
+    mixed = run_small(num_seeds=6, chunk_episodes=24,
+                      memory_budget_bytes=budget_for(small_mdp(), 4, chunk_episodes=24))
+    mixed.save(out + "/seeds6")
 
     class Stop(Exception):
         pass
@@ -113,12 +113,12 @@ def test_four_devices_equal_one_device(four_devices, reference):
     assert_same_curves(reference, sharded)
 
 
-def test_one_device_and_sharded_batches_of_one_shape_coexist(four_devices, reference):
-    out, info = four_devices
-    assert info["same_shape_runs_equal"]
-    seeds4 = GridResult.load(out / "seeds4")
-    assert seeds4.meta["batches"] == 2
-    np.testing.assert_array_equal(seeds4.returns[:, :3], reference.returns)
+def test_compacted_and_sharded_batches_of_one_shape_coexist(four_devices, reference):
+    out, _ = four_devices
+    seeds6 = GridResult.load(out / "seeds6")
+    assert seeds6.meta["batches"] == 2  # 16 + 8 agents
+    np.testing.assert_array_equal(seeds6.returns[:, :3], reference.returns)
+    np.testing.assert_array_equal(seeds6.lengths[:, :3], reference.lengths)
 
 
 def test_padding_agents_are_dropped(four_devices, reference):
