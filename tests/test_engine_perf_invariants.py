@@ -75,6 +75,8 @@ def test_batched_iteration_matches_vmapped_agent_iteration(mdp):
 def test_compaction_chunking_and_batch_position_do_not_change_results(mdp):
     params, keys = _grid(2)
     base = engine.run_agents(mdp, params, keys, 12, chunk_episodes=12, compact=False)
+    grouped = engine.run_agents(mdp, params, keys, 12, compact=False, max_batch=5)
+    np.testing.assert_array_equal(base.returns, grouped.returns)
     compacted = engine.run_agents(
         mdp, params, keys, 12, chunk_episodes=5, block_iterations=8, min_batch=2, max_batch=3
     )

@@ -466,6 +466,10 @@ def run_chunk(
       chunk_length: static buffer length.
       unroll: lockstep iterations per loop trip (static; results do not depend on it).
 
+    Note: :func:`run_agents` splits large batches into groups of ``max_batch`` (4096)
+    lanes; in a single batch of more than 8192 lanes XLA's CPU backend was seen to round
+    some Q updates of lanes ≥ 8192 differently in the last bit.
+
     Returns:
       ``(agents, returns, lengths, iterations)``: returns/lengths are
       ``[agents, chunk_length]`` (episodes past ``chunk_end`` stay 0), ``iterations``
@@ -697,11 +701,12 @@ def run_agents(
       compact: between blocks of ``block_iterations`` lockstep iterations, gather the
         still-active agents into a smaller power-of-two batch (at least ``min_batch``
         lanes) once at most half the lanes are active, so finished agents stop costing
-        work. ``unroll``: lockstep iterations per loop trip. ``max_batch``: with
-        compaction, agents run in groups of at most this many lanes, one group after
-        another (keeps each group's Q tables cache-sized, so throughput per agent-step
-        does not fall as the number of agents grows). None of these change the results,
-        only the speed.
+        work. ``unroll``: lockstep iterations per loop trip. ``max_batch``: agents run in
+        groups of at most this many lanes, one group after another (keeps each group's Q
+        tables cache-sized, so throughput per agent-step does not fall as the number of
+        agents grows). None of these change the results, only the speed. Keep
+        ``max_batch`` ≤ 8192: in one batch of more than 8192 lanes, XLA's CPU backend
+        was seen to give lanes ≥ 8192 last-bit different Q updates (cause not found).
 
     Returns:
       :class:`RunResult`.
@@ -731,36 +736,38 @@ def run_agents(
         progress(done * num_agents, num_episodes * num_agents, 0.0)
     while done < num_episodes:
         end = min(done + chunk, num_episodes)
-        if compact:
-            # Groups of at most max_batch agents run one after another: a group's tables
-            # stay cache-sized, and per-agent results do not depend on the grouping.
-            pieces = []
-            chunk_iterations = chunk_lanes = 0
-            for lo in range(0, num_agents, max_batch):
-                hi = min(lo + max_batch, num_agents)
-                whole = lo == 0 and hi == num_agents
+        # Groups of at most max_batch agents run one after another: a group's tables stay
+        # cache-sized, and per-agent results do not depend on the grouping.
+        pieces = []
+        chunk_iterations = chunk_lanes = 0
+        for lo in range(0, num_agents, max_batch):
+            hi = min(lo + max_batch, num_agents)
+            whole = lo == 0 and hi == num_agents
 
-                def part(tree: Any, lo: int = lo, hi: int = hi, whole: bool = whole) -> Any:
-                    return tree if whole else jax.tree.map(lambda leaf: leaf[lo:hi], tree)
+            def part(tree: Any, lo: int = lo, hi: int = hi, whole: bool = whole) -> Any:
+                return tree if whole else jax.tree.map(lambda leaf: leaf[lo:hi], tree)
 
+            if compact:
                 *piece, group_iterations, group_lanes = _run_chunk_compacting(
                     mdp, part(params), part(agents), done, end, chunk,
                     block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
                 )
-                pieces.append(piece)
-                chunk_iterations += group_iterations
-                chunk_lanes += group_lanes
-            if len(pieces) == 1:
-                agents, chunk_returns, chunk_lengths = pieces[0]
             else:
-                agents, chunk_returns, chunk_lengths = jax.tree.map(
-                    lambda *leaves: jnp.concatenate(leaves), *pieces
+                *piece, group_iterations = run_chunk(
+                    mdp, part(params), part(agents), jnp.int32(done), jnp.int32(end), chunk,
+                    unroll,
                 )
+                group_iterations = int(group_iterations)
+                group_lanes = group_iterations * (hi - lo)
+            pieces.append(piece)
+            chunk_iterations += group_iterations
+            chunk_lanes += group_lanes
+        if len(pieces) == 1:
+            agents, chunk_returns, chunk_lengths = pieces[0]
         else:
-            agents, chunk_returns, chunk_lengths, chunk_iterations = run_chunk(
-                mdp, params, agents, jnp.int32(done), jnp.int32(end), chunk, unroll
+            agents, chunk_returns, chunk_lengths = jax.tree.map(
+                lambda *leaves: jnp.concatenate(leaves), *pieces
             )
-            chunk_lanes = int(chunk_iterations) * num_agents
         lane_iterations += chunk_lanes
         returns[:, done:end] = np.asarray(chunk_returns)[:, : end - done]
         lengths[:, done:end] = np.asarray(chunk_lengths)[:, : end - done]
