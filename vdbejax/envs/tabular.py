@@ -324,28 +324,31 @@ def _step_codes(step: Any, actions: Array, codes: np.ndarray, batch_size: int
     return tuple(np.concatenate(arrays) for arrays in zip(*outputs))
 
 
-def _reachable_codes(step: Any, actions: Array, start_codes: np.ndarray, batch_size: int
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _reachable_codes(step: Any, actions: Array, start_codes: np.ndarray, num_codes: int,
+                     batch_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Closure of ``start_codes`` under every action: level-synchronous BFS over codes.
 
     Terminal outcomes are followed too, so the kept codes are closed under the transition
-    table and the result is exactly the dense table restricted to them.
+    table and the result is exactly the dense table restricted to them. Membership is a
+    ``num_codes``-byte boolean map (hash-based ``np.unique`` was 10x slower).
 
     Returns:
       ``(codes, next_codes, reward, terminal)`` with ``codes`` sorted increasingly and the
       other arrays in the same row order.
     """
-    seen = np.unique(start_codes.astype(np.int64))
-    frontier = seen
+    seen = np.zeros(num_codes, bool)
+    seen[start_codes] = True
+    frontier = np.flatnonzero(seen)
     rows: list[tuple[np.ndarray, ...]] = []
     while frontier.size:
         next_codes, reward, terminal = _step_codes(step, actions, frontier, batch_size)
         rows.append((frontier, next_codes, reward, terminal))
-        new = np.setdiff1d(np.unique(next_codes), seen, assume_unique=True)
-        seen = np.union1d(seen, new)
-        frontier = new
+        fresh = next_codes.ravel()
+        fresh = np.sort(fresh[~seen[fresh]])
+        frontier = fresh[np.r_[True, fresh[1:] != fresh[:-1]]] if fresh.size else fresh
+        seen[frontier] = True
     codes, next_codes, reward, terminal = (np.concatenate(arrays) for arrays in zip(*rows))
-    order = np.argsort(codes, kind="stable")
+    order = np.argsort(codes)
     return codes[order], next_codes[order], reward[order], terminal[order]
 
 
@@ -367,7 +370,8 @@ def compile_env(
       params: its ``EnvParams``; ``params.max_steps`` becomes the truncation length.
       name: label of the MDP (default: the environment's class name).
       reachable_only: keep only the codes reachable from the start distribution (a
-        vectorised breadth-first search that never enumerates the whole code space). State
+        vectorised breadth-first search that evaluates only reachable codes; memory: one
+        byte per code for the visited map, plus the tables of the reachable states). State
         ``i`` is then the ``i``-th smallest reachable code, kept in ``mdp.state_codes``
         (see :meth:`TabularMDP.index_of`). Otherwise state index = code, over all
         ``env.num_codes(params)`` codes.
@@ -392,7 +396,7 @@ def compile_env(
     start_codes = np.asarray(start_codes, np.int64)
     if reachable_only:
         state_codes, next_codes, reward, terminal = _reachable_codes(
-            step, actions, start_codes, batch_size
+            step, actions, start_codes, num_codes, batch_size
         )
         next_state = np.searchsorted(state_codes, next_codes)
         start_index = np.searchsorted(state_codes, start_codes)
