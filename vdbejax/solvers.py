@@ -73,9 +73,9 @@ def _iterate(
 ) -> np.ndarray:
     """Value iteration (``policy=None``) or policy evaluation; returns ``Q [S, A]``.
 
-    With a ``horizon``: exactly ``horizon`` backups, stopping early once ``Q`` is a fixed
-    point (then every further backup gives the same ``Q``, so the result is exact).
-    Otherwise: until the largest change is below ``tol``.
+    With a ``horizon``: exactly ``horizon`` backups, stopping early once ``V`` is a fixed
+    point (every further backup then gives the same ``Q``, so the result is exact).
+    Otherwise: until the largest change of ``V`` is below ``tol``.
     """
     tables = _tables(mdp)
     expected_reward, weight = _backup_terms(tables, gamma)
@@ -85,14 +85,22 @@ def _iterate(
     else:
         next_state = tables.next_state
     rows = np.arange(mdp.num_states)
-    q = np.zeros(next_state.shape[:2])
+    if horizon is not None and horizon < 1:
+        return np.zeros(weight.shape[:2])
+    q = expected_reward.copy()  # one backup from V = 0
+    v = q.max(axis=1) if policy is None else q[rows, policy]
+    buffer = np.empty_like(weight)
     iterations = horizon if horizon is not None else 100_000
-    for _ in range(iterations):
-        v = q.max(axis=1) if policy is None else q[rows, policy]
-        continuation = weight * v[next_state]
-        new_q = expected_reward + (continuation if deterministic else continuation.sum(-1))
-        change = np.abs(new_q - q).max()
-        q = new_q
+    for _ in range(iterations - 1):
+        np.multiply(weight, v.take(next_state), out=buffer)  # in place: no temporaries
+        if not deterministic:
+            q = buffer.sum(-1)
+            q += expected_reward
+        else:
+            np.add(buffer, expected_reward, out=q)
+        new_v = q.max(axis=1) if policy is None else q[rows, policy]
+        change = np.abs(new_v - v).max()
+        v = new_v
         if change == 0.0 or (horizon is None and change < tol):
             break
     return q
