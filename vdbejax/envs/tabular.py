@@ -293,8 +293,9 @@ class FunctionalEnv(Protocol):
 MAX_CODES = 2**31 - 1
 
 
-def _code_stepper(env: FunctionalEnv, params: Any):
-    """Jitted ``codes [B] -> (next_codes [B, A], reward [B, A], terminal [B, A])``."""
+def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, Array]:
+    """``(step, actions)``: jitted ``step(codes [B], actions) -> (next_codes, reward,
+    terminal)``, each ``[B, A]``, and the int32 action indices."""
     actions = jnp.arange(env.num_actions, dtype=jnp.int32)
 
     def one(code: Array, action: Array) -> tuple[Array, Array, Array]:
