@@ -517,7 +517,16 @@ _COMPILE_SECONDS = [0.0]
 
 def _signature(args: Any) -> Any:
     leaves, treedef = jax.tree.flatten(args)
-    return treedef, tuple((np.shape(x), np.dtype(getattr(x, "dtype", None) or np.result_type(x)).str) for x in leaves)
+    # Sharding is part of the key: an executable compiled for one layout must not run
+    # arrays laid out differently.
+    return treedef, tuple(
+        (np.shape(x), _dtype_str(x), getattr(x, "sharding", None)) for x in leaves
+    )
+
+
+def _dtype_str(x: Any) -> str:
+    dtype = getattr(x, "dtype", None)
+    return np.dtype(dtype if dtype is not None else np.result_type(x)).str
 
 
 def _call_block(unroll: int, *args: Any) -> Any:
