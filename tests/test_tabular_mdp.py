@@ -36,7 +36,7 @@ BAD_INPUTS = [
     (dict(reward=[[0.0, np.nan], [1.0, 0.0], [0.0, 0.0]]), "reward[0, 1, 0] = nan",
      "must be finite"),
     (dict(reward=[["a", "b"], ["c", "d"], ["e", "f"]]), "reward has dtype <U1", "must hold numbers"),
-    (dict(terminal=[[0, 0], [2, 0], [1, 1]]), "terminal[1, 0, 0] = 2.0", "must be a bool or 0/1"),
+    (dict(terminal=[[0, 0], [2, 0], [1, 1]]), "terminal[1, 0, 0] = 2:", "must be a bool or 0/1"),
     (dict(terminal=[True, False]), "terminal has shape (2,)", "must be [3, 2, 1] or [3, 2]"),
     (dict(start_probability=[0.5, 0.5]), "start_probability has shape (2,)", "must be [3]"),
     (dict(start_probability=[0.5, 0.4, 0.0]), "start_probability sums to 0.9", "must sum to 1"),

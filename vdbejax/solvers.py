@@ -14,7 +14,7 @@ from vdbejax.envs.tabular import TabularMDP
 
 
 class _Tables(NamedTuple):
-    next_state: np.ndarray  # int64 [S, A, K]
+    next_state: np.ndarray  # int32 [S, A, K]
     probability: np.ndarray  # float64 [S, A, K]
     reward: np.ndarray  # float64 [S, A, K]
     terminal: np.ndarray  # bool [S, A, K]
@@ -22,7 +22,7 @@ class _Tables(NamedTuple):
 
 def _tables(mdp: TabularMDP) -> _Tables:
     return _Tables(
-        np.asarray(mdp.next_state, np.int64),
+        np.asarray(mdp.next_state),  # int32: half the memory of int64 indices
         np.asarray(mdp.probability, np.float64),
         np.asarray(mdp.reward, np.float64),
         np.asarray(mdp.terminal),

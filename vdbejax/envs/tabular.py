@@ -210,7 +210,8 @@ def make_tabular_mdp(
                              " (the shape of next_state)")
         if not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
             raise ValueError(f"{label} has dtype {arr.dtype}: must hold numbers")
-        return arr.astype(dtype)
+        with np.errstate(over="ignore"):  # overflow to inf is reported by the caller
+            return arr if dtype is None else arr.astype(dtype, copy=False)
 
     if probability is None:
         if shape[2] != 1:
@@ -218,27 +219,31 @@ def make_tabular_mdp(
                 f"probability is None but next_state has K={shape[2]} outcomes per pair:"
                 f" pass probability of shape {list(shape)}"
             )
-        probability = np.ones(shape, np.float64)
-    probability = outcome_array("probability", probability, np.float64)
-    _first_bad("probability", probability, ~np.isfinite(probability) | (probability < 0),
-               "must be finite and >= 0")
-    sums = probability.sum(-1)
-    error = np.abs(sums - 1.0)
-    if error.max() > atol:
-        s, a = np.unravel_index(error.argmax(), sums.shape)
-        raise ValueError(
-            f"probability[{s}, {a}] sums to {sums[s, a]:.6g}: the outcome probabilities of"
-            f" each state-action pair must sum to 1 (atol {atol:g})"
-        )
-    reward = outcome_array("reward", reward, np.float64)
-    _first_bad("reward", reward, ~np.isfinite(reward.astype(np.float32)),
-               "must be finite in float32")
+        probability = np.ones(shape, np.float32)  # exact: nothing to check or normalise
+    else:
+        probability = outcome_array("probability", probability, np.float64)
+        _first_bad("probability", probability, ~np.isfinite(probability) | (probability < 0),
+                   "must be finite and >= 0")
+        sums = probability.sum(-1, keepdims=True)
+        error = np.abs(sums[..., 0] - 1.0)
+        if error.max() > atol:
+            s, a = np.unravel_index(error.argmax(), error.shape)
+            raise ValueError(
+                f"probability[{s}, {a}] sums to {sums[s, a, 0]:.6g}: the outcome probabilities"
+                f" of each state-action pair must sum to 1 (atol {atol:g})"
+            )
+        probability = (probability / sums).astype(np.float32)
+    # float32 as stored: a float64 reward beyond float32's range would become inf.
+    reward = outcome_array("reward", reward, np.float32)
+    _first_bad("reward", reward, ~np.isfinite(reward), "must be finite in float32")
     terminal = _as_array("terminal", terminal)
     if terminal.shape == (num_states,):
         terminal = terminal[next_state]  # terminal states -> terminal outcomes
-    terminal = outcome_array("terminal", terminal, np.float64)
-    _first_bad("terminal", terminal, (terminal != 0) & (terminal != 1),
-               "must be a bool or 0/1")
+    terminal = outcome_array("terminal", terminal, None)
+    if terminal.dtype != bool:
+        _first_bad("terminal", terminal, (terminal != 0) & (terminal != 1),
+                   "must be a bool or 0/1")
+        terminal = terminal != 0
     start = _as_array("start_probability", start_probability)
     if start.shape != (num_states,):
         raise ValueError(
@@ -267,9 +272,9 @@ def make_tabular_mdp(
         codes = jnp.asarray(codes, jnp.int32)
     return TabularMDP(
         next_state=jnp.asarray(next_state, jnp.int32),
-        probability=jnp.asarray(probability / sums[..., None], jnp.float32),
-        reward=jnp.asarray(reward, jnp.float32),
-        terminal=jnp.asarray(terminal.astype(bool)),
+        probability=jnp.asarray(probability),
+        reward=jnp.asarray(reward),
+        terminal=jnp.asarray(terminal),
         start_probability=jnp.asarray(start / start.sum(), jnp.float32),
         max_steps=jnp.asarray(max_steps, jnp.int32),
         name=name,
