@@ -12,6 +12,7 @@ from vdbejax import engine
 from vdbejax.agents import Setting, make_agent, stack_agents
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.explorers import select_action
+from vdbejax.learners import q_learning_target, sarsa_target
 
 SETTINGS = [
     Setting("sarsa", "vdbe", 0.001),
@@ -33,7 +34,8 @@ def _grid(seeds: int):
 
 
 @pytest.mark.parametrize("tie_break", ["random", "first"])
-def test_transposed_select_action_matches_explorers(tie_break):
+def test_select_action_on_a_column_batch_equals_one_row_at_a_time(tie_break):
+    """The engine's [A, B] layout runs the same select_action as a single Q row."""
     rng = np.random.default_rng(0)
     n, num_actions = 4096, 7
     q = rng.choice([0.0, -0.01, 0.5, 0.86, -1.0], size=(n, num_actions)).astype(np.float32)
@@ -44,32 +46,27 @@ def test_transposed_select_action_matches_explorers(tie_break):
     tau = rng.choice([1e-4, 1e-3, 0.1, 10.0, np.inf], size=n).astype(np.float32)
     u = (rng.integers(0, 2**23, size=(n, 3)) * 2.0**-23).astype(np.float32)
     expected = jax.vmap(select_action, in_axes=(0, 0, 0, 0, None))(q, p, tau, u, tie_break)
-    got = jax.jit(engine._select_action_rows, static_argnums=4)(
-        jnp.asarray(q.T), p, tau, tuple(jnp.asarray(u[:, j]) for j in range(3)), tie_break
+    got = jax.jit(select_action, static_argnums=4)(
+        jnp.asarray(q.T), p, tau, jnp.asarray(u.T), tie_break
     )
     np.testing.assert_array_equal(np.asarray(got), np.asarray(expected))
 
 
-def test_batched_iteration_matches_vmapped_agent_iteration(mdp):
-    params, keys = _grid(2)
-    agents = jax.vmap(engine.init_agent, in_axes=(None, 0, 0))(mdp, params, keys)
-    support = engine._start_support(mdp)
-    step = jax.jit(
-        jax.vmap(engine.agent_iteration, in_axes=(None, 0, 0, None, None, None)),
-    )
-    reference = agents
-    for _ in range(300):
-        reference, _ = step(mdp, params, reference, jnp.int32(0), jnp.int32(10**6), support)
-    returns = jnp.zeros((8, 4), jnp.float32)
-    batched, _, _, iterations = jax.jit(engine._run_loop, static_argnames="unroll")(
-        mdp, params, agents, returns, returns.astype(jnp.int32), jnp.int32(0),
-        jnp.int32(10**6), jnp.int32(300), unroll=1, start_support=support,
-    )
-    assert int(iterations) == 300
-    for name in ("q", "epsilon", "state", "action", "episode", "episode_return", "counter"):
-        np.testing.assert_array_equal(
-            np.asarray(getattr(batched, name)), np.asarray(getattr(reference, name)), name
-        )
+@pytest.mark.parametrize("learner", ["qlearning", "sarsa"])
+def test_learner_targets_on_a_column_batch_equal_one_row_at_a_time(learner):
+    rng = np.random.default_rng(1)
+    n = 512
+    q_next = rng.normal(size=(n, 7)).astype(np.float32)
+    reward = rng.normal(size=n).astype(np.float32)
+    discount = rng.choice([0.0, 0.9], size=n).astype(np.float32)
+    action = rng.integers(0, 7, size=n).astype(np.int32)
+    if learner == "qlearning":
+        expected = jax.vmap(q_learning_target)(reward, discount, q_next)
+        got = q_learning_target(reward, discount, jnp.asarray(q_next.T))
+    else:
+        expected = jax.vmap(sarsa_target)(reward, discount, q_next, action)
+        got = sarsa_target(reward, discount, jnp.asarray(q_next.T), action)
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(expected))
 
 
 def test_compaction_chunking_and_batch_position_do_not_change_results(mdp):

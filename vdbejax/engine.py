@@ -18,10 +18,10 @@ Design (why it looks like this):
   lanes would idle. :func:`run_agents` runs blocks of ``block_iterations`` iterations and,
   once at most half the lanes are active, gathers the active agents into a batch of the
   next power-of-two size (few shapes to compile). Bit-identical to running without it.
-* **CPU layout.** The batched step (:func:`_lockstep_iteration`) keeps Q, ε and the
+* **CPU layout.** The batched step (:func:`lockstep_iteration`) keeps Q, ε and the
   output buffers flat (1-D) and lays gathered Q rows out ``[A, B]`` (batch = fast axis),
-  so every operation vectorises over the batch; it is the same arithmetic as
-  ``vmap(agent_iteration)`` (tested bit for bit).
+  so every operation vectorises over the batch; the explorers and learners of
+  :mod:`vdbejax.explorers` / :mod:`vdbejax.learners` work on that layout directly.
 * **One code path for all agents.** Learners and explorers are data (pytree leaves), see
   :mod:`vdbejax.explorers`; nothing branches on the kind of agent.
 * Memory is bounded by agents × (table size + chunk length): only per-episode return
@@ -139,130 +139,6 @@ def _uniforms(key: Array, counter: Array) -> tuple[Array, ...]:
     return tuple(draws)
 
 
-def _sample_rows(weights: Array, u: Array) -> Array:
-    """:func:`~vdbejax.explorers.sample_categorical` for a batch of rows laid out ``[n, B]``.
-
-    Same left-to-right partial sums and comparisons; the transposed layout lets XLA's CPU
-    backend vectorise over the batch (many times faster than ``[B, n]``).
-    """
-    partial = [weights[0]]
-    for i in range(1, weights.shape[0]):
-        partial.append(partial[-1] + weights[i])
-    threshold = u * partial[-1]
-    return jnp.sum(jnp.stack(partial) <= threshold[None], axis=0, dtype=jnp.int32)
-
-
-def _select_action_rows(
-    q: Array,
-    explore_probability: Array,
-    tau: Array,
-    uniforms: tuple[Array, Array, Array],
-    tie_break: str,
-) -> Array:
-    """:func:`~vdbejax.explorers.select_action` for Q rows laid out ``[A, B]``.
-
-    The same arithmetic in the same order (bit-identical, see the tests).
-    """
-    best = jnp.max(q, axis=0)
-    exploratory = _sample_rows(jnp.exp((q - best) / tau), uniforms[1])
-    if tie_break == "first":
-        greedy = jnp.argmax(q, axis=0).astype(jnp.int32)
-    else:
-        greedy = _sample_rows((q == best).astype(q.dtype), uniforms[2])
-    return jnp.where(uniforms[0] < explore_probability, exploratory, greedy).astype(jnp.int32)
-
-
-def agent_iteration(
-    mdp: TabularMDP,
-    params: AgentParams,
-    agent: AgentState,
-    chunk_start: Array,
-    chunk_end: Array,
-    start_support: tuple[Array, Array] | None = None,
-) -> tuple[AgentState, tuple[Array, Array, Array]]:
-    """Advance one agent by one iteration (see the module docstring).
-
-    Returns:
-      ``(new_agent, (slot, episode_return, episode_length))`` where ``slot`` is the
-      finished episode's index within the chunk, or -1 when no episode finished.
-    """
-    learner, explorer = params.learner, params.explorer
-    active = agent.episode < chunk_end
-    u = _uniforms(agent.key, agent.counter)
-    resetting = agent.pending_reset
-    learn = active & ~resetting
-    s, a = agent.state, agent.action
-
-    s_next, reward, terminal = mdp.transition(s, a, u[1])
-    length = agent.episode_length + 1
-    truncated = ~terminal & (length >= mdp.max_steps)
-    if start_support is None:
-        s_start = mdp.start(u[0])
-    else:
-        s_start = start_support[0][sample_categorical(start_support[1], u[0])]
-
-    q_sa = agent.q[s, a]
-    # Choose the next action in s' (in the new episode's start state after a terminal
-    # step). Its Q row also gives the target: when the step is terminal the discount is 0,
-    # so which row it multiplies does not matter (for finite Q).
-    act_state = jnp.where(resetting | terminal, s_start, s_next)
-    q_next = agent.q[act_state]
-    discount = jnp.where(terminal, 0.0, learner.gamma)
-    q_learning_value, q_learning_dq = td_update(
-        q_sa, q_learning_target(reward, discount, q_next), learner.alpha
-    )
-
-    act_q = q_next
-    act_epsilon = agent.epsilon[act_state]
-    # Q-learning chooses after its update: patch the row when acting in the updated state.
-    patch = ~learner.sarsa & ~resetting & (act_state == s)
-    act_q = jnp.where(patch, act_q.at[a].set(q_learning_value), act_q)
-    act_epsilon = jnp.where(
-        patch & explorer.adaptive,
-        vdbe_epsilon_update(act_epsilon, q_learning_dq, explorer.sigma, explorer.delta),
-        act_epsilon,
-    )
-    explore_probability = jnp.where(explorer.adaptive, act_epsilon, explorer.epsilon)
-    next_action = select_action(
-        act_q, explore_probability, explorer.tau, jnp.stack(u[2:]), explorer.tie_break
-    )
-
-    # Learn from (s, a, r, s').
-    sarsa_value, sarsa_dq = td_update(
-        q_sa, sarsa_target(reward, discount, q_next, next_action), learner.alpha
-    )
-    new_q_sa = jnp.where(learner.sarsa, sarsa_value, q_learning_value)
-    delta_q = jnp.where(learner.sarsa, sarsa_dq, q_learning_dq)
-    eps_s = agent.epsilon[s]
-    new_eps_s = vdbe_epsilon_update(eps_s, delta_q, explorer.sigma, explorer.delta)
-    q = agent.q.at[s, a].set(jnp.where(learn, new_q_sa, q_sa))
-    epsilon = agent.epsilon.at[s].set(jnp.where(learn & explorer.adaptive, new_eps_s, eps_s))
-
-    # Episode bookkeeping.
-    episode_return = agent.episode_return + reward
-    done = learn & (terminal | truncated)
-    slot = jnp.where(done, agent.episode - chunk_start, -1)
-
-    def keep(new: Array, old: Array) -> Array:
-        return jnp.where(active, new, old)
-
-    new_agent = AgentState(
-        q=q,
-        epsilon=epsilon,
-        state=keep(act_state, s),
-        action=keep(next_action, a),
-        pending_reset=keep(learn & truncated, resetting),
-        episode=agent.episode + done.astype(jnp.int32),
-        episode_return=jnp.where(learn, jnp.where(done, 0.0, episode_return), agent.episode_return),
-        episode_length=jnp.where(learn, jnp.where(done, 0, length), agent.episode_length),
-        counter=agent.counter + active.astype(jnp.uint32),
-        key=agent.key,
-        nonfinite=agent.nonfinite
-        | (learn & ~(jnp.isfinite(new_q_sa) & jnp.isfinite(new_eps_s))),
-    )
-    return new_agent, (slot, episode_return, length)
-
-
 def _start_support(mdp: TabularMDP) -> tuple[Array, Array]:
     """States with a positive start probability and their weights (host side if possible).
 
@@ -291,7 +167,7 @@ def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array) -> tuple[Array, A
     return take(mdp.next_state), take(mdp.reward), take(mdp.terminal)
 
 
-def _lockstep_iteration(
+def lockstep_iteration(
     mdp: TabularMDP,
     params: AgentParams,
     agents: AgentState,
@@ -301,9 +177,9 @@ def _lockstep_iteration(
     chunk_end: Array,
     start_support: tuple[Array, Array],
 ) -> tuple[AgentState, Array, Array]:
-    """One lockstep iteration of a batch: :func:`agent_iteration` for every agent.
+    """One lockstep iteration of a batch: every agent advances by one step (module docstring).
 
-    The same computation as ``vmap(agent_iteration)``, written for XLA's CPU backend:
+    Written for XLA's CPU backend:
     ``agents.q``, ``agents.epsilon``, ``returns`` and ``lengths`` are flat 1-D arrays
     (``[B·S·A]``, ``[B·S]``, ``[B·L]``) so that every table access is a 1-D gather or
     scatter of one element per agent; a gathered Q row is laid out ``[A, B]`` (the batch
@@ -339,14 +215,17 @@ def _lockstep_iteration(
 
     sa_index = q_base + s * A + a
     q_sa = agents.q.at[sa_index].get(mode="promise_in_bounds")
-    q_next = q_row(s_next)
+    # Choose the next action in s' (in the new episode's start state after a terminal
+    # step). That row also serves the target: a terminal step has discount 0, so which
+    # row it multiplies does not matter (for finite Q), and one gather is saved.
+    act_state = jnp.where(resetting | terminal, s_start, s_next)
+    q_next = q_row(act_state)
     discount = jnp.where(terminal, 0.0, learner.gamma)
     q_learning_value, q_learning_dq = td_update(
-        q_sa, reward + discount * jnp.max(q_next, axis=0), learner.alpha
+        q_sa, q_learning_target(reward, discount, q_next), learner.alpha
     )
 
-    act_state = jnp.where(resetting | terminal, s_start, s_next)
-    act_q = q_row(act_state)
+    act_q = q_next
     act_epsilon = eps_at(act_state)
     patch = ~learner.sarsa & ~resetting & (act_state == s)
     act_q = jnp.where(patch & (a == columns), q_learning_value, act_q)
@@ -356,14 +235,12 @@ def _lockstep_iteration(
         act_epsilon,
     )
     explore_probability = jnp.where(explorer.adaptive, act_epsilon, explorer.epsilon)
-    next_action = _select_action_rows(
+    next_action = select_action(
         act_q, explore_probability, explorer.tau, u[2:], explorer.tie_break
     )
 
     sarsa_value, sarsa_dq = td_update(
-        q_sa,
-        reward + discount * jnp.max(jnp.where(columns == next_action, q_next, -jnp.inf), axis=0),
-        learner.alpha,
+        q_sa, sarsa_target(reward, discount, q_next, next_action), learner.alpha
     )
     new_q_sa = jnp.where(learner.sarsa, sarsa_value, q_learning_value)
     delta_q = jnp.where(learner.sarsa, sarsa_dq, q_learning_dq)
@@ -424,7 +301,7 @@ def _run_loop(mdp, params, agents, returns, lengths, chunk_start, chunk_end, max
     def body(carry: tuple) -> tuple:
         agents, returns, lengths, iterations = carry
         for _ in range(unroll):
-            agents, returns, lengths = _lockstep_iteration(
+            agents, returns, lengths = lockstep_iteration(
                 mdp, params, agents, returns, lengths, chunk_start, chunk_end, start_support
             )
         return agents, returns, lengths, iterations + unroll

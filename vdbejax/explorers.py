@@ -17,8 +17,10 @@ Because all four share one rule, a grid mixing explorer kinds runs one code path
 every agent (no branch over kinds), and the public per-explorer functions below are the
 exact same computation as the engine's.
 
-All functions act on a single Q row (shape ``[num_actions]``); use ``jax.vmap`` for
-batches. Random draws are passed in as uniforms in [0, 1) so that the engine can derive
+All functions act on the *leading* axis: a single Q row has shape ``[num_actions]``, and
+a batch laid out ``[num_actions, batch...]`` (batch as the fast axis, which XLA's CPU
+backend vectorises; the engine uses this layout) is handled by the same code. ``jax.vmap``
+works as well. Random draws are passed in as uniforms in [0, 1) so that the engine can derive
 them from its own per-agent counter-based stream; the ``key``-taking wrappers draw them
 with ``jax.random.uniform``.
 """
@@ -49,24 +51,23 @@ def sample_categorical(weights: Array, u: Array) -> Array:
     """Inverse-CDF sample from unnormalised non-negative ``weights`` with one uniform.
 
     Args:
-      weights: ``[n]`` non-negative weights with a positive sum.
-      u: scalar uniform in [0, 1).
+      weights: ``[n, batch...]`` non-negative weights, positive sum along axis 0.
+      u: uniforms in [0, 1), shape ``[batch...]``.
 
     Returns:
-      int32 index ``i`` with probability ``weights[i] / sum(weights)``; an index of
-      zero weight is never returned.
+      int32 ``[batch...]`` index ``i`` with probability ``weights[i] / sum(weights)``; an
+      index of zero weight is never returned.
     """
-    # Left-to-right prefix sums, unrolled: for the few actions of a tabular task this is
-    # much cheaper on CPU than XLA's reduce-window cumsum (same sums, same order).
-    n = weights.shape[-1]
-    if n > _UNROLLED_CDF_MAX:
-        cdf = jnp.cumsum(weights, axis=-1)
-        total = cdf[..., -1]
-        return jnp.sum(cdf <= (u * total)[..., None], axis=-1).astype(jnp.int32)
-    partial = [weights[..., 0]]
-    for i in range(1, n):
-        partial.append(partial[-1] + weights[..., i])
+    n = weights.shape[0]
     # u has a 23-bit mantissa, so u * total < total and the count stays < n.
+    if n > _UNROLLED_CDF_MAX:
+        cdf = jnp.cumsum(weights, axis=0)
+        return jnp.sum(cdf <= u * cdf[-1], axis=0, dtype=jnp.int32)
+    # Left-to-right prefix sums, unrolled: for the few actions of a tabular task this is
+    # much cheaper on CPU than XLA's reduce-window cumsum.
+    partial = [weights[0]]
+    for i in range(1, n):
+        partial.append(partial[-1] + weights[i])
     threshold = u * partial[-1]
     count = (partial[0] <= threshold).astype(jnp.int32)
     for value in partial[1:]:
@@ -75,34 +76,34 @@ def sample_categorical(weights: Array, u: Array) -> Array:
 
 
 def greedy(q: Array, u: Array, tie_break: str = "random") -> Array:
-    """Greedy action of a Q row.
+    """Greedy action of Q rows.
 
     Args:
-      q: ``[num_actions]`` action values.
-      u: scalar uniform in [0, 1) used to break ties.
+      q: ``[num_actions, batch...]`` action values.
+      u: uniforms in [0, 1) (``[batch...]``) used to break ties.
       tie_break: ``"random"`` (uniform among maximal actions) or ``"first"``.
 
     Returns:
-      int32 action index.
+      int32 ``[batch...]`` action indices.
     """
     if tie_break == "first":
-        return jnp.argmax(q).astype(jnp.int32)
-    return sample_categorical((q == jnp.max(q)).astype(q.dtype), u)
+        return jnp.argmax(q, axis=0).astype(jnp.int32)
+    return sample_categorical((q == jnp.max(q, axis=0)).astype(q.dtype), u)
 
 
 def softmax_weights(q: Array, tau: Array) -> Array:
-    """Unnormalised Boltzmann weights ``exp((q − max q)/τ)``, stable for tiny τ.
+    """Unnormalised Boltzmann weights ``exp((q − max q)/τ)`` along axis 0, stable for tiny τ.
 
     The maximal action has weight 1, so the sum is ≥ 1 and no overflow, NaN or inf can
     occur for any τ > 0; τ = ∞ gives uniform weights.
     """
-    return jnp.exp((q - jnp.max(q)) / tau)
+    return jnp.exp((q - jnp.max(q, axis=0)) / tau)
 
 
 def softmax_probabilities(q: Array, tau: Array) -> Array:
-    """Normalised Boltzmann probabilities ``P(a) ∝ exp(Q(s,a)/τ)``."""
+    """Normalised Boltzmann probabilities ``P(a) ∝ exp(Q(s,a)/τ)`` (axis 0 = actions)."""
     w = softmax_weights(q, tau)
-    return w / jnp.sum(w)
+    return w / jnp.sum(w, axis=0)
 
 
 def select_action(
@@ -115,14 +116,15 @@ def select_action(
     """The one action-selection rule behind every explorer.
 
     Args:
-      q: ``[num_actions]`` action values of the current state.
+      q: ``[num_actions, batch...]`` action values of the current state(s).
       explore_probability: probability of an exploratory draw (ε, 1 or ε(s)).
       tau: temperature of the exploratory draw; ``inf`` means uniform.
-      uniforms: ``[3]`` uniforms in [0, 1): explore test, exploratory draw, tie break.
+      uniforms: three uniforms in [0, 1) (an array ``[3, batch...]`` or a sequence of 3):
+        explore test, exploratory draw, tie break.
       tie_break: ``"random"`` or ``"first"`` (static).
 
     Returns:
-      int32 action index.
+      int32 ``[batch...]`` action indices.
     """
     explore = uniforms[0] < explore_probability
     exploratory = sample_categorical(softmax_weights(q, tau), uniforms[1])

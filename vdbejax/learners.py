@@ -1,7 +1,9 @@
 """Q-learning and SARSA as pure functions of one transition (rlax style).
 
 ``discount`` is γ for a non-terminal transition and 0 for a terminal one, so terminal
-transitions use the target ``r`` and truncated ones still bootstrap.
+transitions use the target ``r`` and truncated ones still bootstrap. Q rows have the
+actions on the leading axis: ``[num_actions]`` for one transition, or
+``[num_actions, batch...]`` for a batch laid out as the engine does.
 """
 from __future__ import annotations
 
@@ -23,12 +25,12 @@ def q_learning_target(reward: Array, discount: Array, q_next: Array) -> Array:
     Args:
       reward: reward of the transition.
       discount: γ, or 0 if ``s'`` is terminal.
-      q_next: ``[num_actions]`` Q row of ``s'``.
+      q_next: ``[num_actions, batch...]`` Q row of ``s'``.
 
     Returns:
-      the scalar target.
+      the target (``[batch...]``).
     """
-    return reward + discount * jnp.max(q_next)
+    return reward + discount * jnp.max(q_next, axis=0)
 
 
 def sarsa_target(reward: Array, discount: Array, q_next: Array, next_action: Array) -> Array:
@@ -37,13 +39,17 @@ def sarsa_target(reward: Array, discount: Array, q_next: Array, next_action: Arr
     Args:
       reward: reward of the transition.
       discount: γ, or 0 if ``s'`` is terminal.
-      q_next: ``[num_actions]`` Q row of ``s'``.
-      next_action: the action ``a'`` the agent takes in ``s'``.
+      q_next: ``[num_actions, batch...]`` Q row of ``s'``.
+      next_action: the action ``a'`` the agent takes in ``s'`` (``[batch...]``).
 
     Returns:
-      the scalar target.
+      the target (``[batch...]``).
     """
-    return reward + discount * q_next[next_action]
+    # Select Q(s', a') with a masked max rather than a gather: exact, and it vectorises
+    # over the batch axis on CPU.
+    actions = jnp.arange(q_next.shape[0]).reshape((-1,) + (1,) * (q_next.ndim - 1))
+    chosen = jnp.max(jnp.where(actions == next_action, q_next, -jnp.inf), axis=0)
+    return reward + discount * chosen
 
 
 def td_update(q_value: Array, target: Array, alpha: Array) -> tuple[Array, Array]:
