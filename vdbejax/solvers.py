@@ -79,11 +79,11 @@ def _iterate(
     """
     tables = _tables(mdp)
     expected_reward, weight = _backup_terms(tables, gamma)
+    next_state = tables.next_state
+    del tables  # frees the float64 copies of probability and reward (GiBs at 10^7 states)
     deterministic = mdp.num_outcomes == 1
     if deterministic:  # skip the outcome axis: 2-D gathers are several times faster
-        next_state, weight = tables.next_state[..., 0], weight[..., 0]
-    else:
-        next_state = tables.next_state
+        next_state, weight = next_state[..., 0], weight[..., 0]
     rows = np.arange(mdp.num_states)
     if horizon is not None and horizon < 1:
         return np.zeros(weight.shape[:2])
@@ -92,7 +92,8 @@ def _iterate(
     buffer = np.empty_like(weight)
     iterations = horizon if horizon is not None else 100_000
     for _ in range(iterations - 1):
-        np.multiply(weight, v.take(next_state), out=buffer)  # in place: no temporaries
+        np.take(v, next_state, out=buffer)  # in place: no [S, A] temporaries
+        buffer *= weight
         if not deterministic:
             q = buffer.sum(-1)
             q += expected_reward
