@@ -345,17 +345,25 @@ def _reachable_codes(step: Any, actions: Array, start_codes: np.ndarray, num_cod
     seen = np.zeros(num_codes, bool)
     seen[start_codes] = True
     frontier = np.flatnonzero(seen)
-    rows: list[tuple[np.ndarray, ...]] = []
+    rows: list[list[np.ndarray | None]] = []
     while frontier.size:
         next_codes, reward, terminal = _step_codes(step, actions, frontier, batch_size)
-        rows.append((frontier, next_codes, reward, terminal))
+        rows.append([frontier, next_codes, reward, terminal])
         fresh = next_codes.ravel()
         fresh = np.sort(fresh[~seen[fresh]])
         frontier = fresh[np.r_[True, fresh[1:] != fresh[:-1]]] if fresh.size else fresh
         seen[frontier] = True
-    codes, next_codes, reward, terminal = (np.concatenate(arrays) for arrays in zip(*rows))
-    order = np.argsort(codes)
-    return codes[order], next_codes[order], reward[order], terminal[order]
+    del seen
+    order = np.argsort(np.concatenate([row[0] for row in rows]))
+    # One table at a time, freeing each level's pieces (peak memory at 10^7 states).
+    columns = []
+    for column in range(4):
+        table = np.concatenate([row[column] for row in rows])
+        for row in rows:
+            row[column] = None
+        columns.append(table[order])
+        del table
+    return tuple(columns)
 
 
 def compile_env(
@@ -404,7 +412,8 @@ def compile_env(
         state_codes, next_codes, reward, terminal = _reachable_codes(
             step, actions, start_codes, num_codes, batch_size
         )
-        next_state = np.searchsorted(state_codes, next_codes)
+        next_state = np.searchsorted(state_codes, next_codes).astype(np.int32)
+        del next_codes
         start_index = np.searchsorted(state_codes, start_codes)
     else:
         state_codes = None
