@@ -143,7 +143,9 @@ def mean_curve_ci(
     """
     returns = np.asarray(returns, np.float64)
     mean = moving_average(returns.mean(0), window)
-    resampled = moving_average(bootstrap_weights(len(returns), num_resamples, seed) @ returns, window)
+    # Smoothing is linear, so smoothing each seed once and then resampling equals
+    # resampling then smoothing every resample, at a fraction of the cost.
+    resampled = bootstrap_weights(len(returns), num_resamples, seed) @ moving_average(returns, window)
     low, high = _interval(resampled, level)
     return mean, low, high
 
