@@ -1,6 +1,7 @@
 """`vdbejax reproduce` end to end (small --seeds/--episodes), every output file checked."""
 import csv
 import json
+import os
 import subprocess
 import sys
 
@@ -13,16 +14,29 @@ from vdbejax.agents import PAPER_PARAMETERS, paper_settings
 SEEDS, EPISODES = 2, 30
 
 
-def run_cli(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "vdbejax", *args], capture_output=True, text=True, cwd=cwd)
+def run_cli(*args, cwd=None, env=None):
+    return subprocess.run([sys.executable, "-m", "vdbejax", *args], capture_output=True, text=True,
+                          cwd=cwd, env=env)
 
 
 @pytest.fixture(scope="module")
-def cli_out(tmp_path_factory):
+def compile_cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("jax-cache")
+
+
+@pytest.fixture(scope="module")
+def cli_out(tmp_path_factory, compile_cache):
     out = tmp_path_factory.mktemp("paper")
-    done = run_cli("reproduce", "--out", str(out), "--seeds", str(SEEDS), "--episodes", str(EPISODES))
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["VDBEJAX_CACHE_DIR"] = str(compile_cache)
+    done = run_cli("reproduce", "--out", str(out), "--seeds", str(SEEDS), "--episodes", str(EPISODES),
+                   env=env)
     assert done.returncode == 0, done.stderr
     return out, done
+
+
+def test_cli_fills_the_persistent_compilation_cache(cli_out, compile_cache):
+    assert any(compile_cache.iterdir())
 
 
 def test_paper_grid_has_46_settings():

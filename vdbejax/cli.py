@@ -5,8 +5,10 @@ Bad input prints one ``error: …`` line and exits with status 2 (no traceback).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from vdbejax.validation import parse_cli_number
 
@@ -107,9 +109,31 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def enable_compilation_cache() -> None:
+    """Use JAX's persistent compilation cache, so a second run skips compiling the engine.
+
+    Location: ``$JAX_COMPILATION_CACHE_DIR`` if set, else ``$VDBEJAX_CACHE_DIR``, else
+    ``~/.cache/vdbejax/jax``; ``VDBEJAX_CACHE_DIR=off`` disables it.
+    """
+    import jax
+
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        return  # JAX reads its own variable
+    folder = os.environ.get("VDBEJAX_CACHE_DIR", str(Path.home() / ".cache" / "vdbejax" / "jax"))
+    if folder == "off":
+        return
+    try:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return  # an unwritable home only costs compile time
+    jax.config.update("jax_compilation_cache_dir", folder)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``vdbejax`` console script."""
     args = build_parser().parse_args(argv)
+    enable_compilation_cache()
     try:
         COMMANDS[args.command][1](args)
     except ValueError as error:
