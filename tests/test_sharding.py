@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from small_grid import SETTINGS, assert_same_curves, run_small
+from small_grid import assert_same_curves, run_small
 from vdbejax.distributed import pad_agents, select_devices, unpad_agents
 from vdbejax.experiment import GridResult
 

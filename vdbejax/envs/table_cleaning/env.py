@@ -89,7 +89,32 @@ def decode(code: Array) -> Array:
     return jnp.stack(out[::-1]).astype(jnp.int32)
 
 
-class TableCleaning:
+class TimeLimitedStep:
+    """gymnax-style ``step`` for environments with a pure ``transition`` rule.
+
+    Adds the step count and the ``max_steps`` truncation to ``self.transition``; shared
+    by the paper's task and its generated variants.
+    """
+
+    def step(
+        self, key: Array, state: EnvState, action: Array, params: EnvParams | None = None
+    ) -> tuple[Array, EnvState, Array, Array, dict[str, Array]]:
+        """One environment step (no auto-reset).
+
+        Returns:
+          ``(observation, state, reward, done, info)`` where ``done`` is terminal or
+          truncated and ``info`` holds ``terminal`` and ``truncated`` separately.
+        """
+        params = self.default_params() if params is None else params
+        next_fields, reward, terminal = self.transition(state.fields, action, params)
+        time = state.time + 1
+        truncated = ~terminal & (time >= params.max_steps)
+        new_state = EnvState(fields=next_fields, time=time)
+        info = {"terminal": terminal, "truncated": truncated}
+        return next_fields, new_state, reward, terminal | truncated, info
+
+
+class TableCleaning(TimeLimitedStep):
     """The paper's table-cleaning MDP (7 actions, 108 state codes)."""
 
     num_actions = len(ACTION_NAMES)
@@ -187,23 +212,6 @@ class TableCleaning:
         code = jnp.asarray(codes)[sample_categorical(jnp.asarray(probs, jnp.float32), u)]
         fields = decode(code)
         return fields, EnvState(fields=fields, time=jnp.asarray(0, jnp.int32))
-
-    def step(
-        self, key: Array, state: EnvState, action: Array, params: EnvParams | None = None
-    ) -> tuple[Array, EnvState, Array, Array, dict[str, Array]]:
-        """One environment step (no auto-reset).
-
-        Returns:
-          ``(observation, state, reward, done, info)`` where ``done`` is terminal or
-          truncated and ``info`` holds ``terminal`` and ``truncated`` separately.
-        """
-        params = self.default_params() if params is None else params
-        next_fields, reward, terminal = self.transition(state.fields, action, params)
-        time = state.time + 1
-        truncated = ~terminal & (time >= params.max_steps)
-        new_state = EnvState(fields=next_fields, time=time)
-        info = {"terminal": terminal, "truncated": truncated}
-        return next_fields, new_state, reward, terminal | truncated, info
 
 
 def make_mdp(max_steps: int = 100, invalid_action: str = "noop"):

@@ -60,6 +60,7 @@ from vdbejax.envs.table_cleaning.env import (
     STEP_REWARD,
     EnvParams,
     EnvState,
+    TimeLimitedStep,
     make_params,
 )
 
@@ -157,7 +158,7 @@ class TableCleaningGenerator:
         return unique, counts / len(placements)
 
 
-class TableCleaningVariant:
+class TableCleaningVariant(TimeLimitedStep):
     """A generated table-cleaning task (FunctionalEnv protocol, gymnax-style API).
 
     Args:
@@ -282,22 +283,6 @@ class TableCleaningVariant:
         """
         state = self.generator(key)
         return state.fields, state
-
-    def step(
-        self, key: Array, state: EnvState, action: Array, params: EnvParams | None = None
-    ) -> tuple[Array, EnvState, Array, Array, dict[str, Array]]:
-        """One environment step (no auto-reset).
-
-        Returns:
-          ``(observation, state, reward, done, info)`` where ``done`` is terminal or
-          truncated and ``info`` holds ``terminal`` and ``truncated`` separately.
-        """
-        params = self.default_params() if params is None else params
-        next_fields, reward, terminal = self.transition(state.fields, action, params)
-        time = state.time + 1
-        truncated = ~terminal & (time >= params.max_steps)
-        info = {"terminal": terminal, "truncated": truncated}
-        return next_fields, EnvState(fields=next_fields, time=time), reward, terminal | truncated, info
 
 
 def make_variant(
