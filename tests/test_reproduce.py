@@ -131,3 +131,19 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path, args, message):
     assert "Traceback" not in done.stderr
     assert message in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["reproduce"], "--out"),
+        (["reproduce", "--out", "x", "--q-init", "-inf"], "--option=VALUE"),
+        (["reproduce", "--out", "x", "--no-such-option"], "--no-such-option"),
+        (["explode"], "invalid choice"),
+    ],
+)
+def test_cli_usage_errors_are_one_line_exit_2(tmp_path, args, message):
+    done = run_cli(*args, cwd=tmp_path)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:") and message in lines[0]

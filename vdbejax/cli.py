@@ -101,9 +101,18 @@ COMMANDS = {
 }
 
 
+class _OneLineErrors(argparse.ArgumentParser):
+    """argparse, but a usage error is one ``error: …`` line (exit 2), like a bad value."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        hint = " (a value that starts with '-' is written --option=VALUE)" if (
+            "expected one argument" in message) else ""
+        self.exit(2, f"error: {self.prog}: {message}{hint}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="vdbejax", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = _OneLineErrors(prog="vdbejax", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineErrors)
     for add, _ in COMMANDS.values():
         add(sub)
     return parser
