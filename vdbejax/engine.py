@@ -39,7 +39,6 @@ One iteration of one agent (``s, a`` = current state and the action already chos
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 import time
 from collections.abc import Callable
@@ -677,9 +676,3 @@ def run_agents(
 def broadcast_agents(params: AgentParams, repeats: int) -> AgentParams:
     """Repeat each agent ``repeats`` times (config-major order: c0s0, c0s1, …)."""
     return jax.tree.map(lambda leaf: jnp.repeat(leaf, repeats, axis=0), params)
-
-
-def steps_per_iteration_efficiency(lengths: np.ndarray, iterations: int) -> float:
-    """Fraction of lockstep lanes doing real environment steps."""
-    lanes = iterations * lengths.shape[0]
-    return float(lengths.sum() / lanes) if lanes else math.nan

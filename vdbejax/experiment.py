@@ -11,7 +11,6 @@ import dataclasses
 import hashlib
 import json
 import os
-import sys
 import time
 import warnings
 from collections.abc import Sequence
@@ -356,8 +355,3 @@ def _fingerprint_arrays(mdp: TabularMDP) -> str:
     for leaf in jax.tree.leaves(mdp):
         digest.update(np.asarray(leaf).tobytes())
     return digest.hexdigest()[:16]
-
-
-def log(message: str) -> None:
-    """Status line on stderr (kept off stdout so results can be piped)."""
-    print(message, file=sys.stderr, flush=True)
