@@ -29,6 +29,16 @@ def _tables(mdp: TabularMDP) -> _Tables:
     )
 
 
+def _first_outcomes(mdp: TabularMDP) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(next_state, live, goal)``, each ``[S, A]``, of the first outcome of every pair:
+    the graph the breadth-first searches walk (``live``: the episode goes on; ``goal``: a
+    terminal transition with positive reward). Reads the tables as stored (no float64 copy).
+    """
+    terminal = np.asarray(mdp.terminal)[..., 0]
+    goal = terminal & (np.asarray(mdp.reward)[..., 0] > 0)
+    return np.asarray(mdp.next_state)[..., 0], ~terminal, goal
+
+
 def start_states(mdp: TabularMDP) -> np.ndarray:
     """Indices of states with positive start probability."""
     return np.flatnonzero(np.asarray(mdp.start_probability) > 0)
@@ -40,13 +50,13 @@ def reachable_states(mdp: TabularMDP) -> np.ndarray:
     A state counts as reachable when it is a start state or some transition with positive
     probability leads to it without the episode ending on arrival.
     """
-    tables = _tables(mdp)
-    live = (tables.probability > 0) & ~tables.terminal
+    next_state = np.asarray(mdp.next_state)
+    live = (np.asarray(mdp.probability) > 0) & ~np.asarray(mdp.terminal)
     seen = np.zeros(mdp.num_states, bool)
     frontier = start_states(mdp)
     seen[frontier] = True
     while frontier.size:
-        successors = tables.next_state[frontier][live[frontier]]
+        successors = next_state[frontier][live[frontier]]
         successors = np.unique(successors)
         frontier = successors[~seen[successors]]
         seen[frontier] = True
@@ -200,10 +210,7 @@ def shortest_solution(mdp: TabularMDP, start: int) -> list[int]:
     Returns:
       the actions, or an empty list if no goal is reachable.
     """
-    tables = _tables(mdp)
-    next_state = tables.next_state[..., 0]
-    goal = tables.terminal[..., 0] & (tables.reward[..., 0] > 0)
-    live = ~tables.terminal[..., 0]
+    next_state, live, goal = _first_outcomes(mdp)
     parent = np.full(mdp.num_states, -1, np.int64)
     parent_action = np.full(mdp.num_states, -1, np.int64)
     seen = np.zeros(mdp.num_states, bool)
@@ -243,10 +250,8 @@ def steps_to_goal(mdp: TabularMDP) -> np.ndarray:
       int64 ``[S]``: number of actions of a shortest solution, ``-1`` where no goal is
       reachable.
     """
-    tables = _tables(mdp)
-    next_state = tables.next_state[..., 0]
-    live = ~tables.terminal[..., 0]
-    steps = np.where((tables.terminal[..., 0] & (tables.reward[..., 0] > 0)).any(1), 1, -1)
+    next_state, live, goal = _first_outcomes(mdp)
+    steps = np.where(goal.any(1), 1, -1)
     level = 1
     while True:
         into_level = (live & (steps[next_state] == level)).any(1) & (steps < 0)
