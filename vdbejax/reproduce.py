@@ -8,6 +8,7 @@ import os
 import sys
 import time
 import zipfile
+from io import BytesIO
 from pathlib import Path
 
 from vdbejax import io
@@ -41,12 +42,12 @@ class Reproduction:
 
 
 def _save_figure(fig: "matplotlib.figure.Figure", path: Path) -> None:  # noqa: F821
-    """Save atomically (temporary file + rename), then free the figure's memory."""
+    """Save as PNG with :func:`vdbejax.io.atomic_write_bytes`, then free the figure's memory."""
     import matplotlib.pyplot as plt
 
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    os.replace(tmp, path)
+    buffer = BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    io.atomic_write_bytes(path, buffer.getvalue())
     plt.close(fig)
 
 
