@@ -169,9 +169,8 @@ def run_sharded(
     if len(devices) == 1:
         return run_agents(mdp, params, keys, num_episodes, initial=initial, on_chunk=on_chunk,
                           **engine_options)
-    # The engine's compaction gathers agents across shards, and its cache of compiled
-    # blocks is keyed by shapes only (a sharded and an unsharded batch of the same shape
-    # collide); the plain jitted chunk keeps every agent on its device.
+    # The engine's compaction gathers the active agents across shards into one batch;
+    # the plain jitted chunk keeps every agent on its device.
     engine_options.setdefault("compact", False)
     mesh = agent_mesh(devices)
     keys = np.asarray(keys, np.uint32)

@@ -71,22 +71,50 @@ def make_params(max_steps: int = 100, invalid_action: str = "noop") -> EnvParams
     return EnvParams(max_steps=max_steps, invalid_action=invalid_action)
 
 
+def mixed_radix_encode(fields: Any, radices: tuple[int, ...]) -> Any:
+    """Mixed-radix code of the last axis of ``fields`` (first field most significant).
+
+    Shared by the paper's task and its generated variants.
+
+    Args:
+      fields: ``[..., len(radices)]`` integer fields (jnp or numpy).
+      radices: the radix of each field.
+
+    Returns:
+      ``[...]`` codes, in the array type and dtype of ``fields``.
+    """
+    code = fields[..., 0] * 0
+    for i, radix in enumerate(radices):
+        code = code * radix + fields[..., i]
+    return code
+
+
+def mixed_radix_decode(code: Array, radices: tuple[int, ...]) -> Array:
+    """Field vector of a mixed-radix code (inverse of :func:`mixed_radix_encode`).
+
+    Args:
+      code: int32 code.
+      radices: the radix of each field.
+
+    Returns:
+      int32 ``[len(radices)]`` fields.
+    """
+    code = jnp.asarray(code, jnp.int32)
+    out = []
+    for radix in reversed(radices):
+        out.append(code % radix)
+        code = code // radix
+    return jnp.stack(out[::-1]).astype(jnp.int32)
+
+
 def encode(fields: Array) -> Array:
-    """Mixed-radix code of a field vector (``hand_obj`` most significant)."""
-    code = jnp.asarray(0, jnp.int32)
-    for i, radix in enumerate(RADICES):
-        code = code * radix + fields[i]
-    return code.astype(jnp.int32)
+    """Mixed-radix int32 code of a field vector (``hand_obj`` most significant)."""
+    return mixed_radix_encode(jnp.asarray(fields, jnp.int32), RADICES).astype(jnp.int32)
 
 
 def decode(code: Array) -> Array:
     """Field vector of a mixed-radix code."""
-    code = jnp.asarray(code, jnp.int32)
-    out = []
-    for radix in reversed(RADICES):
-        out.append(code % radix)
-        code = code // radix
-    return jnp.stack(out[::-1]).astype(jnp.int32)
+    return mixed_radix_decode(code, RADICES)
 
 
 class TimeLimitedStep:

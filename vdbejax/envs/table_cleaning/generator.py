@@ -62,6 +62,8 @@ from vdbejax.envs.table_cleaning.env import (
     EnvState,
     TimeLimitedStep,
     make_params,
+    mixed_radix_decode,
+    mixed_radix_encode,
 )
 
 Array = jax.Array
@@ -69,14 +71,6 @@ Array = jax.Array
 GET, DROP = 0, 1
 #: First move action; section ``i`` is ``GO_FIRST + i``, home is ``GO_FIRST + n``.
 GO_FIRST = 2
-
-
-def _encode(fields: Any, radices: tuple[int, ...]) -> Any:
-    """Mixed-radix code of the last axis of ``fields`` (jnp or numpy, first field most significant)."""
-    code = fields[..., 0] * 0
-    for i, radix in enumerate(radices):
-        code = code * radix + fields[..., i]
-    return code
 
 
 def _sort_small(values: Array) -> Array:
@@ -153,7 +147,7 @@ class TableCleaningGenerator:
             list(itertools.product(range(self.num_sections), repeat=self.num_goblets)),
             np.int64,
         )
-        codes = _encode(self.initial_fields(placements), self.radices)
+        codes = mixed_radix_encode(self.initial_fields(placements), self.radices)
         unique, counts = np.unique(codes, return_counts=True)
         return unique, counts / len(placements)
 
@@ -193,16 +187,12 @@ class TableCleaningVariant(TimeLimitedStep):
 
     def encode(self, fields: Array, params: Any = None) -> Array:
         """Mixed-radix int32 code of a field vector."""
-        return _encode(jnp.asarray(fields, jnp.int32), self.generator.radices).astype(jnp.int32)
+        fields = jnp.asarray(fields, jnp.int32)
+        return mixed_radix_encode(fields, self.generator.radices).astype(jnp.int32)
 
     def decode(self, code: Array, params: Any = None) -> Array:
         """Field vector of a code."""
-        code = jnp.asarray(code, jnp.int32)
-        out = []
-        for radix in reversed(self.generator.radices):
-            out.append(code % radix)
-            code = code // radix
-        return jnp.stack(out[::-1]).astype(jnp.int32)
+        return mixed_radix_decode(code, self.generator.radices)
 
     def start_distribution(self, params: Any = None) -> tuple[np.ndarray, np.ndarray]:
         """See :meth:`TableCleaningGenerator.start_distribution`."""
