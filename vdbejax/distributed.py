@@ -81,13 +81,18 @@ def take_agents(tree: Tree, index: Any) -> Tree:
     return jax.tree.map(lambda leaf: np.asarray(leaf)[index], tree)
 
 
+def _process_shares(num_agents: int) -> list[np.ndarray]:
+    """Agent rows of every process: ``process_count`` contiguous, near-equal parts."""
+    return np.array_split(np.arange(num_agents), jax.process_count())
+
+
 def process_share(num_agents: int) -> np.ndarray:
     """Agent rows this process runs: a contiguous ``1/process_count`` of the sweep.
 
     Agents are independent, so hosts need not talk during a run; results are gathered
     once at the end (:func:`gather_agents`). One process: every row.
     """
-    return np.array_split(np.arange(num_agents), jax.process_count())[jax.process_index()]
+    return _process_shares(num_agents)[jax.process_index()]
 
 
 def local_devices(devices: Sequence[jax.Device]) -> list[jax.Device]:
@@ -110,7 +115,7 @@ def gather_agents(local: np.ndarray, num_agents: int) -> np.ndarray:
         return local
     from jax.experimental import multihost_utils
 
-    sizes = [len(share) for share in np.array_split(np.arange(num_agents), jax.process_count())]
+    sizes = [len(share) for share in _process_shares(num_agents)]
     padded = np.zeros((max(sizes), *local.shape[1:]), local.dtype)
     padded[: local.shape[0]] = local  # equal shapes for the all-gather
     everything = np.asarray(multihost_utils.process_allgather(padded))
