@@ -124,10 +124,20 @@ class TimeLimitedStep:
     by the paper's task and its generated variants.
     """
 
+    def default_params(self) -> EnvParams:
+        """The spec's default options."""
+        return EnvParams()
+
     def step(
         self, key: Array, state: EnvState, action: Array, params: EnvParams | None = None
     ) -> tuple[Array, EnvState, Array, Array, dict[str, Array]]:
         """One environment step (no auto-reset).
+
+        Args:
+          key: PRNG key (unused: the dynamics are deterministic).
+          state: current state.
+          action: int32 action index.
+          params: options (default :meth:`default_params`).
 
         Returns:
           ``(observation, state, reward, done, info)`` where ``done`` is terminal or
@@ -148,9 +158,6 @@ class TableCleaning(TimeLimitedStep):
     num_actions = len(ACTION_NAMES)
     action_names = ACTION_NAMES
     field_names = FIELD_NAMES
-
-    def default_params(self) -> EnvParams:
-        return EnvParams()
 
     # --- encoding (FunctionalEnv protocol) ---------------------------------------------
     def num_codes(self, params: EnvParams | None = None) -> int:

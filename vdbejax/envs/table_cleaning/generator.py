@@ -178,9 +178,6 @@ class TableCleaningVariant(TimeLimitedStep):
             + tuple(f"clean_{i}" for i in range(n))
         )
 
-    def default_params(self) -> EnvParams:
-        return EnvParams()
-
     # --- encoding (FunctionalEnv protocol) ---------------------------------------------
     def num_codes(self, params: Any = None) -> int:
         return int(np.prod(self.generator.radices, dtype=object))
