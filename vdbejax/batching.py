@@ -143,7 +143,11 @@ class SweepProgress:
 
     def record(self, rows: np.ndarray, done: int, agents: AgentState,
                returns: np.ndarray, lengths: np.ndarray) -> None:
-        """Store a batch's progress after a chunk (agents ``rows`` have ``done`` episodes)."""
+        """Store a batch's progress after a chunk (agents ``rows`` have ``done`` episodes).
+
+        ``agents`` may hold device arrays: only what is kept is copied to numpy (the
+        states of finished agents are not).
+        """
         self.returns[rows, :done] = returns
         self.lengths[rows, :done] = lengths
         self.episodes_done[rows] = done
@@ -228,7 +232,7 @@ def run_batched(
 
         def on_chunk(chunk_done: int, agents: AgentState, returns: np.ndarray,
                      lengths: np.ndarray, rows: np.ndarray = rows) -> None:
-            sweep.record(rows, chunk_done, jax.tree.map(np.asarray, agents), returns, lengths)
+            sweep.record(rows, chunk_done, agents, returns, lengths)
             if on_checkpoint is not None:
                 on_checkpoint(sweep)
 
