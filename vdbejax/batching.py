@@ -58,7 +58,6 @@ def _host_available_bytes() -> int:
 
 def device_free_bytes(device: jax.Device) -> int:
     """Free memory of ``device``; CPU devices share the host's free RAM equally."""
-    stats = None
     try:
         stats = device.memory_stats()
     except Exception:  # backends without memory statistics (CPU) raise or return None
