@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Sequence
+from typing import Any
 
 import matplotlib
 
@@ -16,10 +18,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vdbejax.agents import PARAMETER_NAMES  # noqa: E402
-from collections.abc import Sequence  # noqa: E402
-from typing import Any  # noqa: E402
-
 from vdbejax.analysis import WINDOW, mean_curve_ci, moving_average  # noqa: E402
+from vdbejax.claims import LEARNER_NAMES  # noqa: E402
 from vdbejax.experiment import GridResult  # noqa: E402
 
 EXPLORER_TITLES = {
@@ -28,7 +28,8 @@ EXPLORER_TITLES = {
     "vdbe": "VDBE",
     "vdbe_softmax": "VDBE-Softmax",
 }
-LEARNER_TITLES = {"qlearning": "Q-learning", "sarsa": "SARSA"}
+#: Display names of the learners (the claims report's).
+LEARNER_TITLES = LEARNER_NAMES
 PARAMETER_SYMBOLS = {"epsilon": "ε", "tau": "τ", "sigma": "σ"}
 
 
