@@ -82,8 +82,6 @@ def _add_ablate(sub: argparse._SubParsersAction) -> None:
 
 
 def _ablate(args: argparse.Namespace) -> None:
-    from pathlib import Path
-
     from vdbejax.ablation import DEFAULT_NOTES, ablate, select_variants
 
     notes = args.notes if args.notes is not None else (DEFAULT_NOTES if Path(DEFAULT_NOTES).is_file() else None)
