@@ -109,6 +109,11 @@ class _OneLineErrors(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``vdbejax`` parser: one subcommand per entry of :data:`COMMANDS`.
+
+    Returns:
+      a parser whose usage errors are one ``error: …`` line (exit 2).
+    """
     parser = _OneLineErrors(prog="vdbejax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineErrors)
     for add, _ in COMMANDS.values():
