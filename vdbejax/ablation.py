@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from vdbejax import io
-from vdbejax.claims import LEARNER_NAMES, NEAR, ClaimResult
+from vdbejax.claims import LEARNER_NAMES, NEAR, ClaimResult, _Table
 from vdbejax.experiment import GridResult
 from vdbejax.learners import PAPER_ALPHA
 from vdbejax.reproduce import (
@@ -130,16 +130,6 @@ def run_variant(
     return VariantResult(variant, summary, claims, best, folder)
 
 
-def _best(summary: Sequence[dict[str, Any]], learner: str, explorer: str) -> dict[str, Any]:
-    rows = [r for r in summary if r["learner"] == learner and r["explorer"] == explorer]
-    return max(rows, key=lambda r: float(r["final_return"]))
-
-
-def _count(rows: Sequence[dict[str, Any]], learner: str, explorer: str, near: float) -> str:
-    rows = [r for r in rows if r["learner"] == learner and r["explorer"] == explorer]
-    return f"{sum(float(r['final_return']) >= near for r in rows)}/{len(rows)}"
-
-
 def render_document(
     results: Sequence[VariantResult], figures_dir: str, command: str, notes: str | None = None,
 ) -> str:
@@ -208,13 +198,16 @@ def render_document(
     lines += ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
     for r in results:
         near = r.best_return - NEAR
+        table = _Table(r.summary)
         cells = [f"`{r.variant.name}`"]
         for learner in LEARNER_NAMES:
             for explorer in explorers:
-                b = _best(r.summary, learner, explorer)
+                rows = table.get(learner, explorer)
+                b = table.best(learner, explorer)
+                near_count = sum(float(x["final_return"]) >= near for x in rows)
                 cells.append(f"{float(b['final_return']):.2f} [{float(b['final_ci_low']):.2f}, "
                              f"{float(b['final_ci_high']):.2f}] @{float(b['param']):g}; "
-                             f"{_count(r.summary, learner, explorer, near)} near")
+                             f"{near_count}/{len(rows)} near")
         stuck = [float(x["truncated_fraction"]) for x in r.summary
                  if x["learner"] == "sarsa" and x["explorer"] == "vdbe" and float(x["param"]) >= 0.1]
         cells.append(f"{sum(stuck) / len(stuck):.2f}" if stuck else "—")
