@@ -87,6 +87,8 @@ def _iterate(
     point (every further backup then gives the same ``Q``, so the result is exact).
     Otherwise: until the largest change of ``V`` is below ``tol``.
     """
+    if horizon is not None and horizon < 1:
+        return np.zeros((mdp.num_states, mdp.num_actions))
     tables = _tables(mdp)
     expected_reward, weight = _backup_terms(tables, gamma)
     next_state = tables.next_state
@@ -95,8 +97,6 @@ def _iterate(
     if deterministic:  # skip the outcome axis: 2-D gathers are several times faster
         next_state, weight = next_state[..., 0], weight[..., 0]
     rows = np.arange(mdp.num_states)
-    if horizon is not None and horizon < 1:
-        return np.zeros(weight.shape[:2])
     q = expected_reward.copy()  # one backup from V = 0
     v = q.max(axis=1) if policy is None else q[rows, policy]
     buffer = np.empty_like(weight)
