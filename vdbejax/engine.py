@@ -54,6 +54,7 @@ from vdbejax.agents import AgentParams
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.explorers import sample_categorical, select_action, vdbe_epsilon_update
 from vdbejax.learners import q_learning_target, sarsa_target, td_update
+from vdbejax.validation import check_int
 
 Array = jax.Array
 
@@ -601,8 +602,6 @@ def run_agents(
     Returns:
       :class:`RunResult`.
     """
-    from vdbejax.validation import check_int
-
     check_int("num_episodes", num_episodes, 1)
     check_int("chunk_episodes", chunk_episodes, 1)
     check_int("block_iterations", block_iterations, 1)
