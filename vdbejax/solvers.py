@@ -154,10 +154,22 @@ def optimal_q_values(
     return _iterate(mdp, gamma, horizon, tol)
 
 
+def _expected_from_start(mdp: TabularMDP, values: np.ndarray) -> float:
+    """Expectation of per-state ``values`` ``[S]`` under the start distribution."""
+    return float(np.asarray(mdp.start_probability, np.float64) @ values)
+
+
 def best_return(mdp: TabularMDP) -> float:
-    """Best expected undiscounted episode return from the start distribution."""
-    v = optimal_values(mdp, gamma=1.0)
-    return float(np.asarray(mdp.start_probability, np.float64) @ v)
+    """Best expected undiscounted episode return from the start distribution.
+
+    Args:
+      mdp: the MDP.
+
+    Returns:
+      the start-distribution mean of :func:`optimal_values` (``gamma = 1``, horizon
+      ``mdp.max_steps``).
+    """
+    return _expected_from_start(mdp, optimal_values(mdp, gamma=1.0))
 
 
 def greedy_policy(q: Any) -> np.ndarray:
@@ -195,9 +207,20 @@ def policy_values(
 
 
 def policy_return(mdp: TabularMDP, policy: Any) -> float:
-    """Expected undiscounted episode return of a deterministic policy (start distribution)."""
-    values = policy_values(mdp, policy)
-    return float(np.asarray(mdp.start_probability, np.float64) @ values)
+    """Expected undiscounted episode return of a deterministic policy (start distribution).
+
+    Args:
+      mdp: the MDP.
+      policy: int ``[S]`` action of each state (e.g. :func:`greedy_policy` of a learned Q).
+
+    Returns:
+      the start-distribution mean of :func:`policy_values` (``gamma = 1``, horizon
+      ``mdp.max_steps``).
+
+    Raises:
+      ValueError: ``policy`` of the wrong shape or with an action out of range.
+    """
+    return _expected_from_start(mdp, policy_values(mdp, policy))
 
 
 def shortest_solution(mdp: TabularMDP, start: int) -> list[int]:
