@@ -195,8 +195,7 @@ def lockstep_iteration(
     columns = jnp.arange(A, dtype=jnp.int32)[:, None]
 
     def q_row(state: Array) -> Array:  # [A, B]: the batch is the fast axis
-        row = agents.q.at[(q_base + state * A)[None] + columns].get(mode="promise_in_bounds")
-        return row
+        return agents.q.at[(q_base + state * A)[None] + columns].get(mode="promise_in_bounds")
 
     def eps_at(state: Array) -> Array:
         return agents.epsilon.at[eps_base + state].get(mode="promise_in_bounds")
@@ -660,7 +659,7 @@ def run_agents(
         lane_iterations += chunk_lanes
         returns[:, done:end] = np.asarray(chunk_returns)[:, : end - done]
         lengths[:, done:end] = np.asarray(chunk_lengths)[:, : end - done]
-        iterations += int(chunk_iterations)
+        iterations += chunk_iterations
         done = end
         if on_chunk:
             on_chunk(done, agents, returns[:, :done], lengths[:, :done])
