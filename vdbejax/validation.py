@@ -74,9 +74,9 @@ def check_finite(name: str, value: Any) -> float:
 
 def check_int(name: str, value: Any, minimum: int = 1) -> int:
     """Check ``value`` is an integer (not a bool, float or string) >= ``minimum``."""
-    if isinstance(value, (bool, np.bool_)) or not hasattr(value, "__index__"):
-        _fail(name, value, f"must be an integer >= {minimum}")
-    if int(value) < minimum:
+    if isinstance(value, (bool, np.bool_)) or not hasattr(value, "__index__") or (
+        int(value) < minimum
+    ):
         _fail(name, value, f"must be an integer >= {minimum}")
     return int(value)
 
