@@ -171,9 +171,8 @@ class TableCleaning(TimeLimitedStep):
 
     def start_distribution(self, params: Any = None) -> tuple[np.ndarray, np.ndarray]:
         """Hand free at home, both sides dirty, goblet left or right with probability 1/2."""
-        starts = [(FREE, HOME, side, 0, 0) for side in (LEFT, RIGHT)]
-        codes = np.array([int(encode(jnp.array(s))) for s in starts], np.int32)
-        return codes, np.full(2, 0.5)
+        starts = np.array([(FREE, HOME, side, 0, 0) for side in (LEFT, RIGHT)], np.int32)
+        return mixed_radix_encode(starts, RADICES), np.full(2, 0.5)
 
     # --- dynamics ------------------------------------------------------------------------
     def transition(
