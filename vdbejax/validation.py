@@ -124,7 +124,7 @@ def parse_bytes(name: str, text: Any) -> int:
             _fail(name, text, allowed)
         return int(text)
     raw = str(text).strip().lower().removesuffix("ib").removesuffix("b")
-    unit = raw[-1:] if raw[-1:] in BYTE_UNITS and raw[-1:] else ""
+    unit = raw[-1:] if raw[-1:] in BYTE_UNITS else ""
     number = raw[: len(raw) - len(unit)]
     try:
         value = float(number) * BYTE_UNITS[unit]
