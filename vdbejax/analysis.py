@@ -41,6 +41,14 @@ def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = L
 
     An agent stuck in a loop (e.g. SARSA + VDBE with all actions valued ≈ −0.1) shows up
     as a fraction near 1. ``max_steps=None`` (unknown) gives NaN.
+
+    Args:
+      lengths: ``[..., episodes]`` episode lengths.
+      max_steps: the truncation length, or ``None`` if unknown.
+      last: number of final episodes considered.
+
+    Returns:
+      float64 ``[...]`` fractions in [0, 1] (NaN when ``max_steps`` is None).
     """
     lengths = np.asarray(lengths)[..., -last:]
     if max_steps is None:

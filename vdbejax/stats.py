@@ -51,7 +51,15 @@ def moving_average(x: np.ndarray, window: int = WINDOW, axis: int = -1) -> np.nd
 
 
 def final_return(returns: np.ndarray, last: int = LAST) -> np.ndarray:
-    """Mean over the last ``last`` episodes (the episode axis is the last one)."""
+    """Mean over the last ``last`` episodes (the episode axis is the last one).
+
+    Args:
+      returns: ``[..., episodes]`` episode returns.
+      last: number of final episodes averaged.
+
+    Returns:
+      float64 ``[...]`` final returns.
+    """
     return np.asarray(returns, np.float64)[..., -last:].mean(-1)
 
 
@@ -82,12 +90,29 @@ def convergence_episode(
     curve: np.ndarray, window: int = WINDOW, last: int = LAST, fraction: float = FRACTION
 ) -> int:
     """First episode (1-based) at which the smoothed ``curve`` gets within
-    ``(1 − fraction)·|L|`` of its final level ``L``."""
+    ``(1 − fraction)·|L|`` of its final level ``L``.
+
+    Args:
+      curve: ``[episodes]`` raw (unsmoothed) mean-return curve.
+      window, last, fraction: see :func:`convergence_episodes`.
+
+    Returns:
+      the episode (the curve length if never reached).
+    """
     return int(convergence_episodes(curve, window, last, fraction))
 
 
 def bootstrap_indices(num_seeds: int, num_resamples: int = NUM_RESAMPLES, seed: int = 0) -> np.ndarray:
-    """``[num_resamples, num_seeds]`` seed indices drawn with replacement."""
+    """Seed indices of bootstrap resamples, drawn with replacement.
+
+    Args:
+      num_seeds: number of seeds (the sample size).
+      num_resamples: number of resamples.
+      seed: seed of the resampling generator.
+
+    Returns:
+      int ``[num_resamples, num_seeds]`` indices.
+    """
     rng = np.random.default_rng(seed)
     return rng.integers(0, num_seeds, size=(num_resamples, num_seeds))
 
@@ -98,6 +123,12 @@ def bootstrap_weights(num_seeds: int, num_resamples: int = NUM_RESAMPLES, seed: 
 
     A matrix product instead of fancy indexing keeps memory at ``resamples × episodes``
     rather than ``resamples × seeds × episodes`` for whole curves.
+
+    Args:
+      num_seeds, num_resamples, seed: as for :func:`bootstrap_indices`.
+
+    Returns:
+      float64 ``[num_resamples, num_seeds]`` weights, each row summing to 1.
     """
     indices = bootstrap_indices(num_seeds, num_resamples, seed)
     counts = np.zeros((num_resamples, num_seeds))
@@ -114,7 +145,15 @@ def _interval(values: np.ndarray, level: float, axis: int = 0) -> tuple[np.ndarr
 def bootstrap_ci(
     samples: np.ndarray, level: float = LEVEL, num_resamples: int = NUM_RESAMPLES, seed: int = 0
 ) -> tuple[float, float]:
-    """Percentile bootstrap interval of the mean of ``samples`` (one value per seed)."""
+    """Percentile bootstrap interval of the mean of ``samples`` (one value per seed).
+
+    Args:
+      samples: ``[seeds]`` values.
+      level, num_resamples, seed: bootstrap settings.
+
+    Returns:
+      ``(low, high)``.
+    """
     samples = np.asarray(samples, np.float64)
     means = samples[bootstrap_indices(len(samples), num_resamples, seed)].mean(-1)
     low, high = _interval(means, level)
@@ -212,7 +251,15 @@ def interquartile_mean(values: np.ndarray, axis: int = -1) -> np.ndarray:
 def interquartile_mean_ci(
     values: np.ndarray, level: float = LEVEL, num_resamples: int = NUM_RESAMPLES, seed: int = 0
 ) -> tuple[float, float, float]:
-    """IQM of ``values`` (one per seed) with a percentile bootstrap interval."""
+    """IQM of ``values`` (one per seed) with a percentile bootstrap interval.
+
+    Args:
+      values: ``[seeds]`` values.
+      level, num_resamples, seed: bootstrap settings.
+
+    Returns:
+      ``(iqm, low, high)``.
+    """
     values = np.asarray(values, np.float64)
     resampled = interquartile_mean(values[bootstrap_indices(len(values), num_resamples, seed)])
     low, high = _interval(resampled, level)
@@ -242,6 +289,11 @@ def probability_of_improvement_ci(
 
     The seeds of X and of Y are resampled independently (stratified bootstrap, as rliable
     does), since the two settings' runs are separate samples.
+
+    Args:
+      x: ``[n]`` values of setting X (one per seed).
+      y: ``[m]`` values of setting Y.
+      level, num_resamples, seed: bootstrap settings (Y's resamples use ``seed + 1``).
 
     Returns:
       ``(probability, low, high)``.
