@@ -98,11 +98,32 @@ def reproduce(
     """Run the paper's 46 settings × ``seeds`` agents × ``episodes`` and write all outputs.
 
     Writes into ``out_dir``: ``returns.npz``, ``configs.csv``, ``meta.json``,
-    ``summary.csv``, ``fig3.png`` (with bootstrap bands), ``sensitivity.png``, ``report.md``. A checkpoint (``checkpoint.npz``) is
-    written after every chunk and removed once the results are saved; ``resume=True``
-    continues an interrupted run bit-identically. ``memory_budget_bytes`` (per device)
-    and ``devices`` are passed to :func:`~vdbejax.experiment.run_grid`; they change only
-    the speed, never the results.
+    ``summary.csv``, ``fig3.png`` (with bootstrap bands), ``sensitivity.png``,
+    ``report.md``. A checkpoint (``checkpoint.npz``) is written after every chunk and
+    removed once the results are saved.
+
+    Args:
+      out_dir: output folder (created if needed).
+      seeds: agents per setting.
+      episodes: episodes per agent.
+      seed: root random seed.
+      max_steps: episode truncation length (the spec's option).
+      invalid_action: ``"noop"`` or ``"fail"`` (the spec's option).
+      tie_break: ``"random"`` or ``"first"`` (the spec's option).
+      q_init: initial Q value (the spec's option).
+      alpha: learning rate α of every agent (default: the paper's).
+      chunk_episodes: episodes per jitted chunk (checkpoint granularity).
+      resume: continue an interrupted run from ``out_dir/checkpoint.npz``
+        (bit-identically).
+      progress: a progress bar and a closing status line on stderr.
+      memory_budget_bytes: per-device memory budget, passed to
+        :func:`~vdbejax.experiment.run_grid`; changes only the speed, never the results.
+      devices: devices to shard over, passed to :func:`~vdbejax.experiment.run_grid`;
+        changes only the speed, never the results.
+
+    Returns:
+      :class:`Reproduction`: the grid, summary rows, scored claims, the task's best
+      return, the output folder and the elapsed seconds.
 
     Raises:
       ValueError: an invalid option (message names it and what is allowed), or an
@@ -149,6 +170,12 @@ def saved_best_return(result: GridResult) -> float:
 
     Read from ``meta.json`` (written by :func:`reproduce`); older table-cleaning results
     without it are recomputed from their options with the exact solver.
+
+    Args:
+      result: a result loaded with :meth:`GridResult.load`.
+
+    Returns:
+      the best return.
 
     Raises:
       ValueError: neither is possible (unknown task).
