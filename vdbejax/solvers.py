@@ -40,7 +40,14 @@ def _first_outcomes(mdp: TabularMDP) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def start_states(mdp: TabularMDP) -> np.ndarray:
-    """Indices of states with positive start probability."""
+    """Indices of states with positive start probability.
+
+    Args:
+      mdp: the MDP.
+
+    Returns:
+      int64 increasing state indices.
+    """
     return np.flatnonzero(np.asarray(mdp.start_probability) > 0)
 
 
@@ -49,6 +56,12 @@ def reachable_states(mdp: TabularMDP) -> np.ndarray:
 
     A state counts as reachable when it is a start state or some transition with positive
     probability leads to it without the episode ending on arrival.
+
+    Args:
+      mdp: the MDP.
+
+    Returns:
+      int64 increasing state indices.
     """
     next_state = np.asarray(mdp.next_state)
     live = (np.asarray(mdp.probability) > 0) & ~np.asarray(mdp.terminal)
@@ -173,7 +186,14 @@ def best_return(mdp: TabularMDP) -> float:
 
 
 def greedy_policy(q: Any) -> np.ndarray:
-    """The first maximal action of each row of ``q`` (``[S, A]``), int64 ``[S]``."""
+    """The first maximal action of each row of ``q``.
+
+    Args:
+      q: ``[S, A]`` action values (e.g. a learned Q table).
+
+    Returns:
+      int64 ``[S]`` actions.
+    """
     return np.asarray(q).argmax(axis=1)
 
 
@@ -230,6 +250,10 @@ def shortest_solution(mdp: TabularMDP, start: int) -> list[int]:
     level by level over whole arrays; among equally short solutions the one found first in
     FIFO order (lowest action first) is returned.
 
+    Args:
+      mdp: the MDP.
+      start: the state index to start from.
+
     Returns:
       the actions, or an empty list if no goal is reachable.
     """
@@ -268,6 +292,9 @@ def steps_to_goal(mdp: TabularMDP) -> np.ndarray:
     Over deterministic outcomes (the first of each pair), as :func:`shortest_solution`,
     but for all states at once: level ``d`` holds the states with an action into a goal
     transition (``d = 1``) or a non-terminal action into level ``d - 1``.
+
+    Args:
+      mdp: the MDP.
 
     Returns:
       int64 ``[S]``: number of actions of a shortest solution, ``-1`` where no goal is

@@ -9,7 +9,7 @@ The environment is gymnax-style: ``reset(key, params)`` and
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -17,6 +17,9 @@ import numpy as np
 
 from vdbejax._pytree import pytree_dataclass, static_field
 from vdbejax.explorers import sample_categorical
+
+if TYPE_CHECKING:
+    from vdbejax.envs.tabular import TabularMDP
 
 Array = jax.Array
 
@@ -60,6 +63,13 @@ class EnvState:
 
 def make_params(max_steps: int = 100, invalid_action: str = "noop") -> EnvParams:
     """Validated :class:`EnvParams`.
+
+    Args:
+      max_steps: truncation length (integer >= 1).
+      invalid_action: ``"noop"`` or ``"fail"``.
+
+    Returns:
+      the :class:`EnvParams`.
 
     Raises:
       ValueError: ``max_steps < 1`` or unknown ``invalid_action``.
@@ -108,12 +118,26 @@ def mixed_radix_decode(code: Array, radices: tuple[int, ...]) -> Array:
 
 
 def encode(fields: Array) -> Array:
-    """Mixed-radix int32 code of a field vector (``hand_obj`` most significant)."""
+    """Mixed-radix int32 code of a field vector (``hand_obj`` most significant).
+
+    Args:
+      fields: ``[5]`` integer field vector.
+
+    Returns:
+      int32 code in ``[0, 108)``.
+    """
     return mixed_radix_encode(jnp.asarray(fields, jnp.int32), RADICES).astype(jnp.int32)
 
 
 def decode(code: Array) -> Array:
-    """Field vector of a mixed-radix code."""
+    """Field vector of a mixed-radix code.
+
+    Args:
+      code: integer code in ``[0, 108)``.
+
+    Returns:
+      int32 ``[5]`` field vector.
+    """
     return mixed_radix_decode(code, RADICES)
 
 
@@ -248,8 +272,17 @@ class TableCleaning(TimeLimitedStep):
         return fields, EnvState(fields=fields, time=jnp.asarray(0, jnp.int32))
 
 
-def make_mdp(max_steps: int = 100, invalid_action: str = "noop"):
-    """The table-cleaning task compiled into a :class:`~vdbejax.envs.TabularMDP`."""
+def make_mdp(max_steps: int = 100, invalid_action: str = "noop") -> TabularMDP:
+    """The table-cleaning task compiled into a :class:`~vdbejax.envs.TabularMDP`.
+
+    Args:
+      max_steps: truncation length.
+      invalid_action: ``"noop"`` or ``"fail"``.
+
+    Returns:
+      the deterministic MDP over all 108 codes (state index = code), named
+      ``table_cleaning``.
+    """
     from vdbejax.envs.tabular import compile_env
 
     return compile_env(

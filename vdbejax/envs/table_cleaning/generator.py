@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -65,6 +65,9 @@ from vdbejax.envs.table_cleaning.env import (
     mixed_radix_decode,
     mixed_radix_encode,
 )
+
+if TYPE_CHECKING:
+    from vdbejax.envs.tabular import TabularMDP
 
 Array = jax.Array
 
@@ -122,7 +125,14 @@ class TableCleaningGenerator:
         return (3, n + 1) + (n + 1,) * k + (2,) * n
 
     def initial_fields(self, goblet_positions: Any) -> Any:
-        """Initial field vector(s) for goblet positions ``[..., k]`` (numpy or jnp, sorted here)."""
+        """Initial field vector(s) for goblet positions (sorted here).
+
+        Args:
+          goblet_positions: ``[..., k]`` section of each goblet (numpy or jnp).
+
+        Returns:
+          ``[..., 2 + k + n]`` field vectors, same array type and dtype.
+        """
         xp = jnp if isinstance(goblet_positions, jax.Array) else np
         goblets = xp.sort(goblet_positions, axis=-1)
         batch = goblets.shape[:-1]
@@ -275,7 +285,15 @@ class TableCleaningVariant(TimeLimitedStep):
 def make_variant(
     num_sections: int = 2, num_goblets: int = 1
 ) -> TableCleaningVariant:
-    """The variant environment with ``num_sections`` sections and ``num_goblets`` goblets."""
+    """The variant environment with ``num_sections`` sections and ``num_goblets`` goblets.
+
+    Args:
+      num_sections: ``n >= 2``.
+      num_goblets: ``k >= 1``.
+
+    Returns:
+      the :class:`TableCleaningVariant`.
+    """
     return TableCleaningVariant(TableCleaningGenerator(num_sections, num_goblets))
 
 
@@ -286,7 +304,7 @@ def make_variant_mdp(
     max_steps: int = 100,
     invalid_action: str = "noop",
     reachable_only: bool = True,
-):
+) -> TabularMDP:
     """A variant compiled into a :class:`~vdbejax.envs.TabularMDP`.
 
     Args:
