@@ -314,6 +314,12 @@ def _command(out: Path, raw: Path, figures: Path, variants: Sequence[Variant], s
 def select_variants(names: str | Sequence[str] | None) -> list[Variant]:
     """Variants by name (comma-separated string or list); ``None`` = all of :data:`VARIANTS`.
 
+    Args:
+      names: variant names, or ``None``.
+
+    Returns:
+      the variants, in the order named.
+
     Raises:
       ValueError: an unknown name (the message lists the known ones).
     """
@@ -329,7 +335,14 @@ def select_variants(names: str | Sequence[str] | None) -> list[Variant]:
 
 
 def claims_table(results: Sequence[VariantResult]) -> list[dict[str, Any]]:
-    """Verdicts as rows (``claim`` plus one column per variant), e.g. for a DataFrame."""
+    """Verdicts as rows (``claim`` plus one column per variant), e.g. for a DataFrame.
+
+    Args:
+      results: scored variants.
+
+    Returns:
+      one row per claim number; a variant without that claim has ``""``.
+    """
     numbers = sorted({c.number for r in results for c in r.claims})
     return [{"claim": n, **{r.variant.name: next((c.verdict for c in r.claims if c.number == n), "")
                             for r in results}} for n in numbers]

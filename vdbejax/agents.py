@@ -69,7 +69,15 @@ class AgentParams:
 def paper_settings(
     learners: Sequence[str] = LEARNERS, explorers: Sequence[str] = EXPLORERS
 ) -> list[Setting]:
-    """The paper's grid: 2 learners × (5 + 6 + 6 + 6) parameters = 46 settings."""
+    """The paper's grid: 2 learners × (5 + 6 + 6 + 6) parameters = 46 settings.
+
+    Args:
+      learners: learner names (default both).
+      explorers: explorer names (default all four).
+
+    Returns:
+      the settings, learner-major, then explorer, then increasing parameter.
+    """
     return [
         Setting(learner, explorer, param)
         for learner in learners
@@ -80,6 +88,13 @@ def paper_settings(
 
 def make_agent(setting: Setting, options: AgentOptions = AgentOptions()) -> AgentParams:
     """Validated hyperparameters of one agent.
+
+    Args:
+      setting: learner, explorer and the explorer's parameter.
+      options: options shared by every agent (spec defaults).
+
+    Returns:
+      the :class:`AgentParams` (scalar leaves).
 
     Raises:
       ValueError: unknown learner/explorer or an out-of-range value.
@@ -99,7 +114,17 @@ def make_agent(setting: Setting, options: AgentOptions = AgentOptions()) -> Agen
 
 
 def stack_agents(agents: Sequence[AgentParams]) -> AgentParams:
-    """Stack agents along a new leading axis (all must share static fields)."""
+    """Stack agents along a new leading axis (all must share static fields).
+
+    Args:
+      agents: one or more :class:`AgentParams`.
+
+    Returns:
+      :class:`AgentParams` whose leaves have a leading agent axis.
+
+    Raises:
+      ValueError: ``agents`` is empty.
+    """
     if not agents:
         raise ValueError("agents is empty: need at least one setting")
     return jax.tree.map(lambda *leaves: jnp.stack(leaves), *agents)

@@ -66,6 +66,13 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
     """Score the six claims on summary rows (see :func:`vdbejax.analysis.summarize`).
 
     Claims whose settings are absent from ``rows`` get no checks and are skipped.
+
+    Args:
+      rows: summary rows (values may be strings, as read from ``summary.csv``).
+      best_return: the task's best possible return ("near" = within :data:`NEAR` of it).
+
+    Returns:
+      one :class:`ClaimResult` per claim that has checks, in claim order.
     """
     t = _Table(rows)
     learners = [name for name in LEARNER_NAMES if any(r["learner"] == name for r in rows)]
@@ -225,7 +232,16 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
 
 
 def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_return: float) -> str:
-    """``report.md``: each claim with the paper's and our numbers, checks and verdict."""
+    """``report.md``: each claim with the paper's and our numbers, checks and verdict.
+
+    Args:
+      claims: the scored claims (:func:`evaluate_claims`).
+      meta: the run's metadata (task, run size, seed, options; missing keys print ``?``).
+      best_return: the task's best possible return.
+
+    Returns:
+      markdown text.
+    """
     lines = [
         "# Reproduction report: Cruz et al. (2018), claim by claim",
         "",

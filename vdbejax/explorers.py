@@ -96,12 +96,27 @@ def softmax_weights(q: Array, tau: Array) -> Array:
 
     The maximal action has weight 1, so the sum is ≥ 1 and no overflow, NaN or inf can
     occur for any τ > 0; τ = ∞ gives uniform weights.
+
+    Args:
+      q: ``[num_actions, batch...]`` action values.
+      tau: temperature > 0 (``inf`` = uniform).
+
+    Returns:
+      ``q``-shaped weights in [0, 1] (1 for a maximal action).
     """
     return jnp.exp((q - jnp.max(q, axis=0)) / tau)
 
 
 def softmax_probabilities(q: Array, tau: Array) -> Array:
-    """Normalised Boltzmann probabilities ``P(a) ∝ exp(Q(s,a)/τ)`` (axis 0 = actions)."""
+    """Normalised Boltzmann probabilities ``P(a) ∝ exp(Q(s,a)/τ)`` (axis 0 = actions).
+
+    Args:
+      q: ``[num_actions, batch...]`` action values.
+      tau: temperature > 0 (``inf`` = uniform).
+
+    Returns:
+      ``q``-shaped probabilities summing to 1 along axis 0.
+    """
     w = softmax_weights(q, tau)
     return w / jnp.sum(w, axis=0)
 

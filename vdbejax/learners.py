@@ -89,6 +89,15 @@ def make_learner(
 ) -> LearnerParams:
     """Learner hyperparameters from a name (``qlearning`` or ``sarsa``).
 
+    Args:
+      name: ``qlearning`` or ``sarsa``.
+      alpha: step size α.
+      gamma: discount γ.
+      q_init: initial value of every Q entry.
+
+    Returns:
+      LearnerParams with float32 (and bool) scalar leaves.
+
     Raises:
       ValueError: unknown name or out-of-range α, γ, q_init.
     """

@@ -89,14 +89,28 @@ class TabularMDP:
         return index
 
     def code_of(self, index: Any) -> np.ndarray:
-        """Environment codes of state indices (numpy; identity without ``state_codes``)."""
+        """Environment codes of state indices (numpy; identity without ``state_codes``).
+
+        Args:
+          index: state index (or indices).
+
+        Returns:
+          int64 codes, same shape as ``index``.
+        """
         index = np.asarray(index, np.int64)
         if self.state_codes is None:
             return index
         return np.asarray(self.state_codes, np.int64)[index]
 
     def start(self, u: Array) -> Array:
-        """Sample an initial state index with one uniform ``u`` in [0, 1)."""
+        """Sample an initial state index from ``start_probability``.
+
+        Args:
+          u: uniform in [0, 1).
+
+        Returns:
+          int32 state index.
+        """
         return sample_categorical(self.start_probability, u)
 
     def transition(self, state: Array, action: Array, u: Array) -> tuple[Array, Array, Array]:
