@@ -1,7 +1,7 @@
 """The paper's six claims (spec, last section), scored against measured results.
 
 Each claim is split into concrete checks on the summary table (final return = mean of the
-last 100 episodes over seeds; convergence episode as in :mod:`vdbejax.analysis`). A claim
+last 100 episodes over seeds; convergence episode as defined in :mod:`vdbejax.stats`). A claim
 is *reproduced* when every check holds, *not reproduced* when none does, *partly*
 otherwise. "At or near the best return" means within ``NEAR`` of it.
 """
