@@ -26,6 +26,7 @@ from typing import Any
 from vdbejax import io
 from vdbejax.claims import LEARNER_NAMES, NEAR, ClaimResult, _Table
 from vdbejax.experiment import GridResult
+from vdbejax.explorers import EXPLORERS
 from vdbejax.learners import PAPER_ALPHA
 from vdbejax.reproduce import (
     FIGURE_FILE,
@@ -193,15 +194,14 @@ def render_document(
               "Best final return of each learner × explorer [95% CI], and how many of its "
               "parameter values end near the best return; last column: fraction of the last 100 "
               "episodes cut off at max_steps, SARSA + VDBE (σ ≥ 0.1).", ""]
-    explorers = ("egreedy", "softmax", "vdbe", "vdbe_softmax")
-    header = ["variant"] + [f"{LEARNER_NAMES[lr]} {e}" for lr in LEARNER_NAMES for e in explorers] + ["SARSA+VDBE truncated"]
+    header = ["variant"] + [f"{LEARNER_NAMES[lr]} {e}" for lr in LEARNER_NAMES for e in EXPLORERS] + ["SARSA+VDBE truncated"]
     lines += ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
     for r in results:
         near = r.best_return - NEAR
         table = _Table(r.summary)
         cells = [f"`{r.variant.name}`"]
         for learner in LEARNER_NAMES:
-            for explorer in explorers:
+            for explorer in EXPLORERS:
                 rows = table.get(learner, explorer)
                 b = table.best(learner, explorer)
                 near_count = sum(float(x["final_return"]) >= near for x in rows)
