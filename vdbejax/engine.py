@@ -94,7 +94,16 @@ class AgentState:
 
 
 def init_agent(mdp: TabularMDP, params: AgentParams, key: Array) -> AgentState:
-    """Fresh state of one agent: Q = q_init, ε(s) = 1, a reset pending."""
+    """Fresh state of one agent: Q = q_init, ε(s) = 1, a reset pending.
+
+    Args:
+      mdp: the task (sets the table shapes).
+      params: the agent's hyperparameters (``q_init``).
+      key: the agent's raw ``uint32[2]`` PRNG key.
+
+    Returns:
+      the :class:`AgentState` (no leading batch axis).
+    """
     zero = jnp.asarray(0, jnp.int32)
     return AgentState(
         q=jnp.full((mdp.num_states, mdp.num_actions), params.learner.q_init, jnp.float32),
@@ -184,6 +193,20 @@ def lockstep_iteration(
     (``[B·S·A]``, ``[B·S]``, ``[B·L]``) so that every table access is a 1-D gather or
     scatter of one element per agent; a gathered Q row is laid out ``[A, B]`` (the batch
     is the fast axis), which XLA vectorises.
+
+    Args:
+      mdp: the task (shared by all agents).
+      params: batched hyperparameters (leading axis = agents).
+      agents: batched states, ``q`` and ``epsilon`` flattened as above.
+      returns: flat ``[B·L]`` return buffer of the chunk (``L`` episodes per agent).
+      lengths: flat ``[B·L]`` length buffer.
+      chunk_start: episode index stored in each agent's buffer slot 0.
+      chunk_end: episode count at which an agent stops being active.
+      start_support: ``(states, weights)`` of the start distribution
+        (:func:`_start_support`).
+
+    Returns:
+      ``(agents, returns, lengths)`` after the iteration.
     """
     learner, explorer = params.learner, params.explorer
     num_agents = agents.episode.shape[0]
@@ -536,7 +559,14 @@ ProgressCallback = Callable[[int, int, float], None]
 
 
 def text_progress(stream: Any = None) -> ProgressCallback:
-    """A progress bar on ``stream`` (stderr by default): ``done/total`` agent-episodes."""
+    """A progress bar on ``stream`` (stderr by default): ``done/total`` agent-episodes.
+
+    Args:
+      stream: a text stream (default ``sys.stderr``).
+
+    Returns:
+      a :data:`ProgressCallback` that redraws the bar on each call.
+    """
     stream = sys.stderr if stream is None else stream
 
     def show(done: int, total: int, elapsed: float) -> None:
@@ -555,6 +585,13 @@ def agent_keys(seed: int, num_seeds: int) -> np.ndarray:
 
     Every configuration uses the same key for the same seed index (common random numbers),
     so an agent gives the same result alone or in any grid.
+
+    Args:
+      seed: root seed.
+      num_seeds: number of agents (seed indices).
+
+    Returns:
+      uint32 ``[num_seeds, 2]`` raw keys.
     """
     root = jax.random.PRNGKey(seed)
     return np.asarray(jax.vmap(lambda i: jax.random.fold_in(root, i))(jnp.arange(num_seeds)))
@@ -592,11 +629,16 @@ def run_agents(
       compact: between blocks of ``block_iterations`` lockstep iterations, gather the
         still-active agents into a smaller power-of-two batch (at least ``min_batch``
         lanes) once at most half the lanes are active, so finished agents stop costing
-        work. ``unroll``: lockstep iterations per loop trip. ``max_batch``: agents run in
-        groups of at most this many lanes, one group after another (keeps each group's Q
-        tables cache-sized, so throughput per agent-step does not fall as the number of
-        agents grows). None of these change the results, only the speed, as long as
-        ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
+        work.
+      block_iterations: lockstep iterations between compaction checks.
+      unroll: lockstep iterations per loop trip.
+      min_batch: smallest batch (lanes) compaction shrinks to.
+      max_batch: agents run in groups of at most this many lanes, one group after
+        another (keeps each group's Q tables cache-sized, so throughput per agent-step
+        does not fall as the number of agents grows).
+
+      None of ``compact`` … ``max_batch`` change the results, only the speed, as long as
+      ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
 
     Returns:
       :class:`RunResult`.
@@ -672,5 +714,13 @@ def run_agents(
 
 
 def broadcast_agents(params: AgentParams, repeats: int) -> AgentParams:
-    """Repeat each agent ``repeats`` times (config-major order: c0s0, c0s1, …)."""
+    """Repeat each agent ``repeats`` times (config-major order: c0s0, c0s1, …).
+
+    Args:
+      params: hyperparameters with a leading config axis.
+      repeats: agents (seeds) per config.
+
+    Returns:
+      the hyperparameters with a leading axis of ``configs × repeats`` agents.
+    """
     return jax.tree.map(lambda leaf: jnp.repeat(leaf, repeats, axis=0), params)
