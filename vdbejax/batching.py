@@ -33,7 +33,15 @@ SCALAR_BYTES = 128
 
 
 def bytes_per_agent(mdp: TabularMDP, chunk_episodes: int) -> int:
-    """Estimated device memory of one agent: Q and ε tables, scalars, chunk buffers."""
+    """Estimated device memory of one agent: Q and ε tables, scalars, chunk buffers.
+
+    Args:
+      mdp: the task (sets the table sizes).
+      chunk_episodes: episodes per engine chunk (sets the buffer sizes).
+
+    Returns:
+      bytes, for :data:`STATE_COPIES` working copies.
+    """
     tables = 4 * mdp.num_states * mdp.num_actions + 4 * mdp.num_states
     chunk_buffers = 8 * chunk_episodes  # float32 return + int32 length per episode
     return STATE_COPIES * (tables + SCALAR_BYTES + chunk_buffers)
@@ -69,7 +77,15 @@ def device_free_bytes(device: jax.Device) -> int:
 
 
 def default_memory_budget(devices: Sequence[jax.Device] | None = None) -> int:
-    """``DEFAULT_MEMORY_FRACTION`` of the smallest free memory among ``devices`` (bytes)."""
+    """``DEFAULT_MEMORY_FRACTION`` of the smallest free memory among ``devices`` (bytes).
+
+    Args:
+      devices: candidate devices (default: this process's); only those of this process
+        count, unless none is.
+
+    Returns:
+      the per-device budget in bytes.
+    """
     devices = list(jax.local_devices() if devices is None else devices)
     local = [d for d in devices if d.process_index == jax.process_index()] or devices
     return int(DEFAULT_MEMORY_FRACTION * min(device_free_bytes(d) for d in local))
@@ -175,7 +191,15 @@ class SweepProgress:
 
 def next_batch(progress: SweepProgress, batch_size: int) -> np.ndarray:
     """Agents of the next batch: up to ``batch_size`` unfinished agents that have all
-    done the same number of episodes (in-progress agents first, then fresh ones)."""
+    done the same number of episodes (in-progress agents first, then fresh ones).
+
+    Args:
+      progress: the sweep so far.
+      batch_size: most agents per batch.
+
+    Returns:
+      int64 agent rows (empty when every agent is finished).
+    """
     pending = np.flatnonzero(progress.episodes_done < progress.num_episodes)
     if pending.size == 0:
         return pending
