@@ -36,6 +36,12 @@ Tree = TypeVar("Tree")
 def select_devices(num_devices: int | None = None) -> list[jax.Device]:
     """The first ``num_devices`` of ``jax.devices()`` (all of them when None).
 
+    Args:
+      num_devices: how many devices, or None for all.
+
+    Returns:
+      the devices, in ``jax.devices()`` order.
+
     Raises:
       ValueError: ``num_devices`` is not an integer in ``[1, len(jax.devices())]``.
     """
@@ -110,7 +116,15 @@ def local_devices(devices: Sequence[jax.Device]) -> list[jax.Device]:
 
 def gather_agents(local: np.ndarray, num_agents: int) -> np.ndarray:
     """Concatenate every process's :func:`process_share` rows of ``local`` (all processes
-    receive the whole ``[num_agents, ...]`` array). One process: ``local`` itself."""
+    receive the whole ``[num_agents, ...]`` array). One process: ``local`` itself.
+
+    Args:
+      local: this process's rows (leading axis = its share of the agents).
+      num_agents: agents of the whole sweep.
+
+    Returns:
+      the ``[num_agents, ...]`` array of all processes' rows, in agent order.
+    """
     if jax.process_count() == 1:
         return local
     from jax.experimental import multihost_utils
