@@ -76,7 +76,15 @@ class GridResult:
         return int(self.returns.shape[2])
 
     def select(self, learner: str | None = None, explorer: str | None = None) -> list[int]:
-        """Config indices matching a learner and/or explorer."""
+        """Config indices matching a learner and/or explorer.
+
+        Args:
+          learner: learner name, or None for any.
+          explorer: explorer name, or None for any.
+
+        Returns:
+          the matching config indices, in order.
+        """
         return [
             i
             for i, s in enumerate(self.settings)
@@ -196,6 +204,10 @@ def check_run_options(
     memory_budget_bytes: Any,
 ) -> int | None:
     """Check :func:`run_grid`'s counts and flags (one-line ``ValueError`` on bad input).
+
+    Args:
+      num_seeds, num_episodes, seed, chunk_episodes, resume, memory_budget_bytes: as
+        in :func:`run_grid`.
 
     Returns:
       the memory budget in bytes (``"512M"``-style sizes parsed), or None.
