@@ -496,6 +496,11 @@ def _run_chunk_compacting(
     start, end = jnp.int32(chunk_start), jnp.int32(chunk_end)
     block = jnp.int32(block_iterations)
     support = _start_support(mdp)
+
+    def written_back() -> tuple[AgentState, Array, Array]:
+        """The full batch with the current batch's rows written back (padding dropped)."""
+        return cur if index is None else _scatter_rows(full, jnp.asarray(index), cur)
+
     while True:
         cur_agents, cur_returns, cur_lengths, done_iterations, active = _call_block(
             unroll, mdp, cur_params, *cur, start, end, block, support
@@ -514,23 +519,15 @@ def _run_chunk_compacting(
         if target * 2 > size:
             continue
         # Write the current batch back, then gather the active agents.
-        if index is None:
-            full = cur
-            keep = np.flatnonzero(active)
-        else:
-            full = _scatter_rows(full, jnp.asarray(index), cur)
-            keep = index[active]
+        full = written_back()
+        keep = np.flatnonzero(active) if index is None else index[active]
         index = np.full(target, num_agents, np.int32)
         index[: keep.size] = keep
         gather = np.where(index < num_agents, index, keep[0]).astype(np.int32)
         cur_params = _gather_rows(params, jnp.asarray(gather))
         cur = _gather_rows(full, jnp.asarray(gather))
         size = target
-    if index is not None:
-        full = _scatter_rows(full, jnp.asarray(index), cur)
-    else:
-        full = cur
-    return (*full, iterations, lane_iterations)
+    return (*written_back(), iterations, lane_iterations)
 
 
 @dataclasses.dataclass
