@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from vdbejax import engine
-from vdbejax.agents import Setting, make_agent, stack_agents
+from vdbejax.agents import AgentOptions, Setting, make_agent, stack_agents
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.explorers import select_action
 from vdbejax.learners import q_learning_target, sarsa_target
@@ -71,21 +71,96 @@ def test_learner_targets_on_a_column_batch_equal_one_row_at_a_time(learner):
 
 def test_compaction_chunking_and_batch_position_do_not_change_results(mdp):
     params, keys = _grid(2)
-    base = engine.run_agents(mdp, params, keys, 12, chunk_episodes=12, compact=False)
-    grouped = engine.run_agents(mdp, params, keys, 12, compact=False, max_batch=5)
+    base = engine.run_agents(
+        mdp, params, keys, 12, chunk_episodes=12, compact=False, strategy="lockstep"
+    )
+    grouped = engine.run_agents(
+        mdp, params, keys, 12, compact=False, max_batch=5, strategy="lockstep"
+    )
     np.testing.assert_array_equal(base.returns, grouped.returns)
     compacted = engine.run_agents(
-        mdp, params, keys, 12, chunk_episodes=5, block_iterations=8, min_batch=2, max_batch=3
+        mdp, params, keys, 12, chunk_episodes=5, block_iterations=8, min_batch=2, max_batch=3,
+        strategy="lockstep",
     )
     np.testing.assert_array_equal(base.returns, compacted.returns)
     np.testing.assert_array_equal(base.lengths, compacted.lengths)
     np.testing.assert_array_equal(base.final_state.q, compacted.final_state.q)
     # One agent alone (the slowest kind: SARSA + VDBE σ = 0.001) equals itself in the batch.
     alone = engine.run_agents(
-        mdp, jax.tree.map(lambda x: x[1:2], params), keys[1:2], 12, chunk_episodes=5
+        mdp, jax.tree.map(lambda x: x[1:2], params), keys[1:2], 12, chunk_episodes=5,
+        strategy="lockstep",
     )
     np.testing.assert_array_equal(alone.returns[0], base.returns[1])
     np.testing.assert_array_equal(alone.lengths[0], base.lengths[1])
+
+
+def _assert_same_run(a: engine.RunResult, b: engine.RunResult, exact: bool = True) -> None:
+    np.testing.assert_array_equal(a.lengths, b.lengths)
+    for leaf_a, leaf_b in zip(
+        jax.tree.leaves((a.returns, a.final_state)), jax.tree.leaves((b.returns, b.final_state))
+    ):
+        if exact or not np.issubdtype(np.asarray(leaf_a).dtype, np.floating):
+            np.testing.assert_array_equal(leaf_a, leaf_b)
+        else:
+            np.testing.assert_allclose(leaf_a, leaf_b, rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("tie_break", ["random", "first"])
+def test_sequential_strategy_equals_lockstep(mdp, tie_break):
+    """The CPU engine (one native loop per agent, agents over threads) and the vectorised
+    lockstep engine run the same step function: the same actions and episodes, and for
+    the spec's random tie-break bit-identical values. (LLVM may fuse a multiply-add into
+    an FMA in one program and not in the other, which can move a Q value by one ulp;
+    the argmax program of ``first`` does so.) Within the sequential strategy, threads,
+    chunks and grouping change nothing."""
+    options = AgentOptions(tie_break=tie_break)
+    params = engine.broadcast_agents(
+        stack_agents([make_agent(s, options) for s in SETTINGS]), 3
+    )
+    keys = np.tile(engine.agent_keys(5, 3), (len(SETTINGS), 1))
+    lockstep = engine.run_agents(mdp, params, keys, 30, chunk_episodes=30, strategy="lockstep")
+    first = None
+    for threads, chunk in [(1, 30), (2, 7), (3, 11)]:
+        sequential = engine.run_agents(
+            mdp, params, keys, 30, chunk_episodes=chunk, strategy="sequential", threads=threads
+        )
+        _assert_same_run(sequential, lockstep, exact=tie_break == "random")
+        first = first or sequential
+        _assert_same_run(sequential, first)
+        assert sequential.iterations == int(sequential.lengths.sum()) + np.count_nonzero(
+            sequential.lengths == mdp.max_steps
+        ) + len(keys)  # one reset iteration per agent start and per truncation
+    assert engine.native_step_loops() is True
+
+
+def test_sequential_strategy_on_a_stochastic_mdp_equals_lockstep():
+    """Stochastic transitions (several outcomes) go through the same two strategies."""
+    from vdbejax.envs.tabular import make_tabular_mdp
+
+    rng = np.random.default_rng(3)
+    num_states, num_actions, outcomes = 6, 3, 2
+    next_state = rng.integers(0, num_states, size=(num_states, num_actions, outcomes))
+    probability = np.full((num_states, num_actions, outcomes), 0.5)
+    reward = rng.normal(size=(num_states, num_actions, outcomes)).astype(np.float32)
+    terminal = np.zeros((num_states, num_actions, outcomes), bool)
+    terminal[num_states - 1] = True
+    start = np.zeros(num_states)
+    start[:2] = 0.5
+    stochastic = make_tabular_mdp(next_state, reward, terminal, start, probability=probability,
+                                  max_steps=15)
+    params, keys = _grid(2)
+    lockstep = engine.run_agents(stochastic, params, keys, 20, strategy="lockstep")
+    sequential = engine.run_agents(stochastic, params, keys, 20, strategy="sequential",
+                                   threads=2, chunk_episodes=6)
+    _assert_same_run(sequential, lockstep)
+
+
+def test_bad_strategy_or_threads_is_one_line_error(mdp):
+    params, keys = _grid(1)
+    with pytest.raises(ValueError, match="strategy"):
+        engine.run_agents(mdp, params, keys, 2, strategy="fastest")
+    with pytest.raises(ValueError, match="threads"):
+        engine.run_agents(mdp, params, keys, 2, threads=0)
 
 
 def test_hashed_stream_depends_only_on_key_and_counter():

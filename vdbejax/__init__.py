@@ -6,6 +6,10 @@ Quick start::
     rep = vdbejax.reproduce("out/paper")          # the paper's full grid
     print(rep.claims[0].verdict)
 """
+from vdbejax import _xla_flags
+
+_xla_flags.apply()  # before anything starts JAX's backend (see vdbejax._xla_flags)
+
 from vdbejax.agents import AgentOptions, AgentParams, Setting, make_agent, paper_settings
 from vdbejax.envs import TabularMDP, compile_env, make_tabular_mdp
 from vdbejax.experiment import GridResult, run_grid

@@ -191,6 +191,7 @@ def run_sharded(
     # The engine's compaction gathers the active agents across shards into one batch;
     # the plain jitted chunk keeps every agent on its device.
     engine_options.setdefault("compact", False)
+    engine_options.setdefault("strategy", "lockstep")  # one program over all shards
     mesh = agent_mesh(devices)
     keys = np.asarray(keys, np.uint32)
     (params, keys), count = pad_agents((params, keys), len(devices))

@@ -39,9 +39,11 @@ One iteration of one agent (``s, a`` = current state and the action already chos
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from typing import Any
 
@@ -49,12 +51,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vdbejax import _xla_flags
 from vdbejax._pytree import pytree_dataclass
 from vdbejax.agents import AgentParams
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.explorers import sample_categorical, select_action, vdbe_epsilon_update
 from vdbejax.learners import q_learning_target, sarsa_target, td_update
-from vdbejax.validation import check_int
+from vdbejax.validation import check_choice, check_int
 
 Array = jax.Array
 
@@ -164,6 +167,39 @@ def _start_support(mdp: TabularMDP) -> tuple[Array, Array]:
     return jnp.asarray(support), jnp.asarray(probability[support])
 
 
+# Per-lane buffer access. A batch of one lane (the CPU engine's per-agent loop) uses
+# dynamic slices instead of gathers/scatters: XLA's CPU backend then compiles the whole
+# loop into one native function (scatters would keep it on the per-op runtime).
+
+
+def _take(buffer: Array, index: Array, width: int = 1) -> Array:
+    """``buffer[index + j]`` for ``j < width``, shaped ``[width, B]`` (``[B]`` if width 1)."""
+    if index.shape == (1,):
+        values = jax.lax.dynamic_slice(buffer, (index[0],), (width,))
+        return values if width == 1 else values[:, None]
+    if width == 1:
+        return buffer.at[index].get(mode="promise_in_bounds")
+    columns = jnp.arange(width, dtype=index.dtype)[:, None]
+    return buffer.at[index[None] + columns].get(mode="promise_in_bounds")
+
+
+def _put(buffer: Array, index: Array, value: Array) -> Array:
+    """``buffer[index] = value`` for distinct in-bounds indices, one per lane."""
+    value = value.astype(buffer.dtype)
+    if index.shape == (1,):
+        return jax.lax.dynamic_update_slice(buffer, value, (index[0],))
+    return buffer.at[index].set(value, mode="promise_in_bounds", unique_indices=True)
+
+
+def _put_where(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
+    """``buffer[index] = value`` where ``mask``; lanes without it write nothing."""
+    if index.shape == (1,):
+        index = jnp.clip(index, 0, buffer.shape[0] - 1)
+        return _put(buffer, index, jnp.where(mask, value, _take(buffer, index)))
+    index = jnp.where(mask, index, buffer.shape[0])  # past the end: dropped
+    return buffer.at[index].set(value.astype(buffer.dtype), mode="drop")
+
+
 def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array) -> tuple[Array, Array, Array]:
     """Batched :meth:`TabularMDP.transition` (flat 1-D gathers when deterministic)."""
     if mdp.num_outcomes != 1:
@@ -171,7 +207,7 @@ def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array) -> tuple[Array, A
     flat = s * mdp.num_actions + a
 
     def take(table: Array) -> Array:
-        return table.reshape(-1).at[flat].get(mode="promise_in_bounds")
+        return _take(table.reshape(-1), flat)
 
     return take(mdp.next_state), take(mdp.reward), take(mdp.terminal)
 
@@ -218,10 +254,10 @@ def lockstep_iteration(
     columns = jnp.arange(A, dtype=jnp.int32)[:, None]
 
     def q_row(state: Array) -> Array:  # [A, B]: the batch is the fast axis
-        return agents.q.at[(q_base + state * A)[None] + columns].get(mode="promise_in_bounds")
+        return _take(agents.q, q_base + state * A, A)
 
     def eps_at(state: Array) -> Array:
-        return agents.epsilon.at[eps_base + state].get(mode="promise_in_bounds")
+        return _take(agents.epsilon, eps_base + state)
 
     active = agents.episode < chunk_end
     u = _uniforms(agents.key, agents.counter)
@@ -233,10 +269,10 @@ def lockstep_iteration(
     length = agents.episode_length + 1
     truncated = ~terminal & (length >= mdp.max_steps)
     support, weights = start_support
-    s_start = support.at[sample_categorical(weights, u[0])].get(mode="promise_in_bounds")
+    s_start = _take(support, sample_categorical(weights, u[0]))
 
     sa_index = q_base + s * A + a
-    q_sa = agents.q.at[sa_index].get(mode="promise_in_bounds")
+    q_sa = _take(agents.q, sa_index)
     # Choose the next action in s' (in the new episode's start state after a terminal
     # step). That row also serves the target: a terminal step has discount 0, so which
     # row it multiplies does not matter (for finite Q), and one gather is saved.
@@ -268,21 +304,15 @@ def lockstep_iteration(
     delta_q = jnp.where(learner.sarsa, sarsa_dq, q_learning_dq)
     eps_s = eps_at(s)
     new_eps_s = vdbe_epsilon_update(eps_s, delta_q, explorer.sigma, explorer.delta)
-    q = agents.q.at[sa_index].set(
-        jnp.where(learn, new_q_sa, q_sa), mode="promise_in_bounds", unique_indices=True
-    )
-    epsilon = agents.epsilon.at[eps_base + s].set(
-        jnp.where(learn & explorer.adaptive, new_eps_s, eps_s),
-        mode="promise_in_bounds",
-        unique_indices=True,
-    )
+    q = _put(agents.q, sa_index, jnp.where(learn, new_q_sa, q_sa))
+    epsilon = _put(agents.epsilon, eps_base + s, jnp.where(learn & explorer.adaptive, new_eps_s, eps_s))
 
     episode_return = agents.episode_return + reward
     done = learn & (terminal | truncated)
     slot = agents.episode - chunk_start
-    out = jnp.where(done, lane * chunk_length + slot, returns.shape[0])  # past the end: dropped
-    returns = returns.at[out].set(episode_return, mode="drop")
-    lengths = lengths.at[out].set(length, mode="drop")
+    out = lane * chunk_length + slot
+    returns = _put_where(returns, out, episode_return, done)
+    lengths = _put_where(lengths, out, length, done)
 
     def keep(new: Array, old: Array) -> Array:
         return jnp.where(active, new, old)
@@ -399,7 +429,7 @@ def _run_chunk_jit(mdp, params, agents, chunk_start, chunk_end, chunk_length, un
 
 @partial(jax.jit, static_argnames=("unroll",))
 def _run_block(mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations,
-               unroll, start_support):
+               start_support, *, unroll):
     """Up to ``max_iterations`` lockstep iterations; also returns each lane's activity."""
     agents, returns, lengths, iterations = _run_loop(
         mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations, unroll,
@@ -408,10 +438,48 @@ def _run_block(mdp, params, agents, returns, lengths, chunk_start, chunk_end, ma
     return agents, returns, lengths, iterations, agents.episode < chunk_end
 
 
-#: Ahead-of-time compiled ``_run_block`` executables, by argument signature.
-_BLOCK_EXECUTABLES: dict[Any, Any] = {}
-#: Seconds spent in ``_run_block.lower(...).compile()`` (cumulative; see ``compile_seconds``).
+@partial(jax.jit, static_argnames=("chunk_length",))
+def _run_sequential(mdp, params, agents, chunk_start, chunk_end, start_support, *,
+                    chunk_length):
+    """Each agent of the batch in turn runs its own step loop until ``chunk_end`` episodes.
+
+    The step is :func:`lockstep_iteration` on a batch of one lane, which uses dynamic
+    slices only, so XLA's CPU backend compiles an agent's whole loop into one native
+    function (given the small-while-loop threshold that :mod:`vdbejax._xla_flags` sets)
+    instead of dispatching ~30 kernels per step.
+    """
+    num_agents = agents.episode.shape[0]
+    big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
+
+    def one_agent(i: Array, carry: tuple) -> tuple:
+        agents, returns, lengths, iterations = carry
+
+        def pick(leaf: Array) -> Array:
+            return jax.lax.dynamic_slice_in_dim(leaf, i, 1)
+
+        def put(full: Array, new: Array) -> Array:
+            return jax.lax.dynamic_update_slice_in_dim(full, new, i, 0)
+
+        agent, agent_returns, agent_lengths, agent_iterations = _run_loop(
+            mdp, jax.tree.map(pick, params), jax.tree.map(pick, agents), pick(returns),
+            pick(lengths), chunk_start, chunk_end, big, 1, start_support,
+        )
+        return (jax.tree.map(put, agents, agent), put(returns, agent_returns),
+                put(lengths, agent_lengths), iterations + agent_iterations)
+
+    returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
+    lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
+    zero = jnp.asarray(0, jnp.int32)
+    return jax.lax.fori_loop(0, num_agents, one_agent, (agents, returns, lengths, zero))
+
+
+#: Ahead-of-time compiled executables, by function, static arguments and signature.
+_EXECUTABLES: dict[Any, Any] = {}
+#: Seconds spent in ``lower(...).compile()`` (cumulative; see ``compile_seconds``).
 _COMPILE_SECONDS = [0.0]
+#: Per-compilation XLA options of the CPU engine: with region analysis, copy insertion
+#: proves that an agent's Q-table update can happen in place (no copy of Q per step).
+_CPU_COMPILER_OPTIONS = {"xla_cpu_copy_insertion_use_region_analysis": True}
 
 
 def _signature(args: Any) -> Any:
@@ -428,20 +496,22 @@ def _dtype_str(x: Any) -> str:
     return np.dtype(dtype if dtype is not None else np.result_type(x)).str
 
 
-def _call_block(unroll: int, *args: Any) -> Any:
-    """``_run_block(*args, unroll)`` through an explicit ``lower().compile()`` cache.
+def _compiled(function: Any, args: tuple, static: dict[str, Any],
+              compiler_options: dict[str, Any] | None = None) -> Any:
+    """``function``'s executable for ``args`` through an explicit ``lower().compile()`` cache.
 
     Compilation is thus timed separately (with a warm persistent compilation cache it is
-    a cache read).
+    a cache read). Call the result with ``args`` only (the static arguments are baked in).
     """
-    key = (unroll, _signature(args))
-    executable = _BLOCK_EXECUTABLES.get(key)
+    key = (function, tuple(sorted(static.items())), _signature(args))
+    executable = _EXECUTABLES.get(key)
     if executable is None:
         started = time.perf_counter()
-        executable = _run_block.lower(*args[:8], unroll, args[8]).compile()
+        lowered = function.lower(*args, **static)
+        executable = lowered.compile(compiler_options) if compiler_options else lowered.compile()
         _COMPILE_SECONDS[0] += time.perf_counter() - started
-        _BLOCK_EXECUTABLES[key] = executable
-    return executable(*args)
+        _EXECUTABLES[key] = executable
+    return executable
 
 
 def compile_seconds() -> float:
@@ -502,9 +572,10 @@ def _run_chunk_compacting(
         return cur if index is None else _scatter_rows(full, jnp.asarray(index), cur)
 
     while True:
-        cur_agents, cur_returns, cur_lengths, done_iterations, active = _call_block(
-            unroll, mdp, cur_params, *cur, start, end, block, support
-        )
+        args = (mdp, cur_params, *cur, start, end, block, support)
+        cur_agents, cur_returns, cur_lengths, done_iterations, active = _compiled(
+            _run_block, args, {"unroll": unroll}
+        )(*args)
         cur = (cur_agents, cur_returns, cur_lengths)
         done_iterations = int(done_iterations)
         iterations += done_iterations
@@ -528,6 +599,106 @@ def _run_chunk_compacting(
         cur = _gather_rows(full, jnp.asarray(gather))
         size = target
     return (*written_back(), iterations, lane_iterations)
+
+
+#: Executables already checked by :func:`_check_native` (by id), and their verdicts.
+_NATIVE: dict[int, bool] = {}
+
+
+def native_step_loops() -> bool | None:
+    """Whether the sequential executables compiled so far run their step loops natively.
+
+    ``None`` before the first one is compiled. ``False`` means XLA dispatches every
+    operation of a step separately (same results, several times slower): JAX's backend
+    started before :mod:`vdbejax` could raise XLA's small-while-loop threshold
+    (:mod:`vdbejax._xla_flags`).
+    """
+    return all(_NATIVE.values()) if _NATIVE else None
+
+
+def _check_native(executable: Any) -> None:
+    """Record (and warn once) whether ``executable``'s per-agent loop compiled natively."""
+    if id(executable) in _NATIVE:
+        return
+    native = "xla_cpu_small_call" in executable.as_text()
+    if not native and all(_NATIVE.values()):
+        import warnings
+
+        warnings.warn(
+            "vdbejax: XLA compiled the per-agent step loop op by op (same results, several "
+            "times slower): its small-while-loop threshold was not raised (JAX's backend "
+            "started before vdbejax was imported, or VDBEJAX_XLA_FLAGS=off); import "
+            "vdbejax first, or set XLA_FLAGS="
+            f"'{_xla_flags.with_small_loop_threshold('')}' before starting Python.",
+            RuntimeWarning,
+            stacklevel=4,
+        )
+    _NATIVE[id(executable)] = native
+
+
+def _run_chunk_sequential(
+    mdp: TabularMDP,
+    params: AgentParams,
+    agents: AgentState,
+    chunk_start: int,
+    chunk_end: int,
+    chunk_length: int,
+    *,
+    threads: int,
+) -> tuple[AgentState, np.ndarray, np.ndarray, int]:
+    """One chunk with the per-agent loop of :func:`_run_sequential`, on ``threads`` threads.
+
+    The agents are dealt into ``4 × threads`` groups by stride (agent ``i`` to group
+    ``i mod groups``), so slow settings, which sit next to each other in a grid, spread
+    over all groups; worker threads take groups as they become free (XLA releases the
+    GIL while a program runs). Each agent's result depends on its own lane only, so the
+    grouping changes nothing.
+
+    Returns:
+      ``(agents, returns, lengths, iterations)`` as numpy, ``iterations`` = Σ agent steps.
+    """
+    params = jax.tree.map(np.asarray, params)
+    agents = jax.tree.map(np.array, agents)  # writable copies: the groups' rows go back in
+    num_agents = int(agents.episode.shape[0])
+    num_groups = min(num_agents, 4 * threads)
+    groups = [np.arange(k, num_agents, num_groups) for k in range(num_groups)]
+    support = _start_support(mdp)
+    start, end = jnp.int32(chunk_start), jnp.int32(chunk_end)
+    static = {"chunk_length": chunk_length}
+
+    def arguments(index: np.ndarray) -> tuple:
+        def rows(tree: Any) -> Any:
+            return jax.tree.map(lambda leaf: leaf[index], tree)
+
+        return (mdp, rows(params), rows(agents), start, end, support)
+
+    # Compile on this thread (at most two group sizes), then run the groups in parallel.
+    for size in sorted({g.size for g in groups}):
+        index = next(g for g in groups if g.size == size)
+        _check_native(_compiled(_run_sequential, arguments(index), static,
+                                _CPU_COMPILER_OPTIONS))
+
+    def run(index: np.ndarray) -> Any:
+        args = arguments(index)
+        out = _compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS)(*args)
+        return jax.tree.map(np.asarray, out)
+
+    if threads == 1 or num_groups == 1:
+        outputs = [run(index) for index in groups]
+    else:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            outputs = list(pool.map(run, groups))
+    returns = np.zeros((num_agents, chunk_length), np.float32)
+    lengths = np.zeros((num_agents, chunk_length), np.int32)
+    iterations = 0
+    for index, (group_agents, group_returns, group_lengths, group_iterations) in zip(
+        groups, outputs
+    ):
+        for full, rows in zip(jax.tree.leaves(agents), jax.tree.leaves(group_agents)):
+            full[index] = rows
+        returns[index], lengths[index] = group_returns, group_lengths
+        iterations += int(group_iterations)
+    return agents, returns, lengths, iterations
 
 
 @dataclasses.dataclass
@@ -609,6 +780,8 @@ def run_agents(
     unroll: int = DEFAULT_UNROLL,
     min_batch: int = 8,
     max_batch: int = MAX_SAFE_BATCH,
+    strategy: str = "auto",
+    threads: int | None = None,
 ) -> RunResult:
     """Train a batch of agents for ``num_episodes`` episodes each.
 
@@ -634,7 +807,16 @@ def run_agents(
         another (keeps each group's Q tables cache-sized, so throughput per agent-step
         does not fall as the number of agents grows).
 
-      None of ``compact`` … ``max_batch`` change the results, only the speed, as long as
+      strategy: ``"sequential"`` (each agent runs its own native step loop; agents are
+        spread over ``threads`` threads; the fast choice on CPU), ``"lockstep"`` (all
+        agents of a batch advance together, one vectorised step per iteration, with
+        compaction and groups as above; for accelerators and sharded agents), or
+        ``"auto"``: sequential when the default backend is the CPU and the agents are not
+        sharded over several devices, lockstep otherwise.
+      threads: worker threads of the sequential strategy (default: the CPUs this
+        process may use).
+
+      None of ``compact`` … ``threads`` change the results, only the speed, as long as
       ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
 
     Returns:
@@ -646,6 +828,12 @@ def run_agents(
     check_int("unroll", unroll, 1)
     check_int("min_batch", min_batch, 1)
     check_int("max_batch", max_batch, 1)
+    check_choice("strategy", strategy, STRATEGIES + ("auto",))
+    if threads is None:
+        threads = available_cpus()
+    check_int("threads", threads, 1)
+    if strategy == "auto":
+        strategy = _auto_strategy(params, keys)
     keys = jnp.asarray(keys, jnp.uint32)
     num_agents = int(keys.shape[0])
     chunk = min(chunk_episodes, num_episodes)
@@ -663,6 +851,21 @@ def run_agents(
         progress(done * num_agents, num_episodes * num_agents, 0.0)
     while done < num_episodes:
         end = min(done + chunk, num_episodes)
+        if strategy == "sequential":
+            agents, chunk_returns, chunk_lengths, chunk_iterations = _run_chunk_sequential(
+                mdp, params, agents, done, end, chunk, threads=threads
+            )
+            lane_iterations += chunk_iterations
+            iterations += chunk_iterations
+            returns[:, done:end] = chunk_returns[:, : end - done]
+            lengths[:, done:end] = chunk_lengths[:, : end - done]
+            done = end
+            if on_chunk:
+                on_chunk(done, agents, returns[:, :done], lengths[:, :done])
+            if progress:
+                progress(done * num_agents, num_episodes * num_agents,
+                         time.perf_counter() - started)
+            continue
         # Groups of at most max_batch agents run one after another: a group's tables stay
         # cache-sized, and per-agent results do not depend on the grouping.
         pieces = []
@@ -708,6 +911,29 @@ def run_agents(
     return RunResult(
         returns, lengths, np.asarray(final.nonfinite), iterations, final, lane_iterations
     )
+
+
+#: Engine strategies of :func:`run_agents`.
+STRATEGIES = ("sequential", "lockstep")
+
+
+def available_cpus() -> int:
+    """CPUs this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def _auto_strategy(params: AgentParams, keys: Any) -> str:
+    """``"sequential"`` on a CPU backend with unsharded agents, else ``"lockstep"``."""
+    if jax.default_backend() != "cpu":
+        return "lockstep"
+    for leaf in jax.tree.leaves((params, keys)):
+        sharding = getattr(leaf, "sharding", None)
+        if sharding is not None and len(sharding.device_set) > 1:
+            return "lockstep"
+    return "sequential"
 
 
 def broadcast_agents(params: AgentParams, repeats: int) -> AgentParams:
