@@ -76,18 +76,21 @@ def _worker_vdbejax(args) -> dict:
             stack_agents([make_agent(s) for s in settings]), args.seeds
         )
         keys = np.tile(engine.agent_keys(0, args.seeds), (len(settings), 1))
-    result = engine.run_agents(mdp, params, keys, args.episodes)
+    result = engine.run_agents(mdp, params, keys, args.episodes, strategy=args.strategy)
     wall = time.perf_counter() - started
     compile_time = engine.compile_seconds()
     steady = None
     if args.agents:  # scaling: time a second, fully compiled run of the same work
         again = time.perf_counter()
-        engine.run_agents(mdp, params, keys, args.episodes)
+        engine.run_agents(mdp, params, keys, args.episodes, strategy=args.strategy)
         steady = time.perf_counter() - again
     return {
         "steady": steady,
         "wall": wall,
         "compile": compile_time,
+        "strategy": args.strategy if args.strategy != "auto" else engine._auto_strategy(
+            params, keys),
+        "native": engine.native_step_loops(),
         "steps": int(result.lengths.sum()),
         "iterations": int(result.iterations),
         "lane_iterations": int(result.lane_iterations),
@@ -152,6 +155,7 @@ def _spawn(kind: str, args, env_extra: dict | None = None, **overrides) -> dict:
         "--seeds", str(args.seeds), "--python-seeds", str(args.python_seeds),
         "--jax-cache", args.jax_cache, "--mdp-factory", args.mdp_factory,
         "--agents", str(overrides.get("agents", 0)),
+        "--strategy", overrides.get("strategy", args.strategy),
     ]
     env = dict(os.environ, **(env_extra or {}))
     env["PYTHONPATH"] = os.pathsep.join(
@@ -244,6 +248,10 @@ def main(argv=None) -> int:
     p.add_argument("--scaling-episodes", type=int, default=20)
     p.add_argument("--mdp-factory", default=DEFAULT_FACTORY,
                    help="module:function returning the TabularMDP (vdbejax runs)")
+    p.add_argument("--strategy", default="auto", choices=["auto", "sequential", "lockstep"],
+                   help="vdbejax engine strategy of the main rows (the lockstep strategy "
+                        "also gets a row of its own unless --skip-lockstep)")
+    p.add_argument("--skip-lockstep", action="store_true")
     p.add_argument("--tmp", default=None)
     p.add_argument("--jax-cache", default=None)
     p.add_argument("--worker", choices=sorted(WORKERS), help=argparse.SUPPRESS)
@@ -278,6 +286,11 @@ def main(argv=None) -> int:
     numba_warm = _spawn("numba", args, nenv)
     print("vdbejax (warm cache) ...", flush=True)
     jax_warm = _spawn("vdbejax", args)
+    lockstep = None
+    if not args.skip_lockstep and jax_warm["strategy"] != "lockstep":
+        print("vdbejax lockstep strategy (cold, then warm cache) ...", flush=True)
+        _spawn("vdbejax", args, strategy="lockstep")
+        lockstep = _spawn("vdbejax", args, strategy="lockstep")
     python = None
     if not args.skip_python:
         print("python ...", flush=True)
@@ -309,8 +322,13 @@ def main(argv=None) -> int:
         "peer, wall | note |",
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
-    rows = [("vdbejax (warm JAX cache)", jax_warm, ""),
-            ("vdbejax (cold JAX cache)", jax_cold, ""),
+    strategy = jax_warm["strategy"]
+    rows = [(f"vdbejax {strategy} (warm JAX cache)", jax_warm, ""),
+            (f"vdbejax {strategy} (cold JAX cache)", jax_cold, "")]
+    if lockstep is not None:
+        rows.append(("vdbejax lockstep (warm JAX cache)", lockstep,
+                     "vectorised strategy (accelerators)"))
+    rows += [
             ("numba (warm cache=True)", numba_warm, ""),
             ("numba (cold)", numba_cold, "")]
     if python is not None:
@@ -336,9 +354,20 @@ def main(argv=None) -> int:
     if python is not None:
         lines.append(f"- Python (extrapolated) / vdbejax (warm) = **{ratio(jax_warm, extrapolated):.1f}×** "
                      "(target ≥ 100)")
-    lines.append(f"- vdbejax lockstep: {jax_warm['iterations']:,} iterations, "
-                 f"{jax_warm['lane_iterations']:,} agent-lane iterations for {steps:,} real steps "
-                 f"(lane efficiency {steps / max(jax_warm['lane_iterations'], 1):.0%}).")
+    if strategy == "sequential":
+        lines.append(f"- vdbejax sequential: {jax_warm['iterations']:,} loop iterations for "
+                     f"{steps:,} real steps (one per step, plus one per episode start after a "
+                     f"truncation); step loops compiled natively: {jax_warm['native']}.")
+    if lockstep is not None:
+        same = np.array_equal(lockstep["returns"], jax_warm["returns"])
+        lines.append(f"- Returns of the lockstep and the {strategy} strategy bit-identical: "
+                     f"{same}.")
+    for name, r in [("lockstep", jax_warm if strategy == "lockstep" else lockstep)]:
+        if r is not None:
+            lines.append(
+                f"- vdbejax {name}: {r['iterations']:,} iterations, {r['lane_iterations']:,} "
+                f"agent-lane iterations for {steps:,} real steps (lane efficiency "
+                f"{steps / max(r['lane_iterations'], 1):.0%}).")
 
     # agreement
     lines += ["", "## Do the peers learn the same? (statistical check)", "",

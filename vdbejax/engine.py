@@ -1,6 +1,19 @@
-"""The vectorized engine: every agent of a sweep advances inside one jitted program.
+"""The engine: every agent of a sweep trains inside jitted programs, in one of two ways.
 
-Design (why it looks like this):
+Both strategies run the same step function (:func:`lockstep_iteration`, batched over
+agent lanes), so they compute the same thing; :func:`run_agents` picks one:
+
+* **sequential** (the default on a CPU backend): each agent runs its own ``while`` loop of
+  steps, one lane wide, agents one after another inside a program and groups of agents on
+  several threads. With one lane every table access is a dynamic slice, so XLA's CPU
+  backend compiles the whole loop into one native function (see
+  :mod:`vdbejax._xla_flags`), and no agent ever waits for another. On the paper grid this
+  is ≈ 2× faster than lockstep on the 2-core development machine and gives bit-identical
+  returns (``benchmarks/RESULTS.md``).
+* **lockstep** (accelerators, agents sharded over devices): all agents of a batch advance
+  together, one vectorised step per loop iteration, as described below.
+
+Design of the lockstep strategy (why it looks like this):
 
 * **Step-synchronous lockstep.** Agents do not wait for each other at episode
   boundaries: each agent has its own episode counter and starts its next episode as soon

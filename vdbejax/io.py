@@ -66,10 +66,14 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def atomic_savez(path: str | os.PathLike, **arrays: Any) -> None:
-    """``np.savez_compressed`` written atomically."""
+def atomic_savez(path: str | os.PathLike, *, compressed: bool = True, **arrays: Any) -> None:
+    """``np.savez_compressed`` (or ``np.savez`` when not ``compressed``) written atomically.
+
+    Checkpoints, rewritten after every chunk and deleted at the end, are not compressed:
+    zlib would cost more than the training of a chunk.
+    """
     buffer = io.BytesIO()
-    np.savez_compressed(buffer, **arrays)
+    (np.savez_compressed if compressed else np.savez)(buffer, **arrays)
     atomic_write_bytes(path, buffer.getvalue())
 
 
