@@ -451,18 +451,22 @@ def _run_block(mdp, params, agents, returns, lengths, chunk_start, chunk_end, ma
     return agents, returns, lengths, iterations, agents.episode < chunk_end
 
 
-@partial(jax.jit, static_argnames=("chunk_length",))
-def _run_sequential(mdp, params, agents, chunk_start, chunk_end, start_support, *,
-                    chunk_length):
-    """Each agent of the batch in turn runs its own step loop until ``chunk_end`` episodes.
+@partial(jax.jit, static_argnames=("chunk_length", "kind"))
+def _run_sequential(mdp, params, agents, chunk_start, chunk_end, count, start_support, *,
+                    chunk_length, kind):
+    """Agents ``0 .. count-1`` of the batch in turn run their own step loop to ``chunk_end``.
 
     The step is :func:`lockstep_iteration` on a batch of one lane, which uses dynamic
     slices only, so XLA's CPU backend compiles an agent's whole loop into one native
     function (given the small-while-loop threshold that :mod:`vdbejax._xla_flags` sets)
-    instead of dispatching ~30 kernels per step.
+    instead of dispatching ~30 kernels per step. ``kind`` = ``(sarsa, adaptive)`` shared by
+    all these agents is baked in as constants: XLA then drops the other learner's target
+    and, without VDBE, the ε(s) updates (≈ 1.5× fewer instructions per step). Rows from
+    ``count`` on are padding and left as they are.
     """
     num_agents = agents.episode.shape[0]
     big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
+    sarsa, adaptive = kind
 
     def one_agent(i: Array, carry: tuple) -> tuple:
         agents, returns, lengths, iterations = carry
@@ -473,9 +477,17 @@ def _run_sequential(mdp, params, agents, chunk_start, chunk_end, start_support, 
         def put(full: Array, new: Array) -> Array:
             return jax.lax.dynamic_update_slice_in_dim(full, new, i, 0)
 
+        agent_params = jax.tree.map(pick, params)
+        agent_params = dataclasses.replace(
+            agent_params,
+            learner=dataclasses.replace(agent_params.learner, sarsa=jnp.full((1,), sarsa)),
+            explorer=dataclasses.replace(
+                agent_params.explorer, adaptive=jnp.full((1,), adaptive)
+            ),
+        )
         agent, agent_returns, agent_lengths, agent_iterations = _run_loop(
-            mdp, jax.tree.map(pick, params), jax.tree.map(pick, agents), pick(returns),
-            pick(lengths), chunk_start, chunk_end, big, 1, start_support,
+            mdp, agent_params, jax.tree.map(pick, agents), pick(returns), pick(lengths),
+            chunk_start, chunk_end, big, 1, start_support,
         )
         return (jax.tree.map(put, agents, agent), put(returns, agent_returns),
                 put(lengths, agent_lengths), iterations + agent_iterations)
@@ -483,7 +495,7 @@ def _run_sequential(mdp, params, agents, chunk_start, chunk_end, start_support, 
     returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
     lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
     zero = jnp.asarray(0, jnp.int32)
-    return jax.lax.fori_loop(0, num_agents, one_agent, (agents, returns, lengths, zero))
+    return jax.lax.fori_loop(0, count, one_agent, (agents, returns, lengths, zero))
 
 
 #: Ahead-of-time compiled executables, by function, static arguments and signature.
@@ -649,6 +661,22 @@ def _check_native(executable: Any) -> None:
     _NATIVE[id(executable)] = native
 
 
+def _sequential_groups(kinds: np.ndarray, threads: int) -> list[np.ndarray]:
+    """Agent indices per work item: one kind each, ≈ ``4 × threads`` items in all.
+
+    Within a kind the agents are dealt by stride, so slow settings, which sit next to
+    each other in a grid, spread over several items.
+    """
+    num_agents = kinds.shape[0]
+    target = max(1, -(-num_agents // (4 * threads)))  # agents per item
+    groups = []
+    for kind in np.unique(kinds):
+        members = np.flatnonzero(kinds == kind)
+        parts = -(-members.size // target)
+        groups += [members[k::parts] for k in range(parts)]
+    return sorted(groups, key=len, reverse=True)  # big items first: better balance
+
+
 def _run_chunk_sequential(
     mdp: TabularMDP,
     params: AgentParams,
@@ -659,44 +687,51 @@ def _run_chunk_sequential(
     *,
     threads: int,
 ) -> tuple[AgentState, np.ndarray, np.ndarray, int]:
-    """One chunk with the per-agent loop of :func:`_run_sequential`, on ``threads`` threads.
+    """One chunk with the per-agent loops of :func:`_run_sequential`, on ``threads`` threads.
 
-    The agents are dealt into ``4 × threads`` groups by stride (agent ``i`` to group
-    ``i mod groups``), so slow settings, which sit next to each other in a grid, spread
-    over all groups; worker threads take groups as they become free (XLA releases the
-    GIL while a program runs). Each agent's result depends on its own lane only, so the
-    grouping changes nothing.
+    Agents are split by kind (learner, VDBE or not), each kind compiled with those flags
+    as constants, and into about ``4 × threads`` work items (:func:`_sequential_groups`);
+    worker threads take items as they become free (XLA releases the GIL while a program
+    runs). An item's arrays are padded to a power-of-two number of rows (few shapes to
+    compile; padding rows are not run). Each agent's result depends on its own lane only,
+    so the grouping changes nothing.
 
     Returns:
-      ``(agents, returns, lengths, iterations)`` as numpy, ``iterations`` = Σ agent steps.
+      ``(agents, returns, lengths, iterations)`` as numpy, ``iterations`` = Σ agent loop
+      iterations (steps, plus one per episode start after a truncation).
     """
     params = jax.tree.map(np.asarray, params)
     agents = jax.tree.map(np.array, agents)  # writable copies: the groups' rows go back in
     num_agents = int(agents.episode.shape[0])
-    num_groups = min(num_agents, 4 * threads)
-    groups = [np.arange(k, num_agents, num_groups) for k in range(num_groups)]
+    kinds = 2 * params.learner.sarsa.astype(np.int64) + params.explorer.adaptive
+    groups = _sequential_groups(kinds, threads)
     support = _start_support(mdp)
     start, end = jnp.int32(chunk_start), jnp.int32(chunk_end)
-    static = {"chunk_length": chunk_length}
 
-    def arguments(index: np.ndarray) -> tuple:
-        def rows(tree: Any) -> Any:
-            return jax.tree.map(lambda leaf: leaf[index], tree)
+    def call(index: np.ndarray) -> tuple[Any, tuple]:
+        rows = np.resize(index, max(8, _next_power_of_two(index.size)))  # padded: repeats
 
-        return (mdp, rows(params), rows(agents), start, end, support)
+        def take(tree: Any) -> Any:
+            return jax.tree.map(lambda leaf: leaf[rows], tree)
 
-    # Compile on this thread (at most two group sizes), then run the groups in parallel.
-    for size in sorted({g.size for g in groups}):
-        index = next(g for g in groups if g.size == size)
-        _check_native(_compiled(_run_sequential, arguments(index), static,
-                                _CPU_COMPILER_OPTIONS))
+        kind = int(kinds[index[0]])
+        static = {"chunk_length": chunk_length, "kind": (bool(kind // 2), bool(kind % 2))}
+        args = (mdp, take(params), take(agents), start, end, jnp.int32(index.size), support)
+        return _compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
+
+    # Compile on this thread (one program per kind and padded size), then run in parallel.
+    for index in groups:
+        _check_native(call(index)[0])
 
     def run(index: np.ndarray) -> Any:
-        args = arguments(index)
-        out = _compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS)(*args)
-        return jax.tree.map(np.asarray, out)
+        executable, args = call(index)
+        group_agents, group_returns, group_lengths, group_iterations = jax.tree.map(
+            np.asarray, executable(*args)
+        )
+        return (jax.tree.map(lambda leaf: leaf[: index.size], group_agents),
+                group_returns[: index.size], group_lengths[: index.size], group_iterations)
 
-    if threads == 1 or num_groups == 1:
+    if threads == 1 or len(groups) == 1:
         outputs = [run(index) for index in groups]
     else:
         with ThreadPoolExecutor(max_workers=threads) as pool:

@@ -31,6 +31,7 @@ import math
 import jax
 import jax.numpy as jnp
 
+from vdbejax._numerics import rounded
 from vdbejax._pytree import pytree_dataclass, static_field
 
 Array = jax.Array
@@ -234,7 +235,7 @@ def vdbe_epsilon_update(
     """
     decay = jnp.exp(-jnp.abs(delta_q) / sigma)
     value_difference = (1.0 - decay) / (1.0 + decay)
-    return delta * value_difference + (1.0 - delta) * epsilon
+    return rounded(delta * value_difference, delta) + rounded((1.0 - delta) * epsilon, delta)
 
 
 @pytree_dataclass

@@ -10,6 +10,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from vdbejax._numerics import rounded
 from vdbejax._pytree import pytree_dataclass
 
 Array = jax.Array
@@ -30,7 +31,7 @@ def q_learning_target(reward: Array, discount: Array, q_next: Array) -> Array:
     Returns:
       the target (``[batch...]``).
     """
-    return reward + discount * jnp.max(q_next, axis=0)
+    return reward + rounded(discount * jnp.max(q_next, axis=0), discount)
 
 
 def sarsa_target(reward: Array, discount: Array, q_next: Array, next_action: Array) -> Array:
@@ -49,7 +50,7 @@ def sarsa_target(reward: Array, discount: Array, q_next: Array, next_action: Arr
     # over the batch axis on CPU.
     actions = jnp.arange(q_next.shape[0]).reshape((-1,) + (1,) * (q_next.ndim - 1))
     chosen = jnp.max(jnp.where(actions == next_action, q_next, -jnp.inf), axis=0)
-    return reward + discount * chosen
+    return reward + rounded(discount * chosen, discount)
 
 
 def td_update(q_value: Array, target: Array, alpha: Array) -> tuple[Array, Array]:
@@ -63,7 +64,7 @@ def td_update(q_value: Array, target: Array, alpha: Array) -> tuple[Array, Array
     Returns:
       ``(new_q_value, delta_q)`` with ``delta_q = α·(target − Q(s,a))``.
     """
-    delta_q = alpha * (target - q_value)
+    delta_q = rounded(alpha * (target - q_value), alpha)
     return q_value + delta_q, delta_q
 
 
