@@ -7,9 +7,11 @@ agent lanes), so they compute the same thing; :func:`run_agents` picks one:
   steps, one lane wide, agents one after another inside a program and groups of agents on
   several threads. With one lane every table access is a dynamic slice, so XLA's CPU
   backend compiles the whole loop into one native function (see
-  :mod:`vdbejax._xla_flags`), and no agent ever waits for another. On the paper grid this
-  is ≈ 2× faster than lockstep on the 2-core development machine and gives bit-identical
-  returns (``benchmarks/RESULTS.md``).
+  :mod:`vdbejax._xla_flags`), and no agent ever waits for another. One program is
+  compiled per kind of agent (learner, VDBE or not). On the paper grid this is ≈ 2.5×
+  faster than lockstep on the 2-core development machine and gives bit-identical
+  returns (``benchmarks/RESULTS.md``; products are rounded on their own,
+  :mod:`vdbejax._numerics`, so no program fuses them into FMAs differently).
 * **lockstep** (accelerators, agents sharded over devices): all agents of a batch advance
   together, one vectorised step per loop iteration, as described below.
 
@@ -461,7 +463,7 @@ def _run_sequential(mdp, params, agents, chunk_start, chunk_end, count, start_su
     function (given the small-while-loop threshold that :mod:`vdbejax._xla_flags` sets)
     instead of dispatching ~30 kernels per step. ``kind`` = ``(sarsa, adaptive)`` shared by
     all these agents is baked in as constants: XLA then drops the other learner's target
-    and, without VDBE, the ε(s) updates (≈ 1.5× fewer instructions per step). Rows from
+    and, without VDBE, the ε(s) updates (≈ 140 → 90 ns per step). Rows from
     ``count`` on are padding and left as they are.
     """
     num_agents = agents.episode.shape[0]
@@ -626,7 +628,7 @@ def _run_chunk_compacting(
     return (*written_back(), iterations, lane_iterations)
 
 
-#: Executables already checked by :func:`_check_native` (by id), and their verdicts.
+#: The first sequential executable checked by :func:`_check_native` (by id): native?
 _NATIVE: dict[int, bool] = {}
 
 
@@ -642,8 +644,11 @@ def native_step_loops() -> bool | None:
 
 
 def _check_native(executable: Any) -> None:
-    """Record (and warn once) whether ``executable``'s per-agent loop compiled natively."""
-    if id(executable) in _NATIVE:
+    """Record (and warn once) whether ``executable``'s per-agent loop compiled natively.
+
+    The threshold is process-wide, so the first sequential executable tells for all.
+    """
+    if _NATIVE:
         return
     native = "xla_cpu_small_call" in executable.as_text()
     if not native and all(_NATIVE.values()):
