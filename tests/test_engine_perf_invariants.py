@@ -150,6 +150,27 @@ def test_sequential_strategy_on_a_stochastic_mdp_equals_lockstep():
     _assert_same_run(sequential, lockstep)
 
 
+def test_many_start_states_in_both_strategies():
+    """More start states than sample_categorical unrolls (its cumsum path), shared by a
+    batch of agents: both strategies run and agree."""
+    from vdbejax.envs.tabular import make_tabular_mdp
+
+    rng = np.random.default_rng(4)
+    num_states, num_actions = 60, 4
+    next_state = rng.integers(0, num_states, size=(num_states, num_actions))
+    reward = np.full((num_states, num_actions), -0.01, np.float32)
+    terminal = np.zeros((num_states, num_actions), bool)
+    terminal[num_states - 1] = True
+    start = np.zeros(num_states)
+    start[:40] = rng.random(40)
+    many = make_tabular_mdp(next_state, reward, terminal, start / start.sum(), max_steps=20)
+    params, keys = _grid(2)
+    lockstep = engine.run_agents(many, params, keys, 15, strategy="lockstep")
+    sequential = engine.run_agents(many, params, keys, 15, strategy="sequential")
+    _assert_same_run(sequential, lockstep)
+    assert lockstep.lengths.min() >= 1
+
+
 def test_bad_strategy_or_threads_is_one_line_error(mdp):
     params, keys = _grid(1)
     with pytest.raises(ValueError, match="strategy"):

@@ -63,7 +63,11 @@ def sample_categorical(weights: Array, u: Array) -> Array:
     # u has a 23-bit mantissa, so u * total < total and the count stays < n.
     if n > _UNROLLED_CDF_MAX:
         cdf = jnp.cumsum(weights, axis=0)
-        return jnp.sum(cdf <= u * cdf[-1], axis=0, dtype=jnp.int32)
+        threshold = u * cdf[-1]
+        # Weights shared by a batch of uniforms ([n] against [batch]): compare per column.
+        batch_dims = threshold.ndim - (cdf.ndim - 1)
+        cdf = cdf.reshape(cdf.shape[:1] + (1,) * batch_dims + cdf.shape[1:])
+        return jnp.sum(cdf <= threshold, axis=0, dtype=jnp.int32)
     # Left-to-right prefix sums, unrolled: for the few actions of a tabular task this is
     # much cheaper on CPU than XLA's reduce-window cumsum.
     partial = [weights[0]]
