@@ -453,7 +453,7 @@ def _run_block(mdp, params, agents, returns, lengths, chunk_start, chunk_end, ma
     return agents, returns, lengths, iterations, agents.episode < chunk_end
 
 
-@partial(jax.jit, static_argnames=("chunk_length", "kind"))
+@partial(jax.jit, static_argnames=("chunk_length", "kind"), donate_argnames=("agents",))
 def _run_sequential(mdp, params, agents, chunk_start, chunk_end, count, start_support, *,
                     chunk_length, kind):
     """Agents ``0 .. count-1`` of the batch in turn run their own step loop to ``chunk_end``.
@@ -666,6 +666,11 @@ def _check_native(executable: Any) -> None:
     _NATIVE[id(executable)] = native
 
 
+def _writable(leaf: Any) -> np.ndarray:
+    array = np.asarray(leaf)
+    return array if array.flags.writeable else array.copy()
+
+
 def _sequential_groups(kinds: np.ndarray, threads: int) -> list[np.ndarray]:
     """Agent indices per work item: one kind each, ≈ ``4 × threads`` items in all.
 
@@ -706,7 +711,8 @@ def _run_chunk_sequential(
       iterations (steps, plus one per episode start after a truncation).
     """
     params = jax.tree.map(np.asarray, params)
-    agents = jax.tree.map(np.array, agents)  # writable copies: the groups' rows go back in
+    # Writable host arrays (the groups' rows go back in); copied only when needed.
+    agents = jax.tree.map(_writable, agents)
     num_agents = int(agents.episode.shape[0])
     kinds = 2 * params.learner.sarsa.astype(np.int64) + params.explorer.adaptive
     groups = _sequential_groups(kinds, threads)
@@ -714,7 +720,8 @@ def _run_chunk_sequential(
     start, end = jnp.int32(chunk_start), jnp.int32(chunk_end)
 
     def call(index: np.ndarray) -> tuple[Any, tuple]:
-        rows = np.resize(index, max(8, _next_power_of_two(index.size)))  # padded: repeats
+        # Padded to a power of two (few shapes to compile) by repeating rows, not run.
+        rows = np.resize(index, _next_power_of_two(index.size))
 
         def take(tree: Any) -> Any:
             return jax.tree.map(lambda leaf: leaf[rows], tree)
