@@ -1,5 +1,6 @@
 """vdbejax raises XLA's small-while-loop threshold so the CPU engine's per-agent loops
-compile natively; without it the results are the same (only slower) and it warns."""
+compile natively; without it the engine warns and falls back to the lockstep strategy,
+with the same results."""
 from __future__ import annotations
 
 import os
@@ -54,7 +55,7 @@ def _run(env_extra: dict[str, str]) -> list[str]:
     return out.stdout.split()
 
 
-def test_engine_loops_are_native_and_off_switch_only_costs_speed():
+def test_engine_loops_are_native_and_without_the_flag_lockstep_gives_the_same():
     native, warnings_on, total_on = _run({})
     assert (native, warnings_on) == ("True", "0")
     slow, warnings_off, total_off = _run({"VDBEJAX_XLA_FLAGS": "off"})

@@ -10,8 +10,9 @@ backend, so it is added to ``XLA_FLAGS`` when :mod:`vdbejax` is imported:
 
 * a value the user already set in ``XLA_FLAGS`` is kept;
 * ``VDBEJAX_XLA_FLAGS=off`` leaves ``XLA_FLAGS`` alone;
-* if JAX already ran a computation before the import, the flag comes too late: results
-  are the same, only slower (:func:`cpu_loops_native` tells).
+* if JAX already ran a computation before the import, the flag comes too late: the
+  engine then warns once and falls back to its lockstep strategy (same results, slower;
+  see :func:`vdbejax.engine.native_step_loops`).
 
 Raising the threshold only changes how XLA compiles small while loops (one native
 function instead of per-operation dispatch); it does not change what they compute.
@@ -20,8 +21,9 @@ from __future__ import annotations
 
 import os
 
-#: Estimated bytes below which XLA's CPU backend compiles a while loop natively.
-SMALL_WHILE_LOOP_BYTES = 1 << 30
+#: Estimated bytes below which XLA's CPU backend compiles a while loop natively: 1 TiB,
+#: i.e. no limit in practice (a 10×3 task variant's tables and Q-table exceed 1 GiB).
+SMALL_WHILE_LOOP_BYTES = 1 << 40
 _OPTION = "xla_cpu_small_while_loop_byte_threshold"
 _EXTRA = "--xla_backend_extra_options="
 

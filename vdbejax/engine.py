@@ -628,42 +628,42 @@ def _run_chunk_compacting(
     return (*written_back(), iterations, lane_iterations)
 
 
-#: The first sequential executable checked by :func:`_check_native` (by id): native?
+#: Sequential executables checked by :func:`_check_native` (by id): compiled natively?
 _NATIVE: dict[int, bool] = {}
 
 
 def native_step_loops() -> bool | None:
     """Whether the sequential executables compiled so far run their step loops natively.
 
-    ``None`` before the first one is compiled. ``False`` means XLA dispatches every
-    operation of a step separately (same results, several times slower): JAX's backend
-    started before :mod:`vdbejax` could raise XLA's small-while-loop threshold
-    (:mod:`vdbejax._xla_flags`).
+    ``None`` before the first one is compiled. ``False`` means XLA would dispatch every
+    operation of a step separately; :func:`run_agents` then uses the lockstep strategy
+    instead (same results). Causes: XLA's small-while-loop threshold was not raised
+    (JAX's backend started before :mod:`vdbejax` was imported, or
+    ``VDBEJAX_XLA_FLAGS=off``; see :mod:`vdbejax._xla_flags`), or the task's tables are
+    larger than the threshold.
     """
     return all(_NATIVE.values()) if _NATIVE else None
 
 
-def _check_native(executable: Any) -> None:
-    """Record (and warn once) whether ``executable``'s per-agent loop compiled natively.
+def _check_native(executable: Any) -> bool:
+    """Whether ``executable``'s per-agent loop compiled natively (warns once if not)."""
+    native = _NATIVE.get(id(executable))
+    if native is None:
+        native = "xla_cpu_small_call" in executable.as_text()
+        if not native and all(_NATIVE.values()):
+            import warnings
 
-    The threshold is process-wide, so the first sequential executable tells for all.
-    """
-    if _NATIVE:
-        return
-    native = "xla_cpu_small_call" in executable.as_text()
-    if not native and all(_NATIVE.values()):
-        import warnings
-
-        warnings.warn(
-            "vdbejax: XLA compiled the per-agent step loop op by op (same results, several "
-            "times slower): its small-while-loop threshold was not raised (JAX's backend "
-            "started before vdbejax was imported, or VDBEJAX_XLA_FLAGS=off); import "
-            "vdbejax first, or set XLA_FLAGS="
-            f"'{_xla_flags.with_small_loop_threshold('')}' before starting Python.",
-            RuntimeWarning,
-            stacklevel=4,
-        )
-    _NATIVE[id(executable)] = native
+            warnings.warn(
+                "vdbejax: XLA would run the per-agent step loop op by op, so the lockstep "
+                "strategy is used instead (same results, slower). Raise XLA's "
+                "small-while-loop threshold before JAX starts: import vdbejax first (unless "
+                "VDBEJAX_XLA_FLAGS=off), or set XLA_FLAGS="
+                f"'{_xla_flags.with_small_loop_threshold('')}'.",
+                RuntimeWarning,
+                stacklevel=4,
+            )
+        _NATIVE[id(executable)] = native
+    return native
 
 
 def _writable(leaf: Any) -> np.ndarray:
@@ -696,7 +696,7 @@ def _run_chunk_sequential(
     chunk_length: int,
     *,
     threads: int,
-) -> tuple[AgentState, np.ndarray, np.ndarray, int]:
+) -> tuple[AgentState, np.ndarray, np.ndarray, int] | None:
     """One chunk with the per-agent loops of :func:`_run_sequential`, on ``threads`` threads.
 
     Agents are split by kind (learner, VDBE or not), each kind compiled with those flags
@@ -708,7 +708,8 @@ def _run_chunk_sequential(
 
     Returns:
       ``(agents, returns, lengths, iterations)`` as numpy, ``iterations`` = Σ agent loop
-      iterations (steps, plus one per episode start after a truncation).
+      iterations (steps, plus one per episode start after a truncation); ``None`` (nothing
+      run) if a loop did not compile natively (:func:`native_step_loops`).
     """
     params = jax.tree.map(np.asarray, params)
     # Writable host arrays (the groups' rows go back in); copied only when needed.
@@ -732,8 +733,8 @@ def _run_chunk_sequential(
         return _compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
 
     # Compile on this thread (one program per kind and padded size), then run in parallel.
-    for index in groups:
-        _check_native(call(index)[0])
+    if not all([_check_native(call(index)[0]) for index in groups]):
+        return None
 
     def run(index: np.ndarray) -> Any:
         executable, args = call(index)
@@ -912,9 +913,13 @@ def run_agents(
     while done < num_episodes:
         end = min(done + chunk, num_episodes)
         if strategy == "sequential":
-            agents, chunk_returns, chunk_lengths, chunk_iterations = _run_chunk_sequential(
+            sequential = _run_chunk_sequential(
                 mdp, params, agents, done, end, chunk, threads=threads
             )
+            if sequential is None:  # not compiled natively: lockstep is faster
+                strategy = "lockstep"
+                continue
+            agents, chunk_returns, chunk_lengths, chunk_iterations = sequential
             lane_iterations += chunk_iterations
             iterations += chunk_iterations
             returns[:, done:end] = chunk_returns[:, : end - done]
