@@ -733,7 +733,7 @@ def _run_chunk_sequential(
         return _compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
 
     # Compile on this thread (one program per kind and padded size), then run in parallel.
-    if not all([_check_native(call(index)[0]) for index in groups]):
+    if not all(_check_native(call(index)[0]) for index in groups):
         return None
 
     def run(index: np.ndarray) -> Any:
