@@ -733,8 +733,13 @@ def _run_chunk_sequential(
         return _compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
 
     # Compile on this thread (one program per kind and padded size), then run in parallel.
-    if not all(_check_native(call(index)[0]) for index in groups):
-        return None
+    programs = {}
+    for index in groups:
+        key = (int(kinds[index[0]]), _next_power_of_two(index.size))
+        if key not in programs:
+            programs[key] = _check_native(call(index)[0])
+            if not programs[key]:
+                return None
 
     def run(index: np.ndarray) -> Any:
         executable, args = call(index)
