@@ -88,8 +88,7 @@ def _worker_vdbejax(args) -> dict:
         "steady": steady,
         "wall": wall,
         "compile": compile_time,
-        "strategy": args.strategy if args.strategy != "auto" else engine._auto_strategy(
-            params, keys),
+        "strategy": result.strategy,
         "native": engine.native_step_loops(),
         "steps": int(result.lengths.sum()),
         "iterations": int(result.iterations),

@@ -120,6 +120,7 @@ def test_sequential_strategy_equals_lockstep(mdp, tie_break):
             mdp, params, keys, 30, chunk_episodes=chunk, strategy="sequential", threads=threads
         )
         _assert_same_run(sequential, lockstep)
+        assert (sequential.strategy, lockstep.strategy) == ("sequential", "lockstep")
         first = first or sequential
         _assert_same_run(sequential, first)
         assert sequential.iterations == int(sequential.lengths.sum()) + np.count_nonzero(

@@ -43,7 +43,7 @@ keys = np.tile(engine.agent_keys(0, 2), (6, 1))
 with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter("always")
     run = engine.run_agents(make_mdp(), params, keys, 15)
-print(engine.native_step_loops(), len(caught), repr(run.returns.sum()))
+print(engine.native_step_loops(), run.strategy, len(caught), repr(run.returns.sum()))
 """
 
 
@@ -56,8 +56,8 @@ def _run(env_extra: dict[str, str]) -> list[str]:
 
 
 def test_engine_loops_are_native_and_without_the_flag_lockstep_gives_the_same():
-    native, warnings_on, total_on = _run({})
-    assert (native, warnings_on) == ("True", "0")
-    slow, warnings_off, total_off = _run({"VDBEJAX_XLA_FLAGS": "off"})
-    assert (slow, warnings_off) == ("False", "1")
+    native, strategy_on, warnings_on, total_on = _run({})
+    assert (native, strategy_on, warnings_on) == ("True", "sequential", "0")
+    slow, strategy_off, warnings_off, total_off = _run({"VDBEJAX_XLA_FLAGS": "off"})
+    assert (slow, strategy_off, warnings_off) == ("False", "lockstep", "1")
     assert total_off == total_on

@@ -225,4 +225,5 @@ def run_sharded(
         iterations=result.iterations,
         final_state=unpad_agents(result.final_state, count),
         lane_iterations=result.lane_iterations,
+        strategy=result.strategy,
     )

@@ -57,6 +57,7 @@ import dataclasses
 import os
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
@@ -320,7 +321,9 @@ def lockstep_iteration(
     eps_s = eps_at(s)
     new_eps_s = vdbe_epsilon_update(eps_s, delta_q, explorer.sigma, explorer.delta)
     q = _put(agents.q, sa_index, jnp.where(learn, new_q_sa, q_sa))
-    epsilon = _put(agents.epsilon, eps_base + s, jnp.where(learn & explorer.adaptive, new_eps_s, eps_s))
+    epsilon = _put(
+        agents.epsilon, eps_base + s, jnp.where(learn & explorer.adaptive, new_eps_s, eps_s)
+    )
 
     episode_return = agents.episode_return + reward
     done = learn & (terminal | truncated)
@@ -651,8 +654,6 @@ def _check_native(executable: Any) -> bool:
     if native is None:
         native = "xla_cpu_small_call" in executable.as_text()
         if not native and all(_NATIVE.values()):
-            import warnings
-
             warnings.warn(
                 "vdbejax: XLA would run the per-agent step loop op by op, so the lockstep "
                 "strategy is used instead (same results, slower). Raise XLA's "
@@ -696,7 +697,7 @@ def _run_chunk_sequential(
     chunk_length: int,
     *,
     threads: int,
-) -> tuple[AgentState, np.ndarray, np.ndarray, int] | None:
+) -> tuple[AgentState, np.ndarray, np.ndarray, int, int] | None:
     """One chunk with the per-agent loops of :func:`_run_sequential`, on ``threads`` threads.
 
     Agents are split by kind (learner, VDBE or not), each kind compiled with those flags
@@ -707,9 +708,9 @@ def _run_chunk_sequential(
     so the grouping changes nothing.
 
     Returns:
-      ``(agents, returns, lengths, iterations)`` as numpy, ``iterations`` = Σ agent loop
-      iterations (steps, plus one per episode start after a truncation); ``None`` (nothing
-      run) if a loop did not compile natively (:func:`native_step_loops`).
+      ``(agents, returns, lengths, iterations, lane_iterations)`` as numpy, both counts =
+      Σ agent loop iterations (steps, plus one per episode start after a truncation);
+      ``None`` (nothing run) if a loop did not compile natively (:func:`native_step_loops`).
     """
     params = jax.tree.map(np.asarray, params)
     # Writable host arrays (the groups' rows go back in); copied only when needed.
@@ -720,11 +721,16 @@ def _run_chunk_sequential(
     support = _start_support(mdp)
     start, end = jnp.int32(chunk_start), jnp.int32(chunk_end)
 
-    def call(index: np.ndarray) -> tuple[Any, tuple]:
+    def call(index: np.ndarray, shapes_only: bool = False) -> tuple[Any, tuple]:
         # Padded to a power of two (few shapes to compile) by repeating rows, not run.
         rows = np.resize(index, _next_power_of_two(index.size))
 
         def take(tree: Any) -> Any:
+            if shapes_only:  # enough to compile: no copy of the rows
+                return jax.tree.map(
+                    lambda leaf: jax.ShapeDtypeStruct((rows.size, *leaf.shape[1:]), leaf.dtype),
+                    tree,
+                )
             return jax.tree.map(lambda leaf: leaf[rows], tree)
 
         kind = int(kinds[index[0]])
@@ -733,13 +739,8 @@ def _run_chunk_sequential(
         return _compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
 
     # Compile on this thread (one program per kind and padded size), then run in parallel.
-    programs = {}
-    for index in groups:
-        key = (int(kinds[index[0]]), _next_power_of_two(index.size))
-        if key not in programs:
-            programs[key] = _check_native(call(index)[0])
-            if not programs[key]:
-                return None
+    if not all(_check_native(call(index, shapes_only=True)[0]) for index in groups):
+        return None
 
     def run(index: np.ndarray) -> Any:
         executable, args = call(index)
@@ -764,7 +765,61 @@ def _run_chunk_sequential(
             full[index] = rows
         returns[index], lengths[index] = group_returns, group_lengths
         iterations += int(group_iterations)
-    return agents, returns, lengths, iterations
+    return agents, returns, lengths, iterations, iterations  # one lane per loop iteration
+
+
+def _run_chunk_lockstep(
+    mdp: TabularMDP,
+    params: AgentParams,
+    agents: AgentState,
+    chunk_start: int,
+    chunk_end: int,
+    chunk_length: int,
+    *,
+    compact: bool,
+    block_iterations: int,
+    unroll: int,
+    min_batch: int,
+    max_batch: int,
+) -> tuple[AgentState, Array, Array, int, int]:
+    """One chunk of the lockstep strategy, in groups of at most ``max_batch`` lanes.
+
+    Groups run one after another: a group's tables stay cache-sized, and per-agent results
+    do not depend on the grouping (options as in :func:`run_agents`).
+
+    Returns:
+      ``(agents, returns, lengths, iterations, lane_iterations)``.
+    """
+    num_agents = int(agents.episode.shape[0])
+    pieces = []
+    iterations = lane_iterations = 0
+    for lo in range(0, num_agents, max_batch):
+        hi = min(lo + max_batch, num_agents)
+        whole = lo == 0 and hi == num_agents
+
+        def part(tree: Any, lo: int = lo, hi: int = hi, whole: bool = whole) -> Any:
+            return tree if whole else jax.tree.map(lambda leaf: leaf[lo:hi], tree)
+
+        if compact:
+            *piece, group_iterations, group_lanes = _run_chunk_compacting(
+                mdp, part(params), part(agents), chunk_start, chunk_end, chunk_length,
+                block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
+            )
+        else:
+            *piece, group_iterations = run_chunk(
+                mdp, part(params), part(agents), jnp.int32(chunk_start), jnp.int32(chunk_end),
+                chunk_length, unroll,
+            )
+            group_iterations = int(group_iterations)
+            group_lanes = group_iterations * (hi - lo)
+        pieces.append(piece)
+        iterations += group_iterations
+        lane_iterations += group_lanes
+    if len(pieces) == 1:
+        agents, returns, lengths = pieces[0]
+    else:
+        agents, returns, lengths = jax.tree.map(lambda *leaves: jnp.concatenate(leaves), *pieces)
+    return agents, returns, lengths, iterations, lane_iterations
 
 
 @dataclasses.dataclass
@@ -779,6 +834,8 @@ class RunResult:
       final_state: the agents' states after the last episode (numpy leaves).
       lane_iterations: Σ over executed lockstep iterations of the batch width (the
         agent-iterations paid for, idle lanes included; lower with compaction).
+      strategy: the strategy that ran (``"sequential"`` or ``"lockstep"``; the last one
+        if the sequential strategy fell back, see :func:`native_step_loops`).
     """
 
     returns: np.ndarray
@@ -787,6 +844,7 @@ class RunResult:
     iterations: int
     final_state: AgentState
     lane_iterations: int = 0
+    strategy: str = "lockstep"
 
 
 ProgressCallback = Callable[[int, int, float], None]
@@ -917,61 +975,22 @@ def run_agents(
         progress(done * num_agents, num_episodes * num_agents, 0.0)
     while done < num_episodes:
         end = min(done + chunk, num_episodes)
+        result = None
         if strategy == "sequential":
-            sequential = _run_chunk_sequential(
-                mdp, params, agents, done, end, chunk, threads=threads
-            )
-            if sequential is None:  # not compiled natively: lockstep is faster
+            result = _run_chunk_sequential(mdp, params, agents, done, end, chunk, threads=threads)
+            if result is None:  # not compiled natively: lockstep is faster
                 strategy = "lockstep"
-                continue
-            agents, chunk_returns, chunk_lengths, chunk_iterations = sequential
-            lane_iterations += chunk_iterations
-            iterations += chunk_iterations
-            returns[:, done:end] = chunk_returns[:, : end - done]
-            lengths[:, done:end] = chunk_lengths[:, : end - done]
-            done = end
-            if on_chunk:
-                on_chunk(done, agents, returns[:, :done], lengths[:, :done])
-            if progress:
-                progress(done * num_agents, num_episodes * num_agents,
-                         time.perf_counter() - started)
-            continue
-        # Groups of at most max_batch agents run one after another: a group's tables stay
-        # cache-sized, and per-agent results do not depend on the grouping.
-        pieces = []
-        chunk_iterations = chunk_lanes = 0
-        for lo in range(0, num_agents, max_batch):
-            hi = min(lo + max_batch, num_agents)
-            whole = lo == 0 and hi == num_agents
-
-            def part(tree: Any, lo: int = lo, hi: int = hi, whole: bool = whole) -> Any:
-                return tree if whole else jax.tree.map(lambda leaf: leaf[lo:hi], tree)
-
-            if compact:
-                *piece, group_iterations, group_lanes = _run_chunk_compacting(
-                    mdp, part(params), part(agents), done, end, chunk,
-                    block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
-                )
-            else:
-                *piece, group_iterations = run_chunk(
-                    mdp, part(params), part(agents), jnp.int32(done), jnp.int32(end), chunk,
-                    unroll,
-                )
-                group_iterations = int(group_iterations)
-                group_lanes = group_iterations * (hi - lo)
-            pieces.append(piece)
-            chunk_iterations += group_iterations
-            chunk_lanes += group_lanes
-        if len(pieces) == 1:
-            agents, chunk_returns, chunk_lengths = pieces[0]
-        else:
-            agents, chunk_returns, chunk_lengths = jax.tree.map(
-                lambda *leaves: jnp.concatenate(leaves), *pieces
+        if result is None:
+            result = _run_chunk_lockstep(
+                mdp, params, agents, done, end, chunk, compact=compact,
+                block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
+                max_batch=max_batch,
             )
-        lane_iterations += chunk_lanes
+        agents, chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes = result
         returns[:, done:end] = np.asarray(chunk_returns)[:, : end - done]
         lengths[:, done:end] = np.asarray(chunk_lengths)[:, : end - done]
         iterations += chunk_iterations
+        lane_iterations += chunk_lanes
         done = end
         if on_chunk:
             on_chunk(done, agents, returns[:, :done], lengths[:, :done])
@@ -979,7 +998,8 @@ def run_agents(
             progress(done * num_agents, num_episodes * num_agents, time.perf_counter() - started)
     final = jax.tree.map(np.asarray, agents)
     return RunResult(
-        returns, lengths, np.asarray(final.nonfinite), iterations, final, lane_iterations
+        returns, lengths, np.asarray(final.nonfinite), iterations, final, lane_iterations,
+        strategy,
     )
 
 

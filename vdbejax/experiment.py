@@ -137,9 +137,10 @@ def _save_checkpoint(path: Path, fingerprint: str, sweep: SweepProgress) -> None
         leaves = {f"agent_{f.name}": np.asarray(getattr(sweep.state, f.name))
                   for f in dataclasses.fields(AgentState)}
     io.atomic_savez(
-        path, compressed=False, fingerprint=np.asarray(fingerprint), version=np.asarray(CHECKPOINT_VERSION),
-        returns=sweep.returns, lengths=sweep.lengths, episodes_done=sweep.episodes_done,
-        nonfinite=sweep.nonfinite, state_rows=sweep.state_rows, **leaves,
+        path, compressed=False, fingerprint=np.asarray(fingerprint),
+        version=np.asarray(CHECKPOINT_VERSION), returns=sweep.returns, lengths=sweep.lengths,
+        episodes_done=sweep.episodes_done, nonfinite=sweep.nonfinite,
+        state_rows=sweep.state_rows, **leaves,
     )
 
 
