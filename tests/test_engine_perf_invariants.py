@@ -205,3 +205,22 @@ def test_rounded_products_never_fuse_into_an_fma():
     scalar = jax.jit(lambda a, b, c: c + rounded(a * b, a))
     for i in range(0, 4099, 409):
         assert float(scalar(a[i], b[i], c[i])) == float(expected[i])
+
+
+def test_sequential_work_items_are_equal_sized_cost_balanced_and_cover_every_agent():
+    rng = np.random.default_rng(0)
+    kinds = np.repeat([0, 1, 3], [40, 37, 23])
+    costs = rng.pareto(1.5, kinds.size) * 100 + 10  # a few agents far slower than most
+    groups = engine._sequential_groups(kinds, threads=2, costs=costs)
+    everyone = np.sort(np.concatenate(groups))
+    np.testing.assert_array_equal(everyone, np.arange(kinds.size))
+    group_costs = [costs[group].sum() for group in groups]
+    assert group_costs == sorted(group_costs, reverse=True)  # most costly first
+    for kind in (0, 1, 3):
+        mine = [group for group in groups if kinds[group[0]] == kind]
+        assert all((kinds[group] == kind).all() for group in mine)
+        sizes = [len(group) for group in mine]
+        assert max(sizes) - min(sizes) <= 1
+    # Without costs every agent counts the same: sizes still within one of each other.
+    plain = engine._sequential_groups(kinds, threads=2)
+    assert sum(len(group) for group in plain) == kinds.size

@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from vdbejax._pytree import pytree_dataclass
 from vdbejax.explorers import (
@@ -20,7 +22,13 @@ from vdbejax.explorers import (
     ExplorerParams,
     make_explorer,
 )
-from vdbejax.learners import LEARNERS, PAPER_ALPHA, PAPER_GAMMA, LearnerParams, make_learner
+from vdbejax.learners import (
+    LEARNERS,
+    PAPER_ALPHA,
+    PAPER_GAMMA,
+    LearnerParams,
+    make_learner,
+)
 
 #: The paper's swept values (spec, "Exploration").
 PAPER_PARAMETERS: dict[str, tuple[float, ...]] = {
@@ -127,4 +135,11 @@ def stack_agents(agents: Sequence[AgentParams]) -> AgentParams:
     """
     if not agents:
         raise ValueError("agents is empty: need at least one setting")
-    return jax.tree.map(lambda *leaves: jnp.stack(leaves), *agents)
+    return jax.tree.map(_stack, *agents)
+
+
+def _stack(*leaves: Any) -> Any:
+    # On the host when every leaf is (no device round trip for a grid's few scalars).
+    if any(isinstance(leaf, jax.Array) for leaf in leaves):
+        return jnp.stack(leaves)
+    return np.stack(leaves)

@@ -67,7 +67,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vdbejax import _xla_flags
+from vdbejax import _executables, _xla_flags
 from vdbejax._pytree import pytree_dataclass
 from vdbejax.agents import AgentParams
 from vdbejax.envs.tabular import TabularMDP
@@ -137,6 +137,11 @@ def init_agent(mdp: TabularMDP, params: AgentParams, key: Array) -> AgentState:
         key=jnp.asarray(key, jnp.uint32),
         nonfinite=jnp.asarray(False),
     )
+
+
+@jax.jit
+def _init_agents(mdp: TabularMDP, params: AgentParams, keys: Array) -> AgentState:
+    return jax.vmap(init_agent, in_axes=(None, 0, 0))(mdp, params, keys)
 
 
 def _mix32(x: Array) -> Array:
@@ -503,50 +508,15 @@ def _run_sequential(mdp, params, agents, chunk_start, chunk_end, count, start_su
     return jax.lax.fori_loop(0, count, one_agent, (agents, returns, lengths, zero))
 
 
-#: Ahead-of-time compiled executables, by function, static arguments and signature.
-_EXECUTABLES: dict[Any, Any] = {}
-#: Seconds spent in ``lower(...).compile()`` (cumulative; see ``compile_seconds``).
-_COMPILE_SECONDS = [0.0]
 #: Per-compilation XLA options of the CPU engine: with region analysis, copy insertion
 #: proves that an agent's Q-table update can happen in place (no copy of Q per step).
 _CPU_COMPILER_OPTIONS = {"xla_cpu_copy_insertion_use_region_analysis": True}
 
 
-def _signature(args: Any) -> Any:
-    leaves, treedef = jax.tree.flatten(args)
-    # Sharding is part of the key: an executable compiled for one layout must not run
-    # arrays laid out differently.
-    return treedef, tuple(
-        (np.shape(x), _dtype_str(x), getattr(x, "sharding", None)) for x in leaves
-    )
-
-
-def _dtype_str(x: Any) -> str:
-    dtype = getattr(x, "dtype", None)
-    return np.dtype(dtype if dtype is not None else np.result_type(x)).str
-
-
-def _compiled(function: Any, args: tuple, static: dict[str, Any],
-              compiler_options: dict[str, Any] | None = None) -> Any:
-    """``function``'s executable for ``args`` through an explicit ``lower().compile()`` cache.
-
-    Compilation is thus timed separately (with a warm persistent compilation cache it is
-    a cache read). Call the result with ``args`` only (the static arguments are baked in).
-    """
-    key = (function, tuple(sorted(static.items())), _signature(args))
-    executable = _EXECUTABLES.get(key)
-    if executable is None:
-        started = time.perf_counter()
-        lowered = function.lower(*args, **static)
-        executable = lowered.compile(compiler_options) if compiler_options else lowered.compile()
-        _COMPILE_SECONDS[0] += time.perf_counter() - started
-        _EXECUTABLES[key] = executable
-    return executable
-
-
 def compile_seconds() -> float:
-    """Total seconds this process spent compiling the engine's lockstep blocks."""
-    return _COMPILE_SECONDS[0]
+    """Seconds this process spent getting the engine's executables (tracing, lowering and
+    compiling them, or loading them from the caches; see :mod:`vdbejax._executables`)."""
+    return _executables.compile_seconds()
 
 
 @jax.jit
@@ -603,7 +573,7 @@ def _run_chunk_compacting(
 
     while True:
         args = (mdp, cur_params, *cur, start, end, block, support)
-        cur_agents, cur_returns, cur_lengths, done_iterations, active = _compiled(
+        cur_agents, cur_returns, cur_lengths, done_iterations, active = _executables.compiled(
             _run_block, args, {"unroll": unroll}
         )(*args)
         cur = (cur_agents, cur_returns, cur_lengths)
@@ -672,20 +642,28 @@ def _writable(leaf: Any) -> np.ndarray:
     return array if array.flags.writeable else array.copy()
 
 
-def _sequential_groups(kinds: np.ndarray, threads: int) -> list[np.ndarray]:
+def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None = None
+                       ) -> list[np.ndarray]:
     """Agent indices per work item: one kind each, ≈ ``4 × threads`` items in all.
 
-    Within a kind the agents are dealt by stride, so slow settings, which sit next to
-    each other in a grid, spread over several items.
+    ``costs`` estimates each agent's work (its steps in the previous chunk; ``None``: all
+    equal). Within a kind, the agents are dealt to the kind's items in order of
+    decreasing cost, back and forth, so the items have equal sizes (few shapes to
+    compile) and similar costs; items are returned most costly first, so that the last
+    items to start are short ones and the threads finish together.
     """
     num_agents = kinds.shape[0]
+    costs = np.ones(num_agents) if costs is None else np.asarray(costs, np.float64)
     target = max(1, -(-num_agents // (4 * threads)))  # agents per item
     groups = []
     for kind in np.unique(kinds):
         members = np.flatnonzero(kinds == kind)
         parts = -(-members.size // target)
-        groups += [members[k::parts] for k in range(parts)]
-    return sorted(groups, key=len, reverse=True)  # big items first: better balance
+        ordered = members[np.argsort(-costs[members], kind="stable")]
+        deal = np.arange(ordered.size) % (2 * parts)
+        deal = np.where(deal < parts, deal, 2 * parts - 1 - deal)  # 0,1,..,p-1,p-1,..,0
+        groups += [np.sort(ordered[deal == k]) for k in range(parts)]
+    return sorted(groups, key=lambda group: (-costs[group].sum(), -len(group)))
 
 
 def _run_chunk_sequential(
@@ -697,6 +675,7 @@ def _run_chunk_sequential(
     chunk_length: int,
     *,
     threads: int,
+    costs: np.ndarray | None = None,
 ) -> tuple[AgentState, np.ndarray, np.ndarray, int, int] | None:
     """One chunk with the per-agent loops of :func:`_run_sequential`, on ``threads`` threads.
 
@@ -717,7 +696,7 @@ def _run_chunk_sequential(
     agents = jax.tree.map(_writable, agents)
     num_agents = int(agents.episode.shape[0])
     kinds = 2 * params.learner.sarsa.astype(np.int64) + params.explorer.adaptive
-    groups = _sequential_groups(kinds, threads)
+    groups = _sequential_groups(kinds, threads, costs)
     support = _start_support(mdp)
     start, end = jnp.int32(chunk_start), jnp.int32(chunk_end)
 
@@ -736,7 +715,7 @@ def _run_chunk_sequential(
         kind = int(kinds[index[0]])
         static = {"chunk_length": chunk_length, "kind": (bool(kind // 2), bool(kind % 2))}
         args = (mdp, take(params), take(agents), start, end, jnp.int32(index.size), support)
-        return _compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
+        return _executables.compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
 
     # Compile on this thread (one program per kind and padded size), then run in parallel.
     if not all(_check_native(call(index, shapes_only=True)[0]) for index in groups):
@@ -885,8 +864,15 @@ def agent_keys(seed: int, num_seeds: int) -> np.ndarray:
     Returns:
       uint32 ``[num_seeds, 2]`` raw keys.
     """
+    # One small cached program per (seed, count): no tracing in a warm process.
+    static = {"seed": int(seed), "num_seeds": int(num_seeds)}
+    return np.asarray(_executables.compiled(_agent_keys, (), static)())
+
+
+@partial(jax.jit, static_argnames=("seed", "num_seeds"))
+def _agent_keys(*, seed: int, num_seeds: int) -> Array:
     root = jax.random.PRNGKey(seed)
-    return np.asarray(jax.vmap(lambda i: jax.random.fold_in(root, i))(jnp.arange(num_seeds)))
+    return jax.vmap(lambda i: jax.random.fold_in(root, i))(jnp.arange(num_seeds))
 
 
 def run_agents(
@@ -965,11 +951,12 @@ def run_agents(
     lengths = np.zeros((num_agents, num_episodes), np.int32)
     if initial is None:
         done = 0
-        agents = jax.vmap(init_agent, in_axes=(None, 0, 0))(mdp, params, keys)
+        agents = _executables.compiled(_init_agents, (mdp, params, keys), {})(mdp, params, keys)
     else:
         done, agents, returns[:, : initial[0]], lengths[:, : initial[0]] = initial
         agents = jax.tree.map(jnp.asarray, agents)
     iterations = lane_iterations = 0
+    costs = None
     started = time.perf_counter()
     if progress:
         progress(done * num_agents, num_episodes * num_agents, 0.0)
@@ -977,7 +964,8 @@ def run_agents(
         end = min(done + chunk, num_episodes)
         result = None
         if strategy == "sequential":
-            result = _run_chunk_sequential(mdp, params, agents, done, end, chunk, threads=threads)
+            result = _run_chunk_sequential(mdp, params, agents, done, end, chunk, threads=threads,
+                                           costs=costs)
             if result is None:  # not compiled natively: lockstep is faster
                 strategy = "lockstep"
         if result is None:
@@ -987,6 +975,7 @@ def run_agents(
                 max_batch=max_batch,
             )
         agents, chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes = result
+        costs = np.asarray(chunk_lengths).sum(axis=1)  # the next chunk's work, roughly
         returns[:, done:end] = np.asarray(chunk_returns)[:, : end - done]
         lengths[:, done:end] = np.asarray(chunk_lengths)[:, : end - done]
         iterations += chunk_iterations
@@ -1036,4 +1025,8 @@ def broadcast_agents(params: AgentParams, repeats: int) -> AgentParams:
     Returns:
       the hyperparameters with a leading axis of ``configs × repeats`` agents.
     """
-    return jax.tree.map(lambda leaf: jnp.repeat(leaf, repeats, axis=0), params)
+    def repeat(leaf: Any) -> Any:
+        # On the host unless the leaf lives on a device (or is traced).
+        return (jnp if isinstance(leaf, jax.Array) else np).repeat(leaf, repeats, axis=0)
+
+    return jax.tree.map(repeat, params)

@@ -30,6 +30,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from vdbejax._numerics import rounded
 from vdbejax._pytree import pytree_dataclass, static_field
@@ -283,7 +284,7 @@ def make_explorer(
       vdbe_softmax_tau: VDBE-Softmax's temperature.
 
     Returns:
-      ExplorerParams with float32 scalar leaves.
+      ExplorerParams with float32 scalar numpy leaves.
 
     Raises:
       ValueError: unknown name or out-of-range parameter.
@@ -298,12 +299,12 @@ def make_explorer(
         "vdbe": (1.0, inf, True, param),
         "vdbe_softmax": (1.0, vdbe_softmax_tau, True, param),
     }[name]
-    f32 = jnp.float32
+    f32 = np.float32  # host scalars, as in make_learner
     return ExplorerParams(
-        epsilon=jnp.asarray(epsilon, f32),
-        tau=jnp.asarray(tau, f32),
-        adaptive=jnp.asarray(adaptive),
-        sigma=jnp.asarray(sigma, f32),
-        delta=jnp.asarray(delta, f32),
+        epsilon=np.asarray(epsilon, f32),
+        tau=np.asarray(tau, f32),
+        adaptive=np.asarray(adaptive),
+        sigma=np.asarray(sigma, f32),
+        delta=np.asarray(delta, f32),
         tie_break=tie_break,
     )

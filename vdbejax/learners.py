@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from vdbejax._numerics import rounded
 from vdbejax._pytree import pytree_dataclass
@@ -97,7 +98,7 @@ def make_learner(
       q_init: initial value of every Q entry.
 
     Returns:
-      LearnerParams with float32 (and bool) scalar leaves.
+      LearnerParams with float32 (and bool) scalar numpy leaves.
 
     Raises:
       ValueError: unknown name or out-of-range α, γ, q_init.
@@ -105,10 +106,12 @@ def make_learner(
     from vdbejax.validation import check_learner
 
     check_learner(name, alpha=alpha, gamma=gamma, q_init=q_init)
-    f32 = jnp.float32
+    # Host (numpy) scalars: building a grid's agents costs no device transfers; jit and
+    # vmap take them like JAX arrays.
+    f32 = np.float32
     return LearnerParams(
-        alpha=jnp.asarray(alpha, f32),
-        gamma=jnp.asarray(gamma, f32),
-        sarsa=jnp.asarray(name == "sarsa"),
-        q_init=jnp.asarray(q_init, f32),
+        alpha=np.asarray(alpha, f32),
+        gamma=np.asarray(gamma, f32),
+        sarsa=np.asarray(name == "sarsa"),
+        q_init=np.asarray(q_init, f32),
     )

@@ -1,0 +1,153 @@
+"""The engine's executables on disk (vdbejax._executables): reuse, keys, bad entries."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from vdbejax import _executables, engine
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# A small grid in a fresh process with JAX's persistent cache in argv[1]; prints what the
+# disk copy did and the returns.
+_SCRIPT = textwrap.dedent(
+    """
+    import json, sys
+    import jax
+    jax.config.update("jax_compilation_cache_dir", sys.argv[1])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+    from vdbejax import _executables
+    from vdbejax.experiment import run_grid
+    from vdbejax.agents import paper_settings
+    from vdbejax.envs.table_cleaning import make_mdp
+    result = run_grid(make_mdp(), paper_settings()[::9], num_seeds=3, num_episodes=6)
+    print(json.dumps({"disk": _executables.disk_counts(),
+                      "returns": result.returns.ravel().tolist()}))
+    """
+)
+
+
+def _run(cache: Path, **env: str) -> dict:
+    environment = {**os.environ, "JAX_PLATFORMS": "cpu", **env}
+    environment.pop("JAX_COMPILATION_CACHE_DIR", None)
+    done = subprocess.run([sys.executable, "-c", _SCRIPT, str(cache)], capture_output=True,
+                          text=True, cwd=ROOT, env=environment, timeout=300, check=False)
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_a_new_process_loads_the_programs_a_first_one_stored(tmp_path):
+    # 1: only JAX's cache fills. 2: JAX's cache is warm but the disk copy empty: the
+    # programs are compiled afresh and stored (a copy of an executable that JAX loaded from
+    # its cache would fail to run). 3: everything comes from the disk copy.
+    only_jax = _run(tmp_path, VDBEJAX_EXECUTABLE_CACHE="off")
+    assert only_jax["disk"]["stored"] == 0 and only_jax["disk"]["loaded"] == 0
+    first = _run(tmp_path)
+    assert first["disk"]["stored"] >= 3 and first["disk"]["loaded"] == 0
+    assert any((tmp_path / "vdbejax-executables").glob("*.pkl"))
+    second = _run(tmp_path)
+    assert second["disk"]["loaded"] == first["disk"]["stored"]
+    assert second["disk"]["stored"] == 0
+    assert second["returns"] == first["returns"] == only_jax["returns"]
+
+
+@pytest.fixture
+def disk(tmp_path, monkeypatch):
+    """The disk copy in a temporary folder, with an empty in-process table."""
+    monkeypatch.setattr(_executables, "disk_folder", lambda: tmp_path)
+    monkeypatch.setattr(_executables, "_EXECUTABLES", {})
+    return tmp_path
+
+
+def _keys_program(seed: int, num_seeds: int = 3):
+    return _executables.compiled(engine._agent_keys, (), {"seed": seed, "num_seeds": num_seeds})
+
+
+def test_a_damaged_entry_is_ignored_and_rewritten(disk):
+    expected = engine.agent_keys(11, 3)
+    _keys_program(11)
+    (entry,) = disk.glob("*.pkl")
+    entry.write_bytes(b"not a pickle")
+    _executables._EXECUTABLES.clear()
+    np.testing.assert_array_equal(np.asarray(_keys_program(11)()), expected)
+    assert entry.read_bytes() != b"not a pickle"  # compiled again and stored
+    _executables._EXECUTABLES.clear()
+    loaded_before = _executables.disk_counts()["loaded"]
+    np.testing.assert_array_equal(np.asarray(_keys_program(11)()), expected)
+    assert _executables.disk_counts()["loaded"] == loaded_before + 1
+
+
+def test_an_entry_that_fails_to_run_is_deleted_and_compiled_again(disk):
+    _keys_program(12)
+    (entry,) = disk.glob("*.pkl")
+
+    def broken(*args):
+        raise RuntimeError("NOT_FOUND: Function convert_bitcast_fusion not found (type id: 1)")
+
+    calls = []
+
+    def recompile():
+        calls.append(1)
+        return lambda: "recompiled"
+
+    wrapped = _executables._FromDisk(broken, entry, ("key",), recompile)
+    assert wrapped() == "recompiled"
+    assert calls == [1] and not entry.exists()
+    assert wrapped() == "recompiled" and calls == [1]
+
+
+def test_other_errors_of_a_loaded_entry_propagate(disk, tmp_path):
+    def failing(*args):
+        raise ValueError("bad argument")
+
+    wrapped = _executables._FromDisk(failing, tmp_path / "x.pkl", ("key",), lambda: None)
+    with pytest.raises(ValueError, match="bad argument"):
+        wrapped()
+
+
+def test_the_key_covers_static_arguments_signature_options_flags_and_source(monkeypatch):
+    function = engine._agent_keys
+    sig = _executables.signature((jnp.zeros(3, jnp.float32),))
+
+    def key(static=None, sig=sig, options=None):
+        return _executables.disk_key(function, static or {"seed": 1}, sig, options or {})
+
+    base = key()
+    assert key() == base
+    assert key(static={"seed": 2}) != base
+    assert key(sig=_executables.signature((jnp.zeros(4, jnp.float32),))) != base
+    assert key(sig=_executables.signature((jnp.zeros(3, jnp.int32),))) != base
+    assert key(sig=_executables.signature((np.float32(0.5) * jnp.ones(3),))) == base
+    assert key(options={"xla_cpu_copy_insertion_use_region_analysis": True}) != base
+    monkeypatch.setenv("XLA_FLAGS", os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_thunk_runtime=true")
+    assert key() != base
+    monkeypatch.undo()
+    monkeypatch.setattr(_executables, "source_fingerprint", lambda: "edited")
+    assert key() != base
+
+
+def test_the_source_fingerprint_changes_with_any_file_of_the_package():
+    fingerprint = _executables.source_fingerprint()
+    assert len(fingerprint) == 64 and fingerprint == _executables.source_fingerprint()
+
+
+def test_only_vdbejax_functions_and_an_enabled_cache_use_the_disk(disk, monkeypatch):
+    @jax.jit
+    def outside(x):
+        return x + 1
+
+    sig = _executables.signature((jnp.zeros(2),))
+    assert _executables._disk_path(outside, {}, sig, {}) is None
+    assert _executables._disk_path(engine._agent_keys, {"seed": 0}, sig, {}) is not None
+    monkeypatch.undo()  # the real disk_folder: off by the variable, else JAX's cache dir
+    monkeypatch.setenv("VDBEJAX_EXECUTABLE_CACHE", "off")
+    assert _executables.disk_folder() is None

@@ -1,0 +1,276 @@
+"""Compiled programs of the engine, kept in memory and, between processes, on disk.
+
+JAX's persistent compilation cache (``jax_compilation_cache_dir``) spares a new process
+XLA's compilation, but not tracing and lowering: JAX needs the lowered module to compute
+its cache key. For the paper grid that is ≈ 60 ms for each of the four per-kind programs
+of the sequential engine, more than loading them. :func:`compiled` therefore also keeps
+each serialised executable next to JAX's cache (``<cache dir>/vdbejax-executables``), under
+a key of everything the program depends on:
+
+* the function (module and name) and its static arguments;
+* the argument signature: tree structure (static fields included), shapes, dtypes, weak
+  types and shardings;
+* the per-compilation XLA options;
+* jax and jaxlib versions, the backend, its version and devices, ``XLA_FLAGS`` and the JAX
+  options that change lowering;
+* a fingerprint of vdbejax's own source files, so any edit of the package gives new keys.
+
+Only functions defined in vdbejax are cached this way; they call no user code (a task
+reaches the engine as tables), so the fingerprint covers everything they run. The disk
+copy is used only where JAX's persistent cache is on (the CLI and the benchmarks turn it
+on); ``VDBEJAX_EXECUTABLE_CACHE=off`` keeps JAX's cache but not this one. A file that
+cannot be read (truncated, another jaxlib) is ignored and rewritten.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import pickle
+import tempfile
+import time
+import warnings
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+#: In-process table: (function, static arguments, signature) -> executable.
+_EXECUTABLES: dict[Any, Any] = {}
+#: Seconds spent getting executables: tracing, lowering, compiling or loading.
+_SECONDS = [0.0]
+#: Executables loaded from / written to the disk copy in this process.
+_DISK = {"loaded": 0, "stored": 0, "write_failed": 0}
+#: JAX options that change what a function lowers to.
+_LOWERING_OPTIONS = (
+    "jax_enable_x64",
+    "jax_default_prng_impl",
+    "jax_threefry_partitionable",
+    "jax_numpy_dtype_promotion",
+    "jax_default_matmul_precision",
+    "jax_enable_checks",
+    "jax_debug_nans",
+    "jax_debug_infs",
+)
+_FOLDER_NAME = "vdbejax-executables"
+
+
+def _dtype_str(x: Any) -> str:
+    dtype = getattr(x, "dtype", None)
+    return np.dtype(dtype if dtype is not None else np.result_type(x)).str
+
+
+def signature(args: Any) -> tuple:
+    """Hashable description of ``args`` that fixes the program compiled for them."""
+    leaves, treedef = jax.tree.flatten(args)
+    # Sharding is part of it: an executable compiled for one layout must not run arrays
+    # laid out differently.
+    return treedef, tuple(
+        (np.shape(x), _dtype_str(x), bool(getattr(x, "weak_type", False)),
+         getattr(x, "sharding", None))
+        for x in leaves
+    )
+
+
+def compiled(function: Any, args: tuple, static: dict[str, Any],
+             compiler_options: dict[str, Any] | None = None) -> Any:
+    """``function``'s executable for ``args`` (explicit ``lower().compile()``, cached).
+
+    Looked up in this process's table, then in the disk copy (module docstring), else
+    traced, lowered and compiled (a JAX persistent-cache read where that is warm) and
+    kept. Call the result with ``args`` only: the static arguments are baked in.
+
+    Args:
+      function: a ``jax.jit``-wrapped function defined in vdbejax.
+      args: its positional arguments (arrays or ``jax.ShapeDtypeStruct``).
+      static: its static keyword arguments.
+      compiler_options: per-compilation XLA options.
+
+    Returns:
+      the compiled executable.
+    """
+    options = dict(sorted((compiler_options or {}).items()))
+    sig = signature(args)
+    key = (function, tuple(sorted(static.items())), sig, tuple(options.items()))
+    executable = _EXECUTABLES.get(key)
+    if executable is not None:
+        return executable
+    started = time.perf_counter()
+    path = _disk_path(function, static, sig, options)
+    executable = _load(path) if path is not None else None
+    if executable is not None:
+        executable = _FromDisk(executable, path, key, lambda: _compile(function, args, static,
+                                                                       options))
+    elif path is None:
+        executable = _compile(function, args, static, options)
+    else:
+        # Compiled afresh, not read from JAX's cache: XLA's CPU backend serialises an
+        # executable it loaded from a cache (or compiled again after loading it)
+        # incompletely, and the copy would fail to run (kernels "not found"). This costs
+        # one full compilation per program when JAX's cache had it but the disk copy not.
+        executable = _compile(function, args, static, options, bypass_jax_cache=True)
+        _store(path, executable)
+    _SECONDS[0] += time.perf_counter() - started
+    _EXECUTABLES[key] = executable
+    return executable
+
+
+def _compile(function: Any, args: tuple, static: dict[str, Any], options: dict[str, Any],
+             *, bypass_jax_cache: bool = False) -> Any:
+    lowered = function.lower(*args, **static)
+    if not bypass_jax_cache:
+        return lowered.compile(options) if options else lowered.compile()
+    from jax.experimental.compilation_cache import compilation_cache as jax_cache
+
+    enabled = jax.config.jax_enable_compilation_cache
+    jax.config.update("jax_enable_compilation_cache", False)
+    jax_cache.reset_cache()  # JAX decides once whether to use its cache: ask again
+    try:
+        return lowered.compile(options) if options else lowered.compile()
+    finally:
+        jax.config.update("jax_enable_compilation_cache", enabled)
+        jax_cache.reset_cache()
+
+
+class _FromDisk:
+    """An executable from the disk copy; should it fail to run, it is replaced.
+
+    A bad entry (see :func:`compiled`) fails before computing anything, with a
+    "not found" error. The entry is then deleted and the program compiled and run
+    again. The engine's calls are safe to repeat: their donated arguments are
+    device copies of host arrays made by the call itself.
+    """
+
+    def __init__(self, executable: Any, path: Path, key: Any, recompile: Any) -> None:
+        self._executable, self._path, self._key, self._recompile = executable, path, key, recompile
+        self._trusted = False
+
+    def __call__(self, *args: Any) -> Any:
+        if self._trusted:
+            return self._executable(*args)
+        try:
+            result = self._executable(*args)
+        except Exception as error:
+            if "not found" not in str(error).lower():
+                raise
+            self._path.unlink(missing_ok=True)
+            self._executable = self._recompile()
+            _EXECUTABLES[self._key] = self._executable
+            result = self._executable(*args)
+        self._trusted = True
+        return result
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._executable, name)
+
+
+def compile_seconds() -> float:
+    """Seconds this process spent getting the engine's executables (cumulative)."""
+    return _SECONDS[0]
+
+
+def disk_counts() -> dict[str, int]:
+    """Executables this process loaded from and wrote to the disk copy."""
+    return dict(_DISK)
+
+
+def disk_folder() -> Path | None:
+    """Folder of the disk copy, or ``None`` when it is off (module docstring)."""
+    if os.environ.get("VDBEJAX_EXECUTABLE_CACHE", "").lower() == "off":
+        return None
+    root = jax.config.jax_compilation_cache_dir
+    return Path(root) / _FOLDER_NAME if root else None
+
+
+@lru_cache(maxsize=1)
+def source_fingerprint() -> str:
+    """SHA-256 over the paths and contents of vdbejax's ``.py`` files."""
+    package = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(package.rglob("*.py")):
+        digest.update(path.relative_to(package).as_posix().encode())
+        digest.update(b"\0")
+        digest.update(path.read_bytes())
+        digest.update(b"\0")
+    return digest.hexdigest()
+
+
+def _environment() -> list[str]:
+    """Everything outside the call that changes the compiled program."""
+    import jaxlib
+
+    devices = jax.devices()
+    backend = devices[0].client
+    return [
+        jax.__version__,
+        jaxlib.__version__,
+        backend.platform,
+        backend.platform_version,
+        repr([(d.id, d.device_kind) for d in devices]),
+        os.environ.get("XLA_FLAGS", ""),
+        repr([(name, getattr(jax.config, name, None)) for name in _LOWERING_OPTIONS]),
+        source_fingerprint(),
+    ]
+
+
+def disk_key(function: Any, static: dict[str, Any], sig: tuple,
+             options: dict[str, Any]) -> str:
+    """Hex key of the disk copy (module docstring lists what goes into it)."""
+    treedef, leaves = sig
+    parts = [
+        f"{function.__module__}.{function.__qualname__}",
+        repr(sorted(static.items())),
+        str(treedef),
+        repr(leaves),
+        repr(sorted(options.items())),
+        *_environment(),
+    ]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()
+
+
+def _disk_path(function: Any, static: dict[str, Any], sig: tuple,
+               options: dict[str, Any]) -> Path | None:
+    folder = disk_folder()
+    if folder is None or not getattr(function, "__module__", "").startswith("vdbejax."):
+        return None
+    for *_, sharding in sig[1]:
+        if sharding is not None and len(sharding.device_set) > 1:
+            return None  # multi-device programs: left to JAX's own cache
+    return folder / f"{disk_key(function, static, sig, options)}.pkl"
+
+
+def _load(path: Path) -> Any:
+    """The executable stored at ``path``, or ``None`` (absent or unreadable)."""
+    from jax.experimental.serialize_executable import deserialize_and_load
+
+    try:
+        payload, in_tree, out_tree = pickle.loads(path.read_bytes())
+        executable = deserialize_and_load(payload, in_tree, out_tree)
+    except Exception:  # noqa: BLE001  (absent, truncated, another jaxlib: compile again)
+        return None
+    _DISK["loaded"] += 1
+    return executable
+
+
+def _store(path: Path, executable: Any) -> None:
+    """Write ``executable`` to ``path`` atomically; failures only cost a later recompile."""
+    from jax.experimental.serialize_executable import serialize
+
+    try:
+        data = pickle.dumps(serialize(executable))
+    except Exception:  # noqa: BLE001  (not serialisable: it is compiled again next time)
+        return
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp", delete=False) as handle:
+            handle.write(data)
+        os.replace(handle.name, path)
+    except OSError as error:
+        if not _DISK["write_failed"]:
+            warnings.warn(f"vdbejax: cannot store compiled programs in {path.parent} ({error}); "
+                          "later runs will trace and lower them again", RuntimeWarning,
+                          stacklevel=3)
+        _DISK["write_failed"] += 1
+        return
+    _DISK["stored"] += 1
