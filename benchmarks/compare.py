@@ -58,7 +58,7 @@ def _worker_vdbejax(args) -> dict:
     jax.config.update("jax_compilation_cache_dir", args.jax_cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
-    from vdbejax import engine
+    from vdbejax import _executables, engine
     from vdbejax.agents import make_agent, paper_settings, stack_agents
 
     rss_import = _peak_rss_mb()
@@ -90,6 +90,7 @@ def _worker_vdbejax(args) -> dict:
         "compile": compile_time,
         "strategy": result.strategy,
         "native": engine.native_step_loops(),
+        "disk": _executables.disk_counts(),
         "steps": int(result.lengths.sum()),
         "iterations": int(result.iterations),
         "lane_iterations": int(result.lane_iterations),
@@ -311,7 +312,9 @@ def main(argv=None) -> int:
         "",
         "Each peer ran in its own fresh subprocess. *Wall* = end to end (building the task "
         "and agents, compiling, running, results on the host; interpreter start and imports "
-        "excluded); *compile* = Numba's first call / vdbejax's `lower().compile()` time; "
+        "excluded); *compile* = Numba's first call (compiling or loading its cache) / "
+        "vdbejax's time to get its executables (tracing, lowering and compiling them, or "
+        "loading them from the executable copy beside JAX's cache, `vdbejax/_executables.py`); "
         "*steps/s* = real environment steps (Σ `lengths`) / wall; *peak RSS* = the "
         "subprocess's maximum resident memory (interpreter and libraries included); "
         "*vdbejax (warm) / peer* = vdbejax's warm wall time over the peer's (> 1: vdbejax "
@@ -322,11 +325,16 @@ def main(argv=None) -> int:
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     strategy = jax_warm["strategy"]
-    rows = [(f"vdbejax {strategy} (warm JAX cache)", jax_warm, ""),
-            (f"vdbejax {strategy} (cold JAX cache)", jax_cold, "")]
+    def programs(r: dict) -> str:
+        disk = r.get("disk") or {}
+        return (f"programs: {disk.get('loaded', 0)} loaded, {disk.get('stored', 0)} compiled "
+                "and stored")
+
+    rows = [(f"vdbejax {strategy} (warm JAX cache)", jax_warm, programs(jax_warm)),
+            (f"vdbejax {strategy} (cold JAX cache)", jax_cold, programs(jax_cold))]
     if lockstep is not None:
         rows.append(("vdbejax lockstep (warm JAX cache)", lockstep,
-                     "vectorised strategy (accelerators)"))
+                     "vectorised strategy (accelerators); " + programs(lockstep)))
     rows += [
             ("numba (warm cache=True)", numba_warm, ""),
             ("numba (cold)", numba_cold, "")]
