@@ -108,3 +108,27 @@ def test_probability_of_improvement_ci():
     x, y = rng.normal(0.2, 1, 20), rng.normal(0, 1, 20)
     p, low, high = stats.probability_of_improvement_ci(x, y)
     assert 0 <= low <= p <= high <= 1 and high > low
+
+
+def test_percentile_interval_equals_numpy_quantile_bit_for_bit():
+    from vdbejax.stats import _interval
+
+    rng = np.random.default_rng(7)
+    for trial in range(120):
+        n = int(rng.integers(1, 2500))
+        level = float(rng.choice([0.95, 0.9, 0.99, 0.5, rng.uniform(0.01, 0.999)]))
+        x = rng.normal(size=(n, 3) if trial % 2 else (n,)) * rng.choice([1e-3, 1.0, 1e3])
+        if trial % 5 == 0:
+            x = np.round(x, 1)  # ties
+        if trial % 7 == 0:
+            x = x.astype(np.float32)
+        before = x.copy()
+        alpha = (1 - level) / 2
+        expected = np.quantile(x, [alpha, 1 - alpha], axis=0)
+        low, high = _interval(x, level, axis=0)
+        np.testing.assert_array_equal(x, before)  # the input is not sorted in place
+        for got, want in zip((low, high), expected):
+            assert np.asarray(got).dtype == want.dtype
+            np.testing.assert_array_equal(got, want)
+    with_nan = np.array([1.0, np.nan, 2.0])
+    assert all(np.isnan(v) for v in _interval(with_nan, 0.9))

