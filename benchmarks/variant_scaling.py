@@ -74,9 +74,10 @@ def measure(n: int, k: int, seeds: int, episodes: int, max_steps: int) -> dict:
 
 
 def _table(rows: list[dict]) -> list[str]:
-    lines = ["| n×k | codes | reachable states | actions | Q-table / agent | best return | "
-             "shortest solution | compile | solve | grid (programs) | agent steps | "
-             "M steps/s | peak |",
+    header = ("| n×k | codes | reachable states | actions | Q-table / agent | best return | "
+              "shortest solution | compile | solve | grid (programs) | agent steps | "
+              "M steps/s | peak |")
+    lines = [header,
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         low, high = r["shortest_solution"]
@@ -86,7 +87,7 @@ def _table(rows: list[dict]) -> list[str]:
             f"{r['actions']} | {r['q_table_mib']:.2f} MiB | {r['best_return']:.2f} | "
             f"{low if low == high else f'{low}–{high}'} | {r['compile_s']:.1f} s | "
             f"{r['solve_s']:.1f} s | {grid} | {r.get('agent_steps', 0):,} | "
-            f"{r.get('steps_per_s', 0) / 1e6:.2f} | {r['peak_rss_gib']:.1f} GiB |")
+            f"{r.get('steps_per_s', 0) / 1e6:.3g} | {r['peak_rss_gib']:.1f} GiB |")
     return lines
 
 
@@ -152,12 +153,12 @@ def main(argv: list[str] | None = None) -> int:
         lines = ["# Task-size scaling: generated table-cleaning variants", "", *_machine(),
                  f"- Command: `python -m benchmarks.variant_scaling {shown}`.",
                  "",
-                 f"Each variant in a fresh process: *compile* = `make_variant_mdp` (reachable "
-                 f"states only), *solve* = `best_return` + `steps_to_goal`, *grid* = `run_grid` "
-                 f"with {len(SETTINGS)} settings × {args.seeds} seeds × {args.episodes} "
-                 "episodes (in brackets: the part spent getting the engine's programs, "
-                 "compiled or loaded from the caches), *M steps/s* = real agent-steps / (grid "
-                 "− programs), *peak* = the process's peak resident memory.", "",
+                 (f"Each variant in a fresh process: *compile* = `make_variant_mdp` (reachable "
+                  f"states only), *solve* = `best_return` + `steps_to_goal`, *grid* = `run_grid` "
+                  f"with {len(SETTINGS)} settings × {args.seeds} seeds × {args.episodes} "
+                  "episodes (in brackets: the part spent getting the engine's programs, "
+                  "compiled or loaded from the caches), *M steps/s* = real agent-steps / (grid "
+                  "− programs), *peak* = the process's peak resident memory."), "",
                  *_table(rows), "", f"![throughput and memory against states]({png.name})", ""]
         out.write_text("\n".join(lines))
         print(f"wrote {out} and {png}")

@@ -224,3 +224,35 @@ def test_sequential_work_items_are_equal_sized_cost_balanced_and_cover_every_age
     # Without costs every agent counts the same: sizes still within one of each other.
     plain = engine._sequential_groups(kinds, threads=2)
     assert sum(len(group) for group in plain) == kinds.size
+
+
+@pytest.mark.parametrize("regroup_max_bytes", [0, 1 << 40])
+def test_agents_kept_in_their_work_items_equal_lockstep_and_checkpoint_the_same(
+    mdp, monkeypatch, regroup_max_bytes
+):
+    """Large agents stay in their first work item for the whole run (their tables are
+    updated in place, never copied between chunks); small ones are regrouped by cost.
+    Either way the results, and the states handed to ``on_chunk``, equal lockstep's."""
+    monkeypatch.setattr(engine, "REGROUP_MAX_BYTES", regroup_max_bytes)
+    params = engine.broadcast_agents(stack_agents([make_agent(s) for s in SETTINGS]), 3)
+    keys = np.tile(engine.agent_keys(9, 3), (len(SETTINGS), 1))
+    seen = {"sequential": [], "lockstep": []}
+
+    def recorder(name):
+        def record(done, agents, returns, lengths):
+            seen[name].append((done, jax.tree.map(np.array, agents), returns.copy()))
+        return record
+
+    sequential = engine.run_agents(mdp, params, keys, 25, chunk_episodes=6, threads=2,
+                                   strategy="sequential", on_chunk=recorder("sequential"))
+    lockstep = engine.run_agents(mdp, params, keys, 25, chunk_episodes=6,
+                                 strategy="lockstep", on_chunk=recorder("lockstep"))
+    _assert_same_run(sequential, lockstep)
+    assert [done for done, *_ in seen["sequential"]] == [6, 12, 18, 24, 25]
+    for (done_a, agents_a, returns_a), (done_b, agents_b, returns_b) in zip(
+        seen["sequential"], seen["lockstep"]
+    ):
+        assert done_a == done_b
+        np.testing.assert_array_equal(returns_a, returns_b)
+        for leaf_a, leaf_b in zip(jax.tree.leaves(agents_a), jax.tree.leaves(agents_b)):
+            np.testing.assert_array_equal(leaf_a, leaf_b)

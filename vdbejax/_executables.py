@@ -67,10 +67,18 @@ def signature(args: Any) -> tuple:
     # Sharding is part of it: an executable compiled for one layout must not run arrays
     # laid out differently.
     return treedef, tuple(
-        (np.shape(x), _dtype_str(x), bool(getattr(x, "weak_type", False)),
-         getattr(x, "sharding", None))
+        (np.shape(x), _dtype_str(x), bool(getattr(x, "weak_type", False)), _placement(x))
         for x in leaves
     )
+
+
+def _placement(x: Any) -> Any:
+    """``x``'s sharding; ``None`` for host values and arrays on the default device alone
+    (what a program compiled from shapes alone expects)."""
+    sharding = getattr(x, "sharding", None)
+    if sharding is not None and sharding.device_set == {jax.devices()[0]}:
+        return None
+    return sharding
 
 
 def compiled(function: Any, args: tuple, static: dict[str, Any],

@@ -242,6 +242,7 @@ def lockstep_iteration(
     chunk_start: Array,
     chunk_end: Array,
     start_support: tuple[Array, Array],
+    table_offset: Array | None = None,
 ) -> tuple[AgentState, Array, Array]:
     """One lockstep iteration of a batch: every agent advances by one step (module docstring).
 
@@ -261,6 +262,9 @@ def lockstep_iteration(
       chunk_end: episode count at which an agent stops being active.
       start_support: ``(states, weights)`` of the start distribution
         (:func:`_start_support`).
+      table_offset: ``agents.q`` and ``agents.epsilon`` hold the tables of more agents
+        than the batch, whose lane ``i`` is their agent ``table_offset + i`` (the
+        sequential strategy updates a work item's tables in place this way).
 
     Returns:
       ``(agents, returns, lengths)`` after the iteration.
@@ -270,7 +274,8 @@ def lockstep_iteration(
     S, A = mdp.num_states, mdp.num_actions  # noqa: N806
     chunk_length = returns.shape[0] // num_agents
     lane = jnp.arange(num_agents, dtype=jnp.int32)
-    q_base, eps_base = lane * (S * A), lane * S
+    table_lane = lane if table_offset is None else lane + table_offset
+    q_base, eps_base = table_lane * (S * A), table_lane * S
 
     columns = jnp.arange(A, dtype=jnp.int32)[:, None]
 
@@ -358,11 +363,12 @@ def lockstep_iteration(
 
 
 def _run_loop(mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations,
-              unroll, start_support):
+              unroll, start_support, table_offset=None):
     """``while`` any agent is active and fewer than ``max_iterations`` iterations ran.
 
     The body runs ``unroll`` iterations (fewer loop trips); iterations of an agent that
-    is no longer active change nothing, so overshooting is harmless.
+    is no longer active change nothing, so overshooting is harmless. ``table_offset``:
+    see :func:`lockstep_iteration`.
     """
     q_shape, eps_shape, out_shape = agents.q.shape, agents.epsilon.shape, returns.shape
     agents = dataclasses.replace(
@@ -377,7 +383,8 @@ def _run_loop(mdp, params, agents, returns, lengths, chunk_start, chunk_end, max
         agents, returns, lengths, iterations = carry
         for _ in range(unroll):
             agents, returns, lengths = lockstep_iteration(
-                mdp, params, agents, returns, lengths, chunk_start, chunk_end, start_support
+                mdp, params, agents, returns, lengths, chunk_start, chunk_end, start_support,
+                table_offset,
             )
         return agents, returns, lengths, iterations + unroll
 
@@ -472,7 +479,8 @@ def _run_sequential(mdp, params, agents, chunk_start, chunk_end, count, start_su
     instead of dispatching ~30 kernels per step. ``kind`` = ``(sarsa, adaptive)`` shared by
     all these agents is baked in as constants: XLA then drops the other learner's target
     and, without VDBE, the ε(s) updates (≈ 140 → 90 ns per step). Rows from
-    ``count`` on are padding and left as they are.
+    ``count`` on are padding and left as they are. The batch's tables are updated in
+    place (``agents`` is donated): an agent's loop indexes them at its own offset.
     """
     num_agents = agents.episode.shape[0]
     big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
@@ -495,12 +503,23 @@ def _run_sequential(mdp, params, agents, chunk_start, chunk_end, count, start_su
                 agent_params.explorer, adaptive=jnp.full((1,), adaptive)
             ),
         )
-        agent, agent_returns, agent_lengths, agent_iterations = _run_loop(
-            mdp, agent_params, jax.tree.map(pick, agents), pick(returns), pick(lengths),
-            chunk_start, chunk_end, big, 1, start_support,
+        # The agent's scalars are sliced out and written back; its Q and ε(s) are updated
+        # in the item's tables (``table_offset``): no copy of a table per agent.
+        def scalars(state: AgentState) -> AgentState:
+            return dataclasses.replace(state, q=None, epsilon=None)
+
+        agent = dataclasses.replace(
+            jax.tree.map(pick, scalars(agents)), q=agents.q, epsilon=agents.epsilon
         )
-        return (jax.tree.map(put, agents, agent), put(returns, agent_returns),
-                put(lengths, agent_lengths), iterations + agent_iterations)
+        agent, agent_returns, agent_lengths, agent_iterations = _run_loop(
+            mdp, agent_params, agent, pick(returns), pick(lengths),
+            chunk_start, chunk_end, big, 1, start_support, table_offset=i,
+        )
+        agents = dataclasses.replace(
+            jax.tree.map(put, scalars(agents), scalars(agent)), q=agent.q, epsilon=agent.epsilon
+        )
+        return (agents, put(returns, agent_returns), put(lengths, agent_lengths),
+                iterations + agent_iterations)
 
     returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
     lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
@@ -666,85 +685,127 @@ def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None
     return sorted(groups, key=lambda group: (-costs[group].sum(), -len(group)))
 
 
-def _run_chunk_sequential(
-    mdp: TabularMDP,
-    params: AgentParams,
-    agents: AgentState,
-    chunk_start: int,
-    chunk_end: int,
-    chunk_length: int,
-    *,
-    threads: int,
-    costs: np.ndarray | None = None,
-) -> tuple[AgentState, np.ndarray, np.ndarray, int, int] | None:
-    """One chunk with the per-agent loops of :func:`_run_sequential`, on ``threads`` threads.
+#: Agents whose state (Q, ε(s)) is at most this many bytes are regrouped into new work
+#: items every chunk (cost balance); larger agents stay in their first work item for the
+#: whole run, their tables never leaving the engine's buffers between chunks.
+REGROUP_MAX_BYTES = 1 << 20
+
+
+class _SequentialRun:
+    """The sequential strategy over the chunks of one :func:`run_agents` call.
 
     Agents are split by kind (learner, VDBE or not), each kind compiled with those flags
-    as constants, and into about ``4 × threads`` work items (:func:`_sequential_groups`);
-    worker threads take items as they become free (XLA releases the GIL while a program
-    runs). An item's arrays are padded to a power-of-two number of rows (few shapes to
-    compile; padding rows are not run). Each agent's result depends on its own lane only,
-    so the grouping changes nothing.
+    as constants (:func:`_run_sequential`), and into about ``4 × threads`` work items
+    (:func:`_sequential_groups`); worker threads take items as they become free (XLA
+    releases the GIL while a program runs). An item's arrays are padded to a power-of-two
+    number of rows (few shapes to compile; padding rows are not run). Each agent's result
+    depends on its own lane only, so the grouping changes nothing.
 
-    Returns:
-      ``(agents, returns, lengths, iterations, lane_iterations)`` as numpy, both counts =
-      Σ agent loop iterations (steps, plus one per episode start after a truncation);
-      ``None`` (nothing run) if a loop did not compile natively (:func:`native_step_loops`).
+    Between chunks an item's state stays in the engine's buffers, which each chunk's
+    program updates in place (donated). Small agents are regrouped by cost every chunk
+    (the state goes through the host, cheap for them); agents larger than
+    :data:`REGROUP_MAX_BYTES` keep their first item, so their tables are not copied per
+    chunk. :meth:`agents` gathers the full state on the host when it is needed
+    (checkpoints, the end of the run).
     """
-    params = jax.tree.map(np.asarray, params)
-    # Writable host arrays (the groups' rows go back in); copied only when needed.
-    agents = jax.tree.map(_writable, agents)
-    num_agents = int(agents.episode.shape[0])
-    kinds = 2 * params.learner.sarsa.astype(np.int64) + params.explorer.adaptive
-    groups = _sequential_groups(kinds, threads, costs)
-    support = _start_support(mdp)
-    start, end = jnp.int32(chunk_start), jnp.int32(chunk_end)
 
-    def call(index: np.ndarray, shapes_only: bool = False) -> tuple[Any, tuple]:
-        # Padded to a power of two (few shapes to compile) by repeating rows, not run.
+    def __init__(self, mdp: TabularMDP, params: AgentParams, agents: AgentState,
+                 threads: int) -> None:
+        self.mdp, self.threads = mdp, threads
+        self.params = jax.tree.map(np.asarray, params)
+        # Writable host arrays (the items' rows go back in); copied only when needed.
+        self.host = jax.tree.map(_writable, agents)
+        self.host_current = True
+        self.items: list[tuple[np.ndarray, Any]] | None = None
+        self.kinds = 2 * self.params.learner.sarsa.astype(np.int64) + self.params.explorer.adaptive
+        num_agents = int(self.host.episode.shape[0])
+        bytes_per_agent = (self.host.q.nbytes + self.host.epsilon.nbytes) / max(num_agents, 1)
+        self.regroup = bytes_per_agent <= REGROUP_MAX_BYTES
+        self.support = _start_support(mdp)
+
+    def agents(self) -> AgentState:
+        """The full state on the host (numpy), the items' rows written back."""
+        if not self.host_current:
+            for index, state in self.items:
+                for full, rows in zip(jax.tree.leaves(self.host), jax.tree.leaves(state)):
+                    full[index] = np.asarray(rows)[: index.size]
+            self.host_current = True
+        return self.host
+
+    def _call(self, index: np.ndarray, agents: Any, chunk: tuple[int, int, int]) -> tuple:
+        """``(executable, args)`` of an item; ``agents`` may be shapes only."""
+        chunk_start, chunk_end, chunk_length = chunk
         rows = np.resize(index, _next_power_of_two(index.size))
-
-        def take(tree: Any) -> Any:
-            if shapes_only:  # enough to compile: no copy of the rows
-                return jax.tree.map(
-                    lambda leaf: jax.ShapeDtypeStruct((rows.size, *leaf.shape[1:]), leaf.dtype),
-                    tree,
-                )
-            return jax.tree.map(lambda leaf: leaf[rows], tree)
-
-        kind = int(kinds[index[0]])
+        params = jax.tree.map(lambda leaf: leaf[rows], self.params)
+        kind = int(self.kinds[index[0]])
         static = {"chunk_length": chunk_length, "kind": (bool(kind // 2), bool(kind % 2))}
-        args = (mdp, take(params), take(agents), start, end, jnp.int32(index.size), support)
+        args = (self.mdp, params, agents, jnp.int32(chunk_start), jnp.int32(chunk_end),
+                jnp.int32(index.size), self.support)
         return _executables.compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
 
-    # Compile on this thread (one program per kind and padded size), then run in parallel.
-    if not all(_check_native(call(index, shapes_only=True)[0]) for index in groups):
-        return None
+    def _group(self, costs: np.ndarray | None, chunk: tuple[int, int, int]) -> bool:
+        """New work items from the host state; ``False`` if a loop is not native."""
+        host = self.agents()
+        groups = _sequential_groups(self.kinds, self.threads, costs)
 
-    def run(index: np.ndarray) -> Any:
-        executable, args = call(index)
-        group_agents, group_returns, group_lengths, group_iterations = jax.tree.map(
-            np.asarray, executable(*args)
-        )
-        return (jax.tree.map(lambda leaf: leaf[: index.size], group_agents),
-                group_returns[: index.size], group_lengths[: index.size], group_iterations)
+        def shapes(index: np.ndarray) -> Any:  # enough to compile: no copy of the rows
+            size = _next_power_of_two(index.size)
+            return jax.tree.map(
+                lambda leaf: jax.ShapeDtypeStruct((size, *leaf.shape[1:]), leaf.dtype), host
+            )
 
-    if threads == 1 or len(groups) == 1:
-        outputs = [run(index) for index in groups]
-    else:
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            outputs = list(pool.map(run, groups))
-    returns = np.zeros((num_agents, chunk_length), np.float32)
-    lengths = np.zeros((num_agents, chunk_length), np.int32)
-    iterations = 0
-    for index, (group_agents, group_returns, group_lengths, group_iterations) in zip(
-        groups, outputs
-    ):
-        for full, rows in zip(jax.tree.leaves(agents), jax.tree.leaves(group_agents)):
-            full[index] = rows
-        returns[index], lengths[index] = group_returns, group_lengths
-        iterations += int(group_iterations)
-    return agents, returns, lengths, iterations, iterations  # one lane per loop iteration
+        # Compile on this thread (one program per kind and padded size) before running.
+        if not all(_check_native(self._call(index, shapes(index), chunk)[0]) for index in groups):
+            return False
+        self.items = [
+            (index, jax.tree.map(
+                lambda leaf, index=index: jnp.asarray(leaf[np.resize(index, _next_power_of_two(index.size))]),
+                host,
+            ))
+            for index in groups
+        ]
+        return True
+
+    def run_chunk(self, chunk_start: int, chunk_end: int, chunk_length: int,
+                  costs: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """Advance every agent to ``chunk_end`` episodes.
+
+        Returns:
+          ``(returns, lengths, iterations)``: numpy ``[agents, chunk_length]`` buffers and
+          Σ agent loop iterations (steps, plus one per episode start after a truncation);
+          ``None`` (nothing run) if a loop did not compile natively
+          (:func:`native_step_loops`).
+        """
+        chunk = (chunk_start, chunk_end, chunk_length)
+        if (self.items is None or self.regroup) and not self._group(costs, chunk):
+            return None
+        # Items most costly first (one kind each; their order only affects the balance).
+        order = sorted(range(len(self.items)), key=lambda k: -(
+            1.0 if costs is None else float(costs[self.items[k][0]].sum())))
+
+        def run(k: int) -> tuple:
+            index, state = self.items[k]
+            executable, args = self._call(index, state, chunk)
+            new_state, returns, lengths, iterations = executable(*args)  # state donated
+            self.items[k] = (index, new_state)
+            return (np.asarray(returns)[: index.size], np.asarray(lengths)[: index.size],
+                    int(iterations))
+
+        self.host_current = False
+        if self.threads == 1 or len(order) == 1:
+            outputs = [run(k) for k in order]
+        else:
+            with ThreadPoolExecutor(max_workers=self.threads) as pool:
+                outputs = list(pool.map(run, order))
+        num_agents = int(self.host.episode.shape[0])
+        returns = np.zeros((num_agents, chunk_length), np.float32)
+        lengths = np.zeros((num_agents, chunk_length), np.int32)
+        iterations = 0
+        for k, (item_returns, item_lengths, item_iterations) in zip(order, outputs):
+            index = self.items[k][0]
+            returns[index], lengths[index] = item_returns, item_lengths
+            iterations += item_iterations
+        return returns, lengths, iterations
 
 
 def _run_chunk_lockstep(
@@ -960,14 +1021,16 @@ def run_agents(
     started = time.perf_counter()
     if progress:
         progress(done * num_agents, num_episodes * num_agents, 0.0)
+    sequential = _SequentialRun(mdp, params, agents, threads) if strategy == "sequential" else None
     while done < num_episodes:
         end = min(done + chunk, num_episodes)
         result = None
-        if strategy == "sequential":
-            result = _run_chunk_sequential(mdp, params, agents, done, end, chunk, threads=threads,
-                                           costs=costs)
+        if sequential is not None:
+            result = sequential.run_chunk(done, end, chunk, costs)
             if result is None:  # not compiled natively: lockstep is faster
-                strategy = "lockstep"
+                strategy, agents, sequential = "lockstep", sequential.agents(), None
+            else:  # one lane per loop iteration
+                result = (sequential, *result, result[-1])
         if result is None:
             result = _run_chunk_lockstep(
                 mdp, params, agents, done, end, chunk, compact=compact,
@@ -982,14 +1045,18 @@ def run_agents(
         lane_iterations += chunk_lanes
         done = end
         if on_chunk:
-            on_chunk(done, agents, returns[:, :done], lengths[:, :done])
+            on_chunk(done, _host_agents(agents), returns[:, :done], lengths[:, :done])
         if progress:
             progress(done * num_agents, num_episodes * num_agents, time.perf_counter() - started)
-    final = jax.tree.map(np.asarray, agents)
+    final = jax.tree.map(np.asarray, _host_agents(agents))
     return RunResult(
         returns, lengths, np.asarray(final.nonfinite), iterations, final, lane_iterations,
         strategy,
     )
+
+
+def _host_agents(agents: AgentState | _SequentialRun) -> AgentState:
+    return agents.agents() if isinstance(agents, _SequentialRun) else agents
 
 
 #: Engine strategies of :func:`run_agents`.
