@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from small_grid import SEEDS, SETTINGS, budget_for, run_small, small_mdp
+from small_grid import SEEDS, SETTINGS, assert_same_curves, budget_for, run_small, small_mdp
 from vdbejax.batching import (
     SweepProgress,
     agents_per_batch,
@@ -85,3 +85,14 @@ def test_parse_bytes(text, expected):
 def test_parse_bytes_rejects(text):
     with pytest.raises(ValueError, match="memory_budget_bytes=.* is invalid"):
         parse_bytes("memory_budget_bytes", text)
+
+
+def test_batches_with_or_without_checkpoints_equal_one_batch(tmp_path):
+    # Without a checkpoint a batch is recorded once, at its end; with one, after every
+    # chunk. Both must give what one batch gives, final states included.
+    mdp = small_mdp()
+    whole = run_small()
+    for checkpoint in (None, tmp_path / "checkpoint.npz"):
+        batched = run_small(memory_budget_bytes=budget_for(mdp, 4), checkpoint=checkpoint)
+        assert batched.meta["batches"] == 3
+        assert_same_curves(batched, whole)

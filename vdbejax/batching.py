@@ -265,8 +265,14 @@ def run_batched(
                                base: int = others_done) -> None:
                 progress(base + done_here, total, time.perf_counter() - started)
 
-        run_sharded(mdp, take_agents(params, rows), keys[rows], num_episodes, devices=devices,
-                    initial=initial, on_chunk=on_chunk, chunk_episodes=chunk_episodes,
-                    progress=batch_progress)
+        # Without checkpoints nothing needs the agents between chunks: record the batch
+        # once at its end (no per-chunk copy of every agent's tables to the host).
+        checkpointing = on_checkpoint is not None
+        result = run_sharded(mdp, take_agents(params, rows), keys[rows], num_episodes,
+                             devices=devices, initial=initial,
+                             on_chunk=on_chunk if checkpointing else None,
+                             chunk_episodes=chunk_episodes, progress=batch_progress)
+        if not checkpointing:
+            sweep.record(rows, num_episodes, result.final_state, result.returns, result.lengths)
         batches += 1
     return sweep, batches
