@@ -4,8 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from small_grid import (
+    SEEDS,
+    SETTINGS,
+    assert_same_curves,
+    budget_for,
+    run_small,
+    small_mdp,
+)
 
-from small_grid import SEEDS, SETTINGS, assert_same_curves, budget_for, run_small, small_mdp
 from vdbejax.batching import (
     SweepProgress,
     agents_per_batch,

@@ -256,3 +256,15 @@ def test_agents_kept_in_their_work_items_equal_lockstep_and_checkpoint_the_same(
         np.testing.assert_array_equal(returns_a, returns_b)
         for leaf_a, leaf_b in zip(jax.tree.leaves(agents_a), jax.tree.leaves(agents_b)):
             np.testing.assert_array_equal(leaf_a, leaf_b)
+
+
+@pytest.mark.parametrize("strategy", ["sequential", "lockstep"])
+def test_without_the_final_state_results_and_nonfinite_flags_are_the_same(mdp, strategy):
+    params = engine.broadcast_agents(stack_agents([make_agent(s) for s in SETTINGS]), 2)
+    keys = np.tile(engine.agent_keys(4, 2), (len(SETTINGS), 1))
+    full = engine.run_agents(mdp, params, keys, 12, chunk_episodes=5, strategy=strategy)
+    light = engine.run_agents(mdp, params, keys, 12, chunk_episodes=5, strategy=strategy,
+                              keep_final_state=False)
+    assert light.final_state is None and full.final_state is not None
+    np.testing.assert_array_equal(light.returns, full.returns)
+    np.testing.assert_array_equal(light.nonfinite, full.nonfinite)

@@ -156,17 +156,18 @@ class SweepProgress:
     def num_episodes(self) -> int:
         return int(self.returns.shape[1])
 
-    def record(self, rows: np.ndarray, done: int, agents: AgentState,
-               returns: np.ndarray, lengths: np.ndarray) -> None:
+    def record(self, rows: np.ndarray, done: int, agents: AgentState | None,
+               returns: np.ndarray, lengths: np.ndarray,
+               nonfinite: np.ndarray | None = None) -> None:
         """Store a batch's progress after a chunk (agents ``rows`` have ``done`` episodes).
 
         ``agents`` may hold device arrays: only what is kept is copied to numpy (the
-        states of finished agents are not).
+        states of finished agents are not, and may be ``None`` given ``nonfinite``).
         """
         self.returns[rows, :done] = returns
         self.lengths[rows, :done] = lengths
         self.episodes_done[rows] = done
-        self.nonfinite[rows] = np.asarray(agents.nonfinite)
+        self.nonfinite[rows] = np.asarray(agents.nonfinite if nonfinite is None else nonfinite)
         keep = ~np.isin(self.state_rows, rows)
         row_parts, state_parts = [], []
         if keep.any():
@@ -271,8 +272,10 @@ def run_batched(
         result = run_sharded(mdp, take_agents(params, rows), keys[rows], num_episodes,
                              devices=devices, initial=initial,
                              on_chunk=on_chunk if checkpointing else None,
-                             chunk_episodes=chunk_episodes, progress=batch_progress)
+                             chunk_episodes=chunk_episodes, progress=batch_progress,
+                             keep_final_state=False)  # finished agents keep no state
         if not checkpointing:
-            sweep.record(rows, num_episodes, result.final_state, result.returns, result.lengths)
+            sweep.record(rows, num_episodes, None, result.returns, result.lengths,
+                         nonfinite=result.nonfinite)
         batches += 1
     return sweep, batches

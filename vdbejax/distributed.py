@@ -223,7 +223,7 @@ def run_sharded(
         lengths=result.lengths[:count],
         nonfinite=result.nonfinite[:count],
         iterations=result.iterations,
-        final_state=unpad_agents(result.final_state, count),
+        final_state=None if result.final_state is None else unpad_agents(result.final_state, count),
         lane_iterations=result.lane_iterations,
         strategy=result.strategy,
     )

@@ -656,11 +656,6 @@ def _check_native(executable: Any) -> bool:
     return native
 
 
-def _writable(leaf: Any) -> np.ndarray:
-    array = np.asarray(leaf)
-    return array if array.flags.writeable else array.copy()
-
-
 def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None = None
                        ) -> list[np.ndarray]:
     """Agent indices per work item: one kind each, ≈ ``4 × threads`` items in all.
@@ -691,6 +686,11 @@ def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None
 REGROUP_MAX_BYTES = 1 << 20
 
 
+def _kept_in_items(mdp: TabularMDP) -> bool:
+    """Whether an agent's tables exceed :data:`REGROUP_MAX_BYTES` (see _SequentialRun)."""
+    return mdp.num_states * (mdp.num_actions + 1) * 4 > REGROUP_MAX_BYTES
+
+
 class _SequentialRun:
     """The sequential strategy over the chunks of one :func:`run_agents` call.
 
@@ -709,28 +709,46 @@ class _SequentialRun:
     (checkpoints, the end of the run).
     """
 
-    def __init__(self, mdp: TabularMDP, params: AgentParams, agents: AgentState,
-                 threads: int) -> None:
+    def __init__(self, mdp: TabularMDP, params: AgentParams, agents: AgentState | None,
+                 keys: Any, threads: int) -> None:
+        """``agents=None``: fresh agents, created in their work items (large agents)."""
         self.mdp, self.threads = mdp, threads
         self.params = jax.tree.map(np.asarray, params)
-        # Writable host arrays (the items' rows go back in); copied only when needed.
-        self.host = jax.tree.map(_writable, agents)
+        self.keys = np.asarray(keys, np.uint32)
+        self.host = agents  # the full state while host_current (numpy or device arrays)
         self.host_current = True
         self.items: list[tuple[np.ndarray, Any]] | None = None
         self.kinds = 2 * self.params.learner.sarsa.astype(np.int64) + self.params.explorer.adaptive
-        num_agents = int(self.host.episode.shape[0])
-        bytes_per_agent = (self.host.q.nbytes + self.host.epsilon.nbytes) / max(num_agents, 1)
-        self.regroup = bytes_per_agent <= REGROUP_MAX_BYTES
+        self.regroup = not _kept_in_items(mdp)
         self.support = _start_support(mdp)
+        self.layout = (jax.eval_shape(_init_agents, mdp, self.params, self.keys)
+                       if agents is None else
+                       jax.tree.map(lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype),
+                                    agents))
 
     def agents(self) -> AgentState:
         """The full state on the host (numpy), the items' rows written back."""
+        if self.host is None and self.items is None:  # nothing run yet
+            self.host = _executables.compiled(
+                _init_agents, (self.mdp, self.params, self.keys), {}
+            )(self.mdp, self.params, self.keys)
         if not self.host_current:
+            # Fresh arrays: ones handed out before (checkpoints) must not change.
+            host = jax.tree.map(lambda leaf: np.empty(leaf.shape, leaf.dtype), self.layout)
             for index, state in self.items:
-                for full, rows in zip(jax.tree.leaves(self.host), jax.tree.leaves(state)):
+                for full, rows in zip(jax.tree.leaves(host), jax.tree.leaves(state)):
                     full[index] = np.asarray(rows)[: index.size]
-            self.host_current = True
+            self.host, self.host_current = host, True
         return self.host
+
+    def nonfinite_flags(self) -> np.ndarray:
+        """Each agent's ``nonfinite`` flag, without gathering the tables."""
+        if self.host_current:
+            return np.asarray(self.agents().nonfinite)
+        flags = np.empty(self.keys.shape[0], bool)
+        for index, state in self.items:
+            flags[index] = np.asarray(state.nonfinite)[: index.size]
+        return flags
 
     def _call(self, index: np.ndarray, agents: Any, chunk: tuple[int, int, int]) -> tuple:
         """``(executable, args)`` of an item; ``agents`` may be shapes only."""
@@ -744,26 +762,33 @@ class _SequentialRun:
         return _executables.compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
 
     def _group(self, costs: np.ndarray | None, chunk: tuple[int, int, int]) -> bool:
-        """New work items from the host state; ``False`` if a loop is not native."""
-        host = self.agents()
+        """New work items from the current state; ``False`` if a loop is not native."""
         groups = _sequential_groups(self.kinds, self.threads, costs)
 
         def shapes(index: np.ndarray) -> Any:  # enough to compile: no copy of the rows
             size = _next_power_of_two(index.size)
             return jax.tree.map(
-                lambda leaf: jax.ShapeDtypeStruct((size, *leaf.shape[1:]), leaf.dtype), host
+                lambda leaf: jax.ShapeDtypeStruct((size, *leaf.shape[1:]), leaf.dtype),
+                self.layout,
             )
 
         # Compile on this thread (one program per kind and padded size) before running.
         if not all(_check_native(self._call(index, shapes(index), chunk)[0]) for index in groups):
             return False
-        self.items = [
-            (index, jax.tree.map(
-                lambda leaf, index=index: jnp.asarray(leaf[np.resize(index, _next_power_of_two(index.size))]),
-                host,
-            ))
-            for index in groups
-        ]
+        fresh = self.host is None  # large fresh agents: created in their item, on the device
+        host = None if fresh else self.agents()
+        items = []
+        for index in groups:
+            rows = np.resize(index, _next_power_of_two(index.size))
+            if fresh:
+                args = (self.mdp, jax.tree.map(lambda leaf, rows=rows: leaf[rows], self.params),
+                        self.keys[rows])
+                state = _executables.compiled(_init_agents, args, {})(*args)
+            else:  # on a CPU np.asarray of a device array is a view: one gather, one copy
+                state = jax.tree.map(lambda leaf, rows=rows: jnp.asarray(np.asarray(leaf)[rows]),
+                                     host)
+            items.append((index, state))
+        self.items = items
         return True
 
     def run_chunk(self, chunk_start: int, chunk_end: int, chunk_length: int,
@@ -797,7 +822,7 @@ class _SequentialRun:
         else:
             with ThreadPoolExecutor(max_workers=self.threads) as pool:
                 outputs = list(pool.map(run, order))
-        num_agents = int(self.host.episode.shape[0])
+        num_agents = int(self.keys.shape[0])
         returns = np.zeros((num_agents, chunk_length), np.float32)
         lengths = np.zeros((num_agents, chunk_length), np.int32)
         iterations = 0
@@ -871,7 +896,8 @@ class RunResult:
       lengths: int32 ``[agents, episodes]`` episode lengths (steps).
       nonfinite: bool ``[agents]``: a NaN or inf appeared in the agent's Q or ε.
       iterations: lockstep iterations executed (for efficiency statistics).
-      final_state: the agents' states after the last episode (numpy leaves).
+      final_state: the agents' states after the last episode (numpy leaves; ``None``
+        with ``keep_final_state=False``).
       lane_iterations: Σ over executed lockstep iterations of the batch width (the
         agent-iterations paid for, idle lanes included; lower with compaction).
       strategy: the strategy that ran (``"sequential"`` or ``"lockstep"``; the last one
@@ -882,7 +908,7 @@ class RunResult:
     lengths: np.ndarray
     nonfinite: np.ndarray
     iterations: int
-    final_state: AgentState
+    final_state: AgentState | None
     lane_iterations: int = 0
     strategy: str = "lockstep"
 
@@ -953,6 +979,7 @@ def run_agents(
     max_batch: int = MAX_SAFE_BATCH,
     strategy: str = "auto",
     threads: int | None = None,
+    keep_final_state: bool = True,
 ) -> RunResult:
     """Train a batch of agents for ``num_episodes`` episodes each.
 
@@ -989,6 +1016,8 @@ def run_agents(
 
       None of ``compact`` … ``threads`` change the results, only the speed, as long as
       ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
+      keep_final_state: ``False`` leaves :attr:`RunResult.final_state` ``None``, which
+        spares gathering every agent's tables on the host at the end (large tasks).
 
     Returns:
       :class:`RunResult`.
@@ -1012,7 +1041,9 @@ def run_agents(
     lengths = np.zeros((num_agents, num_episodes), np.int32)
     if initial is None:
         done = 0
-        agents = _executables.compiled(_init_agents, (mdp, params, keys), {})(mdp, params, keys)
+        agents = None  # created by the sequential strategy in its work items
+        if strategy != "sequential" or not _kept_in_items(mdp):
+            agents = _executables.compiled(_init_agents, (mdp, params, keys), {})(mdp, params, keys)
     else:
         done, agents, returns[:, : initial[0]], lengths[:, : initial[0]] = initial
         agents = jax.tree.map(jnp.asarray, agents)
@@ -1021,7 +1052,9 @@ def run_agents(
     started = time.perf_counter()
     if progress:
         progress(done * num_agents, num_episodes * num_agents, 0.0)
-    sequential = _SequentialRun(mdp, params, agents, threads) if strategy == "sequential" else None
+    sequential = None
+    if strategy == "sequential":
+        sequential = _SequentialRun(mdp, params, agents, keys, threads)
     while done < num_episodes:
         end = min(done + chunk, num_episodes)
         result = None
@@ -1048,11 +1081,14 @@ def run_agents(
             on_chunk(done, _host_agents(agents), returns[:, :done], lengths[:, :done])
         if progress:
             progress(done * num_agents, num_episodes * num_agents, time.perf_counter() - started)
-    final = jax.tree.map(np.asarray, _host_agents(agents))
-    return RunResult(
-        returns, lengths, np.asarray(final.nonfinite), iterations, final, lane_iterations,
-        strategy,
-    )
+    if keep_final_state:
+        final = jax.tree.map(np.asarray, _host_agents(agents))
+        nonfinite = np.asarray(final.nonfinite)
+    else:
+        final = None
+        nonfinite = (agents.nonfinite_flags() if isinstance(agents, _SequentialRun)
+                     else np.asarray(agents.nonfinite))
+    return RunResult(returns, lengths, nonfinite, iterations, final, lane_iterations, strategy)
 
 
 def _host_agents(agents: AgentState | _SequentialRun) -> AgentState:
