@@ -686,6 +686,11 @@ def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None
 REGROUP_MAX_BYTES = 1 << 20
 
 
+def _padded(index: np.ndarray) -> np.ndarray:
+    """A work item's rows, repeated up to a power of two (few shapes to compile)."""
+    return np.resize(index, _next_power_of_two(index.size))
+
+
 def _kept_in_items(mdp: TabularMDP) -> bool:
     """Whether an agent's tables exceed :data:`REGROUP_MAX_BYTES` (see _SequentialRun)."""
     return mdp.num_states * (mdp.num_actions + 1) * 4 > REGROUP_MAX_BYTES
@@ -753,7 +758,7 @@ class _SequentialRun:
     def _call(self, index: np.ndarray, agents: Any, chunk: tuple[int, int, int]) -> tuple:
         """``(executable, args)`` of an item; ``agents`` may be shapes only."""
         chunk_start, chunk_end, chunk_length = chunk
-        rows = np.resize(index, _next_power_of_two(index.size))
+        rows = _padded(index)
         params = jax.tree.map(lambda leaf: leaf[rows], self.params)
         kind = int(self.kinds[index[0]])
         static = {"chunk_length": chunk_length, "kind": (bool(kind // 2), bool(kind % 2))}
@@ -766,7 +771,7 @@ class _SequentialRun:
         groups = _sequential_groups(self.kinds, self.threads, costs)
 
         def shapes(index: np.ndarray) -> Any:  # enough to compile: no copy of the rows
-            size = _next_power_of_two(index.size)
+            size = _padded(index).size
             return jax.tree.map(
                 lambda leaf: jax.ShapeDtypeStruct((size, *leaf.shape[1:]), leaf.dtype),
                 self.layout,
@@ -779,7 +784,7 @@ class _SequentialRun:
         host = None if fresh else self.agents()
         items = []
         for index in groups:
-            rows = np.resize(index, _next_power_of_two(index.size))
+            rows = _padded(index)
             if fresh:
                 args = (self.mdp, jax.tree.map(lambda leaf, rows=rows: leaf[rows], self.params),
                         self.keys[rows])
