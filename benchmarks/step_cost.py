@@ -1,0 +1,65 @@
+"""Cost of one agent step of the engine, per kind of agent, on one or more threads.
+
+Usage::
+
+    python -m benchmarks.step_cost --seeds 5 --threads 1
+
+Runs the paper's settings (46 × ``--seeds`` agents × ``--episodes`` episodes) through
+``run_agents`` once to compile, then times a second identical run: nanoseconds per real
+environment step and thread, for the whole grid and for each learner × explorer. One
+JSON line per row on stdout.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+
+def step_cost(settings: list, seeds: int, episodes: int, threads: int, strategy: str) -> dict:
+    """Time the second of two identical runs of ``settings``; ns per step per thread."""
+    from vdbejax import engine
+    from vdbejax.agents import make_agent, stack_agents
+    from vdbejax.envs.table_cleaning import make_mdp
+
+    mdp = make_mdp()
+    params = engine.broadcast_agents(stack_agents([make_agent(s) for s in settings]), seeds)
+    keys = np.tile(engine.agent_keys(0, seeds), (len(settings), 1))
+
+    def run():
+        return engine.run_agents(mdp, params, keys, episodes, threads=threads,
+                                 chunk_episodes=episodes, strategy=strategy)
+
+    run()
+    started = time.perf_counter()
+    result = run()
+    seconds = time.perf_counter() - started
+    steps = int(result.lengths.sum())
+    return {"agents": len(keys), "steps": steps, "seconds": round(seconds, 3),
+            "ns_per_step_per_thread": round(seconds * threads / steps * 1e9, 1),
+            "strategy": result.strategy}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from vdbejax.agents import paper_settings
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--episodes", type=int, default=1000)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--strategy", default="auto", choices=["auto", "sequential", "lockstep"])
+    args = parser.parse_args(argv)
+    settings = paper_settings()
+    groups = {"all": settings}
+    for setting in settings:
+        groups.setdefault(f"{setting.learner}/{setting.explorer}", []).append(setting)
+    for name, members in groups.items():
+        row = step_cost(members, args.seeds, args.episodes, args.threads, args.strategy)
+        print(json.dumps({"settings": name, **row}), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
