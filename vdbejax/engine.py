@@ -1057,9 +1057,15 @@ def run_agents(
     started = time.perf_counter()
     if progress:
         progress(done * num_agents, num_episodes * num_agents, 0.0)
+    # The sequential strategy keeps the agents' state in its work items; ``agents`` is
+    # the state only while the lockstep strategy runs.
     sequential = None
     if strategy == "sequential":
         sequential = _SequentialRun(mdp, params, agents, keys, threads)
+
+    def current_agents() -> AgentState:
+        return agents if sequential is None else sequential.agents()
+
     while done < num_episodes:
         end = min(done + chunk, num_episodes)
         result = None
@@ -1067,15 +1073,17 @@ def run_agents(
             result = sequential.run_chunk(done, end, chunk, costs)
             if result is None:  # not compiled natively: lockstep is faster
                 strategy, agents, sequential = "lockstep", sequential.agents(), None
-            else:  # one lane per loop iteration
-                result = (sequential, *result, result[-1])
-        if result is None:
-            result = _run_chunk_lockstep(
-                mdp, params, agents, done, end, chunk, compact=compact,
-                block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
-                max_batch=max_batch,
+        if result is not None:
+            chunk_returns, chunk_lengths, chunk_iterations = result
+            chunk_lanes = chunk_iterations  # one lane per loop iteration
+        else:
+            agents, chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes = (
+                _run_chunk_lockstep(
+                    mdp, params, agents, done, end, chunk, compact=compact,
+                    block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
+                    max_batch=max_batch,
+                )
             )
-        agents, chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes = result
         costs = np.asarray(chunk_lengths).sum(axis=1)  # the next chunk's work, roughly
         returns[:, done:end] = np.asarray(chunk_returns)[:, : end - done]
         lengths[:, done:end] = np.asarray(chunk_lengths)[:, : end - done]
@@ -1083,21 +1091,17 @@ def run_agents(
         lane_iterations += chunk_lanes
         done = end
         if on_chunk:
-            on_chunk(done, _host_agents(agents), returns[:, :done], lengths[:, :done])
+            on_chunk(done, current_agents(), returns[:, :done], lengths[:, :done])
         if progress:
             progress(done * num_agents, num_episodes * num_agents, time.perf_counter() - started)
     if keep_final_state:
-        final = jax.tree.map(np.asarray, _host_agents(agents))
+        final = jax.tree.map(np.asarray, current_agents())
         nonfinite = np.asarray(final.nonfinite)
-    else:
+    else:  # the flags alone: no tables gathered
         final = None
-        nonfinite = (agents.nonfinite_flags() if isinstance(agents, _SequentialRun)
-                     else np.asarray(agents.nonfinite))
+        nonfinite = (np.asarray(agents.nonfinite) if sequential is None
+                     else sequential.nonfinite_flags())
     return RunResult(returns, lengths, nonfinite, iterations, final, lane_iterations, strategy)
-
-
-def _host_agents(agents: AgentState | _SequentialRun) -> AgentState:
-    return agents.agents() if isinstance(agents, _SequentialRun) else agents
 
 
 #: Engine strategies of :func:`run_agents`.
