@@ -151,3 +151,27 @@ def test_only_vdbejax_functions_and_an_enabled_cache_use_the_disk(disk, monkeypa
     monkeypatch.undo()  # the real disk_folder: off by the variable, else JAX's cache dir
     monkeypatch.setenv("VDBEJAX_EXECUTABLE_CACHE", "off")
     assert _executables.disk_folder() is None
+
+
+def test_a_loaded_entry_recompiles_from_shapes_and_keeps_no_arrays_alive(disk):
+    from vdbejax.agents import make_agent, paper_settings, stack_agents
+    from vdbejax.envs.table_cleaning import make_mdp
+
+    mdp = make_mdp()
+    params = stack_agents([make_agent(s) for s in paper_settings()[:3]])
+    keys = engine.agent_keys(2, 3)
+    args = (mdp, params, keys)
+    expected = _executables.compiled(engine._init_agents, args, {})(*args)
+    _executables._EXECUTABLES.clear()
+    loaded = _executables.compiled(engine._init_agents, args, {})
+    assert isinstance(loaded, _executables._FromDisk)
+    # What the entry would recompile from: shapes only, no reference to the arrays.
+    closure = [cell.cell_contents for cell in loaded._recompile.__closure__]
+    assert not any(leaf is keys for cell in closure for leaf in jax.tree.leaves(cell))
+
+    def broken(*_):
+        raise RuntimeError("NOT_FOUND: Function fusion not found")
+
+    loaded._executable = broken
+    for got, want in zip(jax.tree.leaves(loaded(*args)), jax.tree.leaves(expected)):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))

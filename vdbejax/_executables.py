@@ -81,6 +81,15 @@ def _placement(x: Any) -> Any:
     return sharding
 
 
+def _abstract(args: Any) -> Any:
+    """``args`` as ``jax.ShapeDtypeStruct``s (enough to compile the same program again)."""
+    return jax.tree.map(
+        lambda x: jax.ShapeDtypeStruct(np.shape(x), np.dtype(_dtype_str(x)),
+                                       weak_type=bool(getattr(x, "weak_type", False))),
+        args,
+    )
+
+
 def compiled(function: Any, args: tuple, static: dict[str, Any],
              compiler_options: dict[str, Any] | None = None) -> Any:
     """``function``'s executable for ``args`` (explicit ``lower().compile()``, cached).
@@ -108,8 +117,9 @@ def compiled(function: Any, args: tuple, static: dict[str, Any],
     path = _disk_path(function, static, sig, options)
     executable = _load(path) if path is not None else None
     if executable is not None:
-        executable = _FromDisk(executable, path, key, lambda: _compile(function, args, static,
-                                                                       options))
+        shapes = _abstract(args)  # not the arrays: the entry must not keep them alive
+        executable = _FromDisk(executable, path, key,
+                               lambda: _compile(function, shapes, static, options))
     elif path is None:
         executable = _compile(function, args, static, options)
     else:
