@@ -60,6 +60,7 @@ def _worker_vdbejax(args) -> dict:
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     from vdbejax import _executables, engine
     from vdbejax.agents import make_agent, paper_settings, stack_agents
+    from vdbejax.experiment import grid_agents
 
     rss_import = _peak_rss_mb()
     started = time.perf_counter()
@@ -72,10 +73,7 @@ def _worker_vdbejax(args) -> dict:
         params = jax.tree.map(lambda leaf: leaf[index], per)
         keys = engine.agent_keys(1, n)
     else:
-        params = engine.broadcast_agents(
-            stack_agents([make_agent(s) for s in settings]), args.seeds
-        )
-        keys = np.tile(engine.agent_keys(0, args.seeds), (len(settings), 1))
+        params, keys = grid_agents(settings, args.seeds)
     result = engine.run_agents(mdp, params, keys, args.episodes, strategy=args.strategy)
     wall = time.perf_counter() - started
     compile_time = engine.compile_seconds()

@@ -15,18 +15,15 @@ import argparse
 import json
 import time
 
-import numpy as np
-
 
 def step_cost(settings: list, seeds: int, episodes: int, threads: int, strategy: str) -> dict:
     """Time the second of two identical runs of ``settings``; ns per step per thread."""
     from vdbejax import engine
-    from vdbejax.agents import make_agent, stack_agents
     from vdbejax.envs.table_cleaning import make_mdp
+    from vdbejax.experiment import grid_agents
 
     mdp = make_mdp()
-    params = engine.broadcast_agents(stack_agents([make_agent(s) for s in settings]), seeds)
-    keys = np.tile(engine.agent_keys(0, seeds), (len(settings), 1))
+    params, keys = grid_agents(settings, seeds)
 
     def run():
         return engine.run_agents(mdp, params, keys, episodes, threads=threads,

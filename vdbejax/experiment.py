@@ -21,7 +21,7 @@ import jax
 import numpy as np
 
 from vdbejax import io
-from vdbejax.agents import AgentOptions, Setting, make_agent, stack_agents
+from vdbejax.agents import AgentOptions, AgentParams, Setting, make_agent, stack_agents
 from vdbejax.batching import (
     SweepProgress,
     agents_per_batch,
@@ -257,6 +257,25 @@ def _checkpointing(
     return sweep, on_checkpoint
 
 
+def grid_agents(settings: Sequence[Setting], num_seeds: int, seed: int = 0,
+                options: AgentOptions = AgentOptions()) -> tuple[AgentParams, np.ndarray]:
+    """Hyperparameters and keys of a grid's agents, config-major (c0s0, c0s1, …).
+
+    Seed ``i`` of every setting gets the same key (common random numbers).
+
+    Args:
+      settings: the grid's settings.
+      num_seeds: agents per setting.
+      seed: root seed of the keys.
+      options: options shared by every agent.
+
+    Returns:
+      ``(params, keys)``: batched :class:`AgentParams` and uint32 ``[agents, 2]`` keys.
+    """
+    params = broadcast_agents(stack_agents([make_agent(s, options) for s in settings]), num_seeds)
+    return params, np.tile(agent_keys(seed, num_seeds), (len(settings), 1))
+
+
 def run_grid(
     mdp: TabularMDP,
     settings: Sequence[Setting],
@@ -310,8 +329,7 @@ def run_grid(
     )
     _check_grid_inputs(mdp, settings, progress, checkpoint)
     device_list = select_devices(devices)
-    params = broadcast_agents(stack_agents([make_agent(s, options) for s in settings]), num_seeds)
-    keys = np.tile(agent_keys(seed, num_seeds), (len(settings), 1))
+    params, keys = grid_agents(settings, num_seeds, seed, options)
     num_agents = len(settings) * num_seeds
     # Several processes (hosts): each runs its share of the agents on its own devices.
     rows = process_share(num_agents)
