@@ -59,7 +59,7 @@ def _worker_vdbejax(args) -> dict:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     from vdbejax import _executables, engine
-    from vdbejax.agents import make_agent, paper_settings, stack_agents
+    from vdbejax.methods.agents import make_agent, paper_settings, stack_agents
     from vdbejax.experiment import grid_agents
 
     rss_import = _peak_rss_mb()
@@ -100,7 +100,7 @@ def _worker_vdbejax(args) -> dict:
 
 def _worker_numba(args) -> dict:
     from benchmarks.numba_loop import run_grid
-    from vdbejax.agents import paper_settings
+    from vdbejax.methods.agents import paper_settings
 
     settings = paper_settings()
     started = time.perf_counter()
@@ -119,7 +119,7 @@ def _worker_numba(args) -> dict:
 
 def _worker_python(args) -> dict:
     from benchmarks.python_loop import train_agent
-    from vdbejax.agents import paper_settings
+    from vdbejax.methods.agents import paper_settings
 
     settings = paper_settings()
     started = time.perf_counter()
@@ -263,7 +263,7 @@ def main(argv=None) -> int:
         np.savez(args.worker_out, returns=returns, meta=json.dumps(res))
         return 0
 
-    from vdbejax.agents import paper_settings
+    from vdbejax.methods.agents import paper_settings
 
     command = "python -m benchmarks.compare " + " ".join(argv if argv is not None else sys.argv[1:])
     tmp = Path(args.tmp or tempfile.mkdtemp(prefix="vdbejax-bench-"))

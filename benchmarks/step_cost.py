@@ -40,7 +40,7 @@ def step_cost(settings: list, seeds: int, episodes: int, threads: int, strategy:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from vdbejax.agents import paper_settings
+    from vdbejax.methods.agents import paper_settings
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)

@@ -39,7 +39,7 @@ def peak_rss_gib() -> float:
 def measure(n: int, k: int, seeds: int, episodes: int, max_steps: int) -> dict:
     """Compile, solve and run one variant (in this process); returns the measurements."""
     from vdbejax import engine, solvers
-    from vdbejax.agents import Setting
+    from vdbejax.methods.agents import Setting
     from vdbejax.envs.table_cleaning import make_variant, make_variant_mdp
     from vdbejax.experiment import run_grid
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from vdbejax.agents import Setting
+from vdbejax.methods.agents import Setting
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import GridResult, run_grid
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vdbejax.agents import paper_settings
+from vdbejax.methods.agents import paper_settings
 from vdbejax.experiment import GridResult
 
 BEST = 0.86

@@ -5,7 +5,7 @@ import pytest
 
 from synthetic_grid import synthetic_grid
 from vdbejax import analysis
-from vdbejax.agents import Setting
+from vdbejax.methods.agents import Setting
 from vdbejax.envs.table_cleaning import make_mdp
 
 Q = np.array([0.0, 1.0, 1.0, -1.0])
@@ -63,10 +63,14 @@ def test_epsilon_snapshots_follow_vdbe():
     assert epsilon.shape == (3, 2, mdp.num_states) and returns.shape == (2, 6)
     assert np.all((epsilon >= 0) & (epsilon <= 1))
     assert epsilon.min() < 1.0  # visited states have moved away from ε = 1
-    # ε-greedy keeps ε(s) at its initial 1 (no VDBE updates).
-    _, flat, _ = analysis.epsilon_snapshots(mdp, Setting("qlearning", "egreedy", 0.1),
-                                            num_seeds=1, num_episodes=2, every=1)
-    assert np.all(flat == 1.0)
+    # ε-greedy keeps no ε(s) table; UCB-1's counts can be watched the same way.
+    with pytest.raises(ValueError, match="keeps no tables"):
+        analysis.epsilon_snapshots(mdp, Setting("qlearning", "egreedy", 0.1),
+                                   num_seeds=1, num_episodes=2, every=1)
+    _, counts, _ = analysis.epsilon_snapshots(mdp, Setting("qlearning", "ucb1", 1.0), num_seeds=1,
+                                              num_episodes=4, every=2, table="counts")
+    assert counts.shape == (2, 1, mdp.num_states, mdp.num_actions)
+    assert counts[1].sum() > counts[0].sum() > 0
 
 
 @pytest.mark.parametrize("explorer, param", [("softmax", 1e-4), ("vdbe_softmax", 100.0)])

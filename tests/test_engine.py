@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vdbejax.agents import AgentOptions, Setting, make_agent, paper_settings, stack_agents
+from vdbejax.methods.agents import AgentOptions, Setting, make_agent, paper_settings, stack_agents
 from vdbejax.engine import agent_keys, run_agents
 from vdbejax.envs import make_tabular_mdp
 from vdbejax.envs.table_cleaning import make_mdp
@@ -77,13 +77,13 @@ def test_vdbe_epsilon_follows_its_update_inside_the_engine():
         x = np.exp(-abs(dq) / sigma)
         eps = 0.1 * (1 - x) / (1 + x) + 0.9 * eps
     np.testing.assert_allclose(result.final_state.q[0, 0], q, rtol=1e-5)
-    assert result.final_state.epsilon[0, 0] == pytest.approx(eps, rel=1e-5)
-    assert result.final_state.epsilon[0, 1] == 1.0  # never updated
+    assert result.final_state.tables["epsilon"][0, 0] == pytest.approx(eps, rel=1e-5)
+    assert result.final_state.tables["epsilon"][0, 1] == 1.0  # never updated
 
 
-def test_non_adaptive_explorers_leave_epsilon_table_alone():
+def test_explorers_without_tables_keep_none():
     result = run_one(make_mdp(), Setting("qlearning", "softmax", 0.1), 5)
-    assert np.all(result.final_state.epsilon == 1.0)
+    assert result.final_state.tables == {}
 
 
 def test_agent_alone_equals_agent_inside_the_full_grid():

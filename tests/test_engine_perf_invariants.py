@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from vdbejax import engine
-from vdbejax.agents import AgentOptions, Setting, make_agent, stack_agents
+from vdbejax.engine import sequential
+from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.explorers import select_action
-from vdbejax.learners import q_learning_target, sarsa_target
+from vdbejax.methods.explorers import select_action
+from vdbejax.methods.learners import q_learning_target, sarsa_target
 
 SETTINGS = [
     Setting("sarsa", "vdbe", 0.001),
@@ -183,9 +184,9 @@ def test_bad_strategy_or_threads_is_one_line_error(mdp):
 def test_hashed_stream_depends_only_on_key_and_counter():
     keys = jnp.asarray(engine.agent_keys(3, 5))
     counters = jnp.arange(5, dtype=jnp.uint32) * 7
-    batch = engine._uniforms(keys, counters)
+    batch = engine.uniforms(keys, counters, 5)
     for i in range(5):
-        single = engine._uniforms(keys[i], counters[i])
+        single = engine.uniforms(keys[i], counters[i], 5)
         for draw_batch, draw_single in zip(batch, single):
             assert float(draw_batch[i]) == float(draw_single)
             assert 0.0 <= float(draw_single) < 1.0
@@ -211,7 +212,7 @@ def test_sequential_work_items_are_equal_sized_cost_balanced_and_cover_every_age
     rng = np.random.default_rng(0)
     kinds = np.repeat([0, 1, 3], [40, 37, 23])
     costs = rng.pareto(1.5, kinds.size) * 100 + 10  # a few agents far slower than most
-    groups = engine._sequential_groups(kinds, threads=2, costs=costs)
+    groups = sequential._sequential_groups(kinds, threads=2, costs=costs)
     everyone = np.sort(np.concatenate(groups))
     np.testing.assert_array_equal(everyone, np.arange(kinds.size))
     group_costs = [costs[group].sum() for group in groups]
@@ -222,7 +223,7 @@ def test_sequential_work_items_are_equal_sized_cost_balanced_and_cover_every_age
         sizes = [len(group) for group in mine]
         assert max(sizes) - min(sizes) <= 1
     # Without costs every agent counts the same: sizes still within one of each other.
-    plain = engine._sequential_groups(kinds, threads=2)
+    plain = sequential._sequential_groups(kinds, threads=2)
     assert sum(len(group) for group in plain) == kinds.size
 
 
@@ -233,7 +234,7 @@ def test_agents_kept_in_their_work_items_equal_lockstep_and_checkpoint_the_same(
     """Large agents stay in their first work item for the whole run (their tables are
     updated in place, never copied between chunks); small ones are regrouped by cost.
     Either way the results, and the states handed to ``on_chunk``, equal lockstep's."""
-    monkeypatch.setattr(engine, "REGROUP_MAX_BYTES", regroup_max_bytes)
+    monkeypatch.setattr(sequential, "REGROUP_MAX_BYTES", regroup_max_bytes)
     params = engine.broadcast_agents(stack_agents([make_agent(s) for s in SETTINGS]), 3)
     keys = np.tile(engine.agent_keys(9, 3), (len(SETTINGS), 1))
     seen = {"sequential": [], "lockstep": []}
@@ -243,11 +244,11 @@ def test_agents_kept_in_their_work_items_equal_lockstep_and_checkpoint_the_same(
             seen[name].append((done, jax.tree.map(np.array, agents), returns.copy()))
         return record
 
-    sequential = engine.run_agents(mdp, params, keys, 25, chunk_episodes=6, threads=2,
-                                   strategy="sequential", on_chunk=recorder("sequential"))
+    by_items = engine.run_agents(mdp, params, keys, 25, chunk_episodes=6, threads=2,
+                                 strategy="sequential", on_chunk=recorder("sequential"))
     lockstep = engine.run_agents(mdp, params, keys, 25, chunk_episodes=6,
                                  strategy="lockstep", on_chunk=recorder("lockstep"))
-    _assert_same_run(sequential, lockstep)
+    _assert_same_run(by_items, lockstep)
     assert [done for done, *_ in seen["sequential"]] == [6, 12, 18, 24, 25]
     for (done_a, agents_a, returns_a), (done_b, agents_b, returns_b) in zip(
         seen["sequential"], seen["lockstep"]

@@ -27,7 +27,7 @@ _SCRIPT = textwrap.dedent(
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
     from vdbejax import _executables
     from vdbejax.experiment import run_grid
-    from vdbejax.agents import paper_settings
+    from vdbejax.methods.agents import paper_settings
     from vdbejax.envs.table_cleaning import make_mdp
     result = run_grid(make_mdp(), paper_settings()[::9], num_seeds=3, num_episodes=6)
     print(json.dumps({"disk": _executables.disk_counts(),
@@ -69,7 +69,7 @@ def disk(tmp_path, monkeypatch):
 
 
 def _keys_program(seed: int, num_seeds: int = 3):
-    return _executables.compiled(engine._agent_keys, (), {"seed": seed, "num_seeds": num_seeds})
+    return _executables.compiled(engine.state._agent_keys, (), {"seed": seed, "num_seeds": num_seeds})
 
 
 def test_a_damaged_entry_is_ignored_and_rewritten(disk):
@@ -115,7 +115,7 @@ def test_other_errors_of_a_loaded_entry_propagate(disk, tmp_path):
 
 
 def test_the_key_covers_static_arguments_signature_options_flags_and_source(monkeypatch):
-    function = engine._agent_keys
+    function = engine.state._agent_keys
     sig = _executables.signature((jnp.zeros(3, jnp.float32),))
 
     def key(static=None, sig=sig, options=None):
@@ -133,6 +133,48 @@ def test_the_key_covers_static_arguments_signature_options_flags_and_source(monk
     monkeypatch.undo()
     monkeypatch.setattr(_executables, "source_fingerprint", lambda: "edited")
     assert key() != base
+    monkeypatch.undo()
+    program = _executables.program_text(function.trace(seed=1, num_seeds=3))
+    other = _executables.program_text(function.trace(seed=1, num_seeds=4))
+    assert program != other
+    assert _executables.disk_key(function, {"seed": 1}, sig, {}, program) != _executables.disk_key(
+        function, {"seed": 1}, sig, {}, other)
+
+
+# The grid of _SCRIPT with SARSA's target monkeypatched (argv[2] == "patched"): a warm
+# disk copy must not serve the unpatched programs.
+_PATCHED = _SCRIPT.replace(
+    "from vdbejax.experiment import run_grid",
+    "from vdbejax.experiment import run_grid\n"
+    "from vdbejax.methods import learners\n"
+    "if sys.argv[2] == 'patched':\n"
+    "    learners.sarsa_target = lambda reward, discount, q_next, action: reward + 0.5",
+)
+
+
+def _run_patched(cache: Path, mode: str) -> dict:
+    environment = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    environment.pop("JAX_COMPILATION_CACHE_DIR", None)
+    done = subprocess.run([sys.executable, "-c", _PATCHED, str(cache), mode], capture_output=True,
+                          text=True, cwd=ROOT, env=environment, timeout=300, check=False)
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_a_monkeypatched_rule_is_never_served_the_stored_programs(tmp_path):
+    plain = _run_patched(tmp_path, "plain")
+    patched = _run_patched(tmp_path, "patched")
+    assert patched["returns"] != plain["returns"]  # the new rule ran
+    assert patched["disk"]["stored"] > 0  # its SARSA programs are new entries
+    again = _run_patched(tmp_path, "patched")
+    assert again["returns"] == patched["returns"] and again["disk"]["stored"] == 0
+
+
+def test_multi_device_runs_twice_with_one_cache(tmp_path):
+    flags = {"XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
+    first = _run(tmp_path, **flags)
+    second = _run(tmp_path, **flags)
+    assert second["returns"] == first["returns"] == _run(tmp_path)["returns"]
 
 
 def test_the_source_fingerprint_changes_with_any_file_of_the_package():
@@ -146,24 +188,25 @@ def test_only_vdbejax_functions_and_an_enabled_cache_use_the_disk(disk, monkeypa
         return x + 1
 
     sig = _executables.signature((jnp.zeros(2),))
-    assert _executables._disk_path(outside, {}, sig, {}) is None
-    assert _executables._disk_path(engine._agent_keys, {"seed": 0}, sig, {}) is not None
+    traced = engine.state._agent_keys.trace(seed=0, num_seeds=3)
+    assert _executables._disk_path(outside, {}, sig, {}, traced) is None
+    assert _executables._disk_path(engine.state._agent_keys, {"seed": 0}, sig, {}, traced) is not None
     monkeypatch.undo()  # the real disk_folder: off by the variable, else JAX's cache dir
     monkeypatch.setenv("VDBEJAX_EXECUTABLE_CACHE", "off")
     assert _executables.disk_folder() is None
 
 
 def test_a_loaded_entry_recompiles_from_shapes_and_keeps_no_arrays_alive(disk):
-    from vdbejax.agents import make_agent, paper_settings, stack_agents
+    from vdbejax.methods.agents import make_agent, paper_settings, stack_agents
     from vdbejax.envs.table_cleaning import make_mdp
 
     mdp = make_mdp()
     params = stack_agents([make_agent(s) for s in paper_settings()[:3]])
     keys = engine.agent_keys(2, 3)
     args = (mdp, params, keys)
-    expected = _executables.compiled(engine._init_agents, args, {})(*args)
+    expected = _executables.compiled(engine.init_agents, args, {})(*args)
     _executables._EXECUTABLES.clear()
-    loaded = _executables.compiled(engine._init_agents, args, {})
+    loaded = _executables.compiled(engine.init_agents, args, {})
     assert isinstance(loaded, _executables._FromDisk)
     # What the entry would recompile from: shapes only, no reference to the arrays.
     closure = [cell.cell_contents for cell in loaded._recompile.__closure__]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from absl.testing import parameterized
 
-from vdbejax import explorers
+from vdbejax.methods import explorers
 
 NUM_DRAWS = 20_000
 Q = jnp.array([0.1, 0.5, -0.2, 0.3, 0.0, -1.0, 0.45])  # unique maximum: action 1
@@ -97,18 +97,21 @@ def test_vdbe_epsilon_update_hand_computed():
     assert float(explorers.vdbe_epsilon_update(0.0, 0.5, 1e-30, 0.1)) == pytest.approx(0.1)
 
 
-def test_make_explorer_maps_to_the_single_rule():
+def test_make_explorer_builds_the_registered_classes():
     e = explorers.make_explorer("egreedy", 0.1)
-    assert (float(e.epsilon), float(e.tau), bool(e.adaptive)) == (pytest.approx(0.1), np.inf, False)
+    assert isinstance(e, explorers.EpsilonGreedy) and float(e.epsilon) == pytest.approx(0.1)
+    assert e.tables() == {}
     s = explorers.make_explorer("softmax", 0.01)
-    assert (float(s.epsilon), float(s.tau), bool(s.adaptive)) == (1.0, pytest.approx(0.01), False)
+    assert isinstance(s, explorers.Softmax) and float(s.tau) == pytest.approx(0.01)
     v = explorers.make_explorer("vdbe", 10.0)
-    assert (float(v.tau), bool(v.adaptive), float(v.sigma)) == (np.inf, True, 10.0)
+    assert float(v.sigma) == 10.0 and v.tables()["epsilon"].per == "state"
     vs = explorers.make_explorer("vdbe_softmax", 0.1)
-    assert (float(vs.tau), bool(vs.adaptive)) == (pytest.approx(0.001), True)
+    assert isinstance(vs, explorers.VDBE) and float(vs.tau) == pytest.approx(0.001)
     for name, bad in [("egreedy", 1.5), ("softmax", 0.0), ("vdbe", -1.0), ("nope", 1.0)]:
         with pytest.raises(ValueError):
             explorers.make_explorer(name, bad)
+    with pytest.raises(ValueError, match="has no field 'sigma'"):
+        explorers.make_explorer("egreedy", 0.1, sigma=1.0)
 
 
 class ExplorerVariantsTest(parameterized.TestCase):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from vdbejax import solvers
-from vdbejax.agents import AgentOptions, Setting, make_agent, stack_agents
+from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents
 from vdbejax.engine import agent_keys, broadcast_agents, run_agents
 
 gym = pytest.importorskip("gymnasium")

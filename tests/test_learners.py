@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from absl.testing import parameterized
 
-from vdbejax import learners
+from vdbejax.methods import learners
 
 Q_NEXT = jnp.array([0.2, 0.7, -0.1])
 
@@ -33,8 +33,8 @@ def test_terminal_transition_uses_reward_only():
 
 
 def test_make_learner_validates():
-    assert bool(learners.make_learner("sarsa").sarsa)
-    assert not bool(learners.make_learner("qlearning").sarsa)
+    assert learners.make_learner("sarsa").uses_next_action
+    assert not learners.make_learner("qlearning").uses_next_action
     for kwargs in [dict(alpha=0.0), dict(alpha=1.5), dict(gamma=-0.1), dict(gamma=1.1), dict(q_init=float("nan"))]:
         with pytest.raises(ValueError):
             learners.make_learner("qlearning", **kwargs)

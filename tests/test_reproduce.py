@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import vdbejax
-from vdbejax.agents import PAPER_PARAMETERS, paper_settings
+from vdbejax.methods.agents import PAPER_PARAMETERS, paper_settings
 
 SEEDS, EPISODES = 2, 30
 

@@ -38,9 +38,9 @@ FOUR_DEVICE_SCRIPT = textwrap.dedent(
     info["shard_rows"] = sorted(s.data.shape[0] for s in keys.addressable_shards)
     # The engine keeps the agent states split: each device advances its own agents.
     import jax.numpy as jnp
-    from vdbejax.agents import make_agent, stack_agents
+    from vdbejax.methods.agents import make_agent, stack_agents
     from vdbejax.engine import broadcast_agents, init_agent, run_chunk
-    params = broadcast_agents(stack_agents([make_agent(s) for s in SETTINGS]), 2)
+    params = broadcast_agents(stack_agents([make_agent(SETTINGS[0])]), 8)  # one kind
     params, keys = shard_agents((params, agent_keys(0, 8)), agent_mesh())
     agents = jax.vmap(init_agent, in_axes=(None, 0, 0))(small_mdp(), params, keys)
     agents = run_chunk(small_mdp(), params, agents, jnp.int32(0), jnp.int32(2), 2)[0]

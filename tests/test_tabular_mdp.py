@@ -5,7 +5,7 @@ import pytest
 
 import vdbejax
 from vdbejax import solvers
-from vdbejax.agents import Setting
+from vdbejax.methods.agents import Setting
 from vdbejax.envs import TabularMDP, make_tabular_mdp
 
 

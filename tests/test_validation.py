@@ -12,11 +12,11 @@ import pytest
 
 from small_grid import SETTINGS, run_small
 from vdbejax import cli, make_tabular_mdp
-from vdbejax.agents import AgentOptions, Setting, make_agent
+from vdbejax.methods.agents import AgentOptions, Setting, make_agent
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import GridResult, run_grid
-from vdbejax.explorers import make_explorer
-from vdbejax.learners import make_learner
+from vdbejax.methods.explorers import make_explorer
+from vdbejax.methods.learners import make_learner
 
 
 def assert_one_line(error: pytest.ExceptionInfo, *fragments: str) -> None:
@@ -75,7 +75,7 @@ def test_vdbe_delta(delta):
 @pytest.mark.parametrize("tau", [0.0, -1.0, NAN, INF])
 def test_vdbe_softmax_tau(tau):
     with pytest.raises(ValueError) as error:
-        make_explorer("vdbe_softmax", 1.0, vdbe_softmax_tau=tau)
+        make_explorer("vdbe_softmax", 1.0, tau=tau)
     assert_one_line(error, "tau=", "> 0")
 
 

@@ -36,7 +36,7 @@ import warnings
 import numpy as np
 import vdbejax
 from vdbejax import engine
-from vdbejax.agents import make_agent, paper_settings, stack_agents
+from vdbejax.methods.agents import make_agent, paper_settings, stack_agents
 from vdbejax.envs.table_cleaning import make_mdp
 params = engine.broadcast_agents(stack_agents([make_agent(s) for s in paper_settings()[::9]]), 2)
 keys = np.tile(engine.agent_keys(0, 2), (6, 1))

@@ -10,7 +10,7 @@ from vdbejax import _xla_flags
 
 _xla_flags.apply()  # before anything starts JAX's backend (see vdbejax._xla_flags)
 
-from vdbejax.agents import AgentOptions, AgentParams, Setting, make_agent, paper_settings
+from vdbejax.methods.agents import AgentOptions, AgentParams, Setting, make_agent, paper_settings
 from vdbejax.envs import TabularMDP, compile_env, make_tabular_mdp
 from vdbejax.experiment import GridResult, run_grid
 from vdbejax.reproduce import reproduce

@@ -1,25 +1,31 @@
 """Compiled programs of the engine, kept in memory and, between processes, on disk.
 
 JAX's persistent compilation cache (``jax_compilation_cache_dir``) spares a new process
-XLA's compilation, but not tracing and lowering: JAX needs the lowered module to compute
-its cache key. For the paper grid that is ≈ 60 ms for each of the four per-kind programs
-of the sequential engine, more than loading them. :func:`compiled` therefore also keeps
-each serialised executable next to JAX's cache (``<cache dir>/vdbejax-executables``), under
-a key of everything the program depends on:
+XLA's compilation, but not tracing and lowering (≈ 40 ms per engine program). :func:`compiled`
+also keeps each serialised executable next to JAX's cache
+(``<cache dir>/vdbejax-executables``). Its key covers everything the program depends on,
+so an entry is never served for other code:
 
+* what runs. When every class in the arguments is vdbejax's own (built-in explorers and
+  learners), the code that runs is vdbejax's: the key holds a fingerprint of vdbejax's
+  source files and of its *live* code (the bytecode and simple globals of every function
+  and class of its loaded modules, so an edit or a monkeypatch gives new keys), and a warm
+  process neither traces nor lowers. Otherwise (a user's plug-in anywhere in the
+  arguments) the program is traced and the key holds its jaxpr and the bytes of its
+  constants — whatever the user's code does, edited or not;
 * the function (module and name) and its static arguments;
 * the argument signature: tree structure (static fields included), shapes, dtypes, weak
   types and shardings;
 * the per-compilation XLA options;
 * jax and jaxlib versions, the backend, its version and devices, ``XLA_FLAGS`` and the JAX
-  options that change lowering;
-* a fingerprint of vdbejax's own source files, so any edit of the package gives new keys.
+  options that change lowering.
 
-Only functions defined in vdbejax are cached this way; they call no user code (a task
-reaches the engine as tables), so the fingerprint covers everything they run. The disk
-copy is used only where JAX's persistent cache is on (the CLI and the benchmarks turn it
-on); ``VDBEJAX_EXECUTABLE_CACHE=off`` keeps JAX's cache but not this one. A file that
-cannot be read (truncated, another jaxlib) is ignored and rewritten.
+The disk copy is used only in processes that see one device: an executable serialised in
+a process with several (e.g. ``--xla_force_host_platform_device_count=4``) fails to run
+when loaded again; multi-device runs rely on JAX's own cache. It is used only where JAX's
+persistent cache is on (the CLI and the benchmarks turn it on);
+``VDBEJAX_EXECUTABLE_CACHE=off`` keeps JAX's cache but not this one. A file that cannot be
+read (truncated, another jaxlib) is ignored and rewritten.
 """
 from __future__ import annotations
 
@@ -90,13 +96,20 @@ def _abstract(args: Any) -> Any:
     )
 
 
+def _node_types(treedef: Any) -> tuple:
+    """The classes of a tree's nodes (JAX's treedefs of two dataclasses with the same
+    field names compare equal: the in-process key must tell them apart)."""
+    data = treedef.node_data()
+    return (data[0] if data else None, tuple(_node_types(c) for c in treedef.children()))
+
+
 def compiled(function: Any, args: tuple, static: dict[str, Any],
              compiler_options: dict[str, Any] | None = None) -> Any:
-    """``function``'s executable for ``args`` (explicit ``lower().compile()``, cached).
+    """``function``'s executable for ``args`` (explicit ``trace().lower().compile()``, cached).
 
     Looked up in this process's table, then in the disk copy (module docstring), else
-    traced, lowered and compiled (a JAX persistent-cache read where that is warm) and
-    kept. Call the result with ``args`` only: the static arguments are baked in.
+    lowered and compiled (a JAX persistent-cache read where that is warm) and kept. Call
+    the result with ``args`` only: the static arguments are baked in.
 
     Args:
       function: a ``jax.jit``-wrapped function defined in vdbejax.
@@ -109,34 +122,36 @@ def compiled(function: Any, args: tuple, static: dict[str, Any],
     """
     options = dict(sorted((compiler_options or {}).items()))
     sig = signature(args)
-    key = (function, tuple(sorted(static.items())), sig, tuple(options.items()))
+    key = (function, tuple(sorted(static.items())), sig, _node_types(sig[0]),
+           tuple(options.items()))
     executable = _EXECUTABLES.get(key)
     if executable is not None:
         return executable
     started = time.perf_counter()
-    path = _disk_path(function, static, sig, options)
+    traced = None if _vdbejax_only(key[3]) else function.trace(*args, **static)
+    path = _disk_path(function, static, sig, options, traced)
     executable = _load(path) if path is not None else None
     if executable is not None:
         shapes = _abstract(args)  # not the arrays: the entry must not keep them alive
         executable = _FromDisk(executable, path, key,
-                               lambda: _compile(function, shapes, static, options))
+                               lambda: _compile(function.trace(*shapes, **static), options))
     elif path is None:
-        executable = _compile(function, args, static, options)
+        executable = _compile(traced or function.trace(*args, **static), options)
     else:
         # Compiled afresh, not read from JAX's cache: XLA's CPU backend serialises an
         # executable it loaded from a cache (or compiled again after loading it)
         # incompletely, and the copy would fail to run (kernels "not found"). This costs
         # one full compilation per program when JAX's cache had it but the disk copy not.
-        executable = _compile(function, args, static, options, bypass_jax_cache=True)
+        executable = _compile(traced or function.trace(*args, **static), options,
+                              bypass_jax_cache=True)
         _store(path, executable)
     _SECONDS[0] += time.perf_counter() - started
     _EXECUTABLES[key] = executable
     return executable
 
 
-def _compile(function: Any, args: tuple, static: dict[str, Any], options: dict[str, Any],
-             *, bypass_jax_cache: bool = False) -> Any:
-    lowered = function.lower(*args, **static)
+def _compile(traced: Any, options: dict[str, Any], *, bypass_jax_cache: bool = False) -> Any:
+    lowered = traced.lower()
     if not bypass_jax_cache:
         return lowered.compile(options) if options else lowered.compile()
     from jax.experimental.compilation_cache import compilation_cache as jax_cache
@@ -232,11 +247,102 @@ def _environment() -> list[str]:
     ]
 
 
+def _vdbejax_only(types: tuple) -> bool:
+    """Whether every class in a tree of node types (:func:`_node_types`) is vdbejax's or a
+    Python container."""
+    node, children = types
+    if node is not None and node not in (tuple, list, dict, type(None)) and not getattr(
+            node, "__module__", "").startswith("vdbejax."):
+        return False
+    return all(_vdbejax_only(child) for child in children)
+
+
+#: Digest of each code object seen (code objects are immutable; the key keeps it alive).
+_CODE_DIGESTS: dict[Any, str] = {}
+_SIMPLE = (bool, int, float, str, bytes, type(None))
+
+
+def _plain_repr(value: Any) -> str:
+    """``repr`` without memory addresses or hash-seed-dependent orders."""
+    if hasattr(value, "co_code"):
+        return _code_digest(value)
+    if isinstance(value, _SIMPLE):
+        return repr(value)
+    if isinstance(value, (tuple, list)):
+        return "(" + ",".join(_plain_repr(v) for v in value) + ")"
+    if isinstance(value, (frozenset, set)):
+        return "{" + ",".join(sorted(_plain_repr(v) for v in value)) + "}"
+    if isinstance(value, dict):
+        return "{" + ",".join(sorted(f"{_plain_repr(k)}:{_plain_repr(v)}" for k, v in value.items())) + "}"
+    return f"<{type(value).__module__}.{type(value).__qualname__}>"
+
+
+def _code_digest(code: Any) -> str:
+    digest = _CODE_DIGESTS.get(code)
+    if digest is None:
+        parts = [code.co_code.hex(), repr(code.co_names)]
+        parts += [_plain_repr(c) for c in code.co_consts]
+        digest = hashlib.sha256("\0".join(parts).encode()).hexdigest()
+        _CODE_DIGESTS[code] = digest
+    return digest
+
+
+def _value_digest(value: Any) -> str | None:
+    """What a module or class attribute contributes to :func:`live_fingerprint`."""
+    for wrapper in ("__func__", "fget"):  # staticmethod/classmethod, property
+        value = getattr(value, wrapper, value)
+    code = getattr(value, "__code__", None)
+    if code is not None:
+        defaults = (getattr(value, "__defaults__", None), getattr(value, "__kwdefaults__", None))
+        inner = getattr(value, "__wrapped__", None)  # jax.jit and functools.wraps
+        return (_code_digest(code) + _plain_repr(defaults)
+                + (_value_digest(inner) or "" if inner is not None else ""))
+    inner = getattr(value, "__wrapped__", None)
+    if inner is not None:
+        return _value_digest(inner)
+    if isinstance(value, _SIMPLE) or (isinstance(value, tuple) and all(
+            isinstance(v, _SIMPLE) for v in value)):
+        return repr(value)
+    return None
+
+
+def live_fingerprint() -> str:
+    """SHA-256 of vdbejax's loaded code as it is now: every function and class of its
+    modules (bytecode, defaults), their simple constants, and what is bound to each name."""
+    import sys
+
+    digest = hashlib.sha256()
+    for name in sorted(n for n in list(sys.modules) if n == "vdbejax" or n.startswith("vdbejax.")):
+        module = sys.modules[name]
+        for attr, value in sorted(vars(module).items()):
+            if isinstance(value, type) and value.__module__ == name:
+                members = sorted(vars(value).items())
+                text = "".join(f"{k}:{_value_digest(v)};" for k, v in members)
+            else:
+                text = _value_digest(value)
+                if text is None:
+                    text = f"{type(value).__module__}.{type(value).__qualname__}"
+            digest.update(f"{name}.{attr}={text}\n".encode())
+    return digest.hexdigest()
+
+
+def program_text(traced: Any) -> str:
+    """The traced program as text: its jaxpr and a digest of its constants' bytes."""
+    closed = traced.jaxpr
+    digest = hashlib.sha256()
+    for const in closed.consts:
+        value = np.asarray(const)
+        digest.update(f"{value.dtype.str}{value.shape}".encode())
+        digest.update(value.tobytes())
+    return f"{closed.jaxpr}\nconsts {digest.hexdigest()}"
+
+
 def disk_key(function: Any, static: dict[str, Any], sig: tuple,
-             options: dict[str, Any]) -> str:
+             options: dict[str, Any], program: str = "") -> str:
     """Hex key of the disk copy (module docstring lists what goes into it)."""
     treedef, leaves = sig
     parts = [
+        program,
         f"{function.__module__}.{function.__qualname__}",
         repr(sorted(static.items())),
         str(treedef),
@@ -248,14 +354,14 @@ def disk_key(function: Any, static: dict[str, Any], sig: tuple,
 
 
 def _disk_path(function: Any, static: dict[str, Any], sig: tuple,
-               options: dict[str, Any]) -> Path | None:
+               options: dict[str, Any], traced: Any) -> Path | None:
     folder = disk_folder()
     if folder is None or not getattr(function, "__module__", "").startswith("vdbejax."):
         return None
-    for *_, sharding in sig[1]:
-        if sharding is not None and len(sharding.device_set) > 1:
-            return None  # multi-device programs: left to JAX's own cache
-    return folder / f"{disk_key(function, static, sig, options)}.pkl"
+    if jax.device_count() > 1:
+        return None  # see the module docstring: left to JAX's own cache
+    program = live_fingerprint() if traced is None else program_text(traced)
+    return folder / f"{disk_key(function, static, sig, options, program)}.pkl"
 
 
 def _load(path: Path) -> Any:

@@ -26,8 +26,8 @@ from typing import Any
 from vdbejax import io
 from vdbejax.claims import LEARNER_NAMES, NEAR, ClaimResult, _Table
 from vdbejax.experiment import GridResult
-from vdbejax.explorers import EXPLORERS
-from vdbejax.learners import PAPER_ALPHA
+from vdbejax.methods.explorers import PAPER_EXPLORERS as EXPLORERS
+from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.reproduce import (
     FIGURE_FILE,
     SENSITIVITY_FILE,

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax.agents import AgentOptions, Setting, make_agent, stack_agents
+from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents, table_layout
 from vdbejax.engine import AgentState, agent_keys, broadcast_agents, run_agents
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.experiment import GridResult
@@ -151,32 +151,43 @@ def epsilon_snapshots(
     every: int = 10,
     seed: int = 0,
     options: AgentOptions | None = None,
+    table: str = "epsilon",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Train one setting and record the agents' per-state ε(s) every ``every`` episodes.
+    """Train one setting and record one of the agents' tables (VDBE's per-state ε(s) by
+    default, UCB-1's ``"counts"``, …) every ``every`` episodes.
 
     Uses the engine's ``on_chunk`` callback, so the learning itself is the ordinary run
     (bit-identical to the same agents inside any grid).
 
     Args:
       mdp: the task (:class:`~vdbejax.envs.tabular.TabularMDP`).
-      setting: a :class:`~vdbejax.agents.Setting` (VDBE or VDBE-Softmax to see ε(s) move).
+      setting: a :class:`~vdbejax.methods.agents.Setting` (VDBE or VDBE-Softmax to see ε(s) move).
       num_seeds: agents.
       num_episodes: episodes per agent.
       every: episodes between snapshots (the chunk size).
       seed: root seed.
-      options: :class:`~vdbejax.agents.AgentOptions` (spec defaults if None).
+      options: :class:`~vdbejax.methods.agents.AgentOptions` (spec defaults if None).
+      table: the table to record.
 
     Returns:
-      ``(episodes, epsilon, returns)``: ``[k]`` episode counts of the snapshots,
-      ``[k, seeds, S]`` ε(s) after those episodes, ``[seeds, episodes]`` returns.
+      ``(episodes, snapshots, returns)``: ``[k]`` episode counts of the snapshots,
+      ``[k, seeds, S]`` (or ``[k, seeds, S, A]``) table values after those episodes,
+      ``[seeds, episodes]`` returns.
+
+    Raises:
+      ValueError: the setting's agents keep no table ``table``.
     """
     options = AgentOptions() if options is None else options
     params = broadcast_agents(stack_agents([make_agent(setting, options)]), num_seeds)
+    kept = table_layout(params)
+    if table not in kept:
+        raise ValueError(f"table={table!r} is invalid: {setting.label} keeps"
+                         f" {', '.join(kept) or 'no tables'}")
     episodes, snapshots = [], []
 
     def record(done: int, agents: AgentState, returns: np.ndarray, lengths: np.ndarray) -> None:
         episodes.append(done)
-        snapshots.append(np.array(agents.epsilon))
+        snapshots.append(np.array(agents.tables[table]))
 
     run = run_agents(mdp, params, agent_keys(seed, num_seeds), num_episodes,
                      chunk_episodes=every, on_chunk=record)
@@ -184,37 +195,43 @@ def epsilon_snapshots(
 
 
 def action_probabilities(
-    q: np.ndarray, explorer: str, param: float, state_epsilon: float = 1.0,
-    tie_break: str = "random",
+    q: np.ndarray, explorer: str, param: float | None = None, state_epsilon: float = 1.0,
+    tie_break: str = "random", tables: dict[str, Any] | None = None, episode: int = 0,
+    **values: Any,
 ) -> np.ndarray:
-    """Exact probability of each action under an explorer (what ``select_action`` samples).
-
-    ``P = p·softmax_τ(Q) + (1 − p)·greedy(Q)``, with the explorer's exploration
-    probability ``p`` (ε, 1, or ``state_epsilon`` for the VDBE kinds) and temperature ``τ``
-    (∞ = uniform); greedy spreads its mass over the maximal actions (random tie-break) or
-    puts it on the first (``"first"``).
+    """Exact probability of each action under an explorer: its own ``probabilities``
+    (what its ``select`` samples; e.g. ``p·softmax_τ(Q) + (1 − p)·greedy(Q)`` for the
+    paper's four).
 
     Args:
       q: ``[num_actions]`` action values of one state.
-      explorer: ``egreedy``, ``softmax``, ``vdbe`` or ``vdbe_softmax``.
-      param: its swept parameter (ε, τ or σ).
-      state_epsilon: ε(s) for VDBE and VDBE-Softmax.
-      tie_break: ``"random"`` or ``"first"``.
+      explorer: a registered explorer name (``egreedy``, ``softmax``, ``vdbe``, …).
+      param: its swept parameter (ε, τ, σ, …), or ``None`` for its default.
+      state_epsilon: ε(s) for VDBE and VDBE-Softmax (sets ``tables["epsilon"]``).
+      tie_break: ``"random"`` or ``"first"`` (for explorers that have one).
+      tables: the state's explorer tables (e.g. ``{"counts": [...]}`` for UCB-1).
+      episode: the episode index (decaying schedules).
+      **values: other hyperparameters of the explorer.
 
     Returns:
       float64 ``[num_actions]`` probabilities summing to 1.
     """
-    from vdbejax.explorers import make_explorer, softmax_probabilities
+    import jax.numpy as jnp
 
-    params = make_explorer(explorer, param, tie_break=tie_break)
-    q = np.asarray(q, np.float64)
-    explore = state_epsilon if bool(params.adaptive) else float(params.epsilon)
-    exploratory = np.asarray(softmax_probabilities(q, float(params.tau)), np.float64)
-    maximal = (q == q.max()).astype(np.float64)
-    if tie_break == "first":
-        maximal = np.eye(len(q))[np.argmax(q)]
-    greedy = maximal / maximal.sum()
-    return explore * exploratory + (1.0 - explore) * greedy
+    from vdbejax.methods.api import Context, field_names
+    from vdbejax.methods.explorers import explorer_class, make_explorer
+
+    if "tie_break" in field_names(explorer_class(explorer)):
+        values.setdefault("tie_break", tie_break)
+    chosen = make_explorer(explorer, param, **values)
+    q = jnp.asarray(q, jnp.float32)
+    defaults = {name: jnp.full(() if spec.per == "state" else q.shape, spec.init, jnp.float32)
+                for name, spec in chosen.tables().items()}
+    if "epsilon" in defaults:
+        defaults["epsilon"] = jnp.asarray(state_epsilon, jnp.float32)
+    defaults.update({k: jnp.asarray(v, jnp.float32) for k, v in (tables or {}).items()})
+    context = Context(jnp.int32(episode), jnp.int32(0), jnp.bool_(False))
+    return np.asarray(chosen.probabilities(q, defaults, context), np.float64)
 
 
 def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[str], digits: int = 3) -> str:

@@ -20,6 +20,7 @@ import numpy as np
 
 from vdbejax.distributed import run_sharded, take_agents
 from vdbejax.engine import AgentState, ProgressCallback
+from vdbejax.engine.state import state_bytes
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.validation import check_int
 
@@ -32,17 +33,20 @@ STATE_COPIES = 3
 SCALAR_BYTES = 128
 
 
-def bytes_per_agent(mdp: TabularMDP, chunk_episodes: int) -> int:
-    """Estimated device memory of one agent: Q and ε tables, scalars, chunk buffers.
+def bytes_per_agent(mdp: TabularMDP, chunk_episodes: int,
+                    layout: dict[str, str] | None = None) -> int:
+    """Estimated device memory of one agent: Q and its other tables, scalars, chunk buffers.
 
     Args:
       mdp: the task (sets the table sizes).
       chunk_episodes: episodes per engine chunk (sets the buffer sizes).
+      layout: the agents' tables beside Q (:func:`~vdbejax.methods.agents.table_layout`;
+        default: one per-state table, the paper's ε(s)).
 
     Returns:
       bytes, for :data:`STATE_COPIES` working copies.
     """
-    tables = 4 * mdp.num_states * mdp.num_actions + 4 * mdp.num_states
+    tables = state_bytes(mdp, {"epsilon": "state"} if layout is None else layout)
     chunk_buffers = 8 * chunk_episodes  # float32 return + int32 length per episode
     return STATE_COPIES * (tables + SCALAR_BYTES + chunk_buffers)
 

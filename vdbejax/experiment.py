@@ -21,7 +21,15 @@ import jax
 import numpy as np
 
 from vdbejax import io
-from vdbejax.agents import AgentOptions, AgentParams, Setting, make_agent, stack_agents
+from vdbejax.methods.agents import (
+    AgentOptions,
+    AgentParams,
+    Setting,
+    agent_hyperparameters,
+    make_agent,
+    stack_agents,
+    table_layout,
+)
 from vdbejax.batching import (
     SweepProgress,
     agents_per_batch,
@@ -75,22 +83,44 @@ class GridResult:
     def num_episodes(self) -> int:
         return int(self.returns.shape[2])
 
-    def select(self, learner: str | None = None, explorer: str | None = None) -> list[int]:
-        """Config indices matching a learner and/or explorer.
+    def hyperparameters(self, config: int) -> dict[str, Any]:
+        """Every hyperparameter of a config's agents (``learner.alpha``, ``explorer.sigma``,
+        …), as recorded by :func:`run_grid` in ``meta["hyperparameters"]`` (or resolved
+        from the setting with spec defaults for results without it)."""
+        recorded = self.meta.get("hyperparameters")
+        if isinstance(recorded, list) and len(recorded) == len(self.settings):
+            return dict(recorded[config])
+        return agent_hyperparameters(make_agent(self.settings[config]))
+
+    def select(self, learner: str | None = None, explorer: str | None = None,
+               **values: Any) -> list[int]:
+        """Config indices matching a learner, an explorer and any hyperparameter values.
 
         Args:
           learner: learner name, or None for any.
           explorer: explorer name, or None for any.
+          **values: hyperparameters that must have these values: ``alpha=0.3``,
+            ``sigma=1.0`` (matched against the learner's and the explorer's fields) or
+            the full names of :meth:`hyperparameters` passed as ``**{"learner.alpha": 0.3}``.
 
         Returns:
           the matching config indices, in order.
         """
-        return [
-            i
-            for i, s in enumerate(self.settings)
-            if (learner is None or s.learner == learner)
-            and (explorer is None or s.explorer == explorer)
-        ]
+        def matches(i: int) -> bool:
+            s = self.settings[i]
+            if (learner is not None and s.learner != learner) or (
+                    explorer is not None and s.explorer != explorer):
+                return False
+            if not values:
+                return True
+            have = self.hyperparameters(i)
+            for name, wanted in values.items():
+                candidates = [v for k, v in have.items() if k == name or k.split(".", 1)[1] == name]
+                if not any(_same(v, wanted) for v in candidates):
+                    return False
+            return True
+
+        return [i for i in range(len(self.settings)) if matches(i)]
 
     def save(self, out_dir: str | os.PathLike) -> None:
         """Write ``returns.npz``, ``configs.csv`` and ``meta.json`` into ``out_dir``."""
@@ -122,12 +152,18 @@ class GridResult:
         return cls(io.load_settings(out / io.CONFIGS_FILE), returns, lengths, nonfinite, meta)
 
 
+def _same(value: Any, wanted: Any) -> bool:
+    if isinstance(value, (int, float)) and isinstance(wanted, (int, float)):
+        return bool(np.float32(value) == np.float32(wanted))
+    return value == wanted
+
+
 def _fingerprint(description: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
 
 
 #: Version of the checkpoint layout (a checkpoint of another version is refused).
-CHECKPOINT_VERSION = 2
+CHECKPOINT_VERSION = 3
 
 
 def _save_checkpoint(path: Path, fingerprint: str, sweep: SweepProgress) -> None:
@@ -135,7 +171,9 @@ def _save_checkpoint(path: Path, fingerprint: str, sweep: SweepProgress) -> None
     leaves = {}
     if sweep.state is not None:
         leaves = {f"agent_{f.name}": np.asarray(getattr(sweep.state, f.name))
-                  for f in dataclasses.fields(AgentState)}
+                  for f in dataclasses.fields(AgentState) if f.name != "tables"}
+        leaves.update({f"agent_table_{name}": np.asarray(table)
+                       for name, table in sweep.state.tables.items()})
     io.atomic_savez(
         path, compressed=False, fingerprint=np.asarray(fingerprint),
         version=np.asarray(CHECKPOINT_VERSION), returns=sweep.returns, lengths=sweep.lengths,
@@ -165,8 +203,11 @@ def _load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int]) -> Sw
                                  f" expected {CHECKPOINT_VERSION}: {hint}")
             state = None
             if "agent_q" in data:
-                state = AgentState(**{f.name: data[f"agent_{f.name}"]
-                                      for f in dataclasses.fields(AgentState)})
+                tables = {key.removeprefix("agent_table_"): data[key] for key in data.files
+                          if key.startswith("agent_table_")}
+                state = AgentState(tables=tables, **{
+                    f.name: data[f"agent_{f.name}"] for f in dataclasses.fields(AgentState)
+                    if f.name != "tables"})
             sweep = SweepProgress(
                 returns=data["returns"], lengths=data["lengths"],
                 episodes_done=data["episodes_done"], nonfinite=data["nonfinite"],
@@ -300,7 +341,7 @@ def run_grid(
 
     Args:
       mdp: the task.
-      settings: the configurations (e.g. :func:`~vdbejax.agents.paper_settings`).
+      settings: the configurations (e.g. :func:`~vdbejax.methods.agents.paper_settings`).
       num_seeds: agents per setting.
       num_episodes: episodes per agent.
       seed: root seed.
@@ -336,7 +377,8 @@ def run_grid(
     my_devices = local_devices(device_list)
     budget = default_memory_budget(my_devices) if memory_budget_bytes is None else memory_budget_bytes
     batch_size = agents_per_batch(
-        max(len(rows), 1), bytes_per_agent(mdp, min(chunk_episodes, num_episodes)), budget,
+        max(len(rows), 1), bytes_per_agent(mdp, min(chunk_episodes, num_episodes), table_layout(params)),
+        budget,
         len(my_devices), fixed_bytes=mdp_bytes(mdp),
     )
     description = {
@@ -378,6 +420,7 @@ def run_grid(
                 agents_per_batch=batch_size, memory_budget_bytes=int(budget),
                 jax_version=jax.__version__, backend=jax.default_backend())
     meta.pop("mdp_tables")
+    meta["hyperparameters"] = [agent_hyperparameters(make_agent(s, options)) for s in settings]
     return GridResult(settings, returns, lengths, nonfinite, meta)
 
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax.agents import Setting
+from vdbejax.methods.agents import Setting
 
 RETURNS_FILE = "returns.npz"
 CONFIGS_FILE = "configs.csv"
@@ -99,19 +99,30 @@ def read_csv(path: str | os.PathLike) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
+CONFIG_COLUMNS = ["config", "learner", "explorer", "param"]
+
+
 def save_settings(path: str | os.PathLike, settings: list[Setting]) -> None:
-    """``configs.csv``: ``config,learner,explorer,param``, one row per config index."""
+    """``configs.csv``: ``config,learner,explorer,param``, one row per config index, and
+    ``hyperparameters`` (the setting's other explicit values, JSON) when any setting has
+    some. A blank ``param`` is the explorer's default. (Every agent's resolved
+    hyperparameters are in ``meta.json``.)"""
     rows = [
-        {"config": i, "learner": s.learner, "explorer": s.explorer, "param": s.param}
+        {"config": i, "learner": s.learner, "explorer": s.explorer,
+         "param": "" if s.param is None else s.param, "hyperparameters": s.hyperparameters_json()}
         for i, s in enumerate(settings)
     ]
-    write_csv(path, rows, ["config", "learner", "explorer", "param"])
+    columns = list(CONFIG_COLUMNS)
+    if any(s.hyperparameters for s in settings):
+        columns.append("hyperparameters")
+    write_csv(path, rows, columns)
 
 
 def load_settings(path: str | os.PathLike) -> list[Setting]:
     """Settings of ``configs.csv`` in config-index order."""
     rows = sorted(read_csv(path), key=lambda r: int(r["config"]))
-    return [Setting(r["learner"], r["explorer"], float(r["param"])) for r in rows]
+    return [Setting(r["learner"], r["explorer"], float(r["param"]) if r["param"] not in ("", None)
+                    else None, json.loads(r.get("hyperparameters") or "{}")) for r in rows]
 
 
 def save_json(path: str | os.PathLike, data: dict[str, Any]) -> None:

@@ -17,7 +17,7 @@ if "ipykernel" not in sys.modules:  # headless by default; keep a notebook's inl
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from vdbejax.agents import PARAMETER_NAMES  # noqa: E402
+from vdbejax.methods.agents import parameter_name  # noqa: E402
 from vdbejax.analysis import WINDOW, mean_curve_ci, moving_average  # noqa: E402
 from vdbejax.claims import LEARNER_NAMES  # noqa: E402
 from vdbejax.experiment import GridResult  # noqa: E402
@@ -27,10 +27,30 @@ EXPLORER_TITLES = {
     "softmax": "softmax",
     "vdbe": "VDBE",
     "vdbe_softmax": "VDBE-Softmax",
+    "max_boltzmann": "Max-Boltzmann",
+    "egreedy_decay": "decaying ε-greedy",
+    "softmax_decay": "decaying softmax",
+    "ucb1": "UCB-1",
 }
 #: Display names of the learners (the claims report's).
 LEARNER_TITLES = LEARNER_NAMES
-PARAMETER_SYMBOLS = {"epsilon": "ε", "tau": "τ", "sigma": "σ"}
+PARAMETER_SYMBOLS = {"epsilon": "ε", "tau": "τ", "sigma": "σ", "alpha": "α", "gamma": "γ",
+                     "delta": "δ"}
+
+
+def _symbol(name: str) -> str:
+    return PARAMETER_SYMBOLS.get(name, name)
+
+
+def curve_label(setting: Any, varying: Sequence[str]) -> str:
+    """A curve's legend: the values that vary within its panel (its parameter by default)."""
+    values = setting.values
+    names = [n for n in varying if n in values] or list(values)
+    return ", ".join(f"{_symbol(n)}={_fmt(values[n])}" for n in names) or setting.label
+
+
+def _fmt(value: Any) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def figure3(
@@ -64,14 +84,15 @@ def figure3(
             ax = axes[row, col]
             indices = result.select(learner, explorer)
             colors = plt.cm.viridis(np.linspace(0, 0.9, max(len(indices), 1)))
+            varying = _varying([result.settings[c] for c in indices])
             for color, c in zip(colors, indices):
                 if bands:
                     curve, low, high = mean_curve_ci(result.returns[c], window)
                     ax.fill_between(episodes, low, high, color=color, alpha=0.25, lw=0)
                 else:
                     curve = moving_average(result.returns[c].mean(0), window)
-                symbol = PARAMETER_SYMBOLS[PARAMETER_NAMES[explorer]]
-                ax.plot(episodes, curve, color=color, lw=1.2, label=f"{symbol}={result.settings[c].param:g}")
+                ax.plot(episodes, curve, color=color, lw=1.2,
+                        label=curve_label(result.settings[c], varying))
             if best_return is not None:
                 ax.axhline(best_return, color="crimson", ls="--", lw=1, label=f"best {best_return:.2f}")
             ax.set_title(f"{LEARNER_TITLES.get(learner, learner)} — {EXPLORER_TITLES.get(explorer, explorer)}")
@@ -87,6 +108,12 @@ def figure3(
         + band_note
     )
     return _finish(fig, path)
+
+
+def _varying(settings: Sequence[Any]) -> list[str]:
+    """Names of the values that differ between ``settings``."""
+    names = list(dict.fromkeys(n for s in settings for n in s.values))
+    return [n for n in names if len({repr(s.values.get(n)) for s in settings}) > 1]
 
 
 def _finish(fig: plt.Figure, path: str | os.PathLike | None) -> plt.Figure:
@@ -125,15 +152,21 @@ def sensitivity(
     Returns:
       the matplotlib figure.
     """
-    explorers = [e for e in EXPLORER_TITLES if any(r["explorer"] == e for r in rows)]
-    learners = list(dict.fromkeys(r["learner"] for r in rows))
-    fig, axes = plt.subplots(len(SENSITIVITY_METRICS), len(explorers), squeeze=False,
-                             figsize=(3.6 * len(explorers), 6.0), sharey="row")
+    rows = [r for r in rows if str(r.get("param", "")) not in ("", "None")]
+    known = [e for e in EXPLORER_TITLES if any(r["explorer"] == e for r in rows)]
+    explorers = known + list(dict.fromkeys(r["explorer"] for r in rows if r["explorer"] not in known))
+    # One line per learner and per combination of the other hyperparameters.
+    lines = list(dict.fromkeys((r["learner"], r.get("hyperparameters") or "") for r in rows))
+    fig, axes = plt.subplots(len(SENSITIVITY_METRICS), max(len(explorers), 1), squeeze=False,
+                             figsize=(3.6 * max(len(explorers), 1), 6.0), sharey="row")
+    if not explorers:
+        axes[0, 0].text(0.5, 0.5, "no swept parameter in these settings", ha="center")
     for col, explorer in enumerate(explorers):
         for row, (key, low_key, high_key, label) in enumerate(SENSITIVITY_METRICS):
             ax = axes[row, col]
-            for learner in learners:
-                points = sorted((r for r in rows if r["learner"] == learner and r["explorer"] == explorer),
+            for learner, extra in lines:
+                points = sorted((r for r in rows if r["learner"] == learner and r["explorer"] == explorer
+                                 and (r.get("hyperparameters") or "") == extra),
                                 key=lambda r: float(r["param"]))
                 if not points:
                     continue
@@ -145,15 +178,16 @@ def sensitivity(
                                          [float(r[high_key]) for r in points]]) - y)
                         if has_ci else None)
                 color, marker = LEARNER_STYLES.get(learner, (None, "o"))
-                ax.errorbar(x, y, yerr=yerr, color=color, marker=marker, ms=4, capsize=3, lw=1.2,
-                            label=LEARNER_TITLES.get(learner, learner))
+                name = LEARNER_TITLES.get(learner, learner) + (f" {extra}" if extra not in ("", "{}") else "")
+                ax.errorbar(x, y, yerr=yerr, color=None if extra not in ("", "{}") else color,
+                            marker=marker, ms=4, capsize=3, lw=1.2, label=name)
             ax.set_xscale("log")
             if key == "final_return" and best_return is not None:
                 ax.axhline(best_return, color="crimson", ls="--", lw=1, label=f"best {best_return:.2f}")
             if row == 0:
-                ax.set_title(EXPLORER_TITLES[explorer])
+                ax.set_title(EXPLORER_TITLES.get(explorer, explorer))
             if row == len(SENSITIVITY_METRICS) - 1:
-                ax.set_xlabel(PARAMETER_SYMBOLS[PARAMETER_NAMES[explorer]] + " (log scale)")
+                ax.set_xlabel(_symbol(parameter_name(explorer)) + " (log scale)")
             if col == 0:
                 ax.set_ylabel(label)
             ax.grid(alpha=0.3, which="both")

@@ -12,11 +12,11 @@ from io import BytesIO
 from pathlib import Path
 
 from vdbejax import io
-from vdbejax.agents import AgentOptions, make_agent, paper_settings
+from vdbejax.methods.agents import AgentOptions, make_agent, paper_settings
 from vdbejax.analysis import SUMMARY_COLUMNS, summarize
 from vdbejax.claims import ClaimResult, evaluate_claims, render_report
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.learners import PAPER_ALPHA
+from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.distributed import process_checkpoint_path, select_devices
 from vdbejax.experiment import GridResult, check_run_options, run_grid
 from vdbejax.solvers import best_return

@@ -15,10 +15,14 @@ import numpy as np
 
 
 def _fail(name: str, value: Any, allowed: str) -> None:
+    if isinstance(value, (np.ndarray, np.generic)) and np.ndim(value) == 0:
+        value = value.item()  # a hyperparameter leaf: show the plain number
     raise ValueError(f"{name}={value!r} is invalid: {allowed}")
 
 
 def _is_number(value: Any) -> bool:
+    if isinstance(value, np.ndarray) and value.dtype == np.bool_:
+        return False
     try:
         float(value)
     except (TypeError, ValueError, OverflowError):
@@ -147,32 +151,3 @@ def parse_cli_number(text: str) -> Any:
         except ValueError:
             pass
     return text
-
-
-def check_explorer(
-    name: str, param: Any, *, tie_break: str = "random", delta: Any = 0.1, tau: Any = 0.001
-) -> None:
-    """Check an explorer's name, its swept parameter and its fixed options."""
-    from vdbejax.explorers import EXPLORERS, TIE_BREAKS
-
-    check_choice("explorer", name, EXPLORERS)
-    check_choice("tie_break", tie_break, TIE_BREAKS)
-    if name == "egreedy":
-        check_in_range("epsilon", param, 0.0, 1.0)
-    elif name == "softmax":
-        check_positive("tau", param)
-    else:
-        check_positive("sigma", param)
-        check_in_range("delta", delta, 0.0, 1.0, low_open=True)
-        if name == "vdbe_softmax":
-            check_positive("tau", tau)
-
-
-def check_learner(name: str, *, alpha: Any, gamma: Any, q_init: Any) -> None:
-    """Check a learner's name, α, γ and initial Q value."""
-    from vdbejax.learners import LEARNERS
-
-    check_choice("learner", name, LEARNERS)
-    check_in_range("alpha", alpha, 0.0, 1.0, low_open=True)
-    check_in_range("gamma", gamma, 0.0, 1.0)
-    check_finite("q_init", q_init)

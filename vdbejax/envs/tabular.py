@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from vdbejax._pytree import pytree_dataclass, static_field
-from vdbejax.explorers import sample_categorical
+from vdbejax.methods.explorers import sample_categorical
 
 Array = jax.Array
 

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from vdbejax._pytree import pytree_dataclass, static_field
-from vdbejax.explorers import sample_categorical
+from vdbejax.methods.explorers import sample_categorical
 
 if TYPE_CHECKING:
     from vdbejax.envs.tabular import TabularMDP

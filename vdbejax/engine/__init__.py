@@ -1,0 +1,50 @@
+"""The engine: every agent of a sweep trains inside jitted programs.
+
+Read it one module at a time:
+
+* :mod:`~vdbejax.engine.state` — what an agent carries (:class:`AgentState`), how it
+  starts, and its counter-based random stream;
+* :mod:`~vdbejax.engine.step` — the step rule (:func:`lockstep_iteration`): one
+  iteration of a batch of agents of one kind, calling the plug-ins
+  (:mod:`vdbejax.methods`);
+* :mod:`~vdbejax.engine.lockstep` — all agents of a batch advance together, with
+  compaction (accelerators, sharded agents);
+* :mod:`~vdbejax.engine.sequential` — each agent runs its own native step loop, one
+  program per kind, work items on threads (the default on a CPU);
+* :mod:`~vdbejax.engine.driver` — :func:`run_agents`, the Python loop over chunks.
+
+Both strategies run the same step function, so they compute the same thing, bit for bit
+(products are rounded on their own, :mod:`vdbejax._numerics`). Results depend only on each
+agent's key and hyperparameters: every iteration draws its uniforms from a hash of
+``(agent key, agent counter)``, never from the batch, the chunking or a resume. Memory is
+bounded by agents × (table size + chunk length): only per-episode return and length are
+recorded.
+"""
+from vdbejax.engine.driver import (
+    STRATEGIES,
+    ProgressCallback,
+    RunResult,
+    available_cpus,
+    check_params,
+    compile_seconds,
+    run_agents,
+    text_progress,
+)
+from vdbejax.engine.lockstep import DEFAULT_UNROLL, MAX_SAFE_BATCH, run_chunk
+from vdbejax.engine.sequential import native_step_loops
+from vdbejax.engine.state import (
+    AgentState,
+    agent_keys,
+    broadcast_agents,
+    init_agent,
+    init_agents,
+    uniforms,
+)
+from vdbejax.engine.step import lockstep_iteration, start_support
+
+__all__ = [
+    "AgentState", "DEFAULT_UNROLL", "MAX_SAFE_BATCH", "ProgressCallback", "RunResult",
+    "STRATEGIES", "agent_keys", "available_cpus", "broadcast_agents", "check_params",
+    "compile_seconds", "init_agent", "init_agents", "lockstep_iteration", "native_step_loops",
+    "run_agents", "run_chunk", "start_support", "text_progress", "uniforms",
+]

@@ -1,0 +1,271 @@
+"""The chunk driver: :func:`run_agents` trains a batch of agents chunk by chunk.
+
+PureJaxRL-style, the jitted programs of a strategy (:mod:`~vdbejax.engine.sequential` on a
+CPU, :mod:`~vdbejax.engine.lockstep` elsewhere) advance every agent to the end of a chunk
+of episodes; between chunks this Python loop reports progress and hands the state to
+``on_chunk`` (checkpoints). An agent's state at a chunk boundary is the same whatever the
+chunk size, so results do not depend on it.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from vdbejax import _executables
+from vdbejax.engine.lockstep import DEFAULT_UNROLL, MAX_SAFE_BATCH, run_chunk_lockstep
+from vdbejax.engine.sequential import _SequentialRun, kept_in_items
+from vdbejax.engine.state import AgentState, init_agents
+from vdbejax.envs.tabular import TabularMDP
+from vdbejax.methods.agents import AgentParams, kind_key
+from vdbejax.methods.api import check_plugin
+from vdbejax.validation import check_choice, check_int
+
+Array = jax.Array
+
+
+@dataclasses.dataclass
+class RunResult:
+    """Output of :func:`run_agents`.
+
+    Attributes:
+      returns: float32 ``[agents, episodes]`` undiscounted episode returns.
+      lengths: int32 ``[agents, episodes]`` episode lengths (steps).
+      nonfinite: bool ``[agents]``: a NaN or inf appeared in the agent's Q or ε.
+      iterations: lockstep iterations executed (for efficiency statistics).
+      final_state: the agents' states after the last episode (numpy leaves; ``None``
+        with ``keep_final_state=False``).
+      lane_iterations: Σ over executed lockstep iterations of the batch width (the
+        agent-iterations paid for, idle lanes included; lower with compaction).
+      strategy: the strategy that ran (``"sequential"`` or ``"lockstep"``; the last one
+        if the sequential strategy fell back, see :func:`native_step_loops`).
+    """
+
+    returns: np.ndarray
+    lengths: np.ndarray
+    nonfinite: np.ndarray
+    iterations: int
+    final_state: AgentState | None
+    lane_iterations: int = 0
+    strategy: str = "lockstep"
+
+
+ProgressCallback = Callable[[int, int, float], None]
+
+
+def text_progress(stream: Any = None) -> ProgressCallback:
+    """A progress bar on ``stream`` (stderr by default): ``done/total`` agent-episodes.
+
+    Args:
+      stream: a text stream (default ``sys.stderr``).
+
+    Returns:
+      a :data:`ProgressCallback` that redraws the bar on each call.
+    """
+    stream = sys.stderr if stream is None else stream
+
+    def show(done: int, total: int, elapsed: float) -> None:
+        width = 30
+        filled = int(width * done / max(total, 1))
+        bar = "#" * filled + "." * (width - filled)
+        end = "\n" if done >= total else ""
+        stream.write(f"\r[{bar}] {100 * done / max(total, 1):5.1f}%  {elapsed:6.1f}s{end}")
+        stream.flush()
+
+    return show
+
+
+def run_agents(
+    mdp: TabularMDP,
+    params: AgentParams,
+    keys: Any,
+    num_episodes: int,
+    *,
+    chunk_episodes: int = 100,
+    progress: ProgressCallback | None = None,
+    on_chunk: Callable[[int, AgentState, np.ndarray, np.ndarray], None] | None = None,
+    initial: tuple[int, AgentState, np.ndarray, np.ndarray] | None = None,
+    compact: bool = True,
+    block_iterations: int = 256,
+    unroll: int = DEFAULT_UNROLL,
+    min_batch: int = 8,
+    max_batch: int = MAX_SAFE_BATCH,
+    strategy: str = "auto",
+    threads: int | None = None,
+    keep_final_state: bool = True,
+) -> RunResult:
+    """Train a batch of agents for ``num_episodes`` episodes each.
+
+    Args:
+      mdp: the task.
+      params: batched hyperparameters, leading axis = agents.
+      keys: uint32 ``[agents, 2]`` PRNG keys.
+      num_episodes: episodes per agent.
+      chunk_episodes: episodes per jitted chunk (progress/checkpoint granularity; the
+        results do not depend on it).
+      progress: called as ``progress(done_agent_episodes, total, elapsed_seconds)``.
+      on_chunk: called after each chunk with ``(episodes_done, agents, returns, lengths)``
+        (numpy arrays covering episodes ``[0, episodes_done)``); used for checkpoints.
+      initial: resume from ``(episodes_done, agents, returns, lengths)``.
+      compact: between blocks of ``block_iterations`` lockstep iterations, gather the
+        still-active agents into a smaller power-of-two batch (at least ``min_batch``
+        lanes) once at most half the lanes are active, so finished agents stop costing
+        work.
+      block_iterations: lockstep iterations between compaction checks.
+      unroll: lockstep iterations per loop trip.
+      min_batch: smallest batch (lanes) compaction shrinks to.
+      max_batch: agents run in groups of at most this many lanes, one group after
+        another (keeps each group's Q tables cache-sized, so throughput per agent-step
+        does not fall as the number of agents grows).
+
+      strategy: ``"sequential"`` (each agent runs its own native step loop; agents are
+        spread over ``threads`` threads; the fast choice on CPU), ``"lockstep"`` (all
+        agents of a batch advance together, one vectorised step per iteration, with
+        compaction and groups as above; for accelerators and sharded agents), or
+        ``"auto"``: sequential when the default backend is the CPU and the agents are not
+        sharded over several devices, lockstep otherwise.
+      threads: worker threads of the sequential strategy (default: the CPUs this
+        process may use).
+
+      None of ``compact`` … ``threads`` change the results, only the speed, as long as
+      ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
+      keep_final_state: ``False`` leaves :attr:`RunResult.final_state` ``None``, which
+        spares gathering every agent's tables on the host at the end (large tasks).
+
+    Returns:
+      :class:`RunResult`.
+    """
+    check_int("num_episodes", num_episodes, 1)
+    check_int("chunk_episodes", chunk_episodes, 1)
+    check_int("block_iterations", block_iterations, 1)
+    check_int("unroll", unroll, 1)
+    check_int("min_batch", min_batch, 1)
+    check_int("max_batch", max_batch, 1)
+    check_choice("strategy", strategy, STRATEGIES + ("auto",))
+    check_params(params, mdp.num_actions)
+    if threads is None:
+        threads = available_cpus()
+    check_int("threads", threads, 1)
+    if strategy == "auto":
+        strategy = _auto_strategy(params, keys)
+    keys = jnp.asarray(keys, jnp.uint32)
+    num_agents = int(keys.shape[0])
+    chunk = min(chunk_episodes, num_episodes)
+    returns = np.zeros((num_agents, num_episodes), np.float32)
+    lengths = np.zeros((num_agents, num_episodes), np.int32)
+    if initial is None:
+        done = 0
+        agents = None  # created by the sequential strategy in its work items
+        if strategy != "sequential" or not kept_in_items(mdp, params):
+            agents = _executables.compiled(init_agents, (mdp, params, keys), {})(mdp, params, keys)
+    else:
+        done, agents, returns[:, : initial[0]], lengths[:, : initial[0]] = initial
+        agents = jax.tree.map(jnp.asarray, agents)
+    iterations = lane_iterations = 0
+    costs = None
+    started = time.perf_counter()
+    if progress:
+        progress(done * num_agents, num_episodes * num_agents, 0.0)
+    # The sequential strategy keeps the agents' state in its work items; ``agents`` is
+    # the state only while the lockstep strategy runs.
+    sequential = None
+    if strategy == "sequential":
+        sequential = _SequentialRun(mdp, params, agents, keys, threads)
+
+    def current_agents() -> AgentState:
+        return agents if sequential is None else sequential.agents()
+
+    while done < num_episodes:
+        end = min(done + chunk, num_episodes)
+        result = None
+        if sequential is not None:
+            result = sequential.run_chunk(done, end, chunk, costs)
+            if result is None:  # not compiled natively: lockstep is faster
+                strategy, agents, sequential = "lockstep", sequential.agents(), None
+        if result is not None:
+            chunk_returns, chunk_lengths, chunk_iterations = result
+            chunk_lanes = chunk_iterations  # one lane per loop iteration
+        else:
+            agents, chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes = (
+                run_chunk_lockstep(
+                    mdp, params, agents, done, end, chunk, compact=compact,
+                    block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
+                    max_batch=max_batch,
+                )
+            )
+        costs = np.asarray(chunk_lengths).sum(axis=1)  # the next chunk's work, roughly
+        returns[:, done:end] = np.asarray(chunk_returns)[:, : end - done]
+        lengths[:, done:end] = np.asarray(chunk_lengths)[:, : end - done]
+        iterations += chunk_iterations
+        lane_iterations += chunk_lanes
+        done = end
+        if on_chunk:
+            on_chunk(done, current_agents(), returns[:, :done], lengths[:, :done])
+        if progress:
+            progress(done * num_agents, num_episodes * num_agents, time.perf_counter() - started)
+    if keep_final_state:
+        final = jax.tree.map(np.asarray, current_agents())
+        nonfinite = np.asarray(final.nonfinite)
+    else:  # the flags alone: no tables gathered
+        final = None
+        nonfinite = (np.asarray(agents.nonfinite) if sequential is None
+                     else sequential.nonfinite_flags())
+    return RunResult(returns, lengths, nonfinite, iterations, final, lane_iterations, strategy)
+
+
+#: Engine strategies of :func:`run_agents`.
+STRATEGIES = ("sequential", "lockstep")
+
+
+def available_cpus() -> int:
+    """CPUs this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def _auto_strategy(params: AgentParams, keys: Any) -> str:
+    """``"sequential"`` on a CPU backend with unsharded agents, else ``"lockstep"``."""
+    if jax.default_backend() != "cpu":
+        return "lockstep"
+    for leaf in jax.tree.leaves((params, keys)):
+        sharding = getattr(leaf, "sharding", None)
+        if sharding is not None and len(sharding.device_set) > 1:
+            return "lockstep"
+    return "sequential"
+
+
+
+
+def compile_seconds() -> float:
+    """Seconds this process spent getting the engine's executables (tracing, lowering and
+    compiling them, or loading them from the caches; see :mod:`vdbejax._executables`)."""
+    return _executables.compile_seconds()
+
+
+def check_params(params: Any, num_actions: int) -> None:
+    """Check a batch's hyperparameters: an :class:`AgentParams` whose every kind's
+    plug-ins trace on one agent (:func:`~vdbejax.methods.api.check_plugin`)."""
+    if not isinstance(params, AgentParams):
+        raise ValueError(f"params={type(params).__name__} is invalid: must be an AgentParams"
+                         " (see vdbejax.methods.stack_agents)")
+    for agent in params.kinds:
+        key = (kind_key(agent), num_actions)
+        builtin = all(type(p).__module__.startswith("vdbejax.") for p in (agent.learner, agent.explorer))
+        if builtin or key in _CHECKED:
+            continue
+        one = jax.tree.map(lambda leaf: np.asarray(leaf)[0], agent)
+        check_plugin(one.learner, one.explorer, num_actions)
+        _CHECKED.add(key)
+
+
+#: Kinds of user plug-ins already checked by :func:`check_params` (per task width).
+_CHECKED: set = set()

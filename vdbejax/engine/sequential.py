@@ -1,0 +1,303 @@
+"""The sequential strategy (the default on a CPU backend): each agent runs its own
+``while`` loop of steps, one lane wide, agents one after another inside a program and
+work items of agents on several threads.
+
+With one lane every table access is a dynamic slice, so XLA's CPU backend compiles the
+whole loop into one native function (see :mod:`vdbejax._xla_flags`), and no agent ever
+waits for another. One program is compiled per kind of agent (learner and explorer type,
+with their static fields): XLA keeps only the kind's own work. Results are bit-identical
+to the lockstep strategy (products are rounded on their own, :mod:`vdbejax._numerics`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from concurrent.futures import ThreadPoolExecutor
+from functools import partial
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from vdbejax import _executables, _xla_flags
+from vdbejax.engine.lockstep import _next_power_of_two
+from vdbejax.engine.state import AgentState, init_agents, state_bytes
+from vdbejax.engine.step import run_loop, start_support
+from vdbejax.envs.tabular import TabularMDP
+from vdbejax.methods.agents import AgentParams, table_layout
+
+Array = jax.Array
+
+
+@partial(jax.jit, static_argnames=("chunk_length",), donate_argnames=("agents",))
+def _run_sequential(mdp, agent, agents, chunk_start, chunk_end, count, support, *,
+                    chunk_length):
+    """Agents ``0 .. count-1`` of the batch in turn run their own step loop to ``chunk_end``.
+
+    The step is :func:`lockstep_iteration` on a batch of one lane, which uses dynamic
+    slices only, so XLA's CPU backend compiles an agent's whole loop into one native
+    function (given the small-while-loop threshold that :mod:`vdbejax._xla_flags` sets)
+    instead of dispatching ~30 kernels per step. ``agent`` holds the work item's
+    hyperparameters, all of one kind: the kind's types fix the program, so XLA keeps only
+    the work that kind needs. Rows from ``count`` on are padding and left as they are.
+    The batch's tables are updated in place (``agents`` is donated): an agent's loop
+    indexes them at its own offset.
+    """
+    num_agents = agents.episode.shape[0]
+    big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
+
+    def one_agent(i: Array, carry: tuple) -> tuple:
+        agents, returns, lengths, iterations = carry
+
+        def pick(leaf: Array) -> Array:
+            return jax.lax.dynamic_slice_in_dim(leaf, i, 1)
+
+        def put(full: Array, new: Array) -> Array:
+            return jax.lax.dynamic_update_slice_in_dim(full, new, i, 0)
+
+        # The agent's scalars are sliced out and written back; its Q and tables are
+        # updated in the item's tables (``table_offset``): no copy of a table per agent.
+        def scalars(state: AgentState) -> AgentState:
+            return dataclasses.replace(state, q=None, tables=None)
+
+        one = dataclasses.replace(jax.tree.map(pick, scalars(agents)), q=agents.q,
+                                  tables=agents.tables)
+        one, one_returns, one_lengths, one_iterations = run_loop(
+            mdp, jax.tree.map(pick, agent), one, pick(returns), pick(lengths),
+            chunk_start, chunk_end, big, 1, support, table_offset=i,
+        )
+        agents = dataclasses.replace(jax.tree.map(put, scalars(agents), scalars(one)),
+                                     q=one.q, tables=one.tables)
+        return (agents, put(returns, one_returns), put(lengths, one_lengths),
+                iterations + one_iterations)
+
+    returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
+    lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
+    zero = jnp.asarray(0, jnp.int32)
+    return jax.lax.fori_loop(0, count, one_agent, (agents, returns, lengths, zero))
+
+
+#: Per-compilation XLA options of the CPU engine: with region analysis, copy insertion
+#: proves that an agent's Q-table update can happen in place (no copy of Q per step).
+_CPU_COMPILER_OPTIONS = {"xla_cpu_copy_insertion_use_region_analysis": True}
+
+
+#: Sequential executables checked by :func:`_check_native` (by id): compiled natively?
+_NATIVE: dict[int, bool] = {}
+
+
+def native_step_loops() -> bool | None:
+    """Whether the sequential executables compiled so far run their step loops natively.
+
+    ``None`` before the first one is compiled. ``False`` means XLA would dispatch every
+    operation of a step separately; :func:`run_agents` then uses the lockstep strategy
+    instead (same results). Causes: XLA's small-while-loop threshold was not raised
+    (JAX's backend started before :mod:`vdbejax` was imported, or
+    ``VDBEJAX_XLA_FLAGS=off``; see :mod:`vdbejax._xla_flags`), or the task's tables are
+    larger than the threshold.
+    """
+    return all(_NATIVE.values()) if _NATIVE else None
+
+
+def _check_native(executable: Any) -> bool:
+    """Whether ``executable``'s per-agent loop compiled natively (warns once if not)."""
+    native = _NATIVE.get(id(executable))
+    if native is None:
+        native = "xla_cpu_small_call" in executable.as_text()
+        if not native and all(_NATIVE.values()):
+            warnings.warn(
+                "vdbejax: XLA would run the per-agent step loop op by op, so the lockstep "
+                "strategy is used instead (same results, slower). Raise XLA's "
+                "small-while-loop threshold before JAX starts: import vdbejax first (unless "
+                "VDBEJAX_XLA_FLAGS=off), or set XLA_FLAGS="
+                f"'{_xla_flags.with_small_loop_threshold('')}'.",
+                RuntimeWarning,
+                stacklevel=4,
+            )
+        _NATIVE[id(executable)] = native
+    return native
+
+
+def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None = None
+                       ) -> list[np.ndarray]:
+    """Agent indices per work item: one kind each, ≈ ``4 × threads`` items in all.
+
+    ``costs`` estimates each agent's work (its steps in the previous chunk; ``None``: all
+    equal). Within a kind, the agents are dealt to the kind's items in order of
+    decreasing cost, back and forth, so the items have equal sizes (few shapes to
+    compile) and similar costs; items are returned most costly first, so that the last
+    items to start are short ones and the threads finish together.
+    """
+    num_agents = kinds.shape[0]
+    costs = np.ones(num_agents) if costs is None else np.asarray(costs, np.float64)
+    target = max(1, -(-num_agents // (4 * threads)))  # agents per item
+    groups = []
+    for kind in np.unique(kinds):
+        members = np.flatnonzero(kinds == kind)
+        parts = -(-members.size // target)
+        ordered = members[np.argsort(-costs[members], kind="stable")]
+        deal = np.arange(ordered.size) % (2 * parts)
+        deal = np.where(deal < parts, deal, 2 * parts - 1 - deal)  # 0,1,..,p-1,p-1,..,0
+        groups += [np.sort(ordered[deal == k]) for k in range(parts)]
+    return sorted(groups, key=lambda group: (-costs[group].sum(), -len(group)))
+
+
+#: Agents whose state (Q, ε(s)) is at most this many bytes are regrouped into new work
+#: items every chunk (cost balance); larger agents stay in their first work item for the
+#: whole run, their tables never leaving the engine's buffers between chunks.
+REGROUP_MAX_BYTES = 1 << 20
+
+
+def _padded(index: np.ndarray) -> np.ndarray:
+    """A work item's rows, repeated up to a power of two (few shapes to compile)."""
+    return np.resize(index, _next_power_of_two(index.size))
+
+
+def kept_in_items(mdp: TabularMDP, params: AgentParams) -> bool:
+    """Whether an agent's tables exceed :data:`REGROUP_MAX_BYTES` (see _SequentialRun)."""
+    return state_bytes(mdp, table_layout(params)) > REGROUP_MAX_BYTES
+
+
+class _SequentialRun:
+    """The sequential strategy over the chunks of one :func:`run_agents` call.
+
+    Agents are split by kind (learner and explorer type), one program per kind
+    (:func:`_run_sequential`), and into about ``4 × threads`` work items
+    (:func:`_sequential_groups`); worker threads take items as they become free (XLA
+    releases the GIL while a program runs). An item's arrays are padded to a power-of-two
+    number of rows (few shapes to compile; padding rows are not run). Each agent's result
+    depends on its own lane only, so the grouping changes nothing.
+
+    Between chunks an item's state stays in the engine's buffers, which each chunk's
+    program updates in place (donated). Small agents are regrouped by cost every chunk
+    (the state goes through the host, cheap for them); agents larger than
+    :data:`REGROUP_MAX_BYTES` keep their first item, so their tables are not copied per
+    chunk. :meth:`agents` gathers the full state on the host when it is needed
+    (checkpoints, the end of the run).
+    """
+
+    def __init__(self, mdp: TabularMDP, params: AgentParams, agents: AgentState | None,
+                 keys: Any, threads: int) -> None:
+        """``agents=None``: fresh agents, created in their work items (large agents)."""
+        self.mdp, self.threads = mdp, threads
+        self.params = jax.tree.map(np.asarray, params)
+        self.keys = np.asarray(keys, np.uint32)
+        self.host = agents  # the full state while host_current (numpy or device arrays)
+        self.host_current = True
+        self.items: list[tuple[np.ndarray, Any]] | None = None
+        self.kinds = np.asarray(self.params.kind)
+        self.regroup = not kept_in_items(mdp, self.params)
+        self.support = start_support(mdp)
+        self.layout = (jax.eval_shape(init_agents, mdp, self.params, self.keys)
+                       if agents is None else
+                       jax.tree.map(lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype),
+                                    agents))
+
+    def agents(self) -> AgentState:
+        """The full state on the host (numpy), the items' rows written back."""
+        if self.host is None and self.items is None:  # nothing run yet
+            self.host = _executables.compiled(
+                init_agents, (self.mdp, self.params, self.keys), {}
+            )(self.mdp, self.params, self.keys)
+        if not self.host_current:
+            # Fresh arrays: ones handed out before (checkpoints) must not change.
+            host = jax.tree.map(lambda leaf: np.empty(leaf.shape, leaf.dtype), self.layout)
+            for index, state in self.items:
+                for full, rows in zip(jax.tree.leaves(host), jax.tree.leaves(state)):
+                    full[index] = np.asarray(rows)[: index.size]
+            self.host, self.host_current = host, True
+        return self.host
+
+    def nonfinite_flags(self) -> np.ndarray:
+        """Each agent's ``nonfinite`` flag, without gathering the tables."""
+        if self.host_current:
+            return np.asarray(self.agents().nonfinite)
+        flags = np.empty(self.keys.shape[0], bool)
+        for index, state in self.items:
+            flags[index] = np.asarray(state.nonfinite)[: index.size]
+        return flags
+
+    def _call(self, index: np.ndarray, agents: Any, chunk: tuple[int, int, int]) -> tuple:
+        """``(executable, args)`` of an item; ``agents`` may be shapes only."""
+        chunk_start, chunk_end, chunk_length = chunk
+        rows = _padded(index)
+        kind = self.params.kinds[int(self.kinds[index[0]])]
+        agent = jax.tree.map(lambda leaf: leaf[rows], kind)
+        static = {"chunk_length": chunk_length}
+        args = (self.mdp, agent, agents, jnp.int32(chunk_start), jnp.int32(chunk_end),
+                jnp.int32(index.size), self.support)
+        return _executables.compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
+
+    def _group(self, costs: np.ndarray | None, chunk: tuple[int, int, int]) -> bool:
+        """New work items from the current state; ``False`` if a loop is not native."""
+        groups = _sequential_groups(self.kinds, self.threads, costs)
+
+        def shapes(index: np.ndarray) -> Any:  # enough to compile: no copy of the rows
+            size = _padded(index).size
+            return jax.tree.map(
+                lambda leaf: jax.ShapeDtypeStruct((size, *leaf.shape[1:]), leaf.dtype),
+                self.layout,
+            )
+
+        # Compile on this thread (one program per kind and padded size) before running.
+        if not all(_check_native(self._call(index, shapes(index), chunk)[0]) for index in groups):
+            return False
+        fresh = self.host is None  # large fresh agents: created in their item, on the device
+        host = None if fresh else self.agents()
+        items = []
+        for index in groups:
+            rows = _padded(index)
+            if fresh:
+                args = (self.mdp, jax.tree.map(lambda leaf, rows=rows: leaf[rows], self.params),
+                        self.keys[rows])
+                state = _executables.compiled(init_agents, args, {})(*args)
+            else:  # on a CPU np.asarray of a device array is a view: one gather, one copy
+                state = jax.tree.map(lambda leaf, rows=rows: jnp.asarray(np.asarray(leaf)[rows]),
+                                     host)
+            items.append((index, state))
+        self.items = items
+        return True
+
+    def run_chunk(self, chunk_start: int, chunk_end: int, chunk_length: int,
+                  costs: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """Advance every agent to ``chunk_end`` episodes.
+
+        Returns:
+          ``(returns, lengths, iterations)``: numpy ``[agents, chunk_length]`` buffers and
+          Σ agent loop iterations (steps, plus one per episode start after a truncation);
+          ``None`` (nothing run) if a loop did not compile natively
+          (:func:`native_step_loops`).
+        """
+        chunk = (chunk_start, chunk_end, chunk_length)
+        if (self.items is None or self.regroup) and not self._group(costs, chunk):
+            return None
+        # Items most costly first (one kind each; their order only affects the balance).
+        order = sorted(range(len(self.items)), key=lambda k: -(
+            1.0 if costs is None else float(costs[self.items[k][0]].sum())))
+
+        def run(k: int) -> tuple:
+            index, state = self.items[k]
+            executable, args = self._call(index, state, chunk)
+            new_state, returns, lengths, iterations = executable(*args)  # state donated
+            self.items[k] = (index, new_state)
+            return (np.asarray(returns)[: index.size], np.asarray(lengths)[: index.size],
+                    int(iterations))
+
+        self.host_current = False
+        if self.threads == 1 or len(order) == 1:
+            outputs = [run(k) for k in order]
+        else:
+            with ThreadPoolExecutor(max_workers=self.threads) as pool:
+                outputs = list(pool.map(run, order))
+        num_agents = int(self.keys.shape[0])
+        returns = np.zeros((num_agents, chunk_length), np.float32)
+        lengths = np.zeros((num_agents, chunk_length), np.int32)
+        iterations = 0
+        for k, (item_returns, item_lengths, item_iterations) in zip(order, outputs):
+            index = self.items[k][0]
+            returns[index], lengths[index] = item_returns, item_lengths
+            iterations += item_iterations
+        return returns, lengths, iterations
+
+

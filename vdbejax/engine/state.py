@@ -1,0 +1,174 @@
+"""What an agent carries between steps, how it starts, and its random stream."""
+from __future__ import annotations
+
+from functools import partial
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from vdbejax import _executables
+from vdbejax._pytree import pytree_dataclass
+from vdbejax.envs.tabular import TabularMDP
+from vdbejax.methods.agents import AgentParams, table_layout
+
+Array = jax.Array
+
+
+@pytree_dataclass
+class AgentState:
+    """Everything one agent carries between iterations (a leading axis for batches).
+
+    Attributes:
+      q: ``[S, A]`` action values.
+      tables: the explorers' and learners' own tables (``{"epsilon": [S]}`` for VDBE,
+        ``{"counts": [S, A]}`` for UCB-1, …); a batch holds the union of its kinds'
+        tables, zeros for an agent whose kind does not use one.
+      state: current state index.
+      action: action already chosen for ``state``.
+      pending_reset: the next iteration starts a new episode (first step, truncation).
+      episode: number of completed episodes.
+      episode_return: return of the running episode so far.
+      episode_length: steps of the running episode so far.
+      counter: iterations done, the index into the agent's random stream.
+      key: the agent's PRNG key (raw ``uint32[2]``).
+      nonfinite: a NaN or inf appeared in Q or one of the agent's tables.
+    """
+
+    q: Array
+    tables: dict
+    state: Array
+    action: Array
+    pending_reset: Array
+    episode: Array
+    episode_return: Array
+    episode_length: Array
+    counter: Array
+    key: Array
+    nonfinite: Array
+
+
+def _table_shape(mdp: TabularMDP, per: str) -> tuple[int, ...]:
+    return (mdp.num_states,) if per == "state" else (mdp.num_states, mdp.num_actions)
+
+
+def init_agent(mdp: TabularMDP, params: AgentParams, key: Array) -> AgentState:
+    """Fresh state of one agent: Q and tables at their initial values, a reset pending.
+
+    Args:
+      mdp: the task (sets the table shapes).
+      params: the agent's row of an :class:`~vdbejax.methods.agents.AgentParams`.
+      key: the agent's raw ``uint32[2]`` PRNG key.
+
+    Returns:
+      the :class:`AgentState` (no leading batch axis).
+    """
+    layout = table_layout(params)
+    S, A = mdp.num_states, mdp.num_actions  # noqa: N806
+    q = jnp.zeros((S, A), jnp.float32)
+    tables = {name: jnp.zeros(_table_shape(mdp, per), jnp.float32) for name, per in layout.items()}
+    key = jnp.asarray(key, jnp.uint32)
+    for k, agent in enumerate(params.kinds):
+        mine = params.kind == k
+        q = jnp.where(mine, agent.learner.initial_q(key, S, A).astype(jnp.float32), q)
+        for owner in (agent.learner, agent.explorer):
+            for name, spec in owner.tables().items():
+                init = jnp.full(_table_shape(mdp, spec.per), spec.init, jnp.float32)
+                tables[name] = jnp.where(mine, init, tables[name])
+    zero = jnp.asarray(0, jnp.int32)
+    return AgentState(
+        q=q,
+        tables=tables,
+        state=zero,
+        action=zero,
+        pending_reset=jnp.asarray(True),
+        episode=zero,
+        episode_return=jnp.asarray(0.0, jnp.float32),
+        episode_length=zero,
+        counter=jnp.asarray(0, jnp.uint32),
+        key=key,
+        nonfinite=jnp.asarray(False),
+    )
+
+
+@jax.jit
+def init_agents(mdp: TabularMDP, params: AgentParams, keys: Array) -> AgentState:
+    """:func:`init_agent` for a batch (leading axis = agents)."""
+    return jax.vmap(init_agent, in_axes=(None, 0, 0))(mdp, params, keys)
+
+
+def _mix32(x: Array) -> Array:
+    """lowbias32 integer finaliser (C. Wellons): a cheap, well-mixed uint32 bijection."""
+    x = x ^ (x >> 16)
+    x = x * jnp.uint32(0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = x * jnp.uint32(0x846CA68B)
+    return x ^ (x >> 16)
+
+
+def uniforms(key: Array, counter: Array, count: int) -> tuple[Array, ...]:
+    """The ``count`` uniforms of one agent iteration: a counter-based hash.
+
+    Draw ``j`` is a pure function of the agent's key (``[..., 2]``), its own iteration
+    counter and ``j`` alone, so results do not depend on the batch, the chunking or a
+    resume, and asking for more draws (a plug-in that needs more) leaves the first ones
+    unchanged. Much cheaper than threefry ``fold_in`` + ``bits``. Returns a tuple of
+    arrays shaped like ``counter``; values in [0, 1 − 2⁻²³] (23-bit mantissa), which
+    :func:`~vdbejax.methods.explorers.sample_categorical` relies on.
+    """
+    key = key.astype(jnp.uint32)
+    counter = counter.astype(jnp.uint32)
+    base = _mix32(key[..., 1] ^ _mix32(key[..., 0] + counter * jnp.uint32(0x9E3779B9)))
+    draws = []
+    for j in range(count):
+        bits = _mix32(base + jnp.uint32((j * 0x632BE5AB) % 2**32))
+        draws.append((bits >> 9).astype(jnp.float32) * jnp.float32(2.0**-23))
+    return tuple(draws)
+
+
+def agent_keys(seed: int, num_seeds: int) -> np.ndarray:
+    """Keys of agents 0..num_seeds-1: ``fold_in(PRNGKey(seed), i)`` (uint32 ``[n, 2]``).
+
+    Every configuration uses the same key for the same seed index (common random numbers),
+    so an agent gives the same result alone or in any grid.
+
+    Args:
+      seed: root seed.
+      num_seeds: number of agents (seed indices).
+
+    Returns:
+      uint32 ``[num_seeds, 2]`` raw keys.
+    """
+    # One small cached program per (seed, count): no tracing in a warm process.
+    static = {"seed": int(seed), "num_seeds": int(num_seeds)}
+    return np.asarray(_executables.compiled(_agent_keys, (), static)())
+
+
+@partial(jax.jit, static_argnames=("seed", "num_seeds"))
+def _agent_keys(*, seed: int, num_seeds: int) -> Array:
+    root = jax.random.PRNGKey(seed)
+    return jax.vmap(lambda i: jax.random.fold_in(root, i))(jnp.arange(num_seeds))
+
+
+def broadcast_agents(params: Any, repeats: int) -> Any:
+    """Repeat each agent ``repeats`` times (config-major order: c0s0, c0s1, …).
+
+    Args:
+      params: hyperparameters with a leading config axis.
+      repeats: agents (seeds) per config.
+
+    Returns:
+      the hyperparameters with a leading axis of ``configs × repeats`` agents.
+    """
+    def repeat(leaf: Any) -> Any:
+        # On the host unless the leaf lives on a device (or is traced).
+        return (jnp if isinstance(leaf, jax.Array) else np).repeat(leaf, repeats, axis=0)
+
+    return jax.tree.map(repeat, params)
+
+
+def state_bytes(mdp: TabularMDP, layout: dict[str, str]) -> int:
+    """Bytes of one agent's Q and tables."""
+    S, A = mdp.num_states, mdp.num_actions  # noqa: N806
+    return 4 * S * A + sum(4 * (S if per == "state" else S * A) for per in layout.values())

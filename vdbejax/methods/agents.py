@@ -1,0 +1,370 @@
+"""Agents = a learner and an explorer; the settings of a sweep and their batches.
+
+A :class:`Setting` names one point of a grid: learner, explorer, the explorer's swept
+parameter and any other hyperparameter values. :func:`make_agent` resolves it into an
+:class:`Agent` (two plug-in instances, :mod:`vdbejax.methods.api`), :func:`sweep` builds
+the settings of a product of axes, and :func:`stack_agents` batches agents of any kinds
+into one :class:`AgentParams` pytree for the engine.
+"""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import jax
+import numpy as np
+
+from vdbejax._pytree import pytree_dataclass
+from vdbejax.methods.api import (
+    EXPLORERS,
+    Explorer,
+    Learner,
+    Table,
+    build,
+    field_names,
+    hyperparameters,
+    static_names,
+)
+from vdbejax.methods.explorers import (
+    PAPER_EXPLORERS,
+    VDBE_DELTA,
+    VDBE_SOFTMAX_TAU,
+    explorer_class,
+)
+from vdbejax.methods.learners import PAPER_ALPHA, PAPER_GAMMA, PAPER_LEARNERS, learner_class
+
+#: The paper's swept values (spec, "Exploration").
+PAPER_PARAMETERS: dict[str, tuple[float, ...]] = {
+    "egreedy": (0.01, 0.05, 0.1, 0.15, 0.2),
+    "softmax": (0.0001, 0.001, 0.01, 0.1, 1.0, 10.0),
+    "vdbe": (0.001, 0.01, 0.1, 1.0, 10.0, 100.0),
+    "vdbe_softmax": (0.001, 0.01, 0.1, 1.0, 10.0, 100.0),
+}
+
+
+def parameter_name(explorer: str) -> str:
+    """The name of an explorer's swept parameter (``"param"`` if it is not registered)."""
+    cls = EXPLORERS.get(explorer)
+    return (cls.parameter if cls is not None else None) or "param"
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars as Python numbers (hashable, JSON-serialisable)."""
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
+    return value
+
+
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    """One configuration of a grid.
+
+    Attributes:
+      learner: a registered learner name (``qlearning``, ``sarsa``, …).
+      explorer: a registered explorer name (``egreedy``, ``vdbe_softmax``, …).
+      param: the explorer's swept parameter (ε, τ, σ, c …), or ``None`` for its default.
+      hyperparameters: other values, ``{name: value}`` (a field of the learner or the
+        explorer, e.g. ``alpha``, ``gamma``, ``q_init``, ``delta``, ``tau``; prefix with
+        ``learner.`` / ``explorer.`` when both have it); kept as sorted pairs.
+    """
+
+    learner: str
+    explorer: str
+    param: float | None = None
+    hyperparameters: Any = ()
+
+    def __post_init__(self) -> None:
+        values = self.hyperparameters
+        pairs = values.items() if isinstance(values, Mapping) else values
+        try:
+            pairs = tuple(sorted((str(k), _plain(v)) for k, v in pairs))
+        except (TypeError, ValueError):
+            raise ValueError(f"hyperparameters={values!r} is invalid: must be a dict"
+                             " {name: value}") from None
+        object.__setattr__(self, "hyperparameters", pairs)
+        param = _plain(self.param)
+        if isinstance(param, int) and not isinstance(param, bool):
+            param = float(param)
+        object.__setattr__(self, "param", param)
+
+    @property
+    def values(self) -> dict[str, Any]:
+        """The explicit values: the swept parameter (under its name) and the rest."""
+        values = dict(self.hyperparameters)
+        if self.param is not None:
+            values = {parameter_name(self.explorer): self.param, **values}
+        return values
+
+    @property
+    def label(self) -> str:
+        """``learner/explorer/name=value,…`` (the swept parameter first)."""
+        values = ",".join(f"{k}={_format(v)}" for k, v in self.values.items())
+        return f"{self.learner}/{self.explorer}" + (f"/{values}" if values else "")
+
+    def hyperparameters_json(self) -> str:
+        """The explicit hyperparameters as compact JSON (``configs.csv``)."""
+        return json.dumps(dict(self.hyperparameters), sort_keys=True, separators=(",", ":"))
+
+
+def _format(value: Any) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+@dataclasses.dataclass(frozen=True)
+class AgentOptions:
+    """Values shared by every agent of a run where its learner or explorer has the field
+    (spec defaults); a setting's own values take precedence."""
+
+    alpha: float = PAPER_ALPHA
+    gamma: float = PAPER_GAMMA
+    q_init: float = 0.0
+    tie_break: str = "random"
+    delta: float = VDBE_DELTA
+    vdbe_softmax_tau: float = VDBE_SOFTMAX_TAU
+
+
+@pytree_dataclass
+class Agent:
+    """One agent's learner and explorer (or a batch of one kind: leading axis)."""
+
+    learner: Learner
+    explorer: Explorer
+
+
+@pytree_dataclass
+class AgentParams:
+    """The hyperparameters of a batch of agents of any kinds, as one pytree.
+
+    Attributes:
+      kind: int32 ``[agents]``: each agent's index into ``kinds``.
+      kinds: one batched :class:`Agent` per kind (learner and explorer type with their
+        static fields), each with a row for *every* agent (rows of agents of other kinds
+        repeat the kind's first agent and are never run), so that taking, padding and
+        sharding rows works leaf by leaf.
+    """
+
+    kind: Any
+    kinds: tuple
+
+    def rows_of(self, k: int) -> np.ndarray:
+        """Indices of the agents of kind ``k``."""
+        return np.flatnonzero(np.asarray(self.kind) == k)
+
+
+def _route(name: str, value: Any, cls: Any, into: dict[str, Any]) -> bool:
+    field = cls.option_aliases.get(name, name)
+    if field in field_names(cls):
+        into[field] = value
+        return True
+    return False
+
+
+def make_agent(setting: Setting, options: AgentOptions = AgentOptions()) -> Agent:
+    """Validated hyperparameters of one agent.
+
+    Values are resolved per field: the setting's hyperparameters, then its ``param``, then
+    ``options`` (where the learner or explorer has the field), then the class default.
+
+    Args:
+      setting: learner, explorer, swept parameter and other values.
+      options: values shared by every agent.
+
+    Returns:
+      the :class:`Agent` (scalar host leaves).
+
+    Raises:
+      ValueError: unknown learner/explorer/hyperparameter or an out-of-range value.
+    """
+    if not isinstance(setting, Setting):
+        raise ValueError(f"setting={setting!r} is invalid: must be a Setting(learner, explorer,"
+                         " param, hyperparameters)")
+    learner_cls, explorer_cls = learner_class(setting.learner), explorer_class(setting.explorer)
+    learner_values: dict[str, Any] = {}
+    explorer_values: dict[str, Any] = {}
+    for name, value in dataclasses.asdict(options).items():
+        _route(name, value, learner_cls, learner_values)
+        _route(name, value, explorer_cls, explorer_values)
+    if setting.param is not None:
+        if explorer_cls.parameter is None:
+            raise ValueError(f"param={setting.param!r} is invalid: explorer {setting.explorer!r}"
+                             " has no swept parameter (give hyperparameters instead)")
+        explorer_values[explorer_cls.parameter] = setting.param
+    for name, value in setting.hyperparameters:
+        role, _, field = name.rpartition(".")
+        matched = False
+        if role in ("", "learner"):
+            matched |= _set_field(field, value, learner_cls, learner_values)
+        if role in ("", "explorer"):
+            matched |= _set_field(field, value, explorer_cls, explorer_values)
+        if not matched or role not in ("", "learner", "explorer"):
+            fields = [f"learner.{f}" for f in field_names(learner_cls)] + [
+                f"explorer.{f}" for f in field_names(explorer_cls)]
+            raise ValueError(f"hyperparameter {name!r} is invalid for {setting.learner}/"
+                             f"{setting.explorer}: must be one of {', '.join(fields)}")
+    return Agent(build(learner_cls, learner_values, "learner"),
+                 build(explorer_cls, explorer_values, "explorer"))
+
+
+def _set_field(field: str, value: Any, cls: Any, into: dict[str, Any]) -> bool:
+    if field in field_names(cls):
+        into[field] = value
+        return True
+    return False
+
+
+def agent_hyperparameters(agent: Agent) -> dict[str, Any]:
+    """Every hyperparameter of one agent, ``learner.alpha``-style names."""
+    return {**{f"learner.{k}": v for k, v in hyperparameters(agent.learner).items()},
+            **{f"explorer.{k}": v for k, v in hyperparameters(agent.explorer).items()}}
+
+
+def paper_settings(
+    learners: Sequence[str] = PAPER_LEARNERS, explorers: Sequence[str] = PAPER_EXPLORERS
+) -> list[Setting]:
+    """The paper's grid: 2 learners × (5 + 6 + 6 + 6) parameters = 46 settings.
+
+    Args:
+      learners: learner names (default both).
+      explorers: explorer names (default all four).
+
+    Returns:
+      the settings, learner-major, then explorer, then increasing parameter.
+    """
+    return [
+        Setting(learner, explorer, param)
+        for learner in learners
+        for explorer in explorers
+        for param in PAPER_PARAMETERS[explorer]
+    ]
+
+
+def sweep(learners: Sequence[str], explorers: Sequence[str],
+          axes: Mapping[str, Sequence[Any]] | None = None,
+          shared: Mapping[str, Any] | None = None) -> list[Setting]:
+    """The settings of a product of axes: learners × explorers × every applicable axis.
+
+    An axis applies to a learner × explorer pair when one of them has a field of that
+    name (``learner.``/``explorer.`` prefixes allowed); the explorer's swept parameter
+    becomes the settings' ``param``. E.g. ``sweep(["qlearning", "sarsa"], ["vdbe"],
+    {"alpha": [0.1, 0.3, 0.8], "sigma": [0.01, 1, 100]})`` gives 2 × 3 × 3 = 18 settings.
+
+    Args:
+      learners: learner names.
+      explorers: explorer names.
+      axes: ``{hyperparameter: values}``.
+      shared: ``{hyperparameter: value}`` for every setting that has the field.
+
+    Returns:
+      the settings, learner-major, then explorer, then the axes in the given order.
+
+    Raises:
+      ValueError: an empty list, an unknown name, or an axis or shared value that applies
+        to no learner × explorer pair.
+    """
+    axes = dict(axes or {})
+    shared = dict(shared or {})
+    for name, values in (("learners", learners), ("explorers", explorers)):
+        if isinstance(values, str) or not values:
+            raise ValueError(f"{name}={values!r} is invalid: must be a non-empty list of names")
+    for name, values in axes.items():
+        if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or not values:
+            raise ValueError(f"axis {name}={values!r} is invalid: must be a non-empty list of values")
+    used: set[str] = set()
+    settings = []
+    for learner in learners:
+        learner_fields = field_names(learner_class(learner))
+        for explorer in explorers:
+            cls = explorer_class(explorer)
+            explorer_fields = field_names(cls)
+
+            def applies(name: str) -> bool:
+                role, _, field = name.rpartition(".")
+                return ((role in ("", "learner") and field in learner_fields)
+                        or (role in ("", "explorer") and field in explorer_fields))
+
+            mine = [name for name in axes if applies(name)]
+            fixed = {name: value for name, value in shared.items() if applies(name)}
+            used.update(mine, fixed)
+            for combination in itertools.product(*(axes[name] for name in mine)):
+                values = dict(fixed, **dict(zip(mine, combination)))
+                param = values.pop(cls.parameter, None) if cls.parameter else None
+                settings.append(Setting(learner, explorer, param, values))
+    unused = [name for name in list(axes) + list(shared) if name not in used]
+    if unused:
+        raise ValueError(f"axis {unused[0]!r} is invalid: no learner in {list(learners)} or"
+                         f" explorer in {list(explorers)} has that field")
+    return settings
+
+
+def kind_key(agent: Agent) -> tuple:
+    """What makes an agent's kind: learner and explorer classes with their static fields.
+
+    (Not ``jax.tree.structure``: JAX's treedefs of two dataclasses with the same field
+    names compare equal.)
+    """
+    def of(plugin: Any) -> tuple:
+        return (type(plugin), tuple(getattr(plugin, name) for name in static_names(type(plugin))))
+
+    return of(agent.learner) + of(agent.explorer)
+
+
+def stack_agents(agents: Sequence[Agent]) -> AgentParams:
+    """Batch agents of any kinds into one :class:`AgentParams` (kinds in order of first
+    appearance).
+
+    Args:
+      agents: one or more :class:`Agent`.
+
+    Returns:
+      the batch: leaves with a leading agent axis.
+
+    Raises:
+      ValueError: ``agents`` is empty.
+    """
+    if not agents:
+        raise ValueError("agents is empty: need at least one setting")
+    structures: list[Any] = []
+    kind = np.empty(len(agents), np.int32)
+    for i, agent in enumerate(agents):
+        structure = kind_key(agent)
+        if structure not in structures:
+            structures.append(structure)
+        kind[i] = structures.index(structure)
+    kinds = []
+    for k in range(len(structures)):
+        template = agents[int(np.flatnonzero(kind == k)[0])]
+        rows = [agent if kind[i] == k else template for i, agent in enumerate(agents)]
+        kinds.append(jax.tree.map(lambda *leaves: np.stack(leaves), *rows))
+    return AgentParams(kind=kind, kinds=tuple(kinds))
+
+
+def table_layout(params: AgentParams) -> dict[str, str]:
+    """Every table the batch's agents keep beside Q: ``{name: "state" | "pair"}``.
+
+    Raises:
+      ValueError: two kinds use one table name for tables of different shapes.
+    """
+    layout: dict[str, str] = {}
+    for agent in params.kinds:
+        for owner in (agent.learner, agent.explorer):
+            for name, spec in owner.tables().items():
+                if name == "q":
+                    raise ValueError(f"{type(owner).__name__}: table name 'q' is reserved for Q")
+                if layout.setdefault(name, spec.per) != spec.per:
+                    raise ValueError(f"table {name!r} is per {layout[name]!r} for one kind and per"
+                                     f" {spec.per!r} for another: rename one of them")
+    return layout
+
+
+__all__ = [
+    "Agent", "AgentOptions", "AgentParams", "PAPER_PARAMETERS", "Setting", "Table",
+    "agent_hyperparameters", "make_agent", "paper_settings", "parameter_name", "stack_agents",
+    "sweep", "table_layout",
+]

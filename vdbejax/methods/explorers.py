@@ -1,0 +1,491 @@
+"""Action-selection methods: the rules as pure functions, and the explorers built on them.
+
+The paper's four explorers are one rule, :func:`select_action`::
+
+    with probability p   → sample from  P(a) ∝ exp((Q(s,a) − max Q(s)) / τ)
+    otherwise            → greedy (ties broken uniformly at random, or first)
+
+| explorer                 | p        | τ          | tables            |
+| ------------------------ | -------- | ---------- | ----------------- |
+| ``egreedy``              | ε        | ∞ (uniform)| –                 |
+| ``softmax``              | 1        | τ          | –                 |
+| ``vdbe`` (Tokic 2010)    | ε(s)     | ∞          | ε(s), starts at 1 |
+| ``vdbe_softmax``         | ε(s)     | 0.001      | ε(s)              |
+| ``max_boltzmann``        | ε        | τ          | –                 |
+| ``egreedy_decay``        | ε₀·dᵏ ∨ ε_min (episode k) | ∞ | –            |
+| ``softmax_decay``        | 1        | τ₀·dᵏ ∨ τ_min | –              |
+| ``ucb1``                 | argmax Q + c·√(ln N(s) / N(s,a)), untried actions first | N(s,a) |
+
+Each explorer is a plug-in (:mod:`vdbejax.methods.api`): a pytree dataclass of its
+hyperparameters whose ``select``/``update``/``probabilities`` act on one agent's Q row.
+The functions below act on the *leading* axis (``[num_actions, batch...]``), so they
+serve one row as well as a batch; random draws come in as uniforms in [0, 1) (the engine
+derives them from its per-agent stream); the ``key``-taking wrappers draw them with
+``jax.random.uniform``.
+"""
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+
+from vdbejax._numerics import rounded
+from vdbejax._pytree import static_field
+from vdbejax.methods.api import EXPLORERS, Context, Explorer, Table, build, explorer
+from vdbejax.validation import check_choice, check_in_range, check_positive
+
+Array = jax.Array
+
+#: The paper's explorers.
+PAPER_EXPLORERS = ("egreedy", "softmax", "vdbe", "vdbe_softmax")
+TIE_BREAKS = ("random", "first")
+#: Softmax temperature of VDBE-Softmax's exploratory draws (Tokic & Palm 2011; spec).
+VDBE_SOFTMAX_TAU = 0.001
+#: VDBE inverse sensitivity δ (spec).
+VDBE_DELTA = 0.1
+#: Number of uniforms :func:`select_action` consumes.
+NUM_ACTION_UNIFORMS = 3
+#: sample_categorical unrolls its prefix sums up to this many categories.
+_UNROLLED_CDF_MAX = 32
+
+
+def sample_categorical(weights: Array, u: Array) -> Array:
+    """Inverse-CDF sample from unnormalised non-negative ``weights`` with one uniform.
+
+    Args:
+      weights: ``[n, batch...]`` non-negative weights, positive sum along axis 0.
+      u: uniforms in [0, 1), shape ``[batch...]``.
+
+    Returns:
+      int32 ``[batch...]`` index ``i`` with probability ``weights[i] / sum(weights)``; an
+      index of zero weight is never returned.
+    """
+    n = weights.shape[0]
+    # u has a 23-bit mantissa, so u * total < total and the count stays < n.
+    if n > _UNROLLED_CDF_MAX:
+        cdf = jnp.cumsum(weights, axis=0)
+        threshold = u * cdf[-1]
+        # Weights shared by a batch of uniforms ([n] against [batch]): compare per column.
+        batch_dims = threshold.ndim - (cdf.ndim - 1)
+        cdf = cdf.reshape(cdf.shape[:1] + (1,) * batch_dims + cdf.shape[1:])
+        return jnp.sum(cdf <= threshold, axis=0, dtype=jnp.int32)
+    # Left-to-right prefix sums, unrolled: for the few actions of a tabular task this is
+    # much cheaper on CPU than XLA's reduce-window cumsum.
+    partial = [weights[0]]
+    for i in range(1, n):
+        partial.append(partial[-1] + weights[i])
+    threshold = u * partial[-1]
+    count = (partial[0] <= threshold).astype(jnp.int32)
+    for value in partial[1:]:
+        count = count + (value <= threshold).astype(jnp.int32)
+    return count
+
+
+def greedy(q: Array, u: Array, tie_break: str = "random") -> Array:
+    """Greedy action of Q rows.
+
+    Args:
+      q: ``[num_actions, batch...]`` action values.
+      u: uniforms in [0, 1) (``[batch...]``) used to break ties.
+      tie_break: ``"random"`` (uniform among maximal actions) or ``"first"``.
+
+    Returns:
+      int32 ``[batch...]`` action indices.
+    """
+    if tie_break == "first":
+        return jnp.argmax(q, axis=0).astype(jnp.int32)
+    return sample_categorical((q == jnp.max(q, axis=0)).astype(q.dtype), u)
+
+
+def softmax_weights(q: Array, tau: Array) -> Array:
+    """Unnormalised Boltzmann weights ``exp((q − max q)/τ)`` along axis 0, stable for tiny τ.
+
+    The maximal action has weight 1, so the sum is ≥ 1 and no overflow, NaN or inf can
+    occur for any τ > 0; τ = ∞ gives uniform weights.
+
+    Args:
+      q: ``[num_actions, batch...]`` action values.
+      tau: temperature > 0 (``inf`` = uniform).
+
+    Returns:
+      ``q``-shaped weights in [0, 1] (1 for a maximal action).
+    """
+    return jnp.exp((q - jnp.max(q, axis=0)) / tau)
+
+
+def softmax_probabilities(q: Array, tau: Array) -> Array:
+    """Normalised Boltzmann probabilities ``P(a) ∝ exp(Q(s,a)/τ)`` (axis 0 = actions).
+
+    Args:
+      q: ``[num_actions, batch...]`` action values.
+      tau: temperature > 0 (``inf`` = uniform).
+
+    Returns:
+      ``q``-shaped probabilities summing to 1 along axis 0.
+    """
+    w = softmax_weights(q, tau)
+    return w / jnp.sum(w, axis=0)
+
+
+def select_action(
+    q: Array,
+    explore_probability: Array,
+    tau: Array | None,
+    uniforms: Array,
+    tie_break: str = "random",
+) -> Array:
+    """The one action-selection rule behind the paper's explorers (module docstring).
+
+    Args:
+      q: ``[num_actions, batch...]`` action values of the current state(s).
+      explore_probability: probability of an exploratory draw (ε, 1 or ε(s)).
+      tau: temperature of the exploratory draw; ``None`` (or ``inf``) means uniform —
+        ``None`` skips the exponentials, with the same result for finite Q.
+      uniforms: three uniforms in [0, 1) (an array ``[3, batch...]`` or a sequence of 3):
+        explore test, exploratory draw, tie break.
+      tie_break: ``"random"`` or ``"first"`` (static).
+
+    Returns:
+      int32 ``[batch...]`` action indices.
+    """
+    explore = uniforms[0] < explore_probability
+    # exp((q − max)/∞) is exactly 1 for finite q: uniform weights are the same draw.
+    weights = jnp.ones_like(q) if tau is None else softmax_weights(q, tau)
+    exploratory = sample_categorical(weights, uniforms[1])
+    return jnp.where(explore, exploratory, greedy(q, uniforms[2], tie_break))
+
+
+def greedy_probabilities(q: Array, tie_break: str = "random") -> Array:
+    """``q``-shaped probabilities of :func:`greedy` (axis 0 = actions)."""
+    if tie_break == "first":
+        return jax.nn.one_hot(jnp.argmax(q, axis=0), q.shape[0], axis=0, dtype=q.dtype)
+    maximal = (q == jnp.max(q, axis=0)).astype(q.dtype)
+    return maximal / jnp.sum(maximal, axis=0)
+
+
+def mixture_probabilities(q: Array, explore_probability: Array, tau: Array | None,
+                          tie_break: str = "random") -> Array:
+    """Exact probabilities of :func:`select_action`: ``p·softmax_τ(Q) + (1 − p)·greedy(Q)``."""
+    exploratory = (jnp.ones_like(q) / q.shape[0] if tau is None
+                   else softmax_probabilities(q, tau))
+    return (explore_probability * exploratory
+            + (1.0 - explore_probability) * greedy_probabilities(q, tie_break))
+
+
+def _uniforms(key: Array) -> Array:
+    return jax.random.uniform(key, (NUM_ACTION_UNIFORMS,))
+
+
+def egreedy(key: Array, q: Array, epsilon: float | Array, tie_break: str = "random") -> Array:
+    """ε-greedy: a uniformly random action with probability ε, else greedy.
+
+    Args:
+      key: PRNG key.
+      q: ``[num_actions]`` action values.
+      epsilon: exploration probability in [0, 1].
+      tie_break: ``"random"`` or ``"first"``.
+
+    Returns:
+      int32 action index.
+    """
+    return select_action(q, epsilon, None, _uniforms(key), tie_break)
+
+
+def softmax(key: Array, q: Array, tau: float | Array) -> Array:
+    """Softmax (Boltzmann): sample ``P(a) ∝ exp(Q(s,a)/τ)``.
+
+    Args:
+      key: PRNG key.
+      q: ``[num_actions]`` action values.
+      tau: temperature > 0.
+
+    Returns:
+      int32 action index.
+    """
+    return select_action(q, 1.0, tau, _uniforms(key))
+
+
+def vdbe(key: Array, q: Array, state_epsilon: Array, tie_break: str = "random") -> Array:
+    """VDBE (Tokic 2010): a uniformly random action with probability ε(s), else greedy.
+
+    Args:
+      key: PRNG key.
+      q: ``[num_actions]`` action values of state ``s``.
+      state_epsilon: ε(s), the current state's exploration probability.
+      tie_break: ``"random"`` or ``"first"``.
+
+    Returns:
+      int32 action index.
+    """
+    return select_action(q, state_epsilon, None, _uniforms(key), tie_break)
+
+
+def vdbe_softmax(
+    key: Array,
+    q: Array,
+    state_epsilon: Array,
+    tau: float | Array = VDBE_SOFTMAX_TAU,
+    tie_break: str = "random",
+) -> Array:
+    """VDBE-Softmax (Tokic & Palm 2011): softmax(τ) with probability ε(s), else greedy.
+
+    Args:
+      key: PRNG key.
+      q: ``[num_actions]`` action values of state ``s``.
+      state_epsilon: ε(s).
+      tau: temperature of the exploratory softmax draw (spec: 0.001).
+      tie_break: ``"random"`` or ``"first"``.
+
+    Returns:
+      int32 action index.
+    """
+    return select_action(q, state_epsilon, tau, _uniforms(key), tie_break)
+
+
+def vdbe_epsilon_update(
+    epsilon: Array, delta_q: Array, sigma: Array, delta: Array = VDBE_DELTA
+) -> Array:
+    """VDBE update of ε(s) after a change ``ΔQ = α·TD-error`` of Q(s, a).
+
+    ``f = (1 − e^{−|ΔQ|/σ}) / (1 + e^{−|ΔQ|/σ})``, ``ε ← δ·f + (1 − δ)·ε``.
+
+    Args:
+      epsilon: current ε(s).
+      delta_q: the change just made to Q(s, a).
+      sigma: inverse sensitivity σ > 0.
+      delta: mixing weight δ in (0, 1].
+
+    Returns:
+      the new ε(s).
+    """
+    decay = jnp.exp(-jnp.abs(delta_q) / sigma)
+    value_difference = (1.0 - decay) / (1.0 + decay)
+    return rounded(delta * value_difference, delta) + rounded((1.0 - delta) * epsilon, delta)
+
+
+
+
+# --------------------------------------------------------------------------- explorers
+def _check_tie_break(tie_break: str) -> None:
+    check_choice("tie_break", tie_break, TIE_BREAKS)
+
+
+@explorer("egreedy", parameter="epsilon")
+class EpsilonGreedy(Explorer):
+    """ε-greedy: a uniformly random action with probability ε, else greedy."""
+
+    epsilon: Array = 0.1
+    tie_break: str = static_field("random")
+
+    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+        return select_action(q, self.epsilon, None, uniforms, self.tie_break)
+
+    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+        return mixture_probabilities(q, self.epsilon, None, self.tie_break)
+
+    def validate(self) -> None:
+        check_in_range("epsilon", self.epsilon, 0.0, 1.0)
+        _check_tie_break(self.tie_break)
+
+
+@explorer("softmax", parameter="tau")
+class Softmax(Explorer):
+    """Softmax (Boltzmann): sample ``P(a) ∝ exp(Q(s,a)/τ)``."""
+
+    tau: Array = 1.0
+
+    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+        # The paper's rule with p = 1: uniforms[0] < 1 always holds (uniforms are < 1).
+        return sample_categorical(softmax_weights(q, self.tau), uniforms[1])
+
+    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+        return softmax_probabilities(q, self.tau)
+
+    def validate(self) -> None:
+        check_positive("tau", self.tau)
+
+
+@explorer("vdbe", parameter="sigma")
+class VDBE(Explorer):
+    """VDBE (Tokic 2010): uniform exploration with the per-state probability ε(s), which
+    follows the value changes (:func:`vdbe_epsilon_update`)."""
+
+    sigma: Array = 1.0
+    delta: Array = VDBE_DELTA
+    epsilon_init: Array = 1.0
+    tie_break: str = static_field("random")
+
+    def tables(self) -> dict[str, Table]:
+        return {"epsilon": Table("state", self.epsilon_init)}
+
+    def _tau(self) -> Array | None:
+        return None  # uniform exploratory draws
+
+    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+        return select_action(q, tables["epsilon"], self._tau(), uniforms, self.tie_break)
+
+    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+        return mixture_probabilities(q, tables["epsilon"], self._tau(), self.tie_break)
+
+    def update(self, tables: dict, action: Array, delta_q: Array, context: Context) -> dict:
+        return {"epsilon": vdbe_epsilon_update(tables["epsilon"], delta_q, self.sigma, self.delta)}
+
+    def validate(self) -> None:
+        check_positive("sigma", self.sigma)
+        check_in_range("delta", self.delta, 0.0, 1.0, low_open=True)
+        check_in_range("epsilon_init", self.epsilon_init, 0.0, 1.0)
+        _check_tie_break(self.tie_break)
+
+
+@explorer("vdbe_softmax", parameter="sigma")
+class VDBESoftmax(VDBE):
+    """VDBE-Softmax (Tokic & Palm 2011): with probability ε(s) a softmax(τ) draw, else greedy."""
+
+    tau: Array = VDBE_SOFTMAX_TAU
+    option_aliases = {"vdbe_softmax_tau": "tau"}
+
+    def _tau(self) -> Array | None:
+        return self.tau
+
+    def validate(self) -> None:
+        super().validate()
+        check_positive("tau", self.tau)
+
+
+@explorer("max_boltzmann", parameter="epsilon")
+class MaxBoltzmann(Explorer):
+    """Max-Boltzmann (ε-softmax, Wiering 1999): with probability ε a softmax(τ) draw,
+    else greedy."""
+
+    epsilon: Array = 0.1
+    tau: Array = 0.1
+    tie_break: str = static_field("random")
+
+    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+        return select_action(q, self.epsilon, self.tau, uniforms, self.tie_break)
+
+    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+        return mixture_probabilities(q, self.epsilon, self.tau, self.tie_break)
+
+    def validate(self) -> None:
+        check_in_range("epsilon", self.epsilon, 0.0, 1.0)
+        check_positive("tau", self.tau)
+        _check_tie_break(self.tie_break)
+
+
+def decayed(initial: Array, decay: Array, minimum: Array, episode: Array) -> Array:
+    """Exponential schedule over episodes: ``max(minimum, initial · decay^episode)``."""
+    return jnp.maximum(minimum, initial * jnp.power(decay, episode.astype(jnp.float32)))
+
+
+@explorer("egreedy_decay", parameter="epsilon")
+class DecayingEpsilonGreedy(Explorer):
+    """ε-greedy with ε decaying over episodes: ε_k = max(ε_min, ε·decay^k) in episode k."""
+
+    epsilon: Array = 1.0
+    decay: Array = 0.99
+    epsilon_min: Array = 0.01
+    tie_break: str = static_field("random")
+
+    def _epsilon(self, context: Context) -> Array:
+        return decayed(self.epsilon, self.decay, self.epsilon_min, context.episode)
+
+    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+        return select_action(q, self._epsilon(context), None, uniforms, self.tie_break)
+
+    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+        return mixture_probabilities(q, self._epsilon(context), None, self.tie_break)
+
+    def validate(self) -> None:
+        check_in_range("epsilon", self.epsilon, 0.0, 1.0)
+        check_in_range("decay", self.decay, 0.0, 1.0, low_open=True)
+        check_in_range("epsilon_min", self.epsilon_min, 0.0, 1.0)
+        _check_tie_break(self.tie_break)
+
+
+@explorer("softmax_decay", parameter="tau")
+class DecayingSoftmax(Explorer):
+    """Softmax with τ decaying over episodes: τ_k = max(τ_min, τ·decay^k) in episode k."""
+
+    tau: Array = 1.0
+    decay: Array = 0.99
+    tau_min: Array = 0.001
+
+    def _tau(self, context: Context) -> Array:
+        return decayed(self.tau, self.decay, self.tau_min, context.episode)
+
+    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+        return sample_categorical(softmax_weights(q, self._tau(context)), uniforms[1])
+
+    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+        return softmax_probabilities(q, self._tau(context))
+
+    def validate(self) -> None:
+        check_positive("tau", self.tau)
+        check_in_range("decay", self.decay, 0.0, 1.0, low_open=True)
+        check_positive("tau_min", self.tau_min)
+
+
+@explorer("ucb1", parameter="c")
+class UCB1(Explorer):
+    """UCB-1 (Auer et al. 2002) per state: untried actions first, then
+    ``argmax Q(s,a) + c·sqrt(ln N(s) / N(s,a))`` with N the visit counts."""
+
+    c: Array = 1.0
+    tie_break: str = static_field("random")
+    num_uniforms = 1
+
+    def tables(self) -> dict[str, Table]:
+        return {"counts": Table("pair", 0.0)}
+
+    def scores(self, q: Array, counts: Array) -> Array:
+        """Upper confidence bounds; untried actions score 1 and the others 0 while any is
+        untried."""
+        untried = counts == 0
+        total = jnp.sum(counts, axis=0)
+        bonus = self.c * jnp.sqrt(jnp.log(jnp.maximum(total, 1.0)) / jnp.maximum(counts, 1.0))
+        return jnp.where(jnp.any(untried, axis=0), untried.astype(q.dtype), q + bonus)
+
+    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+        return greedy(self.scores(q, tables["counts"]), uniforms[0], self.tie_break)
+
+    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+        return greedy_probabilities(self.scores(q, tables["counts"]), self.tie_break)
+
+    def update(self, tables: dict, action: Array, delta_q: Array, context: Context) -> dict:
+        counts = tables["counts"]
+        return {"counts": counts + (jnp.arange(counts.shape[0]) == action).astype(counts.dtype)}
+
+    def validate(self) -> None:
+        check_in_range("c", self.c, 0.0, math.inf, high_open=True)
+        _check_tie_break(self.tie_break)
+
+
+def make_explorer(name: str, param: float | None = None, **values: object) -> Explorer:
+    """A registered explorer from its name, its swept parameter and any other fields.
+
+    Args:
+      name: a registered name (:data:`EXPLORERS`: the built-ins above and user plug-ins).
+      param: the explorer's swept parameter (``EpsilonGreedy``: ε, ``Softmax``: τ,
+        ``VDBE``: σ, …; its class's ``parameter``), or ``None`` for its default.
+      **values: other fields (``tie_break``, ``delta``, ``tau`` …).
+
+    Returns:
+      the explorer, hyperparameters as float32 host scalars.
+
+    Raises:
+      ValueError: unknown name, unknown field or out-of-range value.
+    """
+    cls = explorer_class(name)
+    values = dict(values)
+    if param is not None:
+        values[cls.parameter] = param
+    return build(cls, values, "explorer")
+
+
+def explorer_class(name: str) -> type[Explorer]:
+    """The explorer class registered as ``name`` (one-line ``ValueError`` if none)."""
+    if name not in EXPLORERS:
+        check_choice("explorer", name, EXPLORERS)
+    return EXPLORERS[name]

@@ -1,0 +1,203 @@
+"""Learning rules as pure functions of one transition (rlax style), and the learners
+(plug-ins, :mod:`vdbejax.methods.api`) built on them: Q-learning, SARSA, Expected SARSA
+and Double Q-learning.
+
+``discount`` is γ for a non-terminal transition and 0 for a terminal one, so terminal
+transitions use the target ``r`` and truncated ones still bootstrap. Q rows have the
+actions on the leading axis: ``[num_actions]`` for one transition, or
+``[num_actions, batch...]`` for a batch laid out as the engine does.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from vdbejax._numerics import rounded
+from vdbejax.methods.api import LEARNERS, Learner, LearnerUpdate, Table, Transition, build, learner
+from vdbejax.validation import check_choice, check_finite, check_in_range
+
+Array = jax.Array
+
+#: The paper's learners.
+PAPER_LEARNERS = ("qlearning", "sarsa")
+PAPER_ALPHA = 0.8
+PAPER_GAMMA = 0.9
+
+
+def q_learning_target(reward: Array, discount: Array, q_next: Array) -> Array:
+    """Q-learning target ``r + discount · max_b Q(s', b)``.
+
+    Args:
+      reward: reward of the transition.
+      discount: γ, or 0 if ``s'`` is terminal.
+      q_next: ``[num_actions, batch...]`` Q row of ``s'``.
+
+    Returns:
+      the target (``[batch...]``).
+    """
+    return reward + rounded(discount * jnp.max(q_next, axis=0), discount)
+
+
+def sarsa_target(reward: Array, discount: Array, q_next: Array, next_action: Array) -> Array:
+    """SARSA target ``r + discount · Q(s', a')``.
+
+    Args:
+      reward: reward of the transition.
+      discount: γ, or 0 if ``s'`` is terminal.
+      q_next: ``[num_actions, batch...]`` Q row of ``s'``.
+      next_action: the action ``a'`` the agent takes in ``s'`` (``[batch...]``).
+
+    Returns:
+      the target (``[batch...]``).
+    """
+    # Select Q(s', a') with a masked max rather than a gather: exact, and it vectorises
+    # over the batch axis on CPU.
+    actions = jnp.arange(q_next.shape[0]).reshape((-1,) + (1,) * (q_next.ndim - 1))
+    chosen = jnp.max(jnp.where(actions == next_action, q_next, -jnp.inf), axis=0)
+    return reward + rounded(discount * chosen, discount)
+
+
+def td_update(q_value: Array, target: Array, alpha: Array) -> tuple[Array, Array]:
+    """Move ``Q(s,a)`` toward ``target`` by step size α.
+
+    Args:
+      q_value: current Q(s, a).
+      target: learning target.
+      alpha: step size in (0, 1].
+
+    Returns:
+      ``(new_q_value, delta_q)`` with ``delta_q = α·(target − Q(s,a))``.
+    """
+    delta_q = rounded(alpha * (target - q_value), alpha)
+    return q_value + delta_q, delta_q
+
+
+def expected_sarsa_target(reward: Array, discount: Array, q_next: Array,
+                          probabilities: Array) -> Array:
+    """Expected SARSA target ``r + discount · Σ_b π(b|s') Q(s', b)``.
+
+    Args:
+      reward: reward of the transition.
+      discount: γ, or 0 if ``s'`` is terminal.
+      q_next: ``[num_actions, batch...]`` Q row of ``s'``.
+      probabilities: π(·|s'), shaped like ``q_next``.
+
+    Returns:
+      the target (``[batch...]``).
+    """
+    expected = jnp.sum(probabilities * q_next, axis=0)
+    return reward + rounded(discount * expected, discount)
+
+
+def double_q_learning_target(reward: Array, discount: Array, q_next_value: Array,
+                             q_next_selector: Array) -> Array:
+    """Double Q-learning target ``r + discount · Q_value(s', argmax_b Q_selector(s', b))``
+    (ties: the lowest index), the other table valuing the first table's greedy action.
+    """
+    best = jnp.argmax(q_next_selector, axis=0)
+    actions = jnp.arange(q_next_value.shape[0]).reshape((-1,) + (1,) * (q_next_value.ndim - 1))
+    value = jnp.max(jnp.where(actions == best, q_next_value, -jnp.inf), axis=0)
+    return reward + rounded(discount * value, discount)
+
+
+def _check_common(self: Learner) -> None:
+    check_in_range("alpha", self.alpha, 0.0, 1.0, low_open=True)
+    check_in_range("gamma", self.gamma, 0.0, 1.0)
+    check_finite("q_init", self.q_init)
+
+
+@learner("qlearning")
+class QLearning(Learner):
+    """Q-learning (Watkins 1989): ``Q(s,a) += α(r + γ max_b Q(s',b) − Q(s,a))``; a′ is
+    chosen after the update."""
+
+    alpha: Array = PAPER_ALPHA
+    gamma: Array = PAPER_GAMMA
+    q_init: Array = 0.0
+
+    def update(self, t: Transition) -> LearnerUpdate:
+        new, delta_q = td_update(t.q, q_learning_target(t.reward, t.discount, t.q_next), self.alpha)
+        return LearnerUpdate(new, {}, delta_q)
+
+    validate = _check_common
+
+
+@learner("sarsa")
+class SARSA(Learner):
+    """SARSA (Rummery & Niranjan 1994): target ``r + γ Q(s',a')`` with the a′ the agent
+    takes next, chosen before the update."""
+
+    alpha: Array = PAPER_ALPHA
+    gamma: Array = PAPER_GAMMA
+    q_init: Array = 0.0
+    uses_next_action = True
+
+    def update(self, t: Transition) -> LearnerUpdate:
+        target = sarsa_target(t.reward, t.discount, t.q_next, t.next_action)
+        new, delta_q = td_update(t.q, target, self.alpha)
+        return LearnerUpdate(new, {}, delta_q)
+
+    validate = _check_common
+
+
+@learner("expected_sarsa")
+class ExpectedSARSA(Learner):
+    """Expected SARSA (van Seijen et al. 2009): target ``r + γ Σ_b π(b|s') Q(s',b)`` with
+    the explorer's own probabilities (before the update); a′ is chosen after it."""
+
+    alpha: Array = PAPER_ALPHA
+    gamma: Array = PAPER_GAMMA
+    q_init: Array = 0.0
+    uses_next_probabilities = True
+
+    def update(self, t: Transition) -> LearnerUpdate:
+        target = expected_sarsa_target(t.reward, t.discount, t.q_next, t.next_probabilities)
+        new, delta_q = td_update(t.q, target, self.alpha)
+        return LearnerUpdate(new, {}, delta_q)
+
+    validate = _check_common
+
+
+@learner("double_qlearning")
+class DoubleQLearning(Learner):
+    """Double Q-learning (van Hasselt 2010): two tables; each step one of them, chosen
+    with probability ½, moves toward the other's value of its own greedy action. The
+    explorer acts on their sum; ΔQ is the change of the updated table."""
+
+    alpha: Array = PAPER_ALPHA
+    gamma: Array = PAPER_GAMMA
+    q_init: Array = 0.0
+    num_uniforms = 1
+
+    def tables(self) -> dict[str, Table]:
+        return {"q2": Table("pair", self.q_init)}
+
+    def behaviour(self, q: Array, tables: dict) -> Array:
+        return q + tables["q2"]
+
+    def update(self, t: Transition) -> LearnerUpdate:
+        first = t.uniforms[0] < 0.5
+        q2, q2_next = t.tables["q2"], t.tables_next["q2"]
+        target = jnp.where(first,
+                           double_q_learning_target(t.reward, t.discount, q2_next, t.q_next),
+                           double_q_learning_target(t.reward, t.discount, t.q_next, q2_next))
+        new, delta_q = td_update(jnp.where(first, t.q, q2), target, self.alpha)
+        return LearnerUpdate(jnp.where(first, new, t.q), {"q2": jnp.where(first, q2, new)}, delta_q)
+
+    validate = _check_common
+
+
+def make_learner(name: str, **values: object) -> Learner:
+    """A registered learner from its name and any fields (α, γ, q_init, …).
+
+    Raises:
+      ValueError: unknown name, unknown field or out-of-range value.
+    """
+    return build(learner_class(name), values, "learner")
+
+
+def learner_class(name: str) -> type[Learner]:
+    """The learner class registered as ``name`` (one-line ``ValueError`` if none)."""
+    if name not in LEARNERS:
+        check_choice("learner", name, LEARNERS)
+    return LEARNERS[name]
