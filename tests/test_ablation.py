@@ -2,7 +2,8 @@
 reuse of saved results, and one-line errors."""
 import pytest
 
-from vdbejax import ablation, cli
+from vdbejax import cli
+from vdbejax.paper import ablation
 
 VARIANTS = "spec,invalid_fail"
 

@@ -270,8 +270,8 @@ def test_finite_run_reports_nothing():
 
 
 def test_cli_prints_the_nonfinite_configs(tmp_path, capsys, monkeypatch):
-    # `vdbejax.reproduce` the attribute is the function; patch the module's task factory.
-    reproduce_module = sys.modules["vdbejax.reproduce"]
+    # `vdbejax.paper.reproduce` the attribute is the function; patch the module's task factory.
+    reproduce_module = sys.modules["vdbejax.paper.reproduce"]
     monkeypatch.setattr(reproduce_module, "make_mdp", lambda **options: overflowing_mdp())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)

@@ -13,7 +13,7 @@ _xla_flags.apply()  # before anything starts JAX's backend (see vdbejax._xla_fla
 from vdbejax.methods.agents import AgentOptions, AgentParams, Setting, make_agent, paper_settings
 from vdbejax.envs import TabularMDP, compile_env, make_tabular_mdp
 from vdbejax.experiment import GridResult, run_grid
-from vdbejax.reproduce import reproduce
+from vdbejax.paper.reproduce import reproduce
 
 __all__ = [
     "AgentOptions",

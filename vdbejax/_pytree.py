@@ -19,12 +19,35 @@ def static_field(default: Any = dataclasses.MISSING) -> Any:
 
 
 def pytree_dataclass(cls: type[T]) -> type[T]:
-    """Turn ``cls`` into a frozen dataclass registered as a pytree."""
+    """Turn ``cls`` into a frozen dataclass registered as a pytree.
+
+    Registered as a custom node (not with ``jax.tree_util.register_dataclass``, whose
+    tree structures of two classes with the same field names compare *equal*: JAX's
+    caches could then hand one class's compiled program to the other — e.g. Q-learning's
+    to SARSA, whose fields are the same).
+    """
     cls = dataclasses.dataclass(frozen=True)(cls)
     fields = dataclasses.fields(cls)
-    data = [f.name for f in fields if not f.metadata.get("static", False)]
-    meta = [f.name for f in fields if f.metadata.get("static", False)]
-    jax.tree_util.register_dataclass(cls, data_fields=data, meta_fields=meta)
+    data = tuple(f.name for f in fields if not f.metadata.get("static", False))
+    meta = tuple(f.name for f in fields if f.metadata.get("static", False))
+    keys = tuple(jax.tree_util.GetAttrKey(name) for name in data)
+
+    def flatten_with_keys(obj: Any) -> tuple:
+        return (tuple(zip(keys, (getattr(obj, n) for n in data))),
+                tuple(getattr(obj, n) for n in meta))
+
+    def flatten(obj: Any) -> tuple:
+        return tuple(getattr(obj, n) for n in data), tuple(getattr(obj, n) for n in meta)
+
+    def unflatten(static: tuple, children: Any) -> Any:
+        obj = object.__new__(cls)  # no __init__: leaves may be tracers or placeholders
+        for name, value in zip(data, children):
+            object.__setattr__(obj, name, value)
+        for name, value in zip(meta, static):
+            object.__setattr__(obj, name, value)
+        return obj
+
+    jax.tree_util.register_pytree_with_keys(cls, flatten_with_keys, unflatten, flatten)
     return cls
 
 

@@ -36,7 +36,7 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
 
 
 def _reproduce(args: argparse.Namespace) -> None:
-    from vdbejax.reproduce import reproduce
+    from vdbejax.paper.reproduce import reproduce
 
     rep = reproduce(
         args.out, seeds=args.seeds, episodes=args.episodes, seed=args.seed,
@@ -57,7 +57,7 @@ def _add_plot(sub: argparse._SubParsersAction) -> None:
 
 
 def _plot(args: argparse.Namespace) -> None:
-    from vdbejax.reproduce import replot
+    from vdbejax.paper.reproduce import replot
 
     written = replot(args.results, args.out, bands=args.bands)
     for path in written:
@@ -73,7 +73,7 @@ def _add_ablate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=parse_cli_number, default=1000, help="episodes per agent (default 1000)")
     p.add_argument("--seed", type=parse_cli_number, default=0, help="root random seed (default 0)")
     p.add_argument("--variants", default=None,
-                   help="comma-separated variant names (default: all; see vdbejax.ablation.VARIANTS)")
+                   help="comma-separated variant names (default: all; see vdbejax.paper.ablation.VARIANTS)")
     p.add_argument("--notes", default=None,
                    help="hand-written discussion appended to the document"
                         " (default: docs/reproduction_notes.md if it exists)")
@@ -82,7 +82,7 @@ def _add_ablate(sub: argparse._SubParsersAction) -> None:
 
 
 def _ablate(args: argparse.Namespace) -> None:
-    from vdbejax.ablation import DEFAULT_NOTES, ablate, select_variants
+    from vdbejax.paper.ablation import DEFAULT_NOTES, ablate, select_variants
 
     notes = args.notes if args.notes is not None else (DEFAULT_NOTES if Path(DEFAULT_NOTES).is_file() else None)
     results = ablate(args.out, results_dir=args.results, variants=select_variants(args.variants),

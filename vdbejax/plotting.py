@@ -19,7 +19,7 @@ import numpy as np  # noqa: E402
 
 from vdbejax.methods.agents import parameter_name  # noqa: E402
 from vdbejax.analysis import WINDOW, mean_curve_ci, moving_average  # noqa: E402
-from vdbejax.claims import LEARNER_NAMES  # noqa: E402
+from vdbejax.paper.claims import LEARNER_NAMES  # noqa: E402
 from vdbejax.experiment import GridResult  # noqa: E402
 
 EXPLORER_TITLES = {

@@ -304,11 +304,7 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
 
 
 def kind_key(agent: Agent) -> tuple:
-    """What makes an agent's kind: learner and explorer classes with their static fields.
-
-    (Not ``jax.tree.structure``: JAX's treedefs of two dataclasses with the same field
-    names compare equal.)
-    """
+    """What makes an agent's kind: learner and explorer classes with their static fields."""
     def of(plugin: Any) -> tuple:
         return (type(plugin), tuple(getattr(plugin, name) for name in static_names(type(plugin))))
 

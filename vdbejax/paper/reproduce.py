@@ -14,7 +14,7 @@ from pathlib import Path
 from vdbejax import io
 from vdbejax.methods.agents import AgentOptions, make_agent, paper_settings
 from vdbejax.analysis import SUMMARY_COLUMNS, summarize
-from vdbejax.claims import ClaimResult, evaluate_claims, render_report
+from vdbejax.paper.claims import ClaimResult, evaluate_claims, render_report
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.distributed import process_checkpoint_path, select_devices
