@@ -48,8 +48,11 @@ def test_probability_of_improvement_matrix():
 
 
 def test_summarize_columns_and_intervals():
-    rows = analysis.summarize(synthetic_grid())
-    assert list(rows[0]) == analysis.SUMMARY_COLUMNS
+    grid = synthetic_grid()
+    rows = analysis.summarize(grid)
+    assert list(rows[0]) == analysis.SUMMARY_COLUMNS[:4] + ["hyperparameters"] + analysis.SUMMARY_COLUMNS[4:]
+    # The paper's grid has no values beside each explorer's parameter: summary.csv as before.
+    assert analysis.summary_columns(grid) == analysis.SUMMARY_COLUMNS
     for r in rows:
         assert r["final_ci_low"] <= r["final_return"] <= r["final_ci_high"]
         assert r["convergence_ci_low"] <= r["convergence_ci_high"]

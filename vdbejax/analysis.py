@@ -83,7 +83,8 @@ def summarize(result: GridResult, last: int = LAST, window: int = WINDOW) -> lis
                 "config": c,
                 "learner": setting.learner,
                 "explorer": setting.explorer,
-                "param": setting.param,
+                "param": "" if setting.param is None else setting.param,
+                "hyperparameters": setting.hyperparameters_json(),
                 "final_return": final,
                 "final_ci_low": final_low,
                 "final_ci_high": final_high,
@@ -116,6 +117,13 @@ SUMMARY_COLUMNS = [
     "mean_length",
     "nonfinite_agents",
 ]
+
+
+def summary_columns(result: GridResult) -> list[str]:
+    """:data:`SUMMARY_COLUMNS`, and ``hyperparameters`` when a setting of ``result`` has
+    values besides its swept parameter."""
+    extra = ["hyperparameters"] if any(s.hyperparameters for s in result.settings) else []
+    return SUMMARY_COLUMNS[:4] + extra + SUMMARY_COLUMNS[4:]
 
 
 def probability_of_improvement_matrix(

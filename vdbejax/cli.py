@@ -49,6 +49,80 @@ def _reproduce(args: argparse.Namespace) -> None:
     print(f"elapsed: {rep.elapsed_seconds:.1f} s (training {rep.result.meta['elapsed_seconds']:.1f} s)")
 
 
+def _add_run(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run", help="run any sweep (learners × explorers × hyperparameter axes) and write its"
+                    " results, summary and figures",
+        description="Flags override the sweep file's keys (vdbejax.sweeps lists them).")
+    number = parse_cli_number
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--config", default=None, help="sweep file, TOML (.toml) or JSON")
+    p.add_argument("--task", default=None,
+                   help="table_cleaning (default) or variant:NxK (N sections, K goblets)")
+    p.add_argument("--learners", default=None, help="comma-separated, e.g. qlearning,sarsa")
+    p.add_argument("--explorers", default=None, help="comma-separated, e.g. vdbe,ucb1")
+    p.add_argument("--axis", action="append", default=[], metavar="NAME=V1,V2,...",
+                   help="a sweep axis, e.g. --axis alpha=0.1,0.3,0.8 (repeatable)")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="a value shared by every setting that has it, e.g. --set gamma=0.95")
+    p.add_argument("--plugin", action="append", default=[], metavar="FILE_OR_MODULE",
+                   help="import this file or module first (it registers plug-ins)")
+    p.add_argument("--seeds", type=number, default=None, help="agents per setting (default 20)")
+    p.add_argument("--episodes", type=number, default=None, help="episodes per agent (default 1000)")
+    p.add_argument("--seed", type=number, default=None, help="root random seed (default 0)")
+    p.add_argument("--max-steps", type=number, default=None, help="episode truncation (default 100)")
+    p.add_argument("--invalid-action", default=None, help="noop (default) or fail")
+    p.add_argument("--chunk-episodes", type=number, default=None, help="episodes per jitted chunk")
+    p.add_argument("--no-figures", action="store_true", help="no fig3.png / sensitivity.png")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _pairs(texts: list[str], flag: str) -> list[tuple[str, str]]:
+    pairs = []
+    for text in texts:
+        name, sep, value = text.partition("=")
+        if not sep or not name or not value:
+            raise ValueError(f"{flag}={text!r} is invalid: must be NAME=VALUE")
+        pairs.append((name, value))
+    return pairs
+
+
+def _value(text: str) -> object:
+    if text in ("random", "first"):
+        return text
+    return parse_cli_number(text)
+
+
+def _run(args: argparse.Namespace) -> None:
+    from vdbejax.sweeps import read_sweep_file, run_sweep
+
+    spec = read_sweep_file(args.config) if args.config else {}
+    for key in ("task", "seeds", "episodes", "seed", "max_steps", "invalid_action",
+                "chunk_episodes"):
+        if getattr(args, key) is not None:
+            spec[key] = getattr(args, key)
+    for key in ("learners", "explorers"):
+        if getattr(args, key) is not None:
+            spec[key] = [name for name in getattr(args, key).split(",") if name]
+    axes = dict(spec.get("axes", {}))
+    axes.update({name: [_value(v) for v in values.split(",")]
+                 for name, values in _pairs(args.axis, "--axis")})
+    shared = dict(spec.get("shared", {}))
+    shared.update({name: _value(value) for name, value in _pairs(args.set, "--set")})
+    spec["axes"], spec["shared"] = axes, shared
+    spec["plugins"] = list(spec.get("plugins", [])) + args.plugin
+    for key in ("learners", "explorers"):
+        if key not in spec:
+            raise ValueError(f"{key} is missing: give --{key} or a sweep file with {key} = [...]")
+    result = run_sweep(args.out, progress=not args.quiet, figures=not args.no_figures, **spec)
+    from vdbejax.analysis import summarize
+
+    for row, setting in zip(summarize(result), result.settings):
+        print(f"{setting.label}: final return {row['final_return']:.3f}"
+              f" [{row['final_ci_low']:.3f}, {row['final_ci_high']:.3f}]")
+    print(f"training {result.meta['elapsed_seconds']:.1f} s → {args.out}")
+
+
 def _add_plot(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("plot", help="redraw figures, summary and report from saved results (no training)")
     p.add_argument("--results", required=True, help="folder with returns.npz, configs.csv, meta.json")
@@ -94,6 +168,7 @@ def _ablate(args: argparse.Namespace) -> None:
 
 COMMANDS = {
     "reproduce": (_add_reproduce, _reproduce),
+    "run": (_add_run, _run),
     "plot": (_add_plot, _plot),
     "ablate": (_add_ablate, _ablate),
 }

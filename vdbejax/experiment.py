@@ -27,6 +27,8 @@ from vdbejax.methods.agents import (
     Setting,
     agent_hyperparameters,
     make_agent,
+    parameter_name,
+    remember_parameter_names,
     stack_agents,
     table_layout,
 )
@@ -149,6 +151,8 @@ class GridResult:
             returns, lengths = data["returns"], data["lengths"]
             nonfinite = data["nonfinite"] if "nonfinite" in data else np.zeros(returns.shape[:2], bool)
         meta = io.load_json(out / io.META_FILE) if (out / io.META_FILE).exists() else {}
+        if isinstance(meta, dict):
+            remember_parameter_names(meta.get("parameter_names", {}))
         return cls(io.load_settings(out / io.CONFIGS_FILE), returns, lengths, nonfinite, meta)
 
 
@@ -421,6 +425,7 @@ def run_grid(
                 jax_version=jax.__version__, backend=jax.default_backend())
     meta.pop("mdp_tables")
     meta["hyperparameters"] = [agent_hyperparameters(make_agent(s, options)) for s in settings]
+    meta["parameter_names"] = {s.explorer: parameter_name(s.explorer) for s in settings}
     return GridResult(settings, returns, lengths, nonfinite, meta)
 
 

@@ -77,6 +77,16 @@ def atomic_savez(path: str | os.PathLike, *, compressed: bool = True, **arrays: 
     atomic_write_bytes(path, buffer.getvalue())
 
 
+def save_figure(fig: Any, path: str | os.PathLike) -> None:
+    """Save a matplotlib figure as PNG atomically, then free its memory."""
+    import matplotlib.pyplot as plt
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    atomic_write_bytes(path, buffer.getvalue())
+    plt.close(fig)
+
+
 def write_csv(path: str | os.PathLike, rows: list[dict[str, Any]], columns: list[str]) -> None:
     """Write ``rows`` (dicts) with header ``columns`` atomically; floats with 6 digits."""
     buffer = io.StringIO()

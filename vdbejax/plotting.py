@@ -97,7 +97,11 @@ def figure3(
                 ax.axhline(best_return, color="crimson", ls="--", lw=1, label=f"best {best_return:.2f}")
             ax.set_title(f"{LEARNER_TITLES.get(learner, learner)} — {EXPLORER_TITLES.get(explorer, explorer)}")
             ax.grid(alpha=0.3)
-            ax.legend(fontsize=7, loc="lower right")
+            if not indices:
+                ax.text(0.5, 0.5, "not in this grid", ha="center", va="center",
+                        transform=ax.transAxes, color="gray")
+            if ax.get_legend_handles_labels()[0]:
+                ax.legend(fontsize=7, loc="lower right")
             if row == len(learners) - 1:
                 ax.set_xlabel("episode")
             if col == 0:

@@ -45,10 +45,22 @@ PAPER_PARAMETERS: dict[str, tuple[float, ...]] = {
 }
 
 
+#: Swept-parameter names of explorers known from loaded results (their classes may not be
+#: imported in this process, e.g. ``vdbejax plot`` on a grid of user plug-ins).
+_SAVED_PARAMETER_NAMES: dict[str, str] = {}
+
+
 def parameter_name(explorer: str) -> str:
-    """The name of an explorer's swept parameter (``"param"`` if it is not registered)."""
+    """The name of an explorer's swept parameter (``"param"`` if it is unknown)."""
     cls = EXPLORERS.get(explorer)
-    return (cls.parameter if cls is not None else None) or "param"
+    name = cls.parameter if cls is not None else _SAVED_PARAMETER_NAMES.get(explorer)
+    return name or "param"
+
+
+def remember_parameter_names(names: Mapping[str, str]) -> None:
+    """Record ``{explorer: parameter name}`` read from a saved result."""
+    if isinstance(names, Mapping):
+        _SAVED_PARAMETER_NAMES.update({str(k): str(v) for k, v in names.items()})
 
 
 def _plain(value: Any) -> Any:

@@ -257,7 +257,12 @@ def hyperparameters(instance: Any) -> dict[str, Any]:
     for name in field_names(type(instance)):
         value = getattr(instance, name)
         if isinstance(value, (np.ndarray, np.generic, jax.Array)):
-            value = np.asarray(value).item() if np.ndim(value) == 0 else np.asarray(value).tolist()
+            array = np.asarray(value)
+            if array.dtype == np.float32:  # the shortest decimal that is this float32
+                value = [float(str(v)) for v in array.ravel()]
+                value = value[0] if array.ndim == 0 else np.reshape(value, array.shape).tolist()
+            else:
+                value = array.item() if array.ndim == 0 else array.tolist()
         values[name] = value
     return values
 

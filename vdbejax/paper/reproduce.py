@@ -11,9 +11,8 @@ import zipfile
 from io import BytesIO
 from pathlib import Path
 
-from vdbejax import io
+from vdbejax import io, sweeps
 from vdbejax.methods.agents import AgentOptions, make_agent, paper_settings
-from vdbejax.analysis import SUMMARY_COLUMNS, summarize
 from vdbejax.paper.claims import ClaimResult, evaluate_claims, render_report
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.learners import PAPER_ALPHA
@@ -22,9 +21,7 @@ from vdbejax.experiment import GridResult, check_run_options, run_grid
 from vdbejax.solvers import best_return
 from vdbejax.validation import check_bool, check_int, check_writable_dir
 
-SUMMARY_FILE = "summary.csv"
-FIGURE_FILE = "fig3.png"
-SENSITIVITY_FILE = "sensitivity.png"
+SUMMARY_FILE, FIGURE_FILE, SENSITIVITY_FILE = sweeps.SUMMARY_FILE, sweeps.FIGURE_FILE, sweeps.SENSITIVITY_FILE
 REPORT_FILE = "report.md"
 CHECKPOINT_FILE = "checkpoint.npz"
 
@@ -41,41 +38,34 @@ class Reproduction:
     elapsed_seconds: float
 
 
-def _save_figure(fig: "matplotlib.figure.Figure", path: Path) -> None:  # noqa: F821
-    """Save as PNG with :func:`vdbejax.io.atomic_write_bytes`, then free the figure's memory."""
-    import matplotlib.pyplot as plt
-
-    buffer = BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
-    io.atomic_write_bytes(path, buffer.getvalue())
-    plt.close(fig)
-
-
 def write_outputs(
-    result: GridResult, out_dir: str | os.PathLike, best: float, bands: bool = True
+    result: GridResult, out_dir: str | os.PathLike, best: float, bands: bool = True,
+    figures: bool = True,
 ) -> tuple[list[dict], list[ClaimResult]]:
     """Write ``summary.csv``, ``fig3.png``, ``sensitivity.png`` and ``report.md`` for a
-    (saved) result.
+    (saved) result of the paper's grid.
 
     Args:
       result: the grid.
       out_dir: output folder.
       best: the best possible return (reference lines, "near" in the claims).
       bands: Figure 3 with 95% bootstrap bands over agents.
+      figures: draw the figures.
 
     Returns:
       the summary rows and the scored claims.
     """
-    from vdbejax.plotting import figure3, sensitivity  # matplotlib only when plotting
-
     out = Path(out_dir)
-    summary = summarize(result)
-    io.write_csv(out / SUMMARY_FILE, summary, SUMMARY_COLUMNS)
-    _save_figure(figure3(result, best_return=best, bands=bands), out / FIGURE_FILE)
-    _save_figure(sensitivity(summary, best_return=best), out / SENSITIVITY_FILE)
+    summary = sweeps.write_outputs(result, out, best, bands=bands, figures=figures)
     claims = evaluate_claims(summary, best)
     io.atomic_write_text(out / REPORT_FILE, render_report(claims, result.meta, best))
     return summary, claims
+
+
+def is_paper_grid(result: GridResult) -> bool:
+    """Whether a result is the paper's grid (its 46 settings on the table-cleaning task),
+    the only one its claims report applies to."""
+    return result.meta.get("mdp") == "table_cleaning" and result.settings == paper_settings()
 
 
 def reproduce(
@@ -193,12 +183,14 @@ def saved_best_return(result: GridResult) -> float:
 def replot(
     results_dir: str | os.PathLike, out_dir: str | os.PathLike | None = None, bands: bool = False
 ) -> list[Path]:
-    """Redraw Figure 3, the sensitivity plot, the summary and the report from saved results.
+    """Redraw Figure 3, the sensitivity plot and the summary from saved results, and the
+    claims report for the paper's grid (:func:`is_paper_grid`; other grids get none).
 
     Nothing is retrained: only ``returns.npz``, ``configs.csv`` and ``meta.json`` are read.
 
     Args:
-      results_dir: a folder written by :func:`reproduce` (or :meth:`GridResult.save`).
+      results_dir: a folder written by :func:`reproduce`, ``vdbejax run`` or
+        :meth:`GridResult.save`.
       out_dir: where to write (default: ``results_dir``).
       bands: 95% bootstrap bands on Figure 3.
 
@@ -216,5 +208,10 @@ def replot(
         raise ValueError(f"returns.npz in {str(results_dir)!r} does not match configs.csv "
                          f"({result.returns.shape} for {len(result.settings)} configs)")
     out = check_writable_dir("out", results_dir if out_dir is None else out_dir)
-    write_outputs(result, out, saved_best_return(result), bands=bands)
-    return [out / name for name in (FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE, REPORT_FILE)]
+    written = [out / name for name in (FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE)]
+    if is_paper_grid(result):
+        write_outputs(result, out, saved_best_return(result), bands=bands)
+        return written + [out / REPORT_FILE]
+    best = result.meta.get("best_return")
+    sweeps.write_outputs(result, out, None if best is None else float(best), bands=bands)
+    return written

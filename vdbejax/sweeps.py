@@ -1,0 +1,210 @@
+"""Any sweep, from Python or a file: learners × explorers × hyperparameter axes on a task.
+
+:func:`run_sweep` trains the product of :func:`~vdbejax.methods.agents.sweep` on a task
+and writes the same result folder as :func:`~vdbejax.reproduce` (minus the paper's
+claims report): ``returns.npz``, ``configs.csv``, ``meta.json``, ``summary.csv`` and,
+unless ``figures=False``, ``fig3.png`` and ``sensitivity.png``. ``vdbejax run`` is its
+command line; a sweep file (TOML or JSON) holds the same keys::
+
+    task = "table_cleaning"          # or "variant:4x2" (4 sections, 2 goblets)
+    learners = ["qlearning", "sarsa"]
+    explorers = ["vdbe", "ucb1"]
+    seeds = 20
+    episodes = 1000
+    plugins = ["examples/custom_explorer.py"]   # files or modules that register plug-ins
+
+    [axes]
+    alpha = [0.1, 0.3, 0.8]
+    sigma = [0.01, 1, 100]
+
+    [shared]
+    gamma = 0.9
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import json
+import os
+import sys
+import tomllib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from vdbejax import io
+from vdbejax.envs.tabular import TabularMDP
+from vdbejax.experiment import GridResult, check_run_options, run_grid
+from vdbejax.methods.agents import AgentOptions, make_agent, sweep
+from vdbejax.validation import check_bool, check_int, check_writable_dir
+
+SUMMARY_FILE = "summary.csv"
+FIGURE_FILE = "fig3.png"
+SENSITIVITY_FILE = "sensitivity.png"
+#: Keys a sweep file may hold.
+SWEEP_KEYS = ("task", "learners", "explorers", "axes", "shared", "seeds", "episodes", "seed",
+              "max_steps", "invalid_action", "chunk_episodes", "plugins")
+
+
+def make_task(task: str, *, max_steps: int = 100, invalid_action: str = "noop") -> TabularMDP:
+    """A task by name: ``table_cleaning`` (the paper's) or ``variant:NxK`` (the generated
+    variant with N sections and K goblets).
+
+    Raises:
+      ValueError: an unknown name.
+    """
+    from vdbejax.envs.table_cleaning import make_mdp, make_variant_mdp
+
+    if task == "table_cleaning":
+        return make_mdp(max_steps=max_steps, invalid_action=invalid_action)
+    name, _, size = str(task).partition(":")
+    sections, _, goblets = size.partition("x")
+    if name == "variant" and sections.isdigit() and goblets.isdigit():
+        return make_variant_mdp(int(sections), int(goblets), max_steps=max_steps,
+                                invalid_action=invalid_action)
+    raise ValueError(f"task={task!r} is invalid: must be table_cleaning or variant:NxK"
+                     " (e.g. variant:4x2)")
+
+
+def load_plugins(plugins: Sequence[str]) -> None:
+    """Import files (``path/to/file.py``) or modules that register plug-ins.
+
+    Raises:
+      ValueError: a file or module that cannot be imported.
+    """
+    for plugin in plugins:
+        try:
+            if str(plugin).endswith(".py"):
+                path = Path(plugin)
+                spec = importlib.util.spec_from_file_location(f"vdbejax_plugin_{path.stem}", path)
+                if spec is None or not path.is_file():
+                    raise FileNotFoundError(f"no file {str(path)!r}")
+                module = importlib.util.module_from_spec(spec)
+                sys.modules[spec.name] = module
+                spec.loader.exec_module(module)
+            else:
+                importlib.import_module(plugin)
+        except ValueError:
+            raise
+        except Exception as error:  # noqa: BLE001  (the user's code: report it in one line)
+            raise ValueError(f"plugin={plugin!r} is invalid: cannot import it"
+                             f" ({type(error).__name__}: {error})") from None
+
+
+def read_sweep_file(path: str | os.PathLike) -> dict[str, Any]:
+    """The keys of a TOML (``.toml``) or JSON sweep file.
+
+    Raises:
+      ValueError: unreadable, not a table/object, or an unknown key.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+        data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
+    except (OSError, ValueError) as error:
+        raise ValueError(f"sweep file {str(path)!r} is unreadable: {error}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"sweep file {str(path)!r} must hold a table of keys, not"
+                         f" {type(data).__name__}")
+    unknown = sorted(set(data) - set(SWEEP_KEYS))
+    if unknown:
+        raise ValueError(f"sweep file {str(path)!r} has unknown key {unknown[0]!r}: allowed are"
+                         f" {', '.join(SWEEP_KEYS)}")
+    return data
+
+
+def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | None,
+                  bands: bool = True, figures: bool = True) -> list[dict]:
+    """Write ``summary.csv`` and (unless ``figures=False``) ``fig3.png`` and
+    ``sensitivity.png`` for a grid of any kinds.
+
+    Args:
+      result: the grid.
+      out_dir: output folder.
+      best: the task's best return (reference lines), if known.
+      bands: Figure 3 with 95% bootstrap bands over agents.
+      figures: draw the figures.
+
+    Returns:
+      the summary rows.
+    """
+    from vdbejax.analysis import summarize, summary_columns
+
+    out = Path(out_dir)
+    summary = summarize(result)
+    io.write_csv(out / SUMMARY_FILE, summary, summary_columns(result))
+    if figures:
+        from vdbejax.plotting import figure3, sensitivity  # matplotlib only when plotting
+
+        io.save_figure(figure3(result, best_return=best, bands=bands), out / FIGURE_FILE)
+        io.save_figure(sensitivity(summary, best_return=best), out / SENSITIVITY_FILE)
+    return summary
+
+
+def run_sweep(
+    out_dir: str | os.PathLike,
+    *,
+    learners: Sequence[str],
+    explorers: Sequence[str],
+    axes: Mapping[str, Sequence[Any]] | None = None,
+    shared: Mapping[str, Any] | None = None,
+    task: str = "table_cleaning",
+    seeds: int = 20,
+    episodes: int = 1000,
+    seed: int = 0,
+    max_steps: int = 100,
+    invalid_action: str = "noop",
+    chunk_episodes: int = 100,
+    plugins: Sequence[str] = (),
+    progress: bool = True,
+    figures: bool = True,
+) -> GridResult:
+    """Train ``learners × explorers × axes`` on a task and write the result folder.
+
+    Args:
+      out_dir: output folder (created if needed).
+      learners: learner names.
+      explorers: explorer names (built-in or registered by ``plugins``).
+      axes: ``{hyperparameter: values}`` (see :func:`~vdbejax.methods.agents.sweep`).
+      shared: ``{hyperparameter: value}`` for every setting that has the field.
+      task: ``table_cleaning`` or ``variant:NxK`` (:func:`make_task`).
+      seeds: agents per setting.
+      episodes: episodes per agent.
+      seed: root seed.
+      max_steps: episode truncation length.
+      invalid_action: ``noop`` or ``fail``.
+      chunk_episodes: episodes per jitted chunk.
+      plugins: files or modules to import first (:func:`load_plugins`).
+      progress: a progress bar on stderr.
+      figures: write ``fig3.png`` and ``sensitivity.png``.
+
+    Returns:
+      the :class:`~vdbejax.experiment.GridResult` (also saved in ``out_dir``).
+
+    Raises:
+      ValueError: any invalid input, before training starts.
+    """
+    from vdbejax.solvers import best_return
+
+    load_plugins(list(plugins))
+    mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)
+    settings = sweep(learners, explorers, axes, shared)
+    for setting in settings:  # every setting checked before anything is trained
+        make_agent(setting, AgentOptions())
+    check_int("seeds", seeds, 1)
+    check_int("episodes", episodes, 1)
+    check_run_options(num_seeds=seeds, num_episodes=episodes, seed=seed,
+                      chunk_episodes=chunk_episodes, resume=False, memory_budget_bytes=None)
+    check_bool("progress", progress)
+    check_bool("figures", figures)
+    out = check_writable_dir("out", out_dir)
+    result = run_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes, seed=seed,
+                      chunk_episodes=chunk_episodes, progress=progress)
+    best = best_return(mdp)
+    result.meta.update(best_return=best, invalid_action=invalid_action, task=task,
+                       sweep={"learners": list(learners), "explorers": list(explorers),
+                              "axes": {k: list(v) for k, v in (axes or {}).items()},
+                              "shared": dict(shared or {}), "plugins": list(plugins)})
+    result.save(out)
+    write_outputs(result, out, best, figures=figures)
+    return result
