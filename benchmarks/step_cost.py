@@ -7,7 +7,9 @@ Usage::
 Runs the paper's settings (46 × ``--seeds`` agents × ``--episodes`` episodes) through
 ``run_agents`` once to compile, then times a second identical run: nanoseconds per real
 environment step and thread, for the whole grid and for each learner × explorer. One
-JSON line per row on stdout.
+JSON line per row on stdout. The rows ``*/user_egreedy`` run a plug-in defined here,
+outside the package, that computes what the built-in ε-greedy computes: a user's explorer
+of the same cost runs at the built-in's speed when the two rows agree.
 """
 from __future__ import annotations
 
@@ -39,8 +41,22 @@ def step_cost(settings: list, seeds: int, episodes: int, threads: int, strategy:
             "strategy": result.strategy}
 
 
+def _register_user_egreedy() -> None:
+    """A user-defined copy of ε-greedy (same arithmetic as the built-in)."""
+    from vdbejax._pytree import static_field
+    from vdbejax.methods import Explorer, explorer, select_action
+
+    @explorer("user_egreedy", parameter="epsilon")
+    class UserEpsilonGreedy(Explorer):
+        epsilon: float = 0.1
+        tie_break: str = static_field("random")
+
+        def select(self, q, tables, context, uniforms):
+            return select_action(q, self.epsilon, None, uniforms, self.tie_break)
+
+
 def main(argv: list[str] | None = None) -> int:
-    from vdbejax.methods.agents import paper_settings
+    from vdbejax.methods.agents import Setting, paper_settings
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
@@ -52,6 +68,10 @@ def main(argv: list[str] | None = None) -> int:
     groups = {"all": settings}
     for setting in settings:
         groups.setdefault(f"{setting.learner}/{setting.explorer}", []).append(setting)
+    _register_user_egreedy()
+    for learner in ("qlearning", "sarsa"):
+        mine = [Setting(s.learner, "user_egreedy", s.param) for s in groups[f"{learner}/egreedy"]]
+        groups[f"{learner}/user_egreedy"] = mine
     for name, members in groups.items():
         row = step_cost(members, args.seeds, args.episodes, args.threads, args.strategy)
         print(json.dumps({"settings": name, **row}), flush=True)

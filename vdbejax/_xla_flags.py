@@ -14,6 +14,12 @@ backend, so it is added to ``XLA_FLAGS`` when :mod:`vdbejax` is imported:
   engine then warns once and falls back to its lockstep strategy (same results, slower;
   see :func:`vdbejax.engine.native_step_loops`).
 
+Importing jax before vdbejax costs nothing (``import jax; import vdbejax`` keeps the
+native loops): only a computation run before the import starts the backend. The option
+cannot be given per compilation instead: ``xla_backend_extra_options`` is a map, and
+``lowered.compile({"xla_backend_extra_options": ...})`` is refused by XLA ("not a valid
+message value", jax 0.10.2, for every text form tried), so it stays a process-wide flag.
+
 Raising the threshold only changes how XLA compiles small while loops (one native
 function instead of per-operation dispatch); it does not change what they compute.
 """

@@ -6,7 +6,7 @@ claims report): ``returns.npz``, ``configs.csv``, ``meta.json``, ``summary.csv``
 unless ``figures=False``, ``fig3.png`` and ``sensitivity.png``. ``vdbejax run`` is its
 command line; a sweep file (TOML or JSON) holds the same keys::
 
-    task = "table_cleaning"          # or "variant:4x2" (4 sections, 2 goblets)
+    task = "table_cleaning"          # or "cruz2018", "variant:4x2" (4 sections, 2 goblets)
     learners = ["qlearning", "sarsa"]
     explorers = ["vdbe", "ucb1"]
     seeds = 20
@@ -46,15 +46,26 @@ SWEEP_KEYS = ("task", "learners", "explorers", "axes", "shared", "seeds", "episo
               "max_steps", "invalid_action", "chunk_episodes", "plugins")
 
 
-def make_task(task: str, *, max_steps: int = 100, invalid_action: str = "noop") -> TabularMDP:
-    """A task by name: ``table_cleaning`` (the paper's) or ``variant:NxK`` (the generated
-    variant with N sections and K goblets).
+def make_task(task: str, *, max_steps: int | None = None,
+              invalid_action: str = "noop") -> TabularMDP:
+    """A task by name: ``table_cleaning`` (the paper's text), ``cruz2018`` (the first
+    author's published table, :mod:`vdbejax.envs.cruz2018`) or ``variant:NxK`` (the
+    generated variant with N sections and K goblets).
+
+    Args:
+      task: the name.
+      max_steps: truncation length (default 100; ``cruz2018``: its safety cap).
+      invalid_action: ``noop`` or ``fail`` (the table-cleaning tasks of the paper's text).
 
     Raises:
       ValueError: an unknown name.
     """
+    from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
     from vdbejax.envs.table_cleaning import make_mdp, make_variant_mdp
 
+    if task == "cruz2018":
+        return make_authors_mdp(STEP_CAP if max_steps is None else max_steps)
+    max_steps = 100 if max_steps is None else max_steps
     if task == "table_cleaning":
         return make_mdp(max_steps=max_steps, invalid_action=invalid_action)
     name, _, size = str(task).partition(":")
@@ -62,8 +73,8 @@ def make_task(task: str, *, max_steps: int = 100, invalid_action: str = "noop") 
     if name == "variant" and sections.isdigit() and goblets.isdigit():
         return make_variant_mdp(int(sections), int(goblets), max_steps=max_steps,
                                 invalid_action=invalid_action)
-    raise ValueError(f"task={task!r} is invalid: must be table_cleaning or variant:NxK"
-                     " (e.g. variant:4x2)")
+    raise ValueError(f"task={task!r} is invalid: must be table_cleaning, cruz2018 or"
+                     " variant:NxK (e.g. variant:4x2)")
 
 
 def load_plugins(plugins: Sequence[str]) -> None:
@@ -152,7 +163,7 @@ def run_sweep(
     seeds: int = 20,
     episodes: int = 1000,
     seed: int = 0,
-    max_steps: int = 100,
+    max_steps: int | None = None,
     invalid_action: str = "noop",
     chunk_episodes: int = 100,
     plugins: Sequence[str] = (),
@@ -167,11 +178,11 @@ def run_sweep(
       explorers: explorer names (built-in or registered by ``plugins``).
       axes: ``{hyperparameter: values}`` (see :func:`~vdbejax.methods.agents.sweep`).
       shared: ``{hyperparameter: value}`` for every setting that has the field.
-      task: ``table_cleaning`` or ``variant:NxK`` (:func:`make_task`).
+      task: ``table_cleaning``, ``cruz2018`` or ``variant:NxK`` (:func:`make_task`).
       seeds: agents per setting.
       episodes: episodes per agent.
       seed: root seed.
-      max_steps: episode truncation length.
+      max_steps: episode truncation length (default: the task's, :func:`make_task`).
       invalid_action: ``noop`` or ``fail``.
       chunk_episodes: episodes per jitted chunk.
       plugins: files or modules to import first (:func:`load_plugins`).
