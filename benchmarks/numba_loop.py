@@ -1,6 +1,6 @@
 """Numba per-agent loop: the compiled version of the straightforward implementation.
 
-An independent implementation of `shared/spec/table_cleaning.md` for speed comparison and
+An independent implementation of `docs/task.md` for speed comparison and
 as a statistical cross-check of the engine. It uses its own transition table (built from
 :func:`benchmarks.python_loop.env_step`, not from :mod:`vdbejax`), its own random numbers
 (splitmix64 per agent, seeded by the agent's seed) and runs the agents one after another

@@ -1,6 +1,6 @@
 """Pure-Python per-agent loop: the straightforward implementation a researcher would write.
 
-It is an independent implementation of `shared/spec/table_cleaning.md` (its own
+It is an independent implementation of `docs/task.md` (its own
 environment code and its own explorers, Python's `random`), used as a speed peer and as a
 statistical cross-check of the engine's learning curves.
 """

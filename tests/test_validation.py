@@ -233,7 +233,8 @@ def test_cli_bad_input_in_a_real_process_prints_no_traceback(tmp_path):
     done = subprocess.run([sys.executable, "-m", "vdbejax", *BASE, "--out", str(tmp_path),
                            "--seeds", "nan"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 2
-    assert done.stderr.strip() == "error: seeds=nan is invalid: must be an integer >= 1"
+    assert done.stderr.strip() == ("error: seeds=nan is invalid: must be an integer >= 1"
+                                   " and <= 2147483647")
 
 
 # ---------------------------------------------------------------------- NaN / inf

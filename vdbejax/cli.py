@@ -10,7 +10,12 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from vdbejax import __version__
 from vdbejax.validation import parse_cli_number
+
+#: ``vdbejax --help``'s description (plain text: argparse prints it as is).
+DESCRIPTION = ("Exploration strategies in tabular RL: 'vdbejax reproduce --out DIR' reproduces"
+               " Cruz et al. (2018), 'vdbejax run' runs any sweep.")
 
 
 def _add_reproduce(sub: argparse._SubParsersAction) -> None:
@@ -58,7 +63,8 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--config", default=None, help="sweep file, TOML (.toml) or JSON")
     p.add_argument("--task", default=None,
-                   help="table_cleaning (default) or variant:NxK (N sections, K goblets)")
+                   help="table_cleaning (default), cruz2018 (the authors' published table) or"
+                        " variant:NxK (N sections, K goblets)")
     p.add_argument("--learners", default=None, help="comma-separated, e.g. qlearning,sarsa")
     p.add_argument("--explorers", default=None, help="comma-separated, e.g. vdbe,ucb1")
     p.add_argument("--axis", action="append", default=[], metavar="NAME=V1,V2,...",
@@ -189,7 +195,8 @@ def build_parser() -> argparse.ArgumentParser:
     Returns:
       a parser whose usage errors are one ``error: …`` line (exit 2).
     """
-    parser = _OneLineErrors(prog="vdbejax", description=__doc__.splitlines()[0])
+    parser = _OneLineErrors(prog="vdbejax", description=DESCRIPTION)
+    parser.add_argument("--version", action="version", version=f"vdbejax {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineErrors)
     for add, _ in COMMANDS.values():
         add(sub)

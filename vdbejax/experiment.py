@@ -8,9 +8,12 @@ atomically writes a checkpoint from which ``resume=True`` continues bit-identica
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import os
+import platform
+import subprocess
 import time
 import warnings
 from collections.abc import Sequence
@@ -50,13 +53,21 @@ from vdbejax.distributed import (
 )
 from vdbejax.engine import (
     AgentState,
+    check_params,
     ProgressCallback,
     agent_keys,
     broadcast_agents,
     text_progress,
 )
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.validation import check_bool, check_int, check_writable_dir, parse_bytes
+from vdbejax.validation import (
+    INT32_MAX,
+    UINT32_MAX,
+    check_bool,
+    check_int,
+    check_writable_dir,
+    parse_bytes,
+)
 
 
 @dataclasses.dataclass
@@ -258,10 +269,11 @@ def check_run_options(
     Returns:
       the memory budget in bytes (``"512M"``-style sizes parsed), or None.
     """
-    check_int("num_seeds", num_seeds, 1)
-    check_int("num_episodes", num_episodes, 1)
-    check_int("seed", seed, 0)
-    check_int("chunk_episodes", chunk_episodes, 1)
+    # Counts and sizes end up in int32 arrays; the seed is a 32-bit key.
+    check_int("num_seeds", num_seeds, 1, INT32_MAX)
+    check_int("num_episodes", num_episodes, 1, INT32_MAX)
+    check_int("seed", seed, 0, UINT32_MAX)
+    check_int("chunk_episodes", chunk_episodes, 1, INT32_MAX)
     check_bool("resume", resume)
     if memory_budget_bytes is None:
         return None
@@ -321,6 +333,39 @@ def grid_agents(settings: Sequence[Setting], num_seeds: int, seed: int = 0,
     return params, np.tile(agent_keys(seed, num_seeds), (len(settings), 1))
 
 
+@functools.lru_cache(maxsize=1)
+def git_commit() -> str | None:
+    """The commit vdbejax is imported from when it runs from a git clone, else None.
+
+    Runs ``git rev-parse HEAD`` in the package's parent folder (once per process, 2 s
+    timeout) and checks the package is tracked there, so an installed copy inside some
+    other repository (a virtualenv in a clone) is not credited with that commit.
+    """
+    package = Path(__file__).resolve().parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=package.parent,
+                              capture_output=True, text=True, timeout=2)
+        tracked = subprocess.run(
+            ["git", "ls-files", "--error-unmatch", "--", f"{package.name}/__init__.py"],
+            cwd=package.parent, capture_output=True, text=True, timeout=2)
+    except (OSError, subprocess.SubprocessError, ValueError):
+        return None
+    commit = head.stdout.strip()
+    if head.returncode != 0 or tracked.returncode != 0 or not commit:
+        return None
+    return commit
+
+
+def version_info() -> dict[str, Any]:
+    """Versions recorded in ``meta.json`` besides JAX's: vdbejax, numpy, Python, the
+    platform and the git commit (None outside a git clone)."""
+    from vdbejax import __version__
+
+    return {"vdbejax_version": __version__, "numpy_version": np.__version__,
+            "python_version": platform.python_version(), "platform": platform.platform(),
+            "git_commit": git_commit()}
+
+
 def run_grid(
     mdp: TabularMDP,
     settings: Sequence[Setting],
@@ -372,9 +417,13 @@ def run_grid(
         num_seeds=num_seeds, num_episodes=num_episodes, seed=seed,
         chunk_episodes=chunk_episodes, resume=resume, memory_budget_bytes=memory_budget_bytes,
     )
+    # Validated above: plain ints from here on (numpy scalars are not JSON).
+    num_seeds, num_episodes, seed, chunk_episodes = (
+        int(v) for v in (num_seeds, num_episodes, seed, chunk_episodes))
     _check_grid_inputs(mdp, settings, progress, checkpoint)
     device_list = select_devices(devices)
     params, keys = grid_agents(settings, num_seeds, seed, options)
+    check_params(params, mdp.num_actions)  # a bad plug-in: one line before anything runs
     num_agents = len(settings) * num_seeds
     # Several processes (hosts): each runs its share of the agents on its own devices.
     rows = process_share(num_agents)
@@ -422,7 +471,8 @@ def run_grid(
                 nonfinite_agents=int(nonfinite.sum()), nonfinite_message=message,
                 devices=len(device_list), processes=jax.process_count(), batches=batches,
                 agents_per_batch=batch_size, memory_budget_bytes=int(budget),
-                jax_version=jax.__version__, backend=jax.default_backend())
+                jax_version=jax.__version__, backend=jax.default_backend(),
+                **version_info())
     meta.pop("mdp_tables")
     meta["hyperparameters"] = [agent_hyperparameters(make_agent(s, options)) for s in settings]
     meta["parameter_names"] = {s.explorer: parameter_name(s.explorer) for s in settings}

@@ -36,7 +36,7 @@ from vdbejax import io
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.experiment import GridResult, check_run_options, run_grid
 from vdbejax.methods.agents import AgentOptions, make_agent, sweep
-from vdbejax.validation import check_bool, check_int, check_writable_dir
+from vdbejax.validation import INT32_MAX, check_bool, check_int, check_writable_dir
 
 SUMMARY_FILE = "summary.csv"
 FIGURE_FILE = "fig3.png"
@@ -202,8 +202,8 @@ def run_sweep(
     settings = sweep(learners, explorers, axes, shared)
     for setting in settings:  # every setting checked before anything is trained
         make_agent(setting, AgentOptions())
-    check_int("seeds", seeds, 1)
-    check_int("episodes", episodes, 1)
+    check_int("seeds", seeds, 1, INT32_MAX)
+    check_int("episodes", episodes, 1, INT32_MAX)
     check_run_options(num_seeds=seeds, num_episodes=episodes, seed=seed,
                       chunk_episodes=chunk_episodes, resume=False, memory_budget_bytes=None)
     check_bool("progress", progress)

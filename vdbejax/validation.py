@@ -76,13 +76,32 @@ def check_finite(name: str, value: Any) -> float:
     return float(value)
 
 
-def check_int(name: str, value: Any, minimum: int = 1) -> int:
-    """Check ``value`` is an integer (not a bool, float or string) >= ``minimum``."""
-    if isinstance(value, (bool, np.bool_)) or not hasattr(value, "__index__") or (
-        int(value) < minimum
-    ):
-        _fail(name, value, f"must be an integer >= {minimum}")
-    return int(value)
+#: Largest value of a signed 32-bit integer (counts, sizes, step limits).
+INT32_MAX = 2**31 - 1
+#: Largest value of an unsigned 32-bit integer (random seeds).
+UINT32_MAX = 2**32 - 1
+
+
+def check_int(name: str, value: Any, minimum: int = 1, maximum: int | None = None) -> int:
+    """Check ``value`` is an integer (not a bool, float or string) >= ``minimum``.
+
+    Args:
+      name: the parameter's name, for the message.
+      value: the value to check.
+      minimum: the smallest allowed value.
+      maximum: the largest allowed value, or None for no upper bound.
+
+    Returns:
+      ``int(value)``: a plain Python int, also for numpy integers.
+    """
+    allowed = f"must be an integer >= {minimum}" + (
+        "" if maximum is None else f" and <= {maximum}")
+    if isinstance(value, (bool, np.bool_)) or not hasattr(value, "__index__"):
+        _fail(name, value, allowed)
+    number = int(value)
+    if number < minimum or (maximum is not None and number > maximum):
+        _fail(name, value, allowed)
+    return number
 
 
 def check_bool(name: str, value: Any) -> bool:

@@ -190,14 +190,14 @@ def make_tabular_mdp(
     Raises:
       ValueError: one line naming the parameter, the offending shape or value, and what is
         allowed (wrong shapes or dtypes, out-of-range indices, negative probabilities or
-        sums other than 1, non-finite rewards, ``max_steps < 1``, …).
+        sums other than 1, non-finite rewards, ``max_steps`` not in [1, 2**31 − 1], …).
     """
-    from vdbejax.validation import check_int, check_positive
+    from vdbejax.validation import INT32_MAX, check_int, check_positive
 
     if not isinstance(name, str) or not name:
         raise ValueError(f"name={name!r} is invalid: must be a non-empty string")
     check_positive("atol", atol)
-    check_int("max_steps", max_steps, 1)
+    check_int("max_steps", max_steps, 1, INT32_MAX)  # stored as an int32
     next_state = _as_array("next_state", next_state)
     if next_state.ndim == 2:
         next_state = next_state[:, :, None]

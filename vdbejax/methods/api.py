@@ -284,11 +284,13 @@ def as_leaf(name: str, value: Any) -> Any:
         number = float(value)
     except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name}={value!r} is invalid: must be a finite number") from None
-    single = np.float32(number)
+    with np.errstate(over="ignore"):
+        single = np.float32(number)
     tiny = float(np.finfo(np.float32).tiny)
     if np.isfinite(number) and (not np.isfinite(single) or 0 < abs(number) < tiny):
-        raise ValueError(f"{name}={value!r} is invalid: must be 0 or of magnitude within"
-                         f" float32's normal range [{tiny:.3g}, {float(np.finfo(np.float32).max):.3g}]")
+        raise ValueError(f"{name}={value!r} is invalid: float32 (the engine's precision) cannot"
+                         f" hold it; nonzero values need a magnitude in [{tiny:.3g},"
+                         f" {float(np.finfo(np.float32).max):.3g}]")
     return np.asarray(single)
 
 

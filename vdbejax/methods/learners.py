@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from vdbejax._numerics import rounded
+from vdbejax._pytree import pytree_dataclass
 from vdbejax.methods.api import LEARNERS, Learner, LearnerUpdate, Table, Transition, build, learner
 from vdbejax.validation import check_choice, check_finite, check_in_range
 
@@ -100,73 +101,64 @@ def double_q_learning_target(reward: Array, discount: Array, q_next_value: Array
     return reward + rounded(discount * value, discount)
 
 
-def _check_common(self: Learner) -> None:
-    check_in_range("alpha", self.alpha, 0.0, 1.0, low_open=True)
-    check_in_range("gamma", self.gamma, 0.0, 1.0)
-    check_finite("q_init", self.q_init)
+@pytree_dataclass
+class TDLearner(Learner):
+    """A learner that moves Q(s,a) toward a target by α (subclasses define ``target``)."""
+
+    alpha: Array = PAPER_ALPHA
+    gamma: Array = PAPER_GAMMA
+    q_init: Array = 0.0
+
+    def target(self, t: Transition) -> Array:
+        raise NotImplementedError
+
+    def update(self, t: Transition) -> LearnerUpdate:
+        new, delta_q = td_update(t.q, self.target(t), self.alpha)
+        return LearnerUpdate(new, {}, delta_q)
+
+    def validate(self) -> None:
+        check_in_range("alpha", self.alpha, 0.0, 1.0, low_open=True)
+        check_in_range("gamma", self.gamma, 0.0, 1.0)
+        check_finite("q_init", self.q_init)
 
 
 @learner("qlearning")
-class QLearning(Learner):
+class QLearning(TDLearner):
     """Q-learning (Watkins 1989): ``Q(s,a) += α(r + γ max_b Q(s',b) − Q(s,a))``; a′ is
     chosen after the update."""
 
-    alpha: Array = PAPER_ALPHA
-    gamma: Array = PAPER_GAMMA
-    q_init: Array = 0.0
-
-    def update(self, t: Transition) -> LearnerUpdate:
-        new, delta_q = td_update(t.q, q_learning_target(t.reward, t.discount, t.q_next), self.alpha)
-        return LearnerUpdate(new, {}, delta_q)
-
-    validate = _check_common
+    def target(self, t: Transition) -> Array:
+        return q_learning_target(t.reward, t.discount, t.q_next)
 
 
 @learner("sarsa")
-class SARSA(Learner):
+class SARSA(TDLearner):
     """SARSA (Rummery & Niranjan 1994): target ``r + γ Q(s',a')`` with the a′ the agent
     takes next, chosen before the update."""
 
-    alpha: Array = PAPER_ALPHA
-    gamma: Array = PAPER_GAMMA
-    q_init: Array = 0.0
     uses_next_action = True
 
-    def update(self, t: Transition) -> LearnerUpdate:
-        target = sarsa_target(t.reward, t.discount, t.q_next, t.next_action)
-        new, delta_q = td_update(t.q, target, self.alpha)
-        return LearnerUpdate(new, {}, delta_q)
-
-    validate = _check_common
+    def target(self, t: Transition) -> Array:
+        return sarsa_target(t.reward, t.discount, t.q_next, t.next_action)
 
 
 @learner("expected_sarsa")
-class ExpectedSARSA(Learner):
+class ExpectedSARSA(TDLearner):
     """Expected SARSA (van Seijen et al. 2009): target ``r + γ Σ_b π(b|s') Q(s',b)`` with
     the explorer's own probabilities (before the update); a′ is chosen after it."""
 
-    alpha: Array = PAPER_ALPHA
-    gamma: Array = PAPER_GAMMA
-    q_init: Array = 0.0
     uses_next_probabilities = True
 
-    def update(self, t: Transition) -> LearnerUpdate:
-        target = expected_sarsa_target(t.reward, t.discount, t.q_next, t.next_probabilities)
-        new, delta_q = td_update(t.q, target, self.alpha)
-        return LearnerUpdate(new, {}, delta_q)
-
-    validate = _check_common
+    def target(self, t: Transition) -> Array:
+        return expected_sarsa_target(t.reward, t.discount, t.q_next, t.next_probabilities)
 
 
 @learner("double_qlearning")
-class DoubleQLearning(Learner):
+class DoubleQLearning(TDLearner):
     """Double Q-learning (van Hasselt 2010): two tables; each step one of them, chosen
     with probability ½, moves toward the other's value of its own greedy action. The
     explorer acts on their sum; ΔQ is the change of the updated table."""
 
-    alpha: Array = PAPER_ALPHA
-    gamma: Array = PAPER_GAMMA
-    q_init: Array = 0.0
     num_uniforms = 1
 
     def tables(self) -> dict[str, Table]:
@@ -183,8 +175,6 @@ class DoubleQLearning(Learner):
                            double_q_learning_target(t.reward, t.discount, t.q_next, q2_next))
         new, delta_q = td_update(jnp.where(first, t.q, q2), target, self.alpha)
         return LearnerUpdate(jnp.where(first, new, t.q), {"q2": jnp.where(first, q2, new)}, delta_q)
-
-    validate = _check_common
 
 
 def make_learner(name: str, **values: object) -> Learner:

@@ -19,7 +19,7 @@ from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.distributed import process_checkpoint_path, select_devices
 from vdbejax.experiment import GridResult, check_run_options, run_grid
 from vdbejax.solvers import best_return
-from vdbejax.validation import check_bool, check_int, check_writable_dir
+from vdbejax.validation import INT32_MAX, check_bool, check_int, check_writable_dir
 
 SUMMARY_FILE, FIGURE_FILE, SENSITIVITY_FILE = sweeps.SUMMARY_FILE, sweeps.FIGURE_FILE, sweeps.SENSITIVITY_FILE
 REPORT_FILE = "report.md"
@@ -123,8 +123,8 @@ def reproduce(
     options = AgentOptions(alpha=alpha, q_init=q_init, tie_break=tie_break)
     # Check every option before creating anything, so bad input leaves no trace.
     make_agent(paper_settings()[0], options)
-    check_int("seeds", seeds, 1)  # named as the caller knows them
-    check_int("episodes", episodes, 1)
+    check_int("seeds", seeds, 1, INT32_MAX)  # named as the caller knows them
+    check_int("episodes", episodes, 1, INT32_MAX)
     check_run_options(num_seeds=seeds, num_episodes=episodes, seed=seed,
                       chunk_episodes=chunk_episodes, resume=resume,
                       memory_budget_bytes=memory_budget_bytes)

@@ -1,4 +1,4 @@
-"""The table-cleaning task of Cruz et al. (2018), exactly as `shared/spec/table_cleaning.md`.
+"""The table-cleaning task of Cruz et al. (2018), exactly as `docs/task.md`.
 
 State: integer vector ``<hand_obj, hand_pos, goblet_pos, left_clean, right_clean>``
 encoded mixed-radix (radices 3, 3, 3, 2, 2; ``hand_obj`` most significant) into 108 codes.
