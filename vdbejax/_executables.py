@@ -306,24 +306,44 @@ def _value_digest(value: Any) -> str | None:
     return None
 
 
-def live_fingerprint() -> str:
-    """SHA-256 of vdbejax's loaded code as it is now: every function and class of its
-    modules (bytecode, defaults), their simple constants, and what is bound to each name."""
+def _live_objects() -> list[tuple[str, Any]]:
+    """``(qualified name, object)`` of every attribute of vdbejax's loaded modules and of
+    the classes they define."""
     import sys
 
-    digest = hashlib.sha256()
+    objects = []
     for name in sorted(n for n in list(sys.modules) if n == "vdbejax" or n.startswith("vdbejax.")):
-        module = sys.modules[name]
-        for attr, value in sorted(vars(module).items()):
+        for attr, value in sorted(vars(sys.modules[name]).items()):
+            objects.append((f"{name}.{attr}", value))
             if isinstance(value, type) and value.__module__ == name:
-                members = sorted(vars(value).items())
-                text = "".join(f"{k}:{_value_digest(v)};" for k, v in members)
-            else:
-                text = _value_digest(value)
-                if text is None:
-                    text = f"{type(value).__module__}.{type(value).__qualname__}"
-            digest.update(f"{name}.{attr}={text}\n".encode())
-    return digest.hexdigest()
+                objects += [(f"{name}.{attr}.{k}", v) for k, v in sorted(vars(value).items())]
+    return objects
+
+
+#: ``[identities of the live objects, their fingerprint, the objects]`` of the last
+#: computation (holding the objects keeps their ids from being reused).
+_LIVE: list[Any] = [None, "", None]
+
+
+def live_fingerprint() -> str:
+    """SHA-256 of vdbejax's loaded code as it is now: every function and class of its
+    modules (bytecode, defaults), their simple constants, and what is bound to each name.
+
+    Recomputed only when a name is bound to another object (an import, an edit reloaded,
+    a monkeypatch): otherwise the identities of the objects match the last computation's.
+    """
+    objects = _live_objects()
+    identity = [(name, id(value)) for name, value in objects]
+    if identity == _LIVE[0]:
+        return _LIVE[1]
+    digest = hashlib.sha256()
+    for name, value in objects:
+        text = _value_digest(value)
+        if text is None:
+            text = f"{type(value).__module__}.{type(value).__qualname__}"
+        digest.update(f"{name}={text}\n".encode())
+    _LIVE[:] = [identity, digest.hexdigest(), objects]
+    return _LIVE[1]
 
 
 def program_text(traced: Any) -> str:

@@ -296,8 +296,9 @@ class Softmax(Explorer):
     tau: Array = 1.0
 
     def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
-        # The paper's rule with p = 1: uniforms[0] < 1 always holds (uniforms are < 1).
-        return sample_categorical(softmax_weights(q, self.tau), uniforms[1])
+        # The paper's rule with p = 1 (uniforms are < 1, so the draw is always
+        # exploratory); XLA compiles this form faster than the draw alone (measured).
+        return select_action(q, 1.0, self.tau, uniforms)
 
     def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
         return softmax_probabilities(q, self.tau)
