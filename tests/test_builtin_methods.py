@@ -268,7 +268,8 @@ def transition(q=0.5, q2=None, reward=-0.01, discount=0.9, q_next=Q_NEXT, q2_nex
     return Transition(q=jnp.float32(q), tables=tables, reward=jnp.float32(reward),
                       discount=jnp.float32(discount), q_next=q_next, tables_next=tables_next,
                       next_action=jnp.int32(0), next_probabilities=probs,
-                      uniforms=tuple(jnp.float32(u) for u in uniforms))
+                      uniforms=tuple(jnp.float32(u) for u in uniforms),
+                      terminal=jnp.bool_(discount == 0))
 
 
 def test_expected_sarsa_hand_computed():
@@ -395,9 +396,9 @@ def learner_batch(name):
     probs = rng.uniform(size=(BATCH, 5)).astype(np.float32)
     tables = {key: f() for key in instances[0].tables()}
     tables_next = {key: f(5) for key in instances[0].tables()}
+    discount = np.where(rng.uniform(size=BATCH) < 0.3, 0.0, 0.9).astype(np.float32)
     transitions = Transition(
-        q=f(), tables=tables, reward=f(),
-        discount=np.where(rng.uniform(size=BATCH) < 0.3, 0.0, 0.9).astype(np.float32),
+        q=f(), tables=tables, reward=f(), terminal=discount == 0, discount=discount,
         q_next=f(5), tables_next=tables_next, next_action=rng.integers(0, 5, BATCH).astype(np.int32),
         next_probabilities=probs / probs.sum(1, keepdims=True),
         uniforms=tuple(rng.uniform(size=BATCH).astype(np.float32)

@@ -474,6 +474,12 @@ def run_grid(
                 jax_version=jax.__version__, backend=jax.default_backend(),
                 **version_info())
     meta.pop("mdp_tables")
+    meta["longest_episode"] = int(lengths.max())
+    # Episodes cut off at max_steps (on a task without a step limit, e.g. cruz2018, the
+    # safety cap: agents that would have looped forever).
+    cut = lengths >= mdp.max_steps
+    meta["truncated_episodes"] = int(cut.sum())
+    meta["agents_truncated"] = int(cut.any(axis=2).sum())
     meta["hyperparameters"] = [agent_hyperparameters(make_agent(s, options)) for s in settings]
     meta["parameter_names"] = {s.explorer: parameter_name(s.explorer) for s in settings}
     return GridResult(settings, returns, lengths, nonfinite, meta)

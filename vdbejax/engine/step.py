@@ -133,7 +133,7 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
         update = learner.update(Transition(
             q=q_sa, tables=learner_sa, reward=reward, discount=discount, q_next=q_next,
             tables_next=learner_next, next_action=next_action,
-            next_probabilities=probabilities, uniforms=learner_uniforms,
+            next_probabilities=probabilities, uniforms=learner_uniforms, terminal=terminal,
         ))
         new_explorer_s = explorer.update(explorer_s, a, update.delta_q, update_context)
         return update, new_explorer_s

@@ -100,6 +100,8 @@ class Transition:
       next_probabilities: ``[A]`` π(·|s′) (only with ``uses_next_probabilities``; else
         zeros).
       uniforms: the learner's ``num_uniforms`` uniforms in [0, 1).
+      terminal: the transition ended its episode (a failure has a negative reward, a goal
+        a positive one, on the tasks of vdbejax).
     """
 
     q: Array
@@ -111,6 +113,7 @@ class Transition:
     next_action: Array
     next_probabilities: Array
     uniforms: tuple
+    terminal: Array
 
 
 @pytree_dataclass
@@ -373,7 +376,7 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
     _check_same(f"{lname} behaviour()", behaviour, row)
     luniforms = tuple(scalar for _ in range(_count(lname, agent_learner.num_uniforms)))
     transition = Transition(scalar, {k: scalar for k in ltables}, scalar, scalar, row, ltables,
-                            action, row, luniforms)
+                            action, row, luniforms, jax.ShapeDtypeStruct((), jnp.bool_))
     result = traced(f"{lname} update()", agent_learner.update, transition)
     if not isinstance(result, LearnerUpdate):
         raise ValueError(f"{lname} update() returned {type(result).__name__}: must return a"

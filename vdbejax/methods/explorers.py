@@ -33,7 +33,7 @@ import jax.numpy as jnp
 from vdbejax._numerics import rounded
 from vdbejax._pytree import static_field
 from vdbejax.methods.api import EXPLORERS, Context, Explorer, Table, build, explorer
-from vdbejax.validation import check_choice, check_in_range, check_positive
+from vdbejax.validation import check_bool, check_choice, check_in_range, check_positive
 
 Array = jax.Array
 
@@ -316,6 +316,8 @@ class VDBE(Explorer):
     delta: Array = VDBE_DELTA
     epsilon_init: Array = 1.0
     tie_break: str = static_field("random")
+    #: Update ε(s) on a step that ends the episode too (the authors' code does not).
+    update_on_terminal: bool = static_field(True)
 
     def tables(self) -> dict[str, Table]:
         return {"epsilon": Table("state", self.epsilon_init)}
@@ -330,13 +332,17 @@ class VDBE(Explorer):
         return mixture_probabilities(q, tables["epsilon"], self._tau(), self.tie_break)
 
     def update(self, tables: dict, action: Array, delta_q: Array, context: Context) -> dict:
-        return {"epsilon": vdbe_epsilon_update(tables["epsilon"], delta_q, self.sigma, self.delta)}
+        epsilon = vdbe_epsilon_update(tables["epsilon"], delta_q, self.sigma, self.delta)
+        if not self.update_on_terminal:
+            epsilon = jnp.where(context.terminal, tables["epsilon"], epsilon)
+        return {"epsilon": epsilon}
 
     def validate(self) -> None:
         check_positive("sigma", self.sigma)
         check_in_range("delta", self.delta, 0.0, 1.0, low_open=True)
         check_in_range("epsilon_init", self.epsilon_init, 0.0, 1.0)
         _check_tie_break(self.tie_break)
+        check_bool("update_on_terminal", self.update_on_terminal)
 
 
 @explorer("vdbe_softmax", parameter="sigma")

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from vdbejax._numerics import rounded
-from vdbejax._pytree import pytree_dataclass
+from vdbejax._pytree import pytree_dataclass, static_field
 from vdbejax.methods.api import LEARNERS, Learner, LearnerUpdate, Table, Transition, build, learner
 from vdbejax.validation import check_choice, check_finite, check_in_range
 
@@ -101,25 +101,66 @@ def double_q_learning_target(reward: Array, discount: Array, q_next_value: Array
     return reward + rounded(discount * value, discount)
 
 
+#: How a TD learner treats a failure (a terminal step with a negative reward): a TD
+#: update toward ``r`` (the textbook), or ``Q(s,a) ← failure_value`` (the authors' code).
+FAILURE_UPDATES = ("td", "overwrite")
+#: How it treats a goal (a terminal step with a positive reward): a TD update, or none
+#: (the authors' code ends the episode before writing Q(s,a)).
+GOAL_UPDATES = ("td", "skip")
+#: Initial Q tables: ``q_init`` everywhere, or uniform in ``[q_init, q_init + q_init_spread)``
+#: per entry and agent (the authors' code: [0, 0.01)).
+Q_INIT_DISTRIBUTIONS = ("constant", "uniform")
+
+
 @pytree_dataclass
 class TDLearner(Learner):
-    """A learner that moves Q(s,a) toward a target by α (subclasses define ``target``)."""
+    """A learner that moves Q(s,a) toward a target by α (subclasses define ``target``).
+
+    The options of the authors' code (``failure_update``, ``goal_update``,
+    ``q_init_distribution``) are static fields: the textbook defaults compile exactly the
+    textbook program.
+    """
 
     alpha: Array = PAPER_ALPHA
     gamma: Array = PAPER_GAMMA
     q_init: Array = 0.0
+    failure_value: Array = -0.1
+    q_init_spread: Array = 0.01
+    failure_update: str = static_field("td")
+    goal_update: str = static_field("td")
+    q_init_distribution: str = static_field("constant")
 
     def target(self, t: Transition) -> Array:
         raise NotImplementedError
 
     def update(self, t: Transition) -> LearnerUpdate:
         new, delta_q = td_update(t.q, self.target(t), self.alpha)
+        if self.failure_update == "overwrite":
+            failure = t.terminal & (t.reward < 0)
+            new = jnp.where(failure, self.failure_value, new)
+            delta_q = jnp.where(failure, new - t.q, delta_q)
+        if self.goal_update == "skip":
+            goal = t.terminal & (t.reward > 0)
+            new = jnp.where(goal, t.q, new)
+            delta_q = jnp.where(goal, 0.0, delta_q)
         return LearnerUpdate(new, {}, delta_q)
+
+    def initial_q(self, key: Array, num_states: int, num_actions: int) -> Array:
+        if self.q_init_distribution == "constant":
+            return super().initial_q(key, num_states, num_actions)
+        # Its own stream (threefry on a folded key), apart from the per-step hash stream.
+        uniform = jax.random.uniform(jax.random.fold_in(key, 0x51A17), (num_states, num_actions))
+        return self.q_init + self.q_init_spread * uniform
 
     def validate(self) -> None:
         check_in_range("alpha", self.alpha, 0.0, 1.0, low_open=True)
         check_in_range("gamma", self.gamma, 0.0, 1.0)
         check_finite("q_init", self.q_init)
+        check_finite("failure_value", self.failure_value)
+        check_in_range("q_init_spread", self.q_init_spread, 0.0, 1e30)
+        check_choice("failure_update", self.failure_update, FAILURE_UPDATES)
+        check_choice("goal_update", self.goal_update, GOAL_UPDATES)
+        check_choice("q_init_distribution", self.q_init_distribution, Q_INIT_DISTRIBUTIONS)
 
 
 @learner("qlearning")

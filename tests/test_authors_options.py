@@ -1,0 +1,84 @@
+"""The authors' agent details as options of the built-ins, each against a hand-computed step."""
+import numpy as np
+import pytest
+
+from vdbejax.engine import agent_keys, run_agents
+from vdbejax.envs import make_tabular_mdp
+from vdbejax.envs.cruz2018 import make_authors_mdp
+from vdbejax.experiment import run_grid
+from vdbejax.methods import AgentOptions, Setting, make_agent, stack_agents
+
+
+def one_step_mdp(first_reward: float):
+    """State 0: action 0 ends the episode with ``first_reward``; action 1 loops (−0.01)."""
+    return make_tabular_mdp(next_state=[[0, 0], [1, 1]], reward=[[first_reward, -0.01], [0, 0]],
+                            terminal=[[True, False], [False, False]],
+                            start_probability=[1.0, 0.0], max_steps=10)
+
+
+def run_one(mdp, setting, episodes=1, seed=0):
+    params = stack_agents([make_agent(setting, AgentOptions(tie_break="first"))])
+    return run_agents(mdp, params, agent_keys(seed, 1), episodes)
+
+
+@pytest.mark.parametrize("learner", ["qlearning", "sarsa"])
+def test_a_failure_overwrites_q_instead_of_a_td_update(learner):
+    # Greedy, first index: action 0 fails at once. TD: 0.8·(−1 − 0) = −0.8; authors: −0.1.
+    td = run_one(one_step_mdp(-1.0), Setting(learner, "egreedy", 0.0))
+    authors = run_one(one_step_mdp(-1.0), Setting(learner, "egreedy", 0.0,
+                                                  {"failure_update": "overwrite"}))
+    assert td.final_state.q[0, 0, 0] == pytest.approx(-0.8)
+    assert authors.final_state.q[0, 0, 0] == pytest.approx(-0.1)
+    assert td.returns[0, 0] == authors.returns[0, 0] == -1.0
+
+
+def test_a_goal_is_never_written_with_goal_update_skip():
+    td = run_one(one_step_mdp(1.0), Setting("qlearning", "egreedy", 0.0))
+    authors = run_one(one_step_mdp(1.0), Setting("qlearning", "egreedy", 0.0,
+                                                 {"goal_update": "skip"}), episodes=3)
+    assert td.final_state.q[0, 0, 0] == pytest.approx(0.8)
+    assert authors.final_state.q[0, 0, 0] == 0.0 and authors.returns[0].tolist() == [1, 1, 1]
+
+
+def test_vdbe_can_leave_epsilon_alone_on_terminal_steps():
+    setting = Setting("qlearning", "vdbe", 1.0, {"epsilon_init": 0.1})
+    textbook = run_one(one_step_mdp(-1.0), setting)
+    authors = run_one(one_step_mdp(-1.0), Setting("qlearning", "vdbe", 1.0, {
+        "epsilon_init": 0.1, "update_on_terminal": False}))
+    # ΔQ = −0.8: f = (1 − e^{−0.8})/(1 + e^{−0.8}) = 0.379949; ε ← 0.1·f + 0.9·0.1.
+    assert textbook.lengths[0, 0] == 1  # greedy (seed 0 does not explore): the failing step
+    assert textbook.final_state.tables["epsilon"][0, 0] == pytest.approx(0.1 * 0.379949 + 0.09,
+                                                                          abs=1e-6)
+    assert authors.final_state.tables["epsilon"][0, 0] == pytest.approx(0.1)
+
+
+def test_uniform_initial_q_per_entry_and_agent():
+    mdp = make_authors_mdp(max_steps=50)
+    setting = Setting("qlearning", "egreedy", 0.1, {"q_init_distribution": "uniform"})
+    params = stack_agents([make_agent(setting)] * 2)
+    run = run_agents(mdp, params, agent_keys(4, 2), 1)
+    again = run_agents(mdp, params, agent_keys(4, 2), 1)
+    q = run.final_state.q
+    np.testing.assert_array_equal(q, again.final_state.q)  # a function of the key
+    untouched = q[:, 40:, :]  # far from the start: not visited in one episode
+    assert (untouched >= 0).all() and (untouched < 0.01).all()
+    assert len(np.unique(untouched)) > untouched.size // 2  # independent entries
+    assert not np.array_equal(q[0], q[1])  # and agents
+
+
+def test_bad_option_values_are_one_line():
+    for values, name in [({"failure_update": "maybe"}, "failure_update"),
+                         ({"goal_update": 1}, "goal_update"),
+                         ({"q_init_distribution": "normal"}, "q_init_distribution")]:
+        with pytest.raises(ValueError, match=name):
+            make_agent(Setting("sarsa", "egreedy", 0.1, values))
+    with pytest.raises(ValueError, match="update_on_terminal"):
+        make_agent(Setting("qlearning", "vdbe", 1.0, {"update_on_terminal": "no"}))
+
+
+def test_run_grid_reports_the_longest_and_the_cut_episodes():
+    grid = run_grid(make_authors_mdp(max_steps=30), [Setting("qlearning", "egreedy", 0.0,
+                                                             {"tie_break": "first"})],
+                    num_seeds=2, num_episodes=3)
+    assert grid.meta["longest_episode"] == int(grid.lengths.max()) <= 30
+    assert grid.meta["truncated_episodes"] == int((grid.lengths >= 30).sum())
