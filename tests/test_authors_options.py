@@ -82,3 +82,20 @@ def test_run_grid_reports_the_longest_and_the_cut_episodes():
                     num_seeds=2, num_episodes=3)
     assert grid.meta["longest_episode"] == int(grid.lengths.max()) <= 30
     assert grid.meta["truncated_episodes"] == int((grid.lengths >= 30).sum())
+
+
+def test_sarsa_can_redraw_the_action_it_takes():
+    # State 0: action 0 loops (−0.01), action 1 ends with +1; greedy, first index.
+    mdp = make_tabular_mdp(next_state=[[0, 1], [1, 1]], reward=[[-0.01, 1.0], [0.0, 0.0]],
+                           terminal=[[False, True], [False, False]],
+                           start_probability=[1.0, 0.0], max_steps=100)
+    # Textbook: a' = 0 (tie, before the update) is also the action taken: it loops twice.
+    executed = run_one(mdp, Setting("sarsa", "egreedy", 0.0))
+    assert executed.lengths[0, 0] == 3
+    # Authors: a' = 0 serves the target only (Q(0,0) = 0.8·(−0.01 + 0.9·0) = −0.008); the
+    # action taken is drawn afresh from the updated row: action 1, the goal in 2 steps.
+    redrawn = run_one(mdp, Setting("sarsa", "egreedy", 0.0, {"next_action": "redrawn"}))
+    assert redrawn.lengths[0, 0] == 2 and redrawn.returns[0, 0] == pytest.approx(0.99)
+    np.testing.assert_allclose(redrawn.final_state.q[0, 0], [-0.008, 0.8], rtol=1e-6)
+    with pytest.raises(ValueError, match="next_action"):
+        make_agent(Setting("sarsa", "egreedy", 0.1, {"next_action": "twice"}))

@@ -20,6 +20,7 @@ strategy) a dynamic slice: XLA's CPU backend then compiles the whole loop native
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -38,8 +39,11 @@ ENGINE_UNIFORMS = 2
 
 
 def num_uniforms(agent: Agent) -> int:
-    """Uniforms one iteration of this kind draws (engine's, explorer's, learner's)."""
-    return ENGINE_UNIFORMS + int(agent.explorer.num_uniforms) + int(agent.learner.num_uniforms)
+    """Uniforms one iteration of this kind draws: the engine's, the explorer's, the
+    learner's, and the explorer's again when the learner redraws its next action."""
+    explorer = int(agent.explorer.num_uniforms)
+    redraw = explorer if agent.learner.redraws_next_action else 0
+    return ENGINE_UNIFORMS + explorer + int(agent.learner.num_uniforms) + redraw
 
 
 def start_support(mdp: TabularMDP) -> tuple[Array, Array]:
@@ -115,12 +119,14 @@ def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array) -> tuple[Array, A
 def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: dict,
                 learner_next: dict, explorer_s: dict, explorer_next: dict, reward: Array,
                 terminal: Array, self_loop: Array, update_context: Context,
-                select_context: Context, explorer_uniforms: tuple, learner_uniforms: tuple
-                ) -> tuple[Array, dict, dict, Array, Array]:
+                select_context: Context, explorer_uniforms: tuple, learner_uniforms: tuple,
+                redraw_uniforms: tuple) -> tuple[Array, dict, dict, Array, Array]:
     """One agent's learning and choice (vmapped over lanes by :func:`lockstep_iteration`).
 
     ``self_loop``: the next action is chosen in the state just left (its rows must show
-    this step's update for learners that choose after it).
+    this step's update for learners that choose after it). ``redraw_uniforms``: for a
+    learner that ``redraws_next_action`` (the authors' SARSA), the uniforms of the action
+    actually taken, drawn afresh after the update.
 
     Returns:
       ``(new_q_sa, new_learner_sa, new_explorer_s, next_action, finite)``.
@@ -144,22 +150,26 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
         behaviour = learner.behaviour(q_next, learner_next)
         return explorer.probabilities(behaviour, explorer_next, select_context)
 
-    if learner.uses_next_action:
-        behaviour = learner.behaviour(q_next, learner_next)
-        next_action = explorer.select(behaviour, explorer_next, select_context, explorer_uniforms)
-        update, new_explorer_s = learn(next_action, probabilities_next())
-    else:
-        update, new_explorer_s = learn(jnp.zeros((), jnp.int32), probabilities_next())
-        # Choose after the update: where a' is chosen in s itself, its rows show it.
-        is_a = jnp.arange(q_next.shape[0]) == a
-        patched = self_loop & is_a
+    def select_after(update: Any, new_explorer_s: dict, uniforms: tuple) -> Array:
+        """Choose after the update: where a' is chosen in s itself, its rows show it."""
+        patched = self_loop & (jnp.arange(q_next.shape[0]) == a)
         act_q = jnp.where(patched, update.q, q_next)
         act_learner = {name: jnp.where(patched, update.tables[name], row)
                        for name, row in learner_next.items()}
         act_explorer = {name: jnp.where(self_loop, new_explorer_s[name], value)
                         for name, value in explorer_next.items()}
         behaviour = learner.behaviour(act_q, act_learner)
-        next_action = explorer.select(behaviour, act_explorer, select_context, explorer_uniforms)
+        return explorer.select(behaviour, act_explorer, select_context, uniforms)
+
+    if learner.uses_next_action:
+        behaviour = learner.behaviour(q_next, learner_next)
+        next_action = explorer.select(behaviour, explorer_next, select_context, explorer_uniforms)
+        update, new_explorer_s = learn(next_action, probabilities_next())
+        if learner.redraws_next_action:  # the a' of the target is not the one taken
+            next_action = select_after(update, new_explorer_s, redraw_uniforms)
+    else:
+        update, new_explorer_s = learn(jnp.zeros((), jnp.int32), probabilities_next())
+        next_action = select_after(update, new_explorer_s, explorer_uniforms)
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(leaf))
                                   for leaf in jax.tree.leaves((update.q, update.tables,
                                                                new_explorer_s))]))
@@ -210,6 +220,7 @@ def lockstep_iteration(
     active = agents.episode < chunk_end
     u = uniforms(agents.key, agents.counter, num_uniforms(agent))
     explorer_end = ENGINE_UNIFORMS + explorer.num_uniforms
+    learner_end = explorer_end + learner.num_uniforms
     resetting = agents.pending_reset
     learn = active & ~resetting
     s, a = agents.state, agents.action
@@ -248,7 +259,7 @@ def lockstep_iteration(
     new_q_sa, new_learner_sa, new_explorer_s, next_action, finite = jax.vmap(_agent_step)(
         agent, a, q_sa, q_next, learner_sa, learner_next, explorer_s, explorer_next, reward,
         terminal, self_loop, update_context, select_context, u[ENGINE_UNIFORMS:explorer_end],
-        u[explorer_end:],
+        u[explorer_end:learner_end], u[learner_end:],
     )
 
     def keep_learned(new: Array, old: Array) -> Array:

@@ -165,6 +165,10 @@ class Learner:
     num_uniforms: ClassVar[int] = 0
     uses_next_action: ClassVar[bool] = False
     uses_next_probabilities: ClassVar[bool] = False
+    #: With ``uses_next_action``: the action taken in s′ is drawn afresh after the update
+    #: (the a′ of the target only serves the target; the authors' SARSA). A property
+    #: where it is an option.
+    redraws_next_action: ClassVar[bool] = False
     option_aliases: ClassVar[dict[str, str]] = {}
 
     def tables(self) -> dict[str, Table]:

@@ -177,10 +177,21 @@ class SARSA(TDLearner):
     """SARSA (Rummery & Niranjan 1994): target ``r + γ Q(s',a')`` with the a′ the agent
     takes next, chosen before the update."""
 
+    #: ``"executed"``: a′ is the action taken next (textbook); ``"redrawn"``: the action
+    #: taken in s′ is drawn afresh after the update (the authors' code).
+    next_action: str = static_field("executed")
     uses_next_action = True
+
+    @property
+    def redraws_next_action(self) -> bool:
+        return self.next_action == "redrawn"
 
     def target(self, t: Transition) -> Array:
         return sarsa_target(t.reward, t.discount, t.q_next, t.next_action)
+
+    def validate(self) -> None:
+        super().validate()
+        check_choice("next_action", self.next_action, ("executed", "redrawn"))
 
 
 @learner("expected_sarsa")
