@@ -99,3 +99,40 @@ def test_sarsa_can_redraw_the_action_it_takes():
     np.testing.assert_allclose(redrawn.final_state.q[0, 0], [-0.008, 0.8], rtol=1e-6)
     with pytest.raises(ValueError, match="next_action"):
         make_agent(Setting("sarsa", "egreedy", 0.1, {"next_action": "twice"}))
+
+
+def test_reproduce_under_the_authors_reading(tmp_path):
+    import vdbejax
+    from vdbejax.paper.reproduce import AUTHORS_DETAILS, is_paper_grid, reading_settings, replot
+
+    rep = vdbejax.reproduce(tmp_path, reading="authors", seeds=2, episodes=20, progress=False)
+    grid = rep.result
+    assert grid.meta["reading"] == "authors" and grid.meta["mdp"] == "cruz2018"
+    assert grid.meta["options"]["tie_break"] == "first" and grid.meta["max_steps"] == 10_000
+    assert grid.settings == reading_settings("authors") and len(grid.settings) == 46
+    sarsa_vdbe = grid.hyperparameters(grid.select("sarsa", "vdbe")[0])
+    for name, value in AUTHORS_DETAILS.items():
+        assert sarsa_vdbe[[k for k in sarsa_vdbe if k.endswith("." + name)][0]] == value
+    assert len(rep.claims) == 6 and (tmp_path / "report.md").exists()
+    assert is_paper_grid(vdbejax.GridResult.load(tmp_path))
+    (tmp_path / "report.md").unlink()
+    replot(tmp_path)
+    assert (tmp_path / "report.md").exists()  # the authors' grid is the paper's grid too
+    assert grid.meta["longest_episode"] <= 10_000
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--reading", "novel"], "reading='novel'"),
+    (["--reading", "authors", "--invalid-action", "fail"], "invalid_action='fail'"),
+])
+def test_reproduce_reading_errors_are_one_line(tmp_path, args, message):
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "vdbejax", "reproduce", "--out", str(tmp_path),
+                           "--seeds", "1", "--episodes", "2", "--quiet", *args],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], lines
+    assert not (tmp_path / "returns.npz").exists()

@@ -26,9 +26,14 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", type=number, default=20, help="agents per setting (default 20)")
     p.add_argument("--episodes", type=number, default=1000, help="episodes per agent (default 1000)")
     p.add_argument("--seed", type=number, default=0, help="root random seed (default 0)")
-    p.add_argument("--max-steps", type=number, default=100, help="episode truncation length (default 100)")
+    p.add_argument("--reading", default="textbook",
+                   help="textbook (default: the paper's text, docs/task.md) or authors (the"
+                        " first author's published code: its task table and agent details)")
+    p.add_argument("--max-steps", type=number, default=None,
+                   help="episode truncation length (default 100; authors: a safety cap of 10000)")
     p.add_argument("--invalid-action", default="noop", help="noop (default) or fail")
-    p.add_argument("--tie-break", default="random", help="random (default) or first")
+    p.add_argument("--tie-break", default=None,
+                   help="random (default) or first (the authors' reading's default)")
     p.add_argument("--q-init", type=number, default=0.0, help="initial Q value (default 0)")
     p.add_argument("--chunk-episodes", type=number, default=100, help="episodes per jitted chunk (default 100)")
     p.add_argument("--memory-budget", default=None,
@@ -44,7 +49,7 @@ def _reproduce(args: argparse.Namespace) -> None:
     from vdbejax.paper.reproduce import reproduce
 
     rep = reproduce(
-        args.out, seeds=args.seeds, episodes=args.episodes, seed=args.seed,
+        args.out, reading=args.reading, seeds=args.seeds, episodes=args.episodes, seed=args.seed,
         max_steps=args.max_steps, invalid_action=args.invalid_action, tie_break=args.tie_break,
         q_init=args.q_init, chunk_episodes=args.chunk_episodes, resume=args.resume,
         progress=not args.quiet, memory_budget_bytes=args.memory_budget, devices=args.devices,

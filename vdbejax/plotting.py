@@ -182,8 +182,11 @@ def sensitivity(
                                          [float(r[high_key]) for r in points]]) - y)
                         if has_ci else None)
                 color, marker = LEARNER_STYLES.get(learner, (None, "o"))
-                name = LEARNER_TITLES.get(learner, learner) + (f" {extra}" if extra not in ("", "{}") else "")
-                ax.errorbar(x, y, yerr=yerr, color=None if extra not in ("", "{}") else color,
+                # The values beside the parameter show only where they tell lines apart.
+                several = len({(r.get("hyperparameters") or "") for r in rows
+                               if r["learner"] == learner and r["explorer"] == explorer}) > 1
+                name = LEARNER_TITLES.get(learner, learner) + (f" {extra}" if several else "")
+                ax.errorbar(x, y, yerr=yerr, color=None if several else color,
                             marker=marker, ms=4, capsize=3, lw=1.2, label=name)
             ax.set_xscale("log")
             if key == "final_return" and best_return is not None:

@@ -12,14 +12,18 @@ from io import BytesIO
 from pathlib import Path
 
 from vdbejax import io, sweeps
-from vdbejax.methods.agents import AgentOptions, make_agent, paper_settings
+from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
+from vdbejax.methods.agents import AgentOptions, Setting, make_agent, paper_settings
+from vdbejax.methods.api import field_names
+from vdbejax.methods.explorers import explorer_class
+from vdbejax.methods.learners import learner_class
 from vdbejax.paper.claims import ClaimResult, evaluate_claims, render_report
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.distributed import process_checkpoint_path, select_devices
 from vdbejax.experiment import GridResult, check_run_options, run_grid
 from vdbejax.solvers import best_return
-from vdbejax.validation import INT32_MAX, check_bool, check_int, check_writable_dir
+from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, check_writable_dir
 
 SUMMARY_FILE, FIGURE_FILE, SENSITIVITY_FILE = sweeps.SUMMARY_FILE, sweeps.FIGURE_FILE, sweeps.SENSITIVITY_FILE
 REPORT_FILE = "report.md"
@@ -63,20 +67,55 @@ def write_outputs(
 
 
 def is_paper_grid(result: GridResult) -> bool:
-    """Whether a result is the paper's grid (its 46 settings on the table-cleaning task),
+    """Whether a result is the paper's grid (its 46 settings under one of its readings),
     the only one its claims report applies to."""
-    return result.meta.get("mdp") == "table_cleaning" and result.settings == paper_settings()
+    reading = result.meta.get("reading", "textbook")
+    task = {"textbook": "table_cleaning", "authors": "cruz2018"}.get(reading)
+    return (result.meta.get("mdp") == task
+            and result.settings == reading_settings(reading))
+
+
+#: The two readings of the paper: its text (``docs/task.md``) and the first author's code.
+READINGS = ("textbook", "authors")
+#: The authors' agent details (docs/task.md, "The authors' code"), per field; each applies
+#: to the learners and explorers that have the field.
+AUTHORS_DETAILS = {
+    "failure_update": "overwrite",
+    "goal_update": "skip",
+    "q_init_distribution": "uniform",
+    "next_action": "redrawn",
+    "epsilon_init": 0.1,
+    "update_on_terminal": False,
+}
+
+
+def reading_settings(reading: str, details: dict | None = None) -> list[Setting]:
+    """The paper's 46 settings under a reading: the textbook's as they are, the authors'
+    with :data:`AUTHORS_DETAILS` (or ``details``) where the learner or explorer has the
+    field (greedy ties to the first index come as the grid-wide ``tie_break``)."""
+    check_choice("reading", reading, READINGS)
+    if reading == "textbook":
+        return paper_settings()
+    details = AUTHORS_DETAILS if details is None else details
+    settings = []
+    for s in paper_settings():
+        fields = set(field_names(learner_class(s.learner))) | set(
+            field_names(explorer_class(s.explorer)))
+        settings.append(Setting(s.learner, s.explorer, s.param,
+                                {k: v for k, v in details.items() if k in fields}))
+    return settings
 
 
 def reproduce(
     out_dir: str | os.PathLike,
     *,
+    reading: str = "textbook",
     seeds: int = 20,
     episodes: int = 1000,
     seed: int = 0,
-    max_steps: int = 100,
+    max_steps: int | None = None,
     invalid_action: str = "noop",
-    tie_break: str = "random",
+    tie_break: str | None = None,
     q_init: float = 0.0,
     alpha: float = PAPER_ALPHA,
     chunk_episodes: int = 100,
@@ -94,12 +133,17 @@ def reproduce(
 
     Args:
       out_dir: output folder (created if needed).
+      reading: ``"textbook"`` (the paper's text, ``docs/task.md``; the default) or
+        ``"authors"`` (the first author's code: the ``cruz2018`` task and the agent
+        details of :data:`AUTHORS_DETAILS`, greedy ties to the first index).
       seeds: agents per setting.
       episodes: episodes per agent.
       seed: root random seed.
-      max_steps: episode truncation length (the spec's option).
-      invalid_action: ``"noop"`` or ``"fail"`` (the spec's option).
-      tie_break: ``"random"`` or ``"first"`` (the spec's option).
+      max_steps: episode truncation length (textbook default 100; authors: the task's
+        safety cap, 10,000).
+      invalid_action: ``"noop"`` or ``"fail"`` (the textbook reading's option).
+      tie_break: ``"random"`` or ``"first"`` (default: random for the textbook, first for
+        the authors).
       q_init: initial Q value (the spec's option).
       alpha: learning rate α of every agent (default: the paper's).
       chunk_episodes: episodes per jitted chunk (checkpoint granularity).
@@ -119,10 +163,22 @@ def reproduce(
       ValueError: an invalid option (message names it and what is allowed), or an
         output folder that cannot be written.
     """
-    mdp = make_mdp(max_steps=max_steps, invalid_action=invalid_action)
+    check_choice("reading", reading, READINGS)
+    if reading == "authors":
+        if invalid_action != "noop":
+            raise ValueError(f"invalid_action={invalid_action!r} is invalid with reading="
+                             "'authors': the published table decides every action's effect")
+        mdp = make_authors_mdp(STEP_CAP if max_steps is None else max_steps)
+    else:
+        mdp = make_mdp(max_steps=100 if max_steps is None else max_steps,
+                       invalid_action=invalid_action)
+    if tie_break is None:
+        tie_break = "first" if reading == "authors" else "random"
     options = AgentOptions(alpha=alpha, q_init=q_init, tie_break=tie_break)
+    settings = reading_settings(reading)
     # Check every option before creating anything, so bad input leaves no trace.
-    make_agent(paper_settings()[0], options)
+    for setting in settings:
+        make_agent(setting, options)
     check_int("seeds", seeds, 1, INT32_MAX)  # named as the caller knows them
     check_int("episodes", episodes, 1, INT32_MAX)
     check_run_options(num_seeds=seeds, num_episodes=episodes, seed=seed,
@@ -134,7 +190,7 @@ def reproduce(
     checkpoint = out / CHECKPOINT_FILE
     started = time.perf_counter()
     result = run_grid(
-        mdp, paper_settings(), num_seeds=seeds, num_episodes=episodes, seed=seed,
+        mdp, settings, num_seeds=seeds, num_episodes=episodes, seed=seed,
         options=options, chunk_episodes=chunk_episodes, progress=progress,
         checkpoint=checkpoint, resume=resume, memory_budget_bytes=memory_budget_bytes,
         devices=devices,
@@ -143,6 +199,7 @@ def reproduce(
         print(f"warning: {result.meta['nonfinite_message']}", file=sys.stderr)
     best = best_return(mdp)
     result.meta["invalid_action"] = invalid_action
+    result.meta["reading"] = reading
     result.meta["best_return"] = best  # lets `vdbejax plot` redraw without the MDP
     result.save(out)
     process_checkpoint_path(checkpoint).unlink(missing_ok=True)
