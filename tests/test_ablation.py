@@ -57,7 +57,8 @@ def test_reuse_saved_results(ablated):
 def test_variants_cover_each_open_detail():
     names = {v.name for v in ablation.VARIANTS}
     assert ablation.VARIANTS[0].options() == {"max_steps": 100, "invalid_action": "noop",
-                                              "tie_break": "random", "q_init": 0.0, "alpha": 0.8}
+                                              "tie_break": "random", "q_init": 0.0, "alpha": 0.8,
+                                              "reading": "textbook", "details": {}}
     assert {v.invalid_action for v in ablation.VARIANTS} == {"noop", "fail"}
     assert {v.tie_break for v in ablation.VARIANTS} == {"random", "first"}
     assert len({v.max_steps for v in ablation.VARIANTS}) >= 3
@@ -75,3 +76,33 @@ def test_bad_input(tmp_path, capsys, args, message):
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error:") and message in err[0]
+
+
+def test_attribution_mode_switches_one_authors_detail_at_a_time(tmp_path):
+    names = "textbook,authors,textbook+failure_update,authors-failure_update"
+    code = cli.main(["ablate", "--mode", "attribution", "--out", str(tmp_path), "--results",
+                     str(tmp_path / "raw"), "--variants", names, "--seeds", "2", "--episodes",
+                     "12", "--quiet"])
+    assert code == 0
+    text = (tmp_path / "ATTRIBUTION.md").read_text()
+    assert "--mode attribution" in text and "which detail of which reading" in text
+    assert not (tmp_path / "REPRODUCTION.md").exists()
+    assert (tmp_path / "attribution" / "authors" / "report.md").exists()
+    assert not (tmp_path / "attribution" / "authors" / "fig3.png").exists()  # reports only
+    from vdbejax.experiment import GridResult
+
+    switched = GridResult.load(tmp_path / "raw" / "textbook+failure_update")
+    assert switched.meta["details"] == {"failure_update": "overwrite"}
+    assert switched.meta["mdp"] == "table_cleaning"
+    removed = GridResult.load(tmp_path / "raw" / "authors-failure_update")
+    assert removed.meta["mdp"] == "cruz2018" and "failure_update" not in removed.meta["details"]
+    assert len(removed.meta["details"]) == len(ablation.AUTHORS_DETAILS) - 1
+    # Each detail of the authors' code appears once added and once removed.
+    variant_names = {v.name for v in ablation.ATTRIBUTION_VARIANTS}
+    for detail in ablation.AUTHORS_DETAILS:
+        assert {f"textbook+{detail}", f"authors-{detail}"} <= variant_names
+
+
+def test_unknown_mode_is_one_line(capsys):
+    assert cli.main(["ablate", "--out", "x", "--mode", "factorial"]) == 2
+    assert "mode='factorial'" in capsys.readouterr().err

@@ -163,14 +163,20 @@ def _add_ablate(sub: argparse._SubParsersAction) -> None:
                    help="hand-written discussion appended to the document"
                         " (default: docs/reproduction_notes.md if it exists)")
     p.add_argument("--rerun", action="store_true", help="ignore saved results of the same variant and size")
+    p.add_argument("--mode", default="options",
+                   help="options (default: the spec's open details, REPRODUCTION.md) or attribution"
+                        " (each detail of the authors' code switched alone from either reading,"
+                        " ATTRIBUTION.md)")
     p.add_argument("--quiet", action="store_true", help="no status lines")
 
 
 def _ablate(args: argparse.Namespace) -> None:
     from vdbejax.paper.ablation import DEFAULT_NOTES, ablate, select_variants
 
-    notes = args.notes if args.notes is not None else (DEFAULT_NOTES if Path(DEFAULT_NOTES).is_file() else None)
-    results = ablate(args.out, results_dir=args.results, variants=select_variants(args.variants),
+    default_notes = DEFAULT_NOTES if args.mode == "options" and Path(DEFAULT_NOTES).is_file() else None
+    notes = args.notes if args.notes is not None else default_notes
+    results = ablate(args.out, results_dir=args.results, variants=select_variants(args.variants, args.mode),
+                     mode=args.mode,
                      seeds=args.seeds, episodes=args.episodes, seed=args.seed, notes=notes,
                      reuse=not args.rerun, progress=not args.quiet)
     for result in results:

@@ -28,7 +28,9 @@ from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimResult, _Table
 from vdbejax.experiment import GridResult
 from vdbejax.methods.explorers import PAPER_EXPLORERS as EXPLORERS
 from vdbejax.methods.learners import PAPER_ALPHA
+from vdbejax.envs.cruz2018 import STEP_CAP
 from vdbejax.paper.reproduce import (
+    AUTHORS_DETAILS,
     FIGURE_FILE,
     SENSITIVITY_FILE,
     reproduce,
@@ -54,11 +56,15 @@ class Variant:
     tie_break: str = "random"
     q_init: float = 0.0
     alpha: float = PAPER_ALPHA  # stated by the paper, not an open detail: probed once
+    reading: str = "textbook"
+    #: The authors' agent details applied, as ``(name, value)`` pairs.
+    details: tuple = ()
 
     def options(self) -> dict[str, Any]:
         """Keyword arguments of :func:`~vdbejax.paper.reproduce.reproduce`."""
         return {"max_steps": self.max_steps, "invalid_action": self.invalid_action,
-                "tie_break": self.tie_break, "q_init": self.q_init, "alpha": self.alpha}
+                "tie_break": self.tie_break, "q_init": self.q_init, "alpha": self.alpha,
+                "reading": self.reading, "details": dict(self.details)}
 
 
 #: One factor at a time away from the spec's defaults, plus one combination.
@@ -80,6 +86,47 @@ VARIANTS: tuple[Variant, ...] = (
 )
 
 
+def _attribution_variants() -> tuple[Variant, ...]:
+    """From each reading, each detail of the other one switched alone (and the task)."""
+    details = list(AUTHORS_DETAILS.items())
+    authors = {"reading": "authors", "max_steps": STEP_CAP, "tie_break": "first",
+               "details": tuple(details)}
+    variants = [Variant("textbook", "the paper's text (docs/task.md)"),
+                Variant("authors", "the authors' code: their task and every agent detail",
+                        **authors)]
+    for name, value in details:
+        variants.append(Variant(f"textbook+{name}", f"textbook, with {name} = {value!r}",
+                                details=((name, value),)))
+    variants += [
+        Variant("textbook+tie_first", "textbook, with greedy ties to the first index",
+                tie_break="first"),
+        Variant("textbook+no_step_limit", f"textbook, with no step limit (cap {STEP_CAP})",
+                max_steps=STEP_CAP),
+        Variant("textbook+authors_task", "the authors' task table, the textbook agent",
+                reading="authors", max_steps=STEP_CAP, details=()),
+    ]
+    for name, value in details:
+        variants.append(Variant(f"authors-{name}", f"authors, without {name} = {value!r}",
+                                **{**authors, "details": tuple(d for d in details if d[0] != name)}))
+    variants += [
+        Variant("authors-tie_first", "authors, with random greedy ties",
+                **{**authors, "tie_break": "random"}),
+        Variant("authors-no_step_limit", "authors, with the textbook's 100-step limit",
+                **{**authors, "max_steps": 100}),
+        Variant("authors-authors_task", "the authors' agent on the textbook task",
+                **{**authors, "reading": "textbook", "max_steps": 100}),
+    ]
+    return tuple(variants)
+
+
+#: The attribution mode (``vdbejax ablate --mode attribution``): which single detail of
+#: the authors' code turns a claim's verdict.
+ATTRIBUTION_VARIANTS: tuple[Variant, ...] = _attribution_variants()
+#: Document and figure folder of each mode.
+MODES = {"options": ("REPRODUCTION.md", "ablation"),
+         "attribution": ("ATTRIBUTION.md", "attribution")}
+
+
 @dataclasses.dataclass
 class VariantResult:
     """Scored outcome of one variant."""
@@ -99,7 +146,9 @@ def _matches(meta: dict[str, Any], variant: Variant, seeds: int, episodes: int, 
             and meta.get("invalid_action") == variant.invalid_action
             and options.get("tie_break") == variant.tie_break
             and float(options.get("q_init", float("nan"))) == variant.q_init
-            and float(options.get("alpha", float("nan"))) == variant.alpha)
+            and float(options.get("alpha", float("nan"))) == variant.alpha
+            and meta.get("reading", "textbook") == variant.reading
+            and meta.get("details", {}) == dict(variant.details))
 
 
 def run_variant(
@@ -133,6 +182,7 @@ def run_variant(
 
 def render_document(
     results: Sequence[VariantResult], figures_dir: str, command: str, notes: str | None = None,
+    figures: bool = True,
 ) -> str:
     """The markdown of ``REPRODUCTION.md``.
 
@@ -147,8 +197,11 @@ def render_document(
     """
     first = results[0]
     meta_line = f"{len(first.summary)} settings × {_run_size(first)} per variant"
+    title = ("which detail of which reading decides each claim"
+             if any(r.variant.reading == "authors" for r in results)
+             else "across the paper's open details")
     lines = [
-        "# Reproducing Cruz et al. (2018): claim by claim, across the paper's open details",
+        f"# Reproducing Cruz et al. (2018): claim by claim, {title}",
         "",
         "<!-- Generated by vdbejax.paper.ablation; edit docs/reproduction_notes.md for the discussion. -->",
         "",
@@ -168,17 +221,24 @@ def render_document(
     ]
     for r in results:
         lines.append(f"| `{r.variant.name}` | {r.variant.description} | {r.best_return:.2f} |")
-    lines += ["", "## Claims × variants", "",
-              "| claim | " + " | ".join(f"`{r.variant.name}`" for r in results) + " |",
-              "| --- | " + " | ".join("---" for _ in results) + " |"]
     numbers = sorted({c.number for r in results for c in r.claims})
-    for n in numbers:
-        cells = []
-        for r in results:
-            claim = next((c for c in r.claims if c.number == n), None)
-            cells.append("—" if claim is None else
-                         f"{VERDICT_MARKS[claim.verdict]} ({sum(k.passed for k in claim.checks)}/{len(claim.checks)})")
-        lines.append(f"| {n} | " + " | ".join(cells) + " |")
+
+    def cell(r: VariantResult, n: int) -> str:
+        claim = next((c for c in r.claims if c.number == n), None)
+        return ("—" if claim is None else f"{VERDICT_MARKS[claim.verdict]}"
+                f" ({sum(k.passed for k in claim.checks)}/{len(claim.checks)})")
+
+    if len(results) <= 10:  # claims as rows, variants as columns
+        lines += ["", "## Claims × variants", "",
+                  "| claim | " + " | ".join(f"`{r.variant.name}`" for r in results) + " |",
+                  "| --- | " + " | ".join("---" for _ in results) + " |"]
+        lines += [f"| {n} | " + " | ".join(cell(r, n) for r in results) + " |" for n in numbers]
+    else:  # many variants: one row each
+        lines += ["", "## Variants × claims", "",
+                  "| variant | " + " | ".join(f"claim {n}" for n in numbers) + " |",
+                  "| --- | " + " | ".join("---" for _ in numbers) + " |"]
+        lines += [f"| `{r.variant.name}` | " + " | ".join(cell(r, n) for n in numbers) + " |"
+                  for r in results]
     reproduced = {r.variant.name: sum(c.verdict == "reproduced" for c in r.claims) for r in results}
     top = max(reproduced.values())
     lines += ["", "Claims fully reproduced per variant: " + ", ".join(
@@ -213,15 +273,17 @@ def render_document(
         cells.append(f"{sum(stuck) / len(stuck):.2f}" if stuck else "—")
         lines.append("| " + " | ".join(cells) + " |")
 
-    lines += ["", "## Figures", ""]
+    lines += ["", "## Figures" if figures else "## Per variant", ""]
     for r in results:
         lines += [f"### `{r.variant.name}`: {r.variant.description}", "",
                   "| claim | " + " | ".join(str(c.number) for c in r.claims) + " |",
                   "| --- | " + " | ".join("---" for _ in r.claims) + " |",
-                  "| verdict | " + " | ".join(VERDICT_MARKS[c.verdict] for c in r.claims) + " |", "",
-                  f"![Figure 3, {r.variant.name}]({figures_dir}/{r.variant.name}/{FIGURE_FILE})", "",
-                  f"![Sensitivity, {r.variant.name}]({figures_dir}/{r.variant.name}/{SENSITIVITY_FILE})", "",
-                  f"Full claim report: [{figures_dir}/{r.variant.name}/report.md]"
+                  "| verdict | " + " | ".join(VERDICT_MARKS[c.verdict] for c in r.claims) + " |", ""]
+        if figures:
+            lines += [
+                f"![Figure 3, {r.variant.name}]({figures_dir}/{r.variant.name}/{FIGURE_FILE})", "",
+                f"![Sensitivity, {r.variant.name}]({figures_dir}/{r.variant.name}/{SENSITIVITY_FILE})", ""]
+        lines += [f"Full claim report: [{figures_dir}/{r.variant.name}/report.md]"
                   f"({figures_dir}/{r.variant.name}/report.md).", ""]
     if notes:
         lines += ["", notes.strip(), ""]
@@ -248,8 +310,10 @@ def ablate(
     notes: str | os.PathLike | None = None,
     reuse: bool = True,
     progress: bool = True,
+    mode: str = "options",
 ) -> list[VariantResult]:
-    """Run every variant, score the claims, write ``REPRODUCTION.md`` and its figures.
+    """Run every variant, score the claims, write ``REPRODUCTION.md`` (mode ``options``)
+    or ``ATTRIBUTION.md`` (mode ``attribution``) and its figures.
 
     Args:
       out_dir: document folder: ``REPRODUCTION.md`` and ``ablation/<variant>/`` (figures,
@@ -261,6 +325,9 @@ def ablate(
       notes: a hand-written markdown file appended as the discussion.
       reuse: reuse saved results of the same variant and size.
       progress: one status line per variant on stderr.
+      mode: ``"options"`` (the spec's open details) or ``"attribution"`` (the authors'
+        details one at a time, :data:`ATTRIBUTION_VARIANTS`): the document's name and
+        figure folder (:data:`MODES`).
 
     Returns:
       the scored variants.
@@ -275,16 +342,19 @@ def ablate(
         raise ValueError("variant names must be unique")
     if notes is not None and not Path(notes).is_file():
         raise ValueError(f"notes file {str(notes)!r} does not exist")
+    if mode not in MODES:
+        raise ValueError(f"mode={mode!r} is invalid: must be one of {', '.join(MODES)}")
+    document, figures_dir = MODES[mode]
     out = Path(out_dir)
-    figures = out / FIGURES_DIR
+    figures = out / figures_dir
     raw = Path(results_dir) if results_dir is not None else figures
     results = []
     for variant in variants:
         started = time.perf_counter()
         result = run_variant(variant, raw / variant.name, seeds=seeds, episodes=episodes,
                              seed=seed, reuse=reuse)
-        if raw != figures:
-            for name in DOCUMENT_ASSETS:
+        if raw != figures:  # the attribution document links reports, not figures (size)
+            for name in DOCUMENT_ASSETS if mode == "options" else ("report.md", "summary.csv"):
                 io.atomic_write_bytes(figures / variant.name / name, (result.folder / name).read_bytes())
         results.append(result)
         if progress:
@@ -292,18 +362,21 @@ def ablate(
             print(f"{variant.name}: {verdicts} ({time.perf_counter() - started:.1f} s)",
                   file=sys.stderr, flush=True)
     text = Path(notes).read_text() if notes is not None else None
-    command = _command(out, raw, figures, variants, seeds, episodes, seed)
-    io.atomic_write_text(out / DOCUMENT_FILE, render_document(results, FIGURES_DIR, command, text))
+    command = _command(out, raw, figures, variants, seeds, episodes, seed, mode)
+    io.atomic_write_text(out / document, render_document(results, figures_dir, command, text,
+                                                         figures=mode == "options"))
     return results
 
 
 def _command(out: Path, raw: Path, figures: Path, variants: Sequence[Variant], seeds: int,
-             episodes: int, seed: int) -> str:
+             episodes: int, seed: int, mode: str = "options") -> str:
     """The ``vdbejax ablate`` command line that reproduces this call."""
     parts = ["vdbejax ablate", f"--out {out}"]
+    if mode != "options":
+        parts.append(f"--mode {mode}")
     if raw != figures:
         parts.append(f"--results {raw}")
-    if [v.name for v in variants] != [v.name for v in VARIANTS]:
+    if [v.name for v in variants] != [v.name for v in _mode_variants(mode)]:
         parts.append("--variants " + ",".join(v.name for v in variants))
     for flag, value, default in (("--seeds", seeds, 20), ("--episodes", episodes, 1000), ("--seed", seed, 0)):
         if value != default:
@@ -311,8 +384,13 @@ def _command(out: Path, raw: Path, figures: Path, variants: Sequence[Variant], s
     return " ".join(parts)
 
 
-def select_variants(names: str | Sequence[str] | None) -> list[Variant]:
-    """Variants by name (comma-separated string or list); ``None`` = all of :data:`VARIANTS`.
+def _mode_variants(mode: str) -> tuple[Variant, ...]:
+    return ATTRIBUTION_VARIANTS if mode == "attribution" else VARIANTS
+
+
+def select_variants(names: str | Sequence[str] | None, mode: str = "options") -> list[Variant]:
+    """Variants by name (comma-separated string or list); ``None`` = all of the mode's
+    (:data:`VARIANTS` or :data:`ATTRIBUTION_VARIANTS`).
 
     Args:
       names: variant names, or ``None``.
@@ -323,11 +401,13 @@ def select_variants(names: str | Sequence[str] | None) -> list[Variant]:
     Raises:
       ValueError: an unknown name (the message lists the known ones).
     """
+    if mode not in MODES:
+        raise ValueError(f"mode={mode!r} is invalid: must be one of {', '.join(MODES)}")
     if names is None:
-        return list(VARIANTS)
+        return list(_mode_variants(mode))
     if isinstance(names, str):
         names = [n.strip() for n in names.split(",") if n.strip()]
-    known = {v.name: v for v in VARIANTS}
+    known = {v.name: v for v in _mode_variants(mode)}
     unknown = [n for n in names if n not in known]
     if unknown or not names:
         raise ValueError(f"unknown variant(s) {unknown or names}: choose from {', '.join(known)}")
@@ -348,5 +428,5 @@ def claims_table(results: Sequence[VariantResult]) -> list[dict[str, Any]]:
                             for r in results}} for n in numbers]
 
 
-__all__ = ["VARIANTS", "Variant", "VariantResult", "ablate", "claims_table", "render_document",
+__all__ = ["ATTRIBUTION_VARIANTS", "MODES", "VARIANTS", "Variant", "VariantResult", "ablate", "claims_table", "render_document",
            "run_variant", "select_variants"]

@@ -69,10 +69,10 @@ def write_outputs(
 def is_paper_grid(result: GridResult) -> bool:
     """Whether a result is the paper's grid (its 46 settings under one of its readings),
     the only one its claims report applies to."""
-    reading = result.meta.get("reading", "textbook")
-    task = {"textbook": "table_cleaning", "authors": "cruz2018"}.get(reading)
-    return (result.meta.get("mdp") == task
-            and result.settings == reading_settings(reading))
+    if result.meta.get("mdp") not in ("table_cleaning", "cruz2018"):
+        return False
+    grid = [(s.learner, s.explorer, s.param) for s in result.settings]
+    return grid == [(s.learner, s.explorer, s.param) for s in paper_settings()]
 
 
 #: The two readings of the paper: its text (``docs/task.md``) and the first author's code.
@@ -90,13 +90,14 @@ AUTHORS_DETAILS = {
 
 
 def reading_settings(reading: str, details: dict | None = None) -> list[Setting]:
-    """The paper's 46 settings under a reading: the textbook's as they are, the authors'
-    with :data:`AUTHORS_DETAILS` (or ``details``) where the learner or explorer has the
-    field (greedy ties to the first index come as the grid-wide ``tie_break``)."""
+    """The paper's 46 settings under a reading, with agent ``details`` where the learner or
+    explorer has the field: by default none for the textbook, :data:`AUTHORS_DETAILS` for
+    the authors (greedy ties to the first index come as the grid-wide ``tie_break``)."""
     check_choice("reading", reading, READINGS)
-    if reading == "textbook":
+    if details is None:
+        details = AUTHORS_DETAILS if reading == "authors" else {}
+    if not details:
         return paper_settings()
-    details = AUTHORS_DETAILS if details is None else details
     settings = []
     for s in paper_settings():
         fields = set(field_names(learner_class(s.learner))) | set(
@@ -110,6 +111,7 @@ def reproduce(
     out_dir: str | os.PathLike,
     *,
     reading: str = "textbook",
+    details: dict | None = None,
     seeds: int = 20,
     episodes: int = 1000,
     seed: int = 0,
@@ -136,6 +138,9 @@ def reproduce(
       reading: ``"textbook"`` (the paper's text, ``docs/task.md``; the default) or
         ``"authors"`` (the first author's code: the ``cruz2018`` task and the agent
         details of :data:`AUTHORS_DETAILS`, greedy ties to the first index).
+      details: the agent details to apply (names and values as in
+        :data:`AUTHORS_DETAILS`; default: none for the textbook, all for the authors) —
+        :mod:`vdbejax.paper.ablation` switches them one at a time.
       seeds: agents per setting.
       episodes: episodes per agent.
       seed: root random seed.
@@ -175,7 +180,7 @@ def reproduce(
     if tie_break is None:
         tie_break = "first" if reading == "authors" else "random"
     options = AgentOptions(alpha=alpha, q_init=q_init, tie_break=tie_break)
-    settings = reading_settings(reading)
+    settings = reading_settings(reading, details)
     # Check every option before creating anything, so bad input leaves no trace.
     for setting in settings:
         make_agent(setting, options)
@@ -200,6 +205,8 @@ def reproduce(
     best = best_return(mdp)
     result.meta["invalid_action"] = invalid_action
     result.meta["reading"] = reading
+    result.meta["details"] = dict(AUTHORS_DETAILS if details is None and reading == "authors"
+                                  else details or {})
     result.meta["best_return"] = best  # lets `vdbejax plot` redraw without the MDP
     result.save(out)
     process_checkpoint_path(checkpoint).unlink(missing_ok=True)
