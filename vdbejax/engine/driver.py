@@ -243,8 +243,6 @@ def _auto_strategy(params: AgentParams, keys: Any) -> str:
     return "sequential"
 
 
-
-
 def compile_seconds() -> float:
     """Seconds this process spent getting the engine's executables (tracing, lowering and
     compiling them, or loading them from the caches; see :mod:`vdbejax._executables`)."""

@@ -170,12 +170,13 @@ class AgentParams:
         return np.flatnonzero(np.asarray(self.kind) == k)
 
 
-def _route(name: str, value: Any, cls: Any, into: dict[str, Any]) -> bool:
-    field = cls.option_aliases.get(name, name)
-    if field in field_names(cls):
-        into[field] = value
-        return True
-    return False
+def owners(name: str, learner: str, explorer: str) -> list[str]:
+    """Which of ``"learner"`` and ``"explorer"`` a hyperparameter name sets for a learner ×
+    explorer pair: ``alpha`` wherever a field of that name exists, ``learner.alpha`` only
+    in the learner (empty: neither has it)."""
+    role, _, field = name.rpartition(".")
+    classes = (("learner", learner_class(learner)), ("explorer", explorer_class(explorer)))
+    return [r for r, cls in classes if role in ("", r) and field in field_names(cls)]
 
 
 def make_agent(setting: Setting, options: AgentOptions = AgentOptions()) -> Agent:
@@ -197,38 +198,28 @@ def make_agent(setting: Setting, options: AgentOptions = AgentOptions()) -> Agen
     if not isinstance(setting, Setting):
         raise ValueError(f"setting={setting!r} is invalid: must be a Setting(learner, explorer,"
                          " param, hyperparameters)")
-    learner_cls, explorer_cls = learner_class(setting.learner), explorer_class(setting.explorer)
-    learner_values: dict[str, Any] = {}
-    explorer_values: dict[str, Any] = {}
+    classes = {"learner": learner_class(setting.learner),
+               "explorer": explorer_class(setting.explorer)}
+    values: dict[str, dict[str, Any]] = {"learner": {}, "explorer": {}}
     for name, value in dataclasses.asdict(options).items():
-        _route(name, value, learner_cls, learner_values)
-        _route(name, value, explorer_cls, explorer_values)
+        for role, cls in classes.items():
+            field = cls.option_aliases.get(name, name)
+            if field in field_names(cls):
+                values[role][field] = value
     if setting.param is not None:
-        if explorer_cls.parameter is None:
+        if classes["explorer"].parameter is None:
             raise ValueError(f"param={setting.param!r} is invalid: explorer {setting.explorer!r}"
                              " has no swept parameter (give hyperparameters instead)")
-        explorer_values[explorer_cls.parameter] = setting.param
+        values["explorer"][classes["explorer"].parameter] = setting.param
     for name, value in setting.hyperparameters:
-        role, _, field = name.rpartition(".")
-        matched = False
-        if role in ("", "learner"):
-            matched |= _set_field(field, value, learner_cls, learner_values)
-        if role in ("", "explorer"):
-            matched |= _set_field(field, value, explorer_cls, explorer_values)
-        if not matched or role not in ("", "learner", "explorer"):
-            fields = [f"learner.{f}" for f in field_names(learner_cls)] + [
-                f"explorer.{f}" for f in field_names(explorer_cls)]
+        roles = owners(name, setting.learner, setting.explorer)
+        if not roles:
+            fields = [f"{role}.{f}" for role, cls in classes.items() for f in field_names(cls)]
             raise ValueError(f"hyperparameter {name!r} is invalid for {setting.learner}/"
                              f"{setting.explorer}: must be one of {', '.join(fields)}")
-    return Agent(build(learner_cls, learner_values, "learner"),
-                 build(explorer_cls, explorer_values, "explorer"))
-
-
-def _set_field(field: str, value: Any, cls: Any, into: dict[str, Any]) -> bool:
-    if field in field_names(cls):
-        into[field] = value
-        return True
-    return False
+        for role in roles:
+            values[role][name.rpartition(".")[2]] = value
+    return Agent(*(build(classes[role], values[role], role) for role in ("learner", "explorer")))
 
 
 def agent_hyperparameters(agent: Agent) -> dict[str, Any]:
@@ -291,18 +282,11 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
     used: set[str] = set()
     settings = []
     for learner in learners:
-        learner_fields = field_names(learner_class(learner))
         for explorer in explorers:
             cls = explorer_class(explorer)
-            explorer_fields = field_names(cls)
-
-            def applies(name: str) -> bool:
-                role, _, field = name.rpartition(".")
-                return ((role in ("", "learner") and field in learner_fields)
-                        or (role in ("", "explorer") and field in explorer_fields))
-
-            mine = [name for name in axes if applies(name)]
-            fixed = {name: value for name, value in shared.items() if applies(name)}
+            mine = [name for name in axes if owners(name, learner, explorer)]
+            fixed = {name: value for name, value in shared.items()
+                     if owners(name, learner, explorer)}
             used.update(mine, fixed)
             for combination in itertools.product(*(axes[name] for name in mine)):
                 values = dict(fixed, **dict(zip(mine, combination)))
@@ -373,6 +357,6 @@ def table_layout(params: AgentParams) -> dict[str, str]:
 
 __all__ = [
     "Agent", "AgentOptions", "AgentParams", "PAPER_PARAMETERS", "Setting", "Table",
-    "agent_hyperparameters", "make_agent", "paper_settings", "parameter_name", "stack_agents",
+    "agent_hyperparameters", "make_agent", "owners", "paper_settings", "parameter_name", "stack_agents",
     "sweep", "table_layout",
 ]

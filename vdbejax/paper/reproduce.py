@@ -8,15 +8,11 @@ import os
 import sys
 import time
 import zipfile
-from io import BytesIO
 from pathlib import Path
 
 from vdbejax import io, sweeps
 from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
-from vdbejax.methods.agents import AgentOptions, Setting, make_agent, paper_settings
-from vdbejax.methods.api import field_names
-from vdbejax.methods.explorers import explorer_class
-from vdbejax.methods.learners import learner_class
+from vdbejax.methods.agents import AgentOptions, Setting, make_agent, owners, paper_settings
 from vdbejax.paper.claims import ClaimResult, evaluate_claims, render_report
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.learners import PAPER_ALPHA
@@ -98,13 +94,9 @@ def reading_settings(reading: str, details: dict | None = None) -> list[Setting]
         details = AUTHORS_DETAILS if reading == "authors" else {}
     if not details:
         return paper_settings()
-    settings = []
-    for s in paper_settings():
-        fields = set(field_names(learner_class(s.learner))) | set(
-            field_names(explorer_class(s.explorer)))
-        settings.append(Setting(s.learner, s.explorer, s.param,
-                                {k: v for k, v in details.items() if k in fields}))
-    return settings
+    return [Setting(s.learner, s.explorer, s.param,
+                    {k: v for k, v in details.items() if owners(k, s.learner, s.explorer)})
+            for s in paper_settings()]
 
 
 def reproduce(
