@@ -283,3 +283,14 @@ def test_cli_out_of_range_is_one_line_and_writes_nothing(tmp_path, args, name):
     assert lines[0].startswith(f"error: {name}=") and "is invalid" in lines[0], done.stderr
     assert "Traceback" not in done.stderr
     assert not out.exists() or not any(out.iterdir())
+
+
+# ------------------------------------------------------------------ lazy imports
+def test_import_and_version_do_not_import_jax():
+    code = ("import sys, vdbejax, vdbejax.cli; assert 'jax' not in sys.modules, 'jax imported';"
+            " vdbejax.run_grid; assert 'jax' in sys.modules; print(vdbejax.__version__)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "run_grid" in dir(vdbejax)
+    with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
+        vdbejax.nonexistent  # noqa: B018

@@ -128,3 +128,17 @@ def test_cli_usage_errors_are_one_line_exit_2(tmp_path, args, message):
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error:") and message in lines[0]
+
+
+def test_no_figures_writes_the_same_numbers_without_pngs(cli_out, tmp_path, compile_cache):
+    out, _ = cli_out
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["VDBEJAX_CACHE_DIR"] = str(compile_cache)
+    done = run_cli("reproduce", "--out", str(tmp_path), "--seeds", str(SEEDS), "--episodes",
+                   str(EPISODES), "--no-figures", "--quiet", env=env)
+    assert done.returncode == 0, done.stderr
+    assert not list(tmp_path.glob("*.png"))
+    for name in ("summary.csv", "report.md", "configs.csv"):
+        assert (tmp_path / name).read_bytes() == (out / name).read_bytes(), name
+    with np.load(tmp_path / "returns.npz") as a, np.load(out / "returns.npz") as b:
+        np.testing.assert_array_equal(a["returns"], b["returns"])

@@ -132,3 +132,52 @@ def test_percentile_interval_equals_numpy_quantile_bit_for_bit():
             np.testing.assert_array_equal(got, want)
     with_nan = np.array([1.0, np.nan, 2.0])
     assert all(np.isnan(v) for v in _interval(with_nan, 0.9))
+
+
+def _reference_convergence(curves, window, last, fraction=0.95):
+    """The convergence rule written out over the whole moving average (no early exit)."""
+    curves = np.asarray(curves, np.float64)
+    level = curves[..., -last:].mean(-1, keepdims=True)
+    reached = stats.moving_average(curves, window) >= level - (1 - fraction) * np.abs(level) - 1e-12
+    return np.where(reached.any(-1), np.argmax(reached, axis=-1) + 1, curves.shape[-1])
+
+
+def test_block_scan_equals_the_whole_moving_average():
+    # The block-by-block scan (with early exit) must make the same comparisons as the
+    # plain rule: random walks, discrete returns, windows longer than a block.
+    rng = np.random.default_rng(7)
+    for trial in range(120):
+        n, window = int(rng.integers(1, 600)), int(rng.integers(1, 300))
+        last = int(rng.integers(1, n + 1))
+        rows = int(rng.integers(1, 40))
+        if trial % 2:
+            curves = rng.choice([-1.0, -0.1, 0.5, 0.86], size=(rows, n))
+        else:
+            curves = 0.01 * rng.normal(size=(rows, n)).cumsum(-1)
+        np.testing.assert_array_equal(stats.convergence_episodes(curves, window, last),
+                                      _reference_convergence(curves, window, last))
+
+
+def test_curve_statistics_equal_the_per_setting_functions_for_any_thread_count():
+    rng = np.random.default_rng(3)
+    returns = rng.choice([-1.0, 0.2, 0.86], size=(5, 6, 150)).astype(np.float32)
+    one = stats.curve_statistics(returns, window=10, last=30, bands=True, workers=1)
+    two = stats.curve_statistics(returns, window=10, last=30, bands=True, workers=2)
+    for name in ("final", "final_low", "final_high", "final_iqm", "convergence",
+                 "convergence_low", "convergence_high", "curves", "band_low", "band_high"):
+        np.testing.assert_array_equal(getattr(one, name), getattr(two, name))
+    for c in range(5):
+        assert (one.final[c], one.final_low[c], one.final_high[c]) == stats.final_return_ci(returns[c], 30)
+        assert (one.convergence[c], one.convergence_low[c], one.convergence_high[c]) == \
+            stats.convergence_ci(returns[c], 10, 30)
+        curve, low, high = stats.mean_curve_ci(returns[c], 10)
+        np.testing.assert_array_equal(one.band_low[c], low)
+        np.testing.assert_array_equal(one.curves[c], curve)
+    assert stats.curve_statistics(returns, window=10, last=30).band_low is None
+
+
+def test_bootstrap_weights_are_shared_and_read_only():
+    w = stats.bootstrap_weights(7, 30, seed=2)
+    assert w is stats.bootstrap_weights(7, 30, seed=2)
+    with pytest.raises(ValueError):
+        w[0, 0] = 1.0

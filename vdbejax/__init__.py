@@ -18,10 +18,37 @@ try:
 except _metadata.PackageNotFoundError:  # imported from a source tree that is not installed
     __version__ = "0.1.0"
 
-from vdbejax.methods.agents import AgentOptions, AgentParams, Setting, make_agent, paper_settings
-from vdbejax.envs import TabularMDP, compile_env, make_tabular_mdp
-from vdbejax.experiment import GridResult, run_grid
-from vdbejax.paper.reproduce import reproduce
+# The public names are imported on first use (PEP 562), so that ``import vdbejax``,
+# ``vdbejax --help`` and ``vdbejax --version`` do not pay for importing JAX.
+_PUBLIC = {
+    "AgentOptions": "vdbejax.methods.agents",
+    "AgentParams": "vdbejax.methods.agents",
+    "Setting": "vdbejax.methods.agents",
+    "make_agent": "vdbejax.methods.agents",
+    "paper_settings": "vdbejax.methods.agents",
+    "TabularMDP": "vdbejax.envs",
+    "compile_env": "vdbejax.envs",
+    "make_tabular_mdp": "vdbejax.envs",
+    "GridResult": "vdbejax.experiment",
+    "run_grid": "vdbejax.experiment",
+    "reproduce": "vdbejax.paper.reproduce",
+}
+
+
+def __getattr__(name: str):  # noqa: ANN202  (module attribute hook)
+    module = _PUBLIC.get(name)
+    if module is None:
+        raise AttributeError(f"module 'vdbejax' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_PUBLIC])
+
 
 __all__ = [
     "AgentOptions",

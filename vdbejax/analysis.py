@@ -22,11 +22,13 @@ from vdbejax.stats import (  # noqa: F401  (re-exported: the historical home of 
     LEVEL,
     NUM_RESAMPLES,
     WINDOW,
+    CurveStatistics,
     bootstrap_ci,
     bootstrap_indices,
     convergence_ci,
     convergence_episode,
     convergence_episodes,
+    curve_statistics,
     final_return,
     final_return_ci,
     interquartile_mean,
@@ -56,7 +58,10 @@ def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = L
     return (lengths >= max_steps).mean((-1,))
 
 
-def summarize(result: GridResult, last: int = LAST, window: int = WINDOW) -> list[dict]:
+def summarize(
+    result: GridResult, last: int = LAST, window: int = WINDOW,
+    statistics: CurveStatistics | None = None,
+) -> list[dict]:
     """One row per config: final return and convergence episode, each with its 95%
     bootstrap CI over seeds, and diagnostics.
 
@@ -64,6 +69,8 @@ def summarize(result: GridResult, last: int = LAST, window: int = WINDOW) -> lis
       result: the grid.
       last: episodes defining the final return.
       window: smoothing window of the convergence criterion.
+      statistics: :func:`curve_statistics` of ``result.returns`` already computed (with
+        this ``last`` and ``window``), e.g. to share them with Figure 3.
 
     Returns:
       rows with the columns of :data:`SUMMARY_COLUMNS`: ``config, learner, explorer,
@@ -71,13 +78,16 @@ def summarize(result: GridResult, last: int = LAST, window: int = WINDOW) -> lis
       convergence_ci_low, convergence_ci_high, truncated_fraction, mean_length,
       nonfinite_agents``.
     """
-    rows = []
     last = min(last, result.num_episodes)
+    if statistics is None:
+        statistics = curve_statistics(result.returns, window, last)
+    elif (statistics.window, statistics.last) != (window, last) or len(statistics.final) != len(result.settings):
+        raise ValueError(f"statistics (window={statistics.window}, last={statistics.last}, "
+                         f"{len(statistics.final)} settings) do not match window={window}, "
+                         f"last={last} and the grid's {len(result.settings)} settings")
     max_steps = result.meta.get("max_steps")
+    rows = []
     for c, setting in enumerate(result.settings):
-        returns = result.returns[c]
-        final, final_low, final_high = final_return_ci(returns, last)
-        episode, episode_low, episode_high = convergence_ci(returns, window, last)
         rows.append(
             {
                 "config": c,
@@ -85,13 +95,13 @@ def summarize(result: GridResult, last: int = LAST, window: int = WINDOW) -> lis
                 "explorer": setting.explorer,
                 "param": "" if setting.param is None else setting.param,
                 "hyperparameters": setting.hyperparameters_json(),
-                "final_return": final,
-                "final_ci_low": final_low,
-                "final_ci_high": final_high,
-                "final_iqm": float(interquartile_mean(final_return(returns, last))),
-                "convergence_episode": episode,
-                "convergence_ci_low": episode_low,
-                "convergence_ci_high": episode_high,
+                "final_return": float(statistics.final[c]),
+                "final_ci_low": float(statistics.final_low[c]),
+                "final_ci_high": float(statistics.final_high[c]),
+                "final_iqm": float(statistics.final_iqm[c]),
+                "convergence_episode": int(statistics.convergence[c]),
+                "convergence_ci_low": float(statistics.convergence_low[c]),
+                "convergence_ci_high": float(statistics.convergence_high[c]),
                 # Fraction over all seeds of the last episodes cut off at max_steps.
                 "truncated_fraction": float(truncated_fraction(result.lengths[c], max_steps, last).mean()),
                 "mean_length": float(result.lengths[c].mean()),

@@ -43,6 +43,8 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
                    help="devices to shard the agents over (default: all)")
     p.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.npz")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-figures", action="store_true",
+                   help="no fig3.png / sensitivity.png ('vdbejax plot' draws them later)")
 
 
 def _reproduce(args: argparse.Namespace) -> None:
@@ -53,6 +55,7 @@ def _reproduce(args: argparse.Namespace) -> None:
         max_steps=args.max_steps, invalid_action=args.invalid_action, tie_break=args.tie_break,
         q_init=args.q_init, chunk_episodes=args.chunk_episodes, resume=args.resume,
         progress=not args.quiet, memory_budget_bytes=args.memory_budget, devices=args.devices,
+        figures=not args.no_figures,
     )
     for claim in rep.claims:
         print(f"claim {claim.number}: {claim.verdict}")
@@ -238,7 +241,8 @@ def enable_compilation_cache() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``vdbejax`` console script."""
     args = build_parser().parse_args(argv)
-    enable_compilation_cache()
+    if args.command != "plot":  # plotting compiles nothing: it need not import JAX
+        enable_compilation_cache()
     try:
         COMMANDS[args.command][1](args)
     except ValueError as error:

@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vdbejax.methods.agents import parameter_name  # noqa: E402
-from vdbejax.analysis import WINDOW, mean_curve_ci, moving_average  # noqa: E402
+from vdbejax.stats import WINDOW, CurveStatistics, curve_statistics  # noqa: E402
 from vdbejax.paper.claims import LEARNER_NAMES  # noqa: E402
 from vdbejax.experiment import GridResult  # noqa: E402
 
@@ -59,6 +59,7 @@ def figure3(
     window: int = WINDOW,
     path: str | os.PathLike | None = None,
     bands: bool = False,
+    statistics: CurveStatistics | None = None,
 ) -> plt.Figure:
     """Average return per episode (moving average over ``window``), one curve per parameter.
 
@@ -68,10 +69,20 @@ def figure3(
       window: smoothing window (the paper: 20).
       path: save the figure there (PNG) if given.
       bands: shade each curve's pointwise 95% bootstrap interval over seeds.
+      statistics: the curves (and, for ``bands``, their bands) already computed by
+        :func:`~vdbejax.stats.curve_statistics` with this ``window``.
 
     Returns:
       the matplotlib figure.
     """
+    if statistics is None:
+        statistics = curve_statistics(result.returns, window, bands=bands)
+    elif statistics.window != window or len(statistics.curves) != len(result.settings) or (
+            bands and statistics.band_low is None):
+        raise ValueError(f"statistics (window={statistics.window}, {len(statistics.curves)} "
+                         f"settings, bands={statistics.band_low is not None}) do not match "
+                         f"window={window}, bands={bands} and the grid's "
+                         f"{len(result.settings)} settings")
     learners = list(dict.fromkeys(s.learner for s in result.settings))
     explorers = list(dict.fromkeys(s.explorer for s in result.settings))
     fig, axes = plt.subplots(
@@ -87,11 +98,9 @@ def figure3(
             varying = _varying([result.settings[c] for c in indices])
             for color, c in zip(colors, indices):
                 if bands:
-                    curve, low, high = mean_curve_ci(result.returns[c], window)
-                    ax.fill_between(episodes, low, high, color=color, alpha=0.25, lw=0)
-                else:
-                    curve = moving_average(result.returns[c].mean(0), window)
-                ax.plot(episodes, curve, color=color, lw=1.2,
+                    ax.fill_between(episodes, statistics.band_low[c], statistics.band_high[c],
+                                    color=color, alpha=0.25, lw=0)
+                ax.plot(episodes, statistics.curves[c], color=color, lw=1.2,
                         label=curve_label(result.settings[c], varying))
             if best_return is not None:
                 ax.axhline(best_return, color="crimson", ls="--", lw=1, label=f"best {best_return:.2f}")
@@ -122,6 +131,9 @@ def _varying(settings: Sequence[Any]) -> list[str]:
 
 def _finish(fig: plt.Figure, path: str | os.PathLike | None) -> plt.Figure:
     fig.tight_layout()
+    # tight_layout leaves a placeholder layout engine, which makes savefig lay out and
+    # draw the whole figure once more before drawing it; the pixels are the same without.
+    fig.set_layout_engine(None)
     if path is not None:
         fig.savefig(path, dpi=110)
     return fig

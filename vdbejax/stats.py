@@ -21,6 +21,11 @@ Array layout: seeds on the first axis, episodes on the last (``[seeds, episodes]
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 WINDOW = 20
@@ -29,6 +34,9 @@ FRACTION = 0.95
 LEVEL = 0.95
 NUM_RESAMPLES = 2000
 IQM_TRIM = 0.25
+#: Episodes scanned at a time when finding convergence episodes (the results do not
+#: depend on it): most curves converge within the first blocks.
+_EPISODE_BLOCK = 128
 
 
 def moving_average(x: np.ndarray, window: int = WINDOW, axis: int = -1) -> np.ndarray:
@@ -43,11 +51,17 @@ def moving_average(x: np.ndarray, window: int = WINDOW, axis: int = -1) -> np.nd
       float64 array of ``x``'s shape.
     """
     x = np.moveaxis(np.asarray(x, np.float64), axis, -1)
-    csum = np.cumsum(x, axis=-1)
-    out = csum.copy()
-    out[..., window:] = csum[..., window:] - csum[..., :-window]
+    return np.moveaxis(_trailing_mean(x, window), -1, axis)
+
+
+def _trailing_mean(x: np.ndarray, window: int) -> np.ndarray:
+    """:func:`moving_average` along the last axis of float64 ``x``: differences of one
+    cumulative sum (computed in place: numpy reads overlapping inputs as if copied first),
+    divided by the number of episodes in each window."""
+    out = np.cumsum(x, axis=-1)
+    np.subtract(out[..., window:], out[..., :-window], out=out[..., window:])
     counts = np.minimum(np.arange(1, x.shape[-1] + 1), window)
-    return np.moveaxis(out / counts, -1, axis)
+    return np.divide(out, counts, out=out)
 
 
 def final_return(returns: np.ndarray, last: int = LAST) -> np.ndarray:
@@ -79,11 +93,39 @@ def convergence_episodes(
     """
     curves = np.asarray(curves, np.float64)
     level = curves[..., -last:].mean(-1, keepdims=True)
-    threshold = level - (1.0 - fraction) * np.abs(level)
-    reached = moving_average(curves, window) >= threshold - 1e-12
-    # argmax finds the first True; rows that never reach get the curve length.
-    first = np.argmax(reached, axis=-1) + 1
-    return np.where(reached.any(-1), first, curves.shape[-1])
+    threshold = level - (1.0 - fraction) * np.abs(level) - 1e-12
+    rows = curves.reshape(-1, curves.shape[-1])
+    return _first_reaching(rows, threshold.reshape(-1), window).reshape(curves.shape[:-1])
+
+
+def _first_reaching(rows: np.ndarray, thresholds: np.ndarray, window: int) -> np.ndarray:
+    """1-based first episode at which each row's :func:`moving_average` reaches its
+    threshold (the row length if never), computed episode block by episode block and only
+    for the rows still below: the same sums in the same order as :func:`moving_average`
+    (a block's cumulative sum starts from the previous block's last one), so the same
+    comparisons, at a fraction of the cost when curves converge early."""
+    num_rows, length = rows.shape
+    first = np.full(num_rows, length, np.int64)
+    active = np.arange(num_rows)
+    history = np.zeros((num_rows, 0))  # cumulative sums of the last ≤ window episodes
+    start = 0
+    while start < length and active.size:
+        stop = min(start + _EPISODE_BLOCK, length)
+        carry = history[:, -1:] if history.shape[1] else np.zeros((active.size, 1))
+        sums = np.cumsum(np.concatenate([carry, rows[active, start:stop]], axis=1), axis=1)[:, 1:]
+        sums = np.concatenate([history, sums], axis=1)
+        offset = history.shape[1]  # columns before episode `start`: min(window, start)
+        episodes = np.arange(start, stop)
+        totals = sums[:, offset:].copy()
+        lagged = episodes >= window
+        totals[:, lagged] -= sums[:, offset + episodes[lagged] - start - window]
+        smoothed = totals / np.minimum(episodes + 1, window)
+        reached = smoothed >= thresholds[active, None]
+        hit = reached.any(1)
+        first[active[hit]] = start + np.argmax(reached[hit], axis=1) + 1
+        active, history = active[~hit], sums[~hit][:, -window:]
+        start = stop
+    return first
 
 
 def convergence_episode(
@@ -122,7 +164,8 @@ def bootstrap_weights(num_seeds: int, num_resamples: int = NUM_RESAMPLES, seed: 
     :func:`bootstrap_indices`, so that ``weights @ x`` is the resampled mean of ``x``.
 
     A matrix product instead of fancy indexing keeps memory at ``resamples × episodes``
-    rather than ``resamples × seeds × episodes`` for whole curves.
+    rather than ``resamples × seeds × episodes`` for whole curves. Every setting of a grid
+    shares them, so they are made once per size (a read-only array).
 
     Args:
       num_seeds, num_resamples, seed: as for :func:`bootstrap_indices`.
@@ -130,31 +173,42 @@ def bootstrap_weights(num_seeds: int, num_resamples: int = NUM_RESAMPLES, seed: 
     Returns:
       float64 ``[num_resamples, num_seeds]`` weights, each row summing to 1.
     """
+    return _weights(int(num_seeds), int(num_resamples), int(seed))
+
+
+@functools.lru_cache(maxsize=16)
+def _weights(num_seeds: int, num_resamples: int, seed: int) -> np.ndarray:
     indices = bootstrap_indices(num_seeds, num_resamples, seed)
     counts = np.zeros((num_resamples, num_seeds))
     np.add.at(counts, (np.arange(num_resamples)[:, None], indices), 1.0)
-    return counts / num_seeds
+    weights = counts / num_seeds
+    weights.flags.writeable = False
+    return weights
 
 
 def _interval(values: np.ndarray, level: float, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Percentile interval along ``axis``: equal, bit for bit, to ``np.quantile(values,
     [α, 1 − α], axis)`` (its default "linear" method), but from one sort of a contiguous
-    copy: ≈ 2.5× faster for a band of 2000 resamples × 1000 episodes."""
+    copy: ≈ 2.5× faster for a band of 2000 resamples × 1000 episodes (numpy's vectorised
+    sort beats a partial sort for the four order statistics needed here)."""
     alpha = (1.0 - level) / 2.0
     values = np.asarray(values)
     if not np.issubdtype(values.dtype, np.floating) or np.isnan(values).any():
         low, high = np.quantile(values, [alpha, 1.0 - alpha], axis=axis)
         return low, high
-    ordered = np.array(np.moveaxis(values, axis, -1), order="C")  # a copy: sorted in place
-    ordered.sort(axis=-1)
-    count = ordered.shape[-1]
-    bounds = []
+    count = values.shape[axis]
+    positions = []
     for quantile in (alpha, 1.0 - alpha):
         # numpy's "linear" method: virtual index (n − 1)·q, interpolated as in its _lerp.
         virtual = (count - 1) * np.float64(quantile)
         below = min(int(np.floor(virtual)), count - 1)
         above = min(below + 1, count - 1)
         gamma = virtual - np.floor(virtual) if virtual < count - 1 else 0.0
+        positions.append((below, above, gamma))
+    ordered = np.array(np.moveaxis(values, axis, -1), order="C")  # a copy: sorted in place
+    ordered.sort(axis=-1)
+    bounds = []
+    for below, above, gamma in positions:
         a, b = ordered[..., below], ordered[..., above]
         difference = b - a
         bounds.append(b - difference * (1 - gamma) if gamma >= 0.5 else a + difference * gamma)
@@ -249,6 +303,95 @@ def convergence_ci(
     resampled = bootstrap_weights(len(returns), num_resamples, seed) @ returns
     low, high = _interval(convergence_episodes(resampled, window, last, fraction).astype(np.float64), level)
     return point, float(low), float(high)
+
+
+@dataclasses.dataclass(frozen=True)
+class CurveStatistics:
+    """Per-setting statistics of a grid's returns, computed once for the summary table,
+    Figure 3 and the claims (arrays over settings; see the module's conventions).
+
+    Attributes:
+      window, last: the smoothing window and the final-return episodes used.
+      final, final_low, final_high: final return and its 95% bootstrap interval, ``[C]``.
+      final_iqm: interquartile mean of the seeds' final returns, ``[C]``.
+      convergence, convergence_low, convergence_high: convergence episode (int) and its
+        interval, ``[C]``.
+      curves: smoothed seed-mean learning curves, ``[C, episodes]``.
+      band_low, band_high: pointwise bootstrap band of ``curves`` (``None`` unless asked).
+    """
+
+    window: int
+    last: int
+    final: np.ndarray
+    final_low: np.ndarray
+    final_high: np.ndarray
+    final_iqm: np.ndarray
+    convergence: np.ndarray
+    convergence_low: np.ndarray
+    convergence_high: np.ndarray
+    curves: np.ndarray
+    band_low: np.ndarray | None = None
+    band_high: np.ndarray | None = None
+
+
+def curve_statistics(
+    returns: np.ndarray, window: int = WINDOW, last: int = LAST, bands: bool = False,
+    workers: int | None = None,
+) -> CurveStatistics:
+    """:class:`CurveStatistics` of ``[settings, seeds, episodes]`` returns.
+
+    Every setting uses the same bootstrap resamples (:func:`bootstrap_weights`) and the
+    same functions as one setting alone (:func:`final_return_ci`, :func:`convergence_ci`,
+    :func:`mean_curve_ci`), so the numbers are those, bit for bit; the per-setting curves
+    and bands run on ``workers`` threads (default: the CPU count), which numpy's array
+    operations let run in parallel.
+
+    Args:
+      returns: ``[C, seeds, episodes]`` episode returns.
+      window: smoothing window.
+      last: episodes defining the final return (at most the episode count).
+      bands: also the pointwise bootstrap band of every curve (Figure 3's shading).
+      workers: threads (1: sequential; default: the CPU count with ``bands``, else 1, as
+        the convergence scan alone is too fine-grained to gain from threads).
+
+    Returns:
+      the statistics.
+    """
+    returns = np.asarray(returns)
+    last = min(last, returns.shape[-1])
+
+    def one(c: int) -> tuple:
+        setting = returns[c]
+        final = final_return_ci(setting, last)
+        iqm = float(interquartile_mean(final_return(setting, last)))
+        convergence = convergence_ci(setting, window, last)
+        if bands:
+            curve, low, high = mean_curve_ci(setting, window)
+        else:
+            curve, low, high = moving_average(np.asarray(setting, np.float64).mean(0), window), None, None
+        return final, iqm, convergence, curve, low, high
+
+    if workers is None:
+        workers = (os.cpu_count() or 1) if bands else 1
+    workers = max(1, min(workers, len(returns)))
+    if workers == 1:
+        rows = [one(c) for c in range(len(returns))]
+    else:
+        with ThreadPoolExecutor(workers) as pool:
+            rows = list(pool.map(one, range(len(returns))))
+    finals, iqms, convergences, curves, lows, highs = zip(*rows) if rows else ([],) * 6
+    finals, convergences = np.array(finals).reshape(-1, 3), np.array(convergences).reshape(-1, 3)
+    episodes = returns.shape[-1]
+    return CurveStatistics(
+        window=window, last=last,
+        final=finals[:, 0], final_low=finals[:, 1], final_high=finals[:, 2],
+        final_iqm=np.array(iqms, np.float64),
+        convergence=convergences[:, 0].astype(np.int64),
+        convergence_low=convergences[:, 1], convergence_high=convergences[:, 2],
+        curves=np.array(curves, np.float64).reshape(-1, episodes),
+        band_low=np.array(lows).reshape(-1, episodes) if bands else None,
+        band_high=np.array(highs).reshape(-1, episodes) if bands else None,
+    )
 
 
 def interquartile_mean(values: np.ndarray, axis: int = -1) -> np.ndarray:

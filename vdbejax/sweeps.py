@@ -140,14 +140,18 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
       the summary rows.
     """
     from vdbejax.analysis import summarize, summary_columns
+    from vdbejax.stats import curve_statistics
 
     out = Path(out_dir)
-    summary = summarize(result)
+    # One pass over the returns serves the summary and Figure 3's curves and bands.
+    statistics = curve_statistics(result.returns, bands=figures and bands)
+    summary = summarize(result, statistics=statistics)
     io.write_csv(out / SUMMARY_FILE, summary, summary_columns(result))
     if figures:
         from vdbejax.plotting import figure3, sensitivity  # matplotlib only when plotting
 
-        io.save_figure(figure3(result, best_return=best, bands=bands), out / FIGURE_FILE)
+        io.save_figure(figure3(result, best_return=best, bands=bands, statistics=statistics),
+                       out / FIGURE_FILE)
         io.save_figure(sensitivity(summary, best_return=best), out / SENSITIVITY_FILE)
     return summary
 

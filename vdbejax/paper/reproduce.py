@@ -117,6 +117,7 @@ def reproduce(
     progress: bool = True,
     memory_budget_bytes: int | str | None = None,
     devices: int | None = None,
+    figures: bool = True,
 ) -> Reproduction:
     """Run the paper's 46 settings × ``seeds`` agents × ``episodes`` and write all outputs.
 
@@ -151,6 +152,8 @@ def reproduce(
         :func:`~vdbejax.experiment.run_grid`; changes only the speed, never the results.
       devices: devices to shard over, passed to :func:`~vdbejax.experiment.run_grid`;
         changes only the speed, never the results.
+      figures: draw ``fig3.png`` and ``sensitivity.png`` (``False``: the numbers only;
+        ``vdbejax plot`` draws them later from the saved results).
 
     Returns:
       :class:`Reproduction`: the grid, summary rows, scored claims, the task's best
@@ -183,6 +186,7 @@ def reproduce(
                       memory_budget_bytes=memory_budget_bytes)
     select_devices(devices)
     check_bool("progress", progress)
+    check_bool("figures", figures)
     out = check_writable_dir("out", out_dir)
     checkpoint = out / CHECKPOINT_FILE
     started = time.perf_counter()
@@ -202,7 +206,7 @@ def reproduce(
     result.meta["best_return"] = best  # lets `vdbejax plot` redraw without the MDP
     result.save(out)
     process_checkpoint_path(checkpoint).unlink(missing_ok=True)
-    summary, claims = write_outputs(result, out, best)
+    summary, claims = write_outputs(result, out, best, figures=figures)
     elapsed = time.perf_counter() - started
     if progress:
         print(f"{len(result.settings)} settings × {seeds} agents × {episodes} episodes: "
