@@ -60,6 +60,7 @@ from vdbejax.engine import (
     text_progress,
 )
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.result_folder import remove_stale_temporaries
 from vdbejax.validation import (
     INT32_MAX,
     UINT32_MAX,
@@ -149,22 +150,68 @@ class GridResult:
 
     @classmethod
     def load(cls, out_dir: str | os.PathLike) -> GridResult:
-        """Read a result saved by :meth:`save` (no recomputation).
+        """Read a result saved by :meth:`save` (no recomputation), checked for damage.
 
         Raises:
-          ValueError: the folder lacks the result files.
+          ValueError: the folder lacks the result files, holds a run stopped while writing
+            them (:mod:`vdbejax.result_folder`), or a file is unreadable or inconsistent
+            (array shapes and types, config indices, non-finite returns): one line naming
+            the file.
         """
+        from vdbejax.result_folder import MARKER_FILE, marked_stage
+
         out = Path(out_dir)
         missing = [f for f in (io.RETURNS_FILE, io.CONFIGS_FILE) if not (out / f).exists()]
         if missing:
             raise ValueError(f"results folder {str(out)!r} lacks {', '.join(missing)}")
-        with np.load(out / io.RETURNS_FILE) as data:
-            returns, lengths = data["returns"], data["lengths"]
-            nonfinite = data["nonfinite"] if "nonfinite" in data else np.zeros(returns.shape[:2], bool)
+        if marked_stage(out) == "results":
+            raise ValueError(f"results folder {str(out)!r} is half-written: a run was stopped"
+                             f" while writing its result files ({MARKER_FILE} is still there);"
+                             " run it again")
+        returns_path = out / io.RETURNS_FILE
+        try:
+            with np.load(returns_path) as data:
+                returns, lengths = data["returns"], data["lengths"]
+                nonfinite = (data["nonfinite"] if "nonfinite" in data
+                             else np.zeros(returns.shape[:2], bool))
+        except Exception as error:  # noqa: BLE001  (zip, pickle, EOF, key errors: damage)
+            raise ValueError(f"results file {str(returns_path)!r} is unreadable: {type(error).__name__}:"
+                             f" {error}") from None
         meta = io.load_json(out / io.META_FILE) if (out / io.META_FILE).exists() else {}
-        if isinstance(meta, dict):
-            remember_parameter_names(meta.get("parameter_names", {}))
-        return cls(io.load_settings(out / io.CONFIGS_FILE), returns, lengths, nonfinite, meta)
+        if not isinstance(meta, dict):
+            raise ValueError(f"results file {str(out / io.META_FILE)!r} is invalid: must hold a JSON object,"
+                             f" not {type(meta).__name__}")
+        settings = io.load_settings(out / io.CONFIGS_FILE)
+        _check_saved_arrays(returns_path, len(settings), returns, lengths, nonfinite)
+        remember_parameter_names(meta.get("parameter_names", {}))
+        return cls(settings, returns, lengths, nonfinite, meta)
+
+
+def _check_saved_arrays(path: Path, num_settings: int, returns: np.ndarray, lengths: np.ndarray,
+                        nonfinite: np.ndarray) -> None:
+    """One-line errors for arrays of ``returns.npz`` that cannot belong to one saved run."""
+    def fail(what: str) -> None:
+        raise ValueError(f"results file {str(path)!r} is damaged: {what}")
+
+    if returns.ndim != 3 or not np.issubdtype(returns.dtype, np.floating):
+        fail(f"returns must be float [configs, seeds, episodes], not {returns.dtype}"
+             f" {list(returns.shape)}")
+    if returns.shape[0] != num_settings:
+        fail(f"its returns cover {returns.shape[0]} configs, which does not match the {num_settings}"
+             " of configs.csv")
+    if lengths.shape != returns.shape or not np.issubdtype(lengths.dtype, np.integer):
+        fail(f"lengths must be integer {list(returns.shape)} like returns, not {lengths.dtype}"
+             f" {list(lengths.shape)}")
+    if nonfinite.shape != returns.shape[:2] or nonfinite.dtype != bool:
+        fail(f"nonfinite must be bool {list(returns.shape[:2])}, not {nonfinite.dtype}"
+             f" {list(nonfinite.shape)}")
+    # NaN or inf returns come only from agents whose values overflowed, which the run flags.
+    unexplained = ~np.isfinite(returns).all(-1) & ~nonfinite
+    if unexplained.any():
+        fail(f"{int(unexplained.sum())} agents have NaN or infinite returns that their"
+             " nonfinite flags do not account for")
+    if lengths.size and lengths.min() < 1:
+        fail("episode lengths must be at least 1")
 
 
 def _same(value: Any, wanted: Any) -> bool:
@@ -197,11 +244,15 @@ def _save_checkpoint(path: Path, fingerprint: str, sweep: SweepProgress) -> None
     )
 
 
-def _load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int]) -> SweepProgress:
-    """Read a checkpoint written by :func:`_save_checkpoint` for the same run.
+def _load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
+                     mdp: TabularMDP | None = None, layout: dict[str, str] | None = None
+                     ) -> SweepProgress:
+    """Read a checkpoint written by :func:`_save_checkpoint` for the same run, and check
+    that its contents can be this run's (:func:`_check_checkpoint`).
 
     Raises:
-      ValueError: unreadable, of another run (fingerprint) or of another layout.
+      ValueError: unreadable, of another run (fingerprint) or of another layout, or
+        contents out of shape or range.
     """
     hint = "delete it or use a new output folder"
     try:
@@ -228,14 +279,59 @@ def _load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int]) -> Sw
                 episodes_done=data["episodes_done"], nonfinite=data["nonfinite"],
                 state_rows=data["state_rows"], state=state,
             )
-    except ValueError:
-        raise
-    except Exception as error:  # a damaged file: zip, pickle or key errors
-        raise ValueError(f"checkpoint {str(path)!r} is unreadable ({error}): {hint}") from None
+    except Exception as error:  # a damaged file: zip, pickle, EOF or key errors
+        if isinstance(error, ValueError) and str(error).startswith(f"checkpoint {str(path)!r}"):
+            raise  # ours: another run's or another layout's checkpoint
+        raise ValueError(f"checkpoint {str(path)!r} is unreadable ({type(error).__name__}:"
+                         f" {error}): {hint}") from None
     if sweep.returns.shape != shape:
         raise ValueError(f"checkpoint {str(path)!r} holds {sweep.returns.shape} returns,"
                          f" expected {shape}: {hint}")
+    problem = _check_checkpoint(sweep, shape, mdp, layout)
+    if problem:
+        raise ValueError(f"checkpoint {str(path)!r} is damaged: {problem}; {hint}")
     return sweep
+
+
+def _check_checkpoint(sweep: SweepProgress, shape: tuple[int, int], mdp: TabularMDP | None,
+                      layout: dict[str, str] | None) -> str | None:
+    """What in a checkpoint's arrays cannot come from this run (``None``: nothing)."""
+    agents, episodes = shape
+    done = np.asarray(sweep.episodes_done)
+    if sweep.lengths.shape != shape or done.shape != (agents,) or np.shape(sweep.nonfinite) != (agents,):
+        return "its lengths, episodes_done or nonfinite arrays do not match its returns"
+    if done.size and (done.min() < 0 or done.max() > episodes):
+        return f"episodes_done must lie in [0, {episodes}]"
+    rows = np.asarray(sweep.state_rows)
+    if rows.ndim != 1 or len(np.unique(rows)) != len(rows) or (
+            rows.size and (rows.min() < 0 or rows.max() >= agents or (done[rows] >= episodes).any())):
+        return "state_rows must name distinct unfinished agents"
+    state = sweep.state
+    if state is None:
+        return None if rows.size == 0 else "state_rows name agents but no agent state is stored"
+    m = len(rows)
+    leading = {f.name: np.shape(getattr(state, f.name))[:1] for f in dataclasses.fields(AgentState)
+               if f.name != "tables"}
+    if any(n != (m,) for n in leading.values()):
+        return f"every agent-state array must have {m} rows (one per state_rows entry)"
+    if not np.array_equal(np.asarray(state.episode), done[rows]):
+        return "the agents' episode counters disagree with episodes_done"
+    if mdp is not None:
+        S, A = mdp.num_states, mdp.num_actions  # noqa: N806
+        if np.shape(state.q) != (m, S, A):
+            return f"Q must be [{m}, {S}, {A}], not {list(np.shape(state.q))}"
+        if (np.asarray(state.state) < 0).any() or (np.asarray(state.state) >= S).any():
+            return f"agent states must lie in [0, {S})"
+        if (np.asarray(state.action) < 0).any() or (np.asarray(state.action) >= A).any():
+            return f"agent actions must lie in [0, {A})"
+        if layout is not None:
+            if set(state.tables) != set(layout):
+                return f"tables must be {sorted(layout)}, not {sorted(state.tables)}"
+            for name, per in layout.items():
+                wanted = (m, S) if per == "state" else (m, S, A)
+                if np.shape(state.tables[name]) != wanted:
+                    return f"table {name!r} must be {list(wanted)}, not {list(np.shape(state.tables[name]))}"
+    return None
 
 
 def nonfinite_message(settings: Sequence[Setting], nonfinite: np.ndarray,
@@ -297,16 +393,22 @@ def _check_grid_inputs(mdp: Any, settings: list[Any], progress: Any, checkpoint:
         if not isinstance(checkpoint, (str, os.PathLike)):
             raise ValueError(f"checkpoint={checkpoint!r} is invalid: must be a file path or None")
         check_writable_dir("checkpoint folder", Path(checkpoint).parent)  # fail before training
+        if Path(checkpoint).exists() and not Path(checkpoint).is_file():
+            raise ValueError(f"checkpoint={str(checkpoint)!r} is invalid: it exists and is not"
+                             " a file")
 
 
 def _checkpointing(
-    checkpoint: str | os.PathLike | None, fingerprint: str, resume: bool, shape: tuple[int, int]
+    checkpoint: str | os.PathLike | None, fingerprint: str, resume: bool, shape: tuple[int, int],
+    mdp: TabularMDP | None = None, layout: dict[str, str] | None = None,
 ) -> tuple[SweepProgress | None, Any]:
     """The progress to resume from (None: fresh) and the after-chunk checkpoint writer."""
     if checkpoint is None:
         return None, None
     path = process_checkpoint_path(checkpoint)
-    sweep = _load_checkpoint(path, fingerprint, shape) if resume and path.exists() else None
+    remove_stale_temporaries(path.parent)  # what killed writers left (vdbejax.result_folder)
+    sweep = (_load_checkpoint(path, fingerprint, shape, mdp, layout) if resume and path.exists()
+             else None)
 
     def on_checkpoint(progress_now: SweepProgress) -> None:
         _save_checkpoint(path, fingerprint, progress_now)
@@ -449,7 +551,7 @@ def run_grid(
     checkpoint_fingerprint = fingerprint if jax.process_count() == 1 else _fingerprint(
         dict(description, process=[jax.process_index(), jax.process_count()]))
     sweep, on_checkpoint = _checkpointing(checkpoint, checkpoint_fingerprint, resume,
-                                          (len(rows), num_episodes))
+                                          (len(rows), num_episodes), mdp, table_layout(params))
     resumed_from = 0 if sweep is None else int(sweep.episodes_done.sum())
     callback = text_progress() if progress is True else (progress or None)
     started = time.perf_counter()

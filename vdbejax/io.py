@@ -26,7 +26,9 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically (temporary file + rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    # The writer's pid in the name lets a later run remove what a killed one left behind
+    # (vdbejax.result_folder.remove_stale_temporaries).
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
     try:
         # mkstemp creates 0600 files: give the result the usual umask-based permissions.
         os.chmod(tmp, 0o666 & ~_umask())
@@ -129,10 +131,28 @@ def save_settings(path: str | os.PathLike, settings: list[Setting]) -> None:
 
 
 def load_settings(path: str | os.PathLike) -> list[Setting]:
-    """Settings of ``configs.csv`` in config-index order."""
-    rows = sorted(read_csv(path), key=lambda r: int(r["config"]))
-    return [Setting(r["learner"], r["explorer"], float(r["param"]) if r["param"] not in ("", None)
-                    else None, json.loads(r.get("hyperparameters") or "{}")) for r in rows]
+    """Settings of ``configs.csv`` in config-index order.
+
+    Raises:
+      ValueError: a missing column, or config indices that are not 0, 1, … once each.
+    """
+    rows = read_csv(path)
+    try:
+        indices = [int(r["config"]) for r in rows]
+        for r in rows:
+            r["learner"], r["explorer"], r["param"]  # noqa: B018  (the columns must exist)
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"results file {str(path)!r} is damaged: {type(error).__name__}: {error}") from None
+    if sorted(indices) != list(range(len(rows))):
+        repeated = sorted({i for i in indices if indices.count(i) > 1})
+        raise ValueError(f"results file {str(path)!r} is damaged: config indices must be 0…{len(rows) - 1}"
+                         " once each" + (f"; repeated: {repeated[:5]}" if repeated else ""))
+    rows = sorted(rows, key=lambda r: int(r["config"]))
+    try:
+        return [Setting(r["learner"], r["explorer"], float(r["param"]) if r["param"] not in ("", None)
+                        else None, json.loads(r.get("hyperparameters") or "{}")) for r in rows]
+    except ValueError as error:  # a parameter that is no number, hyperparameters no JSON
+        raise ValueError(f"results file {str(path)!r} is damaged: {error}") from None
 
 
 def save_json(path: str | os.PathLike, data: dict[str, Any]) -> None:

@@ -36,6 +36,8 @@ from vdbejax import io
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.experiment import GridResult, check_run_options, run_grid
 from vdbejax.methods.agents import AgentOptions, make_agent, sweep
+from vdbejax.result_folder import FolderLock, check_output_paths, save_run
+from vdbejax.stats import CurveStatistics
 from vdbejax.validation import INT32_MAX, check_bool, check_int, check_writable_dir
 
 SUMMARY_FILE = "summary.csv"
@@ -124,8 +126,14 @@ def read_sweep_file(path: str | os.PathLike) -> dict[str, Any]:
     return data
 
 
+#: Files a run writes into its folder (checked before training: none may be a folder).
+RUN_FILES = [io.RETURNS_FILE, io.CONFIGS_FILE, io.META_FILE, SUMMARY_FILE, FIGURE_FILE,
+             SENSITIVITY_FILE]
+
+
 def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | None,
-                  bands: bool = True, figures: bool = True) -> list[dict]:
+                  bands: bool = True, figures: bool = True,
+                  statistics: CurveStatistics | None = None) -> list[dict]:
     """Write ``summary.csv`` and (unless ``figures=False``) ``fig3.png`` and
     ``sensitivity.png`` for a grid of any kinds.
 
@@ -135,6 +143,8 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
       best: the task's best return (reference lines), if known.
       bands: Figure 3 with 95% bootstrap bands over agents.
       figures: draw the figures.
+      statistics: :func:`~vdbejax.stats.curve_statistics` of the returns, if already
+        computed (with bands when ``figures and bands``).
 
     Returns:
       the summary rows.
@@ -144,7 +154,8 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
 
     out = Path(out_dir)
     # One pass over the returns serves the summary and Figure 3's curves and bands.
-    statistics = curve_statistics(result.returns, bands=figures and bands)
+    if statistics is None:
+        statistics = curve_statistics(result.returns, bands=figures and bands)
     summary = summarize(result, statistics=statistics)
     io.write_csv(out / SUMMARY_FILE, summary, summary_columns(result))
     if figures:
@@ -213,13 +224,16 @@ def run_sweep(
     check_bool("progress", progress)
     check_bool("figures", figures)
     out = check_writable_dir("out", out_dir)
-    result = run_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes, seed=seed,
-                      chunk_episodes=chunk_episodes, progress=progress)
-    best = best_return(mdp)
-    result.meta.update(best_return=best, invalid_action=invalid_action, task=task,
-                       sweep={"learners": list(learners), "explorers": list(explorers),
-                              "axes": {k: list(v) for k, v in (axes or {}).items()},
-                              "shared": dict(shared or {}), "plugins": list(plugins)})
-    result.save(out)
-    write_outputs(result, out, best, figures=figures)
+    check_output_paths(out, RUN_FILES)
+    with FolderLock(out):
+        result = run_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes, seed=seed,
+                          chunk_episodes=chunk_episodes, progress=progress)
+        best = best_return(mdp)
+        result.meta.update(best_return=best, invalid_action=invalid_action, task=task,
+                           sweep={"learners": list(learners), "explorers": list(explorers),
+                                  "axes": {k: list(v) for k, v in (axes or {}).items()},
+                                  "shared": dict(shared or {}), "plugins": list(plugins)})
+        save_run(result, out, lambda stats: write_outputs(result, out, best, figures=figures,
+                                                          statistics=stats),
+                 bands=figures)
     return result

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from vdbejax import io
+from vdbejax.validation import check_writable_dir
 from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimResult, _Table
 from vdbejax.experiment import GridResult
 from vdbejax.methods.explorers import PAPER_EXPLORERS as EXPLORERS
@@ -345,9 +346,10 @@ def ablate(
     if mode not in MODES:
         raise ValueError(f"mode={mode!r} is invalid: must be one of {', '.join(MODES)}")
     document, figures_dir = MODES[mode]
-    out = Path(out_dir)
-    figures = out / figures_dir
-    raw = Path(results_dir) if results_dir is not None else figures
+    # Every folder written must be writable before the first variant trains.
+    out = check_writable_dir("out", out_dir)
+    figures = check_writable_dir("out", out / figures_dir)
+    raw = check_writable_dir("results_dir", results_dir) if results_dir is not None else figures
     results = []
     for variant in variants:
         started = time.perf_counter()

@@ -9,6 +9,7 @@ import sys
 import time
 import zipfile
 from pathlib import Path
+from typing import Any
 
 from vdbejax import io, sweeps
 from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
@@ -18,7 +19,9 @@ from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.distributed import process_checkpoint_path, select_devices
 from vdbejax.experiment import GridResult, check_run_options, run_grid
+from vdbejax.result_folder import FolderLock, check_output_paths, save_run, unmark
 from vdbejax.solvers import best_return
+from vdbejax.stats import CurveStatistics
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, check_writable_dir
 
 SUMMARY_FILE, FIGURE_FILE, SENSITIVITY_FILE = sweeps.SUMMARY_FILE, sweeps.FIGURE_FILE, sweeps.SENSITIVITY_FILE
@@ -40,7 +43,7 @@ class Reproduction:
 
 def write_outputs(
     result: GridResult, out_dir: str | os.PathLike, best: float, bands: bool = True,
-    figures: bool = True,
+    figures: bool = True, statistics: CurveStatistics | None = None,
 ) -> tuple[list[dict], list[ClaimResult]]:
     """Write ``summary.csv``, ``fig3.png``, ``sensitivity.png`` and ``report.md`` for a
     (saved) result of the paper's grid.
@@ -51,12 +54,15 @@ def write_outputs(
       best: the best possible return (reference lines, "near" in the claims).
       bands: Figure 3 with 95% bootstrap bands over agents.
       figures: draw the figures.
+      statistics: the returns' statistics, if already computed (see
+        :func:`vdbejax.sweeps.write_outputs`).
 
     Returns:
       the summary rows and the scored claims.
     """
     out = Path(out_dir)
-    summary = sweeps.write_outputs(result, out, best, bands=bands, figures=figures)
+    summary = sweeps.write_outputs(result, out, best, bands=bands, figures=figures,
+                                   statistics=statistics)
     claims = evaluate_claims(summary, best)
     io.atomic_write_text(out / REPORT_FILE, render_report(claims, result.meta, best))
     return summary, claims
@@ -188,6 +194,18 @@ def reproduce(
     check_bool("progress", progress)
     check_bool("figures", figures)
     out = check_writable_dir("out", out_dir)
+    check_output_paths(out, [*sweeps.RUN_FILES, REPORT_FILE, CHECKPOINT_FILE])
+    with FolderLock(out):
+        return _reproduce_locked(out, mdp, settings, options, reading, details, seeds, episodes,
+                                 seed, invalid_action, chunk_episodes, progress, resume,
+                                 memory_budget_bytes, devices, figures)
+
+
+def _reproduce_locked(out: Path, mdp: Any, settings: list[Setting], options: AgentOptions,
+                      reading: str, details: dict | None, seeds: int, episodes: int, seed: int,
+                      invalid_action: str, chunk_episodes: int, progress: bool, resume: bool,
+                      memory_budget_bytes: Any, devices: int | None, figures: bool) -> Reproduction:
+    """:func:`reproduce` once its inputs are checked and ``out`` is locked."""
     checkpoint = out / CHECKPOINT_FILE
     started = time.perf_counter()
     result = run_grid(
@@ -204,9 +222,10 @@ def reproduce(
     result.meta["details"] = dict(AUTHORS_DETAILS if details is None and reading == "authors"
                                   else details or {})
     result.meta["best_return"] = best  # lets `vdbejax plot` redraw without the MDP
-    result.save(out)
-    process_checkpoint_path(checkpoint).unlink(missing_ok=True)
-    summary, claims = write_outputs(result, out, best, figures=figures)
+    summary, claims = save_run(
+        result, out, lambda stats: write_outputs(result, out, best, figures=figures,
+                                                 statistics=stats),
+        bands=figures, checkpoint=process_checkpoint_path(checkpoint))
     elapsed = time.perf_counter() - started
     if progress:
         print(f"{len(result.settings)} settings × {seeds} agents × {episodes} episodes: "
@@ -262,16 +281,22 @@ def replot(
     """
     try:
         result = GridResult.load(results_dir)
-    except (ValueError, OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, csv.Error) as error:
+    except (OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, csv.Error) as error:
         raise ValueError(f"cannot read results in {str(results_dir)!r}: {error}") from None
-    if result.returns.ndim != 3 or result.returns.shape[0] != len(result.settings):
-        raise ValueError(f"returns.npz in {str(results_dir)!r} does not match configs.csv "
-                         f"({result.returns.shape} for {len(result.settings)} configs)")
     out = check_writable_dir("out", results_dir if out_dir is None else out_dir)
+    check_output_paths(out, [FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE, REPORT_FILE])
     written = [out / name for name in (FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE)]
-    if is_paper_grid(result):
-        write_outputs(result, out, saved_best_return(result), bands=bands)
-        return written + [out / REPORT_FILE]
-    best = result.meta.get("best_return")
-    sweeps.write_outputs(result, out, None if best is None else float(best), bands=bands)
-    return written
+    paper = is_paper_grid(result)
+    with FolderLock(out):
+        try:
+            if paper:
+                write_outputs(result, out, saved_best_return(result), bands=bands)
+            else:
+                best = result.meta.get("best_return")
+                sweeps.write_outputs(result, out, None if best is None else float(best), bands=bands)
+        except OSError as error:
+            raise ValueError(f"cannot write the outputs in {str(out)!r}: {error.strerror or error}"
+                             + (f" ({error.filename})" if error.filename else "")) from None
+        if Path(out).resolve() == Path(results_dir).resolve():
+            unmark(out)  # summary, figures and report now belong to the saved results
+    return written + ([out / REPORT_FILE] if paper else [])

@@ -1,0 +1,284 @@
+"""One run's files per folder, OS errors, leftovers, crafted checkpoints and damaged result
+folders (issue 14, defects 2, 7, 8, 9 and 10): each test fails without its fix."""
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from small_grid import run_small
+from damaged_results import damaged_copy
+from vdbejax import cli, io, result_folder, sweeps
+from vdbejax.experiment import GridResult
+from vdbejax.result_folder import FolderLock
+
+SWEEP = dict(learners=["qlearning"], explorers=["egreedy"], seeds=2, episodes=12, progress=False)
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("run")
+    sweeps.run_sweep(out, **SWEEP)
+    return out
+
+
+def one_error_line(capsys) -> str:
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    return lines[0]
+
+
+# ------------------------------------------------------------------ defect 2: one run per folder
+def test_a_second_writer_is_refused_before_training(tmp_path, monkeypatch):
+    trained = []
+    monkeypatch.setattr(sweeps, "run_grid", lambda *a, **k: trained.append(1))
+    with FolderLock(tmp_path):
+        with pytest.raises(ValueError, match="is being written by another vdbejax run"):
+            sweeps.run_sweep(tmp_path, **SWEEP)
+    assert not trained
+
+
+def test_the_lock_is_released_by_the_os_when_the_holder_dies(tmp_path):
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import sys, time; from vdbejax.result_folder import FolderLock;"
+        f" FolderLock({str(tmp_path)!r}).acquire(); print('locked', flush=True); time.sleep(60)")],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(ValueError, match=f"process {holder.pid}"):
+            FolderLock(tmp_path).acquire()
+    finally:
+        holder.kill()
+        holder.wait()
+    with FolderLock(tmp_path):  # free again: a killed run never leaves the folder locked
+        pass
+
+
+def test_a_run_stopped_while_saving_leaves_a_marker_that_loading_refuses(tmp_path, monkeypatch, saved):
+    for name in ("returns.npz", "configs.csv", "meta.json"):
+        (tmp_path / name).write_bytes((saved / name).read_bytes())
+
+    def killed(self, out):  # the process dies half-way through the result files
+        io.atomic_write_bytes(Path(out) / io.RETURNS_FILE, b"new")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(GridResult, "save", killed)
+    with pytest.raises(KeyboardInterrupt):
+        sweeps.run_sweep(tmp_path, **SWEEP)
+    assert result_folder.marked_stage(tmp_path) == "results"
+    with pytest.raises(ValueError, match="half-written"):
+        GridResult.load(tmp_path)
+
+
+def test_a_run_stopped_while_drawing_is_finished_by_plot(tmp_path, monkeypatch, capsys):
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweeps, "write_outputs", killed)
+    with pytest.raises(KeyboardInterrupt):
+        sweeps.run_sweep(tmp_path, **SWEEP)
+    assert result_folder.marked_stage(tmp_path) == "outputs"
+    GridResult.load(tmp_path)  # the raw results are one run's
+    monkeypatch.undo()
+    assert cli.main(["plot", "--results", str(tmp_path)]) == 0
+    assert result_folder.marked_stage(tmp_path) is None
+    assert (tmp_path / "summary.csv").exists()
+
+
+def test_a_whole_run_leaves_no_marker(saved):
+    assert result_folder.marked_stage(saved) is None
+    assert not (saved / result_folder.MARKER_FILE).exists()
+
+
+# ------------------------------------------------------------------ defect 7: OS errors
+def test_an_output_path_that_is_a_folder_is_refused_before_training(tmp_path, capsys, monkeypatch):
+    (tmp_path / "summary.csv").mkdir()
+    trained = []
+    monkeypatch.setattr(sweeps, "run_grid", lambda *a, **k: trained.append(1))
+    assert cli.main(["run", "--out", str(tmp_path), "--learners", "qlearning", "--explorers",
+                     "egreedy", "--seeds", "2", "--episodes", "5", "--quiet"]) == 2
+    assert "summary.csv" in one_error_line(capsys) and not trained
+
+
+def test_a_checkpoint_path_that_is_a_folder_is_refused(tmp_path):
+    (tmp_path / "ckpt").mkdir()
+    with pytest.raises(ValueError, match="checkpoint=.*not a file"):
+        run_small(checkpoint=tmp_path / "ckpt")
+
+
+def test_disk_full_while_saving_keeps_the_results_elsewhere(tmp_path, monkeypatch):
+    real = io.atomic_write_bytes
+
+    def full(path, data):
+        if Path(path).parent == tmp_path:
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        real(path, data)
+
+    monkeypatch.setattr(io, "atomic_write_bytes", full)
+    with pytest.raises(ValueError) as caught:
+        sweeps.run_sweep(tmp_path, **SWEEP)
+    message = str(caught.value)
+    assert "No space left on device" in message and "\n" not in message
+    kept = Path(message.split("kept in '")[1].split("'")[0])
+    monkeypatch.undo()
+    rescued = GridResult.load(kept)
+    assert rescued.returns.shape == (1, 2, 12)
+
+
+def test_failing_outputs_keep_the_saved_results(tmp_path, monkeypatch, capsys):
+    def broken(*args, **kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied", str(tmp_path / "fig3.png"))
+
+    monkeypatch.setattr(io, "save_figure", broken)
+    assert cli.main(["run", "--out", str(tmp_path), "--learners", "qlearning", "--explorers",
+                     "egreedy", "--seeds", "2", "--episodes", "12", "--quiet"]) == 2
+    line = one_error_line(capsys)
+    assert "Permission denied" in line and "fig3.png" in line and "vdbejax plot" in line
+    assert GridResult.load(tmp_path).returns.shape == (1, 2, 12)
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_ablate_into_a_read_only_folder_is_refused_before_training(tmp_path, capsys):
+    tmp_path.chmod(0o500)
+    try:
+        assert cli.main(["ablate", "--out", str(tmp_path / "x"), "--seeds", "2",
+                         "--episodes", "5"]) == 2
+    finally:
+        tmp_path.chmod(0o700)
+    assert "out=" in one_error_line(capsys)
+
+
+def test_ablate_checks_its_folders_before_training(tmp_path, capsys, monkeypatch):
+    (tmp_path / "ablation").write_text("a file where a folder must go")
+    from vdbejax.paper import ablation
+
+    trained = []
+    monkeypatch.setattr(ablation, "run_variant", lambda *a, **k: trained.append(1))
+    assert cli.main(["ablate", "--out", str(tmp_path), "--seeds", "2", "--episodes", "5"]) == 2
+    assert "writable folder" in one_error_line(capsys) and not trained
+
+
+# ------------------------------------------------------------------ defect 8: leftovers
+def dead_pid() -> int:
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid
+
+
+def test_temporary_files_of_dead_writers_are_removed_when_a_run_starts(tmp_path):
+    stale = tmp_path / f".checkpoint.npz.{dead_pid()}.abc123.tmp"
+    mine = tmp_path / f".summary.csv.{os.getpid()}.xyz.tmp"
+    other = tmp_path / "notes.tmp"
+    for path in (stale, mine, other):
+        path.write_bytes(b"x" * 1000)
+    sweeps.run_sweep(tmp_path, **SWEEP)
+    assert not stale.exists() and mine.exists() and other.exists()
+
+
+def test_run_grid_removes_stale_checkpoint_temporaries(tmp_path):
+    stale = tmp_path / f".ckpt.npz.{dead_pid()}.q1w2e3.tmp"
+    stale.write_bytes(b"x")
+    run_small(checkpoint=tmp_path / "ckpt.npz")
+    assert not stale.exists()
+
+
+def test_sigterm_during_a_run_leaves_no_temporary_file(tmp_path):
+    env = dict(os.environ, VDBEJAX_CACHE_DIR=str(tmp_path / "cache"))
+    out = tmp_path / "out"
+    run = subprocess.Popen([sys.executable, "-m", "vdbejax", "run", "--out", str(out),
+                            "--learners", "qlearning", "--explorers", "egreedy", "--seeds", "2",
+                            "--episodes", "400000", "--chunk-episodes", "50", "--quiet"],
+                           env=env, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not list(out.glob("checkpoint*")) and not list(out.glob(".*.tmp")) and time.time() < deadline:
+        time.sleep(0.05)
+    run.send_signal(signal.SIGTERM)
+    _, err = run.communicate(timeout=120)
+    assert run.returncode == 143, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert not list(out.glob(".*.tmp"))
+
+
+# ------------------------------------------------------------------ defect 9: crafted checkpoints
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> Path:
+    from test_resume import Interrupted, interrupt_after
+
+    path = tmp_path_factory.mktemp("ckpt") / "ckpt.npz"
+    with pytest.raises(Interrupted):
+        run_small(checkpoint=path, progress=interrupt_after(2))
+    return path
+
+
+def crafted(checkpoint: Path, tmp_path: Path, **changes) -> Path:
+    with np.load(checkpoint) as data:
+        arrays = {k: data[k] for k in data.files}
+    for key, change in changes.items():
+        arrays[key] = change(arrays[key])
+    path = tmp_path / "ckpt.npz"
+    np.savez(path, **arrays)
+    return path
+
+
+@pytest.mark.parametrize("key, change, message", [
+    ("agent_q", lambda q: q[..., :-1], "Q must be"),
+    ("episodes_done", lambda d: d + 10_000, "episodes_done must lie"),
+    ("agent_state", lambda s: s + 10_000, "agent states must lie"),
+    ("state_rows", lambda r: np.r_[r, r[:1]], "state_rows"),
+    ("agent_table_epsilon", lambda t: t[:, :3], "table 'epsilon'"),
+])
+def test_a_crafted_checkpoint_is_refused_naming_it(checkpoint, tmp_path, key, change, message):
+    path = crafted(checkpoint, tmp_path, **{key: change})
+    with pytest.raises(ValueError, match=message) as caught:
+        run_small(checkpoint=path, resume=True)
+    assert str(path) in str(caught.value)
+
+
+def test_a_garbage_checkpoint_error_names_the_file(tmp_path):
+    path = tmp_path / "ckpt.npz"
+    path.write_bytes(b"garbage")
+    with pytest.raises(ValueError, match="unreadable") as caught:
+        run_small(checkpoint=path, resume=True)
+    assert str(path) in str(caught.value)
+
+
+# ------------------------------------------------------------------ defect 10: damaged folders
+@pytest.mark.parametrize("damage, message", [
+    ("empty returns", "unreadable"),
+    ("meta list", "JSON object"),
+    ("nonfinite shape", "nonfinite must be"),
+    ("lengths shape", "lengths must be"),
+    ("duplicate config", "repeated"),
+    ("nan returns", "NaN or infinite"),
+    ("missing column", "damaged"),
+    ("param not a number", "damaged"),
+])
+def test_plot_refuses_a_damaged_folder_with_one_line(saved, tmp_path, capsys, damage, message):
+    folder = damaged_copy(saved, tmp_path / "copy", damage)
+    assert cli.main(["plot", "--results", str(folder)]) == 2
+    line = one_error_line(capsys)
+    assert message in line and str(folder) in line
+
+
+def test_plot_accepts_an_explorer_it_does_not_know(saved, tmp_path):
+    folder = damaged_copy(saved, tmp_path / "copy", "unknown explorer")
+    assert cli.main(["plot", "--results", str(folder)]) == 0  # a plug-in's results: drawn by name
+    assert "my_plugin" in (folder / "summary.csv").read_text()
+
+
+def test_damaged_copy_really_damages(saved, tmp_path):
+    # The fixture is not a no-op: every damaged copy differs from the saved folder.
+    for damage in ("empty returns", "meta list", "duplicate config", "nan returns"):
+        folder = damaged_copy(saved, tmp_path / damage.replace(" ", "_"), damage)
+        differs = [n for n in ("returns.npz", "meta.json", "configs.csv")
+                   if (folder / n).read_bytes() != (saved / n).read_bytes()]
+        assert differs, damage
+    assert json.loads((saved / "meta.json").read_text())

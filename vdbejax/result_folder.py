@@ -1,0 +1,243 @@
+"""One run's files per result folder: a writer lock, a run marker and leftover cleanup.
+
+* **Lock.** A run takes an exclusive ``flock`` on ``<folder>/.vdbejax.lock`` before it
+  trains, and holds it until its last file is written. A second run into the same folder
+  is refused at once with one line (no training). The operating system drops the lock
+  when the process ends, however it ends, so a killed run never leaves the folder locked.
+* **Run marker.** ``<folder>/.vdbejax-writing`` exists while a run replaces the folder's
+  files. Its ``stage`` says how far it got: ``"results"`` while ``returns.npz``,
+  ``configs.csv`` and ``meta.json`` are written (they may then mix two runs: loading is
+  refused), ``"outputs"`` while the summary, figures and report are (the raw results are
+  one run's: ``vdbejax plot`` redraws the rest and removes the marker). A run killed
+  while writing leaves the marker, so a half-rewritten folder is recognised, never
+  mistaken for a whole one.
+* **Leftovers.** Atomic writes go through ``.<name>.<pid>.<random>.tmp`` files; those of
+  processes no longer alive (killed during a write) are removed when a run starts.
+"""
+from __future__ import annotations
+
+import errno
+import json
+import os
+import re
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, TypeVar
+
+try:
+    import fcntl
+except ImportError:  # Windows: no advisory locks; the marker still tells half-written folders
+    fcntl = None
+
+LOCK_FILE = ".vdbejax.lock"
+MARKER_FILE = ".vdbejax-writing"
+#: Stages of the run marker (module docstring).
+STAGES = ("results", "outputs")
+T = TypeVar("T")
+_TEMPORARY = re.compile(r"^\..+\.(\d+)\.[^.]+\.tmp$")
+
+
+class FolderLock:
+    """Exclusive use of a result folder by this process (``with FolderLock(folder): …``).
+
+    Raises (on entry):
+      ValueError: another process (or another writer of this one) holds the folder.
+    """
+
+    def __init__(self, folder: str | os.PathLike, name: str = "out") -> None:
+        self.folder = Path(folder)
+        self.name = name
+        self._fd: int | None = None
+
+    def __enter__(self) -> FolderLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.release()
+
+    def acquire(self) -> None:
+        """Take the lock, then remove the temporary files of dead writers."""
+        path = self.folder / LOCK_FILE
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as error:
+            raise ValueError(f"{self.name}={str(self.folder)!r} cannot be locked for writing:"
+                             f" {error.strerror or error} ({path})") from None
+        if fcntl is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as error:
+                holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+                os.close(fd)
+                if error.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    raise ValueError(f"{self.name}={str(self.folder)!r} cannot be locked for"
+                                     f" writing: {error.strerror or error}") from None
+                who = "this process" if holder == str(os.getpid()) else f"process {holder}"
+                raise ValueError(f"{self.name}={str(self.folder)!r} is being written by another"
+                                 f" vdbejax run ({who}): wait for it to finish or choose another"
+                                 " folder") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        self._fd = fd
+        remove_stale_temporaries(self.folder)
+
+    def release(self) -> None:
+        """Give the lock back (the lock file stays: removing it would race a new writer)."""
+        if self._fd is not None:
+            if fcntl is not None:
+                fcntl.flock(self._fd, fcntl.LOCK_UN)
+            os.close(self._fd)
+            self._fd = None
+
+
+def check_output_paths(folder: str | os.PathLike, names: list[str], name: str = "out") -> None:
+    """Refuse, before any training, output paths that exist but are not files.
+
+    Raises:
+      ValueError: ``folder/<one of names>`` is a folder (or another non-file).
+    """
+    for file_name in names:
+        path = Path(folder) / file_name
+        if path.exists() and not path.is_file():
+            raise ValueError(f"{name}={str(folder)!r} is invalid: {str(path)!r} is not a file,"
+                             " so the result cannot be written there")
+
+
+def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:
+    """Delete the ``.<name>.<pid>.<random>.tmp`` files of processes no longer alive.
+
+    Returns:
+      the files removed.
+    """
+    removed = []
+    try:
+        entries = list(Path(folder).iterdir())
+    except OSError:
+        return removed
+    for entry in entries:
+        match = _TEMPORARY.match(entry.name)
+        if match and not _alive(int(match.group(1))):
+            try:
+                entry.unlink()
+                removed.append(entry)
+            except OSError:
+                pass
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True  # someone else's live process (or not ours to judge): keep its files
+    return True
+
+
+def mark(folder: str | os.PathLike, stage: str) -> None:
+    """Write the run marker: ``stage`` of :data:`STAGES` is being written now."""
+    from vdbejax.io import atomic_write_text
+
+    if stage not in STAGES:
+        raise ValueError(f"stage={stage!r} is invalid: must be one of {', '.join(STAGES)}")
+    atomic_write_text(Path(folder) / MARKER_FILE,
+                      json.dumps({"stage": stage, "pid": os.getpid()}) + "\n")
+
+
+def unmark(folder: str | os.PathLike) -> None:
+    """Remove the run marker: the folder holds one whole run."""
+    (Path(folder) / MARKER_FILE).unlink(missing_ok=True)
+
+
+def marked_stage(folder: str | os.PathLike) -> str | None:
+    """The stage of a run marker left in ``folder`` (``None``: no marker). An unreadable
+    marker counts as ``"results"``, the cautious reading."""
+    path = Path(folder) / MARKER_FILE
+    if not path.exists():
+        return None
+    try:
+        stage = json.loads(path.read_text()).get("stage")
+    except (OSError, ValueError, AttributeError):
+        return "results"
+    return stage if stage in STAGES else "results"
+
+
+def save_run(
+    result: Any,
+    out: str | os.PathLike,
+    write: Callable[[Any], T],
+    *,
+    bands: bool,
+    checkpoint: str | os.PathLike | None = None,
+) -> T:
+    """Save a trained grid into ``out`` and write its outputs, marking the folder.
+
+    ``returns.npz``, ``configs.csv`` and ``meta.json`` are written on a thread while the
+    statistics are computed (zlib and numpy release the GIL); ``write(statistics)`` then
+    writes the summary, figures and report. The marker's stages tell how far a killed
+    run got (module docstring); ``checkpoint`` is deleted once the results are saved.
+
+    Args:
+      result: the :class:`~vdbejax.experiment.GridResult`.
+      out: the (locked) result folder.
+      write: writes the outputs from the :class:`~vdbejax.stats.CurveStatistics`.
+      bands: compute Figure 3's bootstrap bands too.
+      checkpoint: the run's checkpoint file, deleted after the save.
+
+    Returns:
+      what ``write`` returns.
+
+    Raises:
+      ValueError: an operating-system error while writing (disk full, a path that is a
+        folder, permissions): one line naming the path; the computed results are kept,
+        in ``out`` if they were saved there, else in a rescue folder the message names.
+    """
+    from vdbejax.stats import curve_statistics
+
+    out = Path(out)
+    try:
+        mark(out, "results")
+        with ThreadPoolExecutor(1) as pool:
+            saved = pool.submit(result.save, out)
+            try:
+                statistics = curve_statistics(result.returns, bands=bands)
+            finally:
+                error = saved.exception()
+            if error is not None:
+                raise error
+    except OSError as error:
+        raise ValueError(f"cannot write the results in {str(out)!r}: {_describe(error)};"
+                         f" {_rescue(result)}") from None
+    if checkpoint is not None:
+        Path(checkpoint).unlink(missing_ok=True)
+    try:
+        mark(out, "outputs")
+        value = write(statistics)
+        unmark(out)
+    except OSError as error:
+        raise ValueError(f"cannot write the outputs in {str(out)!r}: {_describe(error)}; the"
+                         f" results are saved there: 'vdbejax plot --results {out}' writes"
+                         " the summary and figures again") from None
+    return value
+
+
+def _describe(error: OSError) -> str:
+    where = f" ({error.filename})" if getattr(error, "filename", None) else ""
+    return f"{error.strerror or error}{where}"
+
+
+def _rescue(result: Any) -> str:
+    """Save ``result`` in a fresh folder under the temporary directory; say where."""
+    import tempfile
+
+    try:
+        folder = Path(tempfile.mkdtemp(prefix="vdbejax-rescued-"))
+        result.save(folder)
+    except OSError as error:
+        return f"the results could not be kept elsewhere either ({_describe(error)})"
+    return f"the results were kept in {str(folder)!r} ('vdbejax plot --results {folder}' draws them)"
