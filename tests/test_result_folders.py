@@ -198,8 +198,9 @@ def test_sigterm_during_a_run_leaves_no_temporary_file(tmp_path):
                             "--episodes", "400000", "--chunk-episodes", "50", "--quiet"],
                            env=env, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 120
-    while not list(out.glob("checkpoint*")) and not list(out.glob(".*.tmp")) and time.time() < deadline:
+    while not (out / result_folder.LOCK_FILE).exists() and time.time() < deadline:
         time.sleep(0.05)
+    time.sleep(2.0)  # training by now (400,000 episodes take far longer)
     run.send_signal(signal.SIGTERM)
     _, err = run.communicate(timeout=120)
     assert run.returncode == 143, err
@@ -282,3 +283,50 @@ def test_damaged_copy_really_damages(saved, tmp_path):
                    if (folder / n).read_bytes() != (saved / n).read_bytes()]
         assert differs, damage
     assert json.loads((saved / "meta.json").read_text())
+
+
+# ------------------------------------------------------------------ defect 4: checkpoint cost
+def test_checkpoint_writes_grow_with_the_chunk_not_with_the_run(tmp_path):
+    from vdbejax.checkpoint import log_path
+
+    path = tmp_path / "ckpt.npz"
+    sizes = []
+
+    def progress(done, total, elapsed):
+        if path.exists():
+            sizes.append((path.stat().st_size, log_path(path).stat().st_size))
+
+    run_small(checkpoint=path, num_episodes=96, chunk_episodes=8, progress=progress)
+    small = [s for s, _ in sizes]
+    growth = np.diff([g for _, g in sizes])
+    assert len(sizes) >= 10
+    # The rewritten file does not grow with the episodes (the last holds no agent state).
+    assert len(set(small[:-1])) == 1 and small[-1] <= small[0]
+    # Each chunk appends its own episodes only: 12 agents × 8 episodes × 8 bytes + headers.
+    assert growth.min() == growth.max() and 12 * 8 * 8 <= growth.max() <= 12 * 8 * 8 + 200
+
+
+def test_a_resumed_run_ignores_what_a_killed_run_appended_to_the_log(tmp_path):
+    from small_grid import assert_same_curves
+    from test_resume import Interrupted, interrupt_after
+    from vdbejax.checkpoint import log_path
+
+    path = tmp_path / "ckpt.npz"
+    with pytest.raises(Interrupted):
+        run_small(checkpoint=path, progress=interrupt_after(2))
+    with open(log_path(path), "ab") as log:  # a record the killed run had begun
+        log.write(b"\x07" * 37)
+    assert_same_curves(run_small(), run_small(checkpoint=path, resume=True))
+
+
+def test_a_log_that_misses_episodes_is_refused(tmp_path):
+    from test_resume import Interrupted, interrupt_after
+    from vdbejax.checkpoint import log_path
+
+    path = tmp_path / "ckpt.npz"
+    with pytest.raises(Interrupted):
+        run_small(checkpoint=path, progress=interrupt_after(3))
+    data = log_path(path).read_bytes()
+    log_path(path).write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match="checkpoint log .* is damaged"):
+        run_small(checkpoint=path, resume=True)

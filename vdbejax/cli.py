@@ -188,11 +188,79 @@ def _ablate(args: argparse.Namespace) -> None:
         print(f"{result.variant.name}: " + ", ".join(f"{c.number} {c.verdict}" for c in result.claims))
 
 
+def _add_scale(sub: argparse._SubParsersAction) -> None:
+    from vdbejax.scaling import SIZES
+
+    p = sub.add_parser(
+        "scale", help="episodes to solve of every exploration method on growing task variants;"
+                      " writes scaling.csv, scaling.md, scaling.png",
+        description="Each variant trains until every agent has solved it (20-episode moving"
+                    " average >= fraction x the exact best return) or the budget is spent;"
+                    " solved agents leave the batch.")
+    number = parse_cli_number
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--sizes", default=",".join(SIZES),
+                   help=f"variants NxK (N sections, K goblets), comma-separated (default {','.join(SIZES)})")
+    p.add_argument("--seeds", type=number, default=10, help="agents per setting (default 10)")
+    p.add_argument("--episodes", type=number, default=2000,
+                   help="smallest episode budget per agent and variant (default 2000)")
+    p.add_argument("--episodes-per-state", type=number, default=3.0,
+                   help="budget per variant: max(EPISODES, this x reachable states)"
+                        " (default 3; 0: EPISODES for every variant)")
+    p.add_argument("--seconds", type=number, default=None,
+                   help="wall-clock budget per variant (default none; machine-dependent)")
+    p.add_argument("--seed", type=number, default=0, help="root random seed (default 0)")
+    p.add_argument("--learners", default="qlearning,sarsa", help="comma-separated (default qlearning,sarsa)")
+    p.add_argument("--methods", default=None,
+                   help="comma-separated explorers of vdbejax.scaling.METHODS (default all)")
+    p.add_argument("--fraction", type=number, default=0.9,
+                   help="solved = moving average >= fraction x best return (default 0.9)")
+    p.add_argument("--window", type=number, default=20, help="moving-average window (default 20)")
+    p.add_argument("--chunk-episodes", type=number, default=None,
+                   help="episodes between stop checks (default max(100, budget/100))")
+    p.add_argument("--max-steps", type=number, default=None, help="episode truncation (default 100)")
+    p.add_argument("--drop-unsolved", action="store_true",
+                   help="skip a setting on larger variants once none of its agents solved one")
+    p.add_argument("--quick", action="store_true", help="2x1 and 3x1, 3 seeds, 1000 episodes")
+    p.add_argument("--no-figure", action="store_true", help="no scaling.png")
+    p.add_argument("--no-runs", action="store_true", help="do not save the curves (runs/NxK.npz)")
+    p.add_argument("--quiet", action="store_true", help="no status lines")
+
+
+def _scale(args: argparse.Namespace) -> None:
+    from vdbejax.scaling import run_scaling
+
+    names = {"learners": [n for n in args.learners.split(",") if n],
+             "methods": None if args.methods is None else args.methods.split(",")}
+    command = (f"vdbejax scale --out {args.out}" + (" --quick" if args.quick else
+               f" --sizes {args.sizes} --seeds {args.seeds} --episodes {args.episodes}"
+               f" --episodes-per-state {args.episodes_per_state}")
+               + "".join(f" --{flag} {value}" for flag, value in (
+                   ("seconds", args.seconds), ("seed", args.seed), ("learners", args.learners),
+                   ("methods", args.methods), ("fraction", args.fraction), ("window", args.window),
+                   ("chunk-episodes", args.chunk_episodes), ("max-steps", args.max_steps))
+                   if value is not None)
+               + (" --drop-unsolved" if args.drop_unsolved else ""))
+    result = run_scaling(
+        args.out, sizes=args.sizes, seeds=args.seeds, episodes=args.episodes,
+        episodes_per_state=None if args.episodes_per_state == 0 else args.episodes_per_state,
+        seconds=args.seconds,
+        seed=args.seed, fraction=args.fraction, window=args.window,
+        chunk_episodes=args.chunk_episodes, max_steps=args.max_steps,
+        drop_unsolved=args.drop_unsolved, quick=args.quick, progress=not args.quiet,
+        figure=not args.no_figure, save_runs=not args.no_runs, command=command, **names)
+    for row in result.rows:
+        print(f"{row['size']} {row['method']}: {row['median_text']}"
+              f" ({row['solved']}/{row['agents']} solved)")
+    print(f"elapsed: {result.meta['elapsed_seconds']:.1f} s → {args.out}")
+
+
 COMMANDS = {
     "reproduce": (_add_reproduce, _reproduce),
     "run": (_add_run, _run),
     "plot": (_add_plot, _plot),
     "ablate": (_add_ablate, _ablate),
+    "scale": (_add_scale, _scale),
 }
 
 
@@ -253,7 +321,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, _Terminated) as stop:
-        print("interrupted: rerun with --resume to continue from the last checkpoint", file=sys.stderr)
+        hint = (": rerun with --resume to continue from the last checkpoint"
+                if args.command == "reproduce" else "")
+        print(f"interrupted{hint}", file=sys.stderr)
         return 143 if isinstance(stop, _Terminated) else 130
     return 0
 

@@ -60,6 +60,7 @@ from vdbejax.engine import (
     text_progress,
 )
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.checkpoint import CheckpointWriter, load_checkpoint, remove_checkpoint
 from vdbejax.result_folder import remove_stale_temporaries
 from vdbejax.validation import (
     INT32_MAX,
@@ -224,116 +225,6 @@ def _fingerprint(description: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
 
 
-#: Version of the checkpoint layout (a checkpoint of another version is refused).
-CHECKPOINT_VERSION = 3
-
-
-def _save_checkpoint(path: Path, fingerprint: str, sweep: SweepProgress) -> None:
-    """Write the sweep's progress atomically (temp file + rename: never half-written)."""
-    leaves = {}
-    if sweep.state is not None:
-        leaves = {f"agent_{f.name}": np.asarray(getattr(sweep.state, f.name))
-                  for f in dataclasses.fields(AgentState) if f.name != "tables"}
-        leaves.update({f"agent_table_{name}": np.asarray(table)
-                       for name, table in sweep.state.tables.items()})
-    io.atomic_savez(
-        path, compressed=False, fingerprint=np.asarray(fingerprint),
-        version=np.asarray(CHECKPOINT_VERSION), returns=sweep.returns, lengths=sweep.lengths,
-        episodes_done=sweep.episodes_done, nonfinite=sweep.nonfinite,
-        state_rows=sweep.state_rows, **leaves,
-    )
-
-
-def _load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
-                     mdp: TabularMDP | None = None, layout: dict[str, str] | None = None
-                     ) -> SweepProgress:
-    """Read a checkpoint written by :func:`_save_checkpoint` for the same run, and check
-    that its contents can be this run's (:func:`_check_checkpoint`).
-
-    Raises:
-      ValueError: unreadable, of another run (fingerprint) or of another layout, or
-        contents out of shape or range.
-    """
-    hint = "delete it or use a new output folder"
-    try:
-        with np.load(path) as data:
-            found = str(data["fingerprint"])
-            if found != fingerprint:
-                raise ValueError(
-                    f"checkpoint {str(path)!r} belongs to a different run (fingerprint {found},"
-                    f" expected {fingerprint}): use the same settings, seeds and options, or {hint}"
-                )
-            version = int(data["version"]) if "version" in data else 1
-            if version != CHECKPOINT_VERSION:
-                raise ValueError(f"checkpoint {str(path)!r} has layout version {version},"
-                                 f" expected {CHECKPOINT_VERSION}: {hint}")
-            state = None
-            if "agent_q" in data:
-                tables = {key.removeprefix("agent_table_"): data[key] for key in data.files
-                          if key.startswith("agent_table_")}
-                state = AgentState(tables=tables, **{
-                    f.name: data[f"agent_{f.name}"] for f in dataclasses.fields(AgentState)
-                    if f.name != "tables"})
-            sweep = SweepProgress(
-                returns=data["returns"], lengths=data["lengths"],
-                episodes_done=data["episodes_done"], nonfinite=data["nonfinite"],
-                state_rows=data["state_rows"], state=state,
-            )
-    except Exception as error:  # a damaged file: zip, pickle, EOF or key errors
-        if isinstance(error, ValueError) and str(error).startswith(f"checkpoint {str(path)!r}"):
-            raise  # ours: another run's or another layout's checkpoint
-        raise ValueError(f"checkpoint {str(path)!r} is unreadable ({type(error).__name__}:"
-                         f" {error}): {hint}") from None
-    if sweep.returns.shape != shape:
-        raise ValueError(f"checkpoint {str(path)!r} holds {sweep.returns.shape} returns,"
-                         f" expected {shape}: {hint}")
-    problem = _check_checkpoint(sweep, shape, mdp, layout)
-    if problem:
-        raise ValueError(f"checkpoint {str(path)!r} is damaged: {problem}; {hint}")
-    return sweep
-
-
-def _check_checkpoint(sweep: SweepProgress, shape: tuple[int, int], mdp: TabularMDP | None,
-                      layout: dict[str, str] | None) -> str | None:
-    """What in a checkpoint's arrays cannot come from this run (``None``: nothing)."""
-    agents, episodes = shape
-    done = np.asarray(sweep.episodes_done)
-    if sweep.lengths.shape != shape or done.shape != (agents,) or np.shape(sweep.nonfinite) != (agents,):
-        return "its lengths, episodes_done or nonfinite arrays do not match its returns"
-    if done.size and (done.min() < 0 or done.max() > episodes):
-        return f"episodes_done must lie in [0, {episodes}]"
-    rows = np.asarray(sweep.state_rows)
-    if rows.ndim != 1 or len(np.unique(rows)) != len(rows) or (
-            rows.size and (rows.min() < 0 or rows.max() >= agents or (done[rows] >= episodes).any())):
-        return "state_rows must name distinct unfinished agents"
-    state = sweep.state
-    if state is None:
-        return None if rows.size == 0 else "state_rows name agents but no agent state is stored"
-    m = len(rows)
-    leading = {f.name: np.shape(getattr(state, f.name))[:1] for f in dataclasses.fields(AgentState)
-               if f.name != "tables"}
-    if any(n != (m,) for n in leading.values()):
-        return f"every agent-state array must have {m} rows (one per state_rows entry)"
-    if not np.array_equal(np.asarray(state.episode), done[rows]):
-        return "the agents' episode counters disagree with episodes_done"
-    if mdp is not None:
-        S, A = mdp.num_states, mdp.num_actions  # noqa: N806
-        if np.shape(state.q) != (m, S, A):
-            return f"Q must be [{m}, {S}, {A}], not {list(np.shape(state.q))}"
-        if (np.asarray(state.state) < 0).any() or (np.asarray(state.state) >= S).any():
-            return f"agent states must lie in [0, {S})"
-        if (np.asarray(state.action) < 0).any() or (np.asarray(state.action) >= A).any():
-            return f"agent actions must lie in [0, {A})"
-        if layout is not None:
-            if set(state.tables) != set(layout):
-                return f"tables must be {sorted(layout)}, not {sorted(state.tables)}"
-            for name, per in layout.items():
-                wanted = (m, S) if per == "state" else (m, S, A)
-                if np.shape(state.tables[name]) != wanted:
-                    return f"table {name!r} must be {list(wanted)}, not {list(np.shape(state.tables[name]))}"
-    return None
-
-
 def nonfinite_message(settings: Sequence[Setting], nonfinite: np.ndarray,
                       options: AgentOptions) -> str | None:
     """One line naming every config whose agents saw NaN/inf in Q or ε, or None.
@@ -400,20 +291,19 @@ def _check_grid_inputs(mdp: Any, settings: list[Any], progress: Any, checkpoint:
 
 def _checkpointing(
     checkpoint: str | os.PathLike | None, fingerprint: str, resume: bool, shape: tuple[int, int],
-    mdp: TabularMDP | None = None, layout: dict[str, str] | None = None,
-) -> tuple[SweepProgress | None, Any]:
-    """The progress to resume from (None: fresh) and the after-chunk checkpoint writer."""
+    mdp: TabularMDP, layout: dict[str, str],
+) -> tuple[SweepProgress | None, CheckpointWriter | None]:
+    """The progress to resume from (None: fresh) and the after-chunk checkpoint writer
+    (:mod:`vdbejax.checkpoint`)."""
     if checkpoint is None:
         return None, None
     path = process_checkpoint_path(checkpoint)
     remove_stale_temporaries(path.parent)  # what killed writers left (vdbejax.result_folder)
-    sweep = (_load_checkpoint(path, fingerprint, shape, mdp, layout) if resume and path.exists()
-             else None)
-
-    def on_checkpoint(progress_now: SweepProgress) -> None:
-        _save_checkpoint(path, fingerprint, progress_now)
-
-    return sweep, on_checkpoint
+    if resume and path.exists():
+        sweep, log_bytes, log_id = load_checkpoint(path, fingerprint, shape, mdp, layout)
+        return sweep, CheckpointWriter(path, fingerprint, sweep, log_bytes, log_id)
+    remove_checkpoint(path)  # a fresh run: an older checkpoint must not outlive its log
+    return None, CheckpointWriter(path, fingerprint)
 
 
 def grid_agents(settings: Sequence[Setting], num_seeds: int, seed: int = 0,
@@ -499,7 +389,9 @@ def run_grid(
       options: α, γ, q_init, tie-break, δ shared by all agents.
       chunk_episodes: episodes per jitted chunk (progress and checkpoint granularity).
       progress: True for a progress bar on stderr, or a callback.
-      checkpoint: file to write after every chunk (atomically).
+      checkpoint: file to write after every chunk (atomically), with its episode log
+        beside it (``<checkpoint>.episodes``, :mod:`vdbejax.checkpoint`); delete both with
+        :func:`vdbejax.checkpoint.remove_checkpoint` once the result is saved.
       resume: continue from ``checkpoint`` if it exists.
       memory_budget_bytes: device memory the agents may use, per device (default:
         half of the free memory of the smallest device); an int or a size such as
@@ -555,11 +447,15 @@ def run_grid(
     resumed_from = 0 if sweep is None else int(sweep.episodes_done.sum())
     callback = text_progress() if progress is True else (progress or None)
     started = time.perf_counter()
-    sweep, batches = run_batched(
-        mdp, take_agents(params, rows), keys[rows], num_episodes, batch_size=batch_size,
-        devices=my_devices, chunk_episodes=chunk_episodes, progress=callback, sweep=sweep,
-        on_checkpoint=on_checkpoint,
-    )
+    try:
+        sweep, batches = run_batched(
+            mdp, take_agents(params, rows), keys[rows], num_episodes, batch_size=batch_size,
+            devices=my_devices, chunk_episodes=chunk_episodes, progress=callback, sweep=sweep,
+            on_checkpoint=on_checkpoint,
+        )
+    finally:
+        if on_checkpoint is not None:
+            on_checkpoint.close()
     elapsed = time.perf_counter() - started
     shape = (len(settings), num_seeds, num_episodes)
     # [agents, episodes] → [configs, seeds, episodes]; nonfinite [agents] → [configs, seeds].

@@ -173,21 +173,22 @@ def save_run(
     write: Callable[[Any], T],
     *,
     bands: bool,
-    checkpoint: str | os.PathLike | None = None,
+    on_saved: Callable[[], None] | None = None,
 ) -> T:
     """Save a trained grid into ``out`` and write its outputs, marking the folder.
 
     ``returns.npz``, ``configs.csv`` and ``meta.json`` are written on a thread while the
     statistics are computed (zlib and numpy release the GIL); ``write(statistics)`` then
     writes the summary, figures and report. The marker's stages tell how far a killed
-    run got (module docstring); ``checkpoint`` is deleted once the results are saved.
+    run got (module docstring); ``on_saved`` runs once the results are saved (e.g. to
+    delete the run's checkpoint).
 
     Args:
       result: the :class:`~vdbejax.experiment.GridResult`.
       out: the (locked) result folder.
       write: writes the outputs from the :class:`~vdbejax.stats.CurveStatistics`.
       bands: compute Figure 3's bootstrap bands too.
-      checkpoint: the run's checkpoint file, deleted after the save.
+      on_saved: called after the save.
 
     Returns:
       what ``write`` returns.
@@ -213,8 +214,8 @@ def save_run(
     except OSError as error:
         raise ValueError(f"cannot write the results in {str(out)!r}: {_describe(error)};"
                          f" {_rescue(result)}") from None
-    if checkpoint is not None:
-        Path(checkpoint).unlink(missing_ok=True)
+    if on_saved is not None:
+        on_saved()
     try:
         mark(out, "outputs")
         value = write(statistics)

@@ -17,6 +17,7 @@ from vdbejax.methods.agents import AgentOptions, Setting, make_agent, owners, pa
 from vdbejax.paper.claims import ClaimResult, evaluate_claims, render_report
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.learners import PAPER_ALPHA
+from vdbejax.checkpoint import log_path, remove_checkpoint
 from vdbejax.distributed import process_checkpoint_path, select_devices
 from vdbejax.experiment import GridResult, check_run_options, run_grid
 from vdbejax.result_folder import FolderLock, check_output_paths, save_run, unmark
@@ -129,8 +130,9 @@ def reproduce(
 
     Writes into ``out_dir``: ``returns.npz``, ``configs.csv``, ``meta.json``,
     ``summary.csv``, ``fig3.png`` (with bootstrap bands), ``sensitivity.png``,
-    ``report.md``. A checkpoint (``checkpoint.npz``) is written after every chunk and
-    removed once the results are saved.
+    ``report.md``. A checkpoint (``checkpoint.npz`` and its episode log
+    ``checkpoint.npz.episodes``) is written after every chunk and removed once the
+    results are saved.
 
     Args:
       out_dir: output folder (created if needed).
@@ -194,7 +196,8 @@ def reproduce(
     check_bool("progress", progress)
     check_bool("figures", figures)
     out = check_writable_dir("out", out_dir)
-    check_output_paths(out, [*sweeps.RUN_FILES, REPORT_FILE, CHECKPOINT_FILE])
+    check_output_paths(out, [*sweeps.RUN_FILES, REPORT_FILE, CHECKPOINT_FILE,
+                             log_path(CHECKPOINT_FILE).name])
     with FolderLock(out):
         return _reproduce_locked(out, mdp, settings, options, reading, details, seeds, episodes,
                                  seed, invalid_action, chunk_episodes, progress, resume,
@@ -225,7 +228,7 @@ def _reproduce_locked(out: Path, mdp: Any, settings: list[Setting], options: Age
     summary, claims = save_run(
         result, out, lambda stats: write_outputs(result, out, best, figures=figures,
                                                  statistics=stats),
-        bands=figures, checkpoint=process_checkpoint_path(checkpoint))
+        bands=figures, on_saved=lambda: remove_checkpoint(process_checkpoint_path(checkpoint)))
     elapsed = time.perf_counter() - started
     if progress:
         print(f"{len(result.settings)} settings × {seeds} agents × {episodes} episodes: "
