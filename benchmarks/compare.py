@@ -1,4 +1,4 @@
-"""Side-by-side benchmark: the same work through pure Python, Numba and vdbejax.
+"""Side-by-side benchmark: the same work through vdbejax and its peers.
 
     python -m benchmarks.compare --out benchmarks/RESULTS.md
 
@@ -7,11 +7,21 @@ Each peer runs in a fresh subprocess (clean timings and peak memory):
 
 * ``python``: :mod:`benchmarks.python_loop` on ``--python-seeds`` seeds per setting (all
   46 settings); its full-grid time is extrapolated per agent-step (stated in the report).
-* ``numba``: :mod:`benchmarks.numba_loop`; compile time = the first (tiny) call, cold
-  (empty ``NUMBA_CACHE_DIR``) and warm (``cache=True`` hit).
-* ``vdbejax``: :func:`vdbejax.engine.run_agents`; compile time = the engine's
-  ``lower().compile()`` time, cold (empty JAX persistent compilation cache) and warm
-  (cache filled by the cold run).
+* ``numba`` (reported as ``numba-1t``): :func:`benchmarks.numba_loop.run_grid`, one thread;
+  compile time = the first (tiny) call, cold (empty ``NUMBA_CACHE_DIR``) and warm
+  (``cache=True`` hit).
+* ``numba_parallel`` (reported as ``numba-<N>t``):
+  :func:`benchmarks.numba_loop.run_grid_parallel`, the same per-agent function under
+  ``prange`` on ``--threads`` threads (the threads vdbejax gets; default: the CPUs this
+  process may use); its own cache directory, cold and warm as above. Bit-identical
+  returns to ``numba-1t`` (each agent's random stream depends on its seed alone).
+* ``mushroom``: :mod:`benchmarks.mushroom_loop`, MushroomRL's ``QLearning`` / ``SARSA``
+  with ``EpsGreedy`` / ``Boltzmann`` through its ``Core``, on ``--mushroom-seeds`` seeds of
+  the 22 settings it has an explorer for (no VDBE); its full-grid time is extrapolated per
+  agent-step. Skipped (and said so) when mushroom-rl is not installed.
+* ``vdbejax``: :func:`vdbejax.engine.run_agents` on ``--threads`` threads; compile time =
+  the engine's ``lower().compile()`` time, cold (empty JAX persistent compilation cache)
+  and warm (cache filled by the cold run).
 
 Every peer must reproduce vdbejax's learning curves (per-setting mean return over the
 first 300 and the last 100 episodes, bootstrap CI of the difference), otherwise its speed
@@ -74,13 +84,15 @@ def _worker_vdbejax(args) -> dict:
         keys = engine.agent_keys(1, n)
     else:
         params, keys = grid_agents(settings, args.seeds)
-    result = engine.run_agents(mdp, params, keys, args.episodes, strategy=args.strategy)
+    result = engine.run_agents(mdp, params, keys, args.episodes, strategy=args.strategy,
+                               threads=args.threads)
     wall = time.perf_counter() - started
     compile_time = engine.compile_seconds()
     steady = None
     if args.agents:  # scaling: time a second, fully compiled run of the same work
         again = time.perf_counter()
-        engine.run_agents(mdp, params, keys, args.episodes, strategy=args.strategy)
+        engine.run_agents(mdp, params, keys, args.episodes, strategy=args.strategy,
+                          threads=args.threads)
         steady = time.perf_counter() - again
     return {
         "steady": steady,
@@ -95,6 +107,8 @@ def _worker_vdbejax(args) -> dict:
         "peak_rss_mb": _peak_rss_mb(),
         "rss_after_import_mb": rss_import,
         "returns": result.returns,
+        # per agent, for costing a subset of the grid (not kept for the scaling runs)
+        "agent_steps": [] if args.agents else result.lengths.sum(axis=1).tolist(),
     }
 
 
@@ -114,6 +128,57 @@ def _worker_numba(args) -> dict:
         "steps": int(lengths.sum()),
         "peak_rss_mb": _peak_rss_mb(),
         "returns": returns.astype(np.float32),
+    }
+
+
+def _worker_numba_parallel(args) -> dict:
+    import numba
+
+    from benchmarks.numba_loop import run_grid_parallel
+    from vdbejax.methods.agents import paper_settings
+
+    settings = paper_settings()
+    started = time.perf_counter()
+    run_grid_parallel(settings[:1], [0], 1, threads=args.threads)  # compile or load cache
+    compile_time = time.perf_counter() - started
+    returns, lengths = run_grid_parallel(settings, list(range(args.seeds)), args.episodes,
+                                         threads=args.threads)
+    wall = time.perf_counter() - started
+    return {
+        "wall": wall,
+        "compile": compile_time,
+        "steps": int(lengths.sum()),
+        "threads": args.threads,
+        "threading_layer": numba.threading_layer(),
+        "peak_rss_mb": _peak_rss_mb(),
+        "returns": returns.astype(np.float32),
+    }
+
+
+def _worker_mushroom(args) -> dict:
+    from benchmarks.mushroom_loop import covered, make_environment, train_agent
+    from vdbejax.methods.agents import paper_settings
+
+    settings = covered(paper_settings())
+    started = time.perf_counter()
+    env = make_environment()  # from vdbejax's table (traces it with JAX); not timed below
+    setup = time.perf_counter() - started
+    started = time.perf_counter()
+    returns, steps = [], 0
+    for setting in settings:
+        for seed in range(args.mushroom_seeds):
+            r, lengths = train_agent(setting.learner, setting.explorer, setting.param,
+                                     1000 * seed + 11, args.episodes, env=env)
+            returns.append(r)
+            steps += sum(lengths)
+    wall = time.perf_counter() - started
+    return {
+        "wall": wall,
+        "compile": 0.0,
+        "setup": setup,
+        "steps": steps,
+        "peak_rss_mb": _peak_rss_mb(),
+        "returns": np.asarray(returns, np.float32),
     }
 
 
@@ -142,7 +207,19 @@ def _worker_python(args) -> dict:
     }
 
 
-WORKERS = {"vdbejax": _worker_vdbejax, "numba": _worker_numba, "python": _worker_python}
+WORKERS = {"vdbejax": _worker_vdbejax, "numba": _worker_numba,
+           "numba_parallel": _worker_numba_parallel, "mushroom": _worker_mushroom,
+           "python": _worker_python}
+
+
+def _mushroom_version() -> str | None:
+    """The installed mushroom-rl's version (without importing it: it imports torch)."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("mushroom-rl")
+    except metadata.PackageNotFoundError:
+        return None
 
 
 def _spawn(kind: str, args, env_extra: dict | None = None, **overrides) -> dict:
@@ -151,6 +228,7 @@ def _spawn(kind: str, args, env_extra: dict | None = None, **overrides) -> dict:
         sys.executable, "-m", "benchmarks.compare", "--worker", kind, "--worker-out", str(out),
         "--episodes", str(overrides.get("episodes", args.episodes)),
         "--seeds", str(args.seeds), "--python-seeds", str(args.python_seeds),
+        "--mushroom-seeds", str(args.mushroom_seeds), "--threads", str(args.threads),
         "--jax-cache", args.jax_cache, "--mdp-factory", args.mdp_factory,
         "--agents", str(overrides.get("agents", 0)),
         "--strategy", overrides.get("strategy", args.strategy),
@@ -215,22 +293,43 @@ def _machine() -> list[str]:
     except OSError:
         pass
     mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    mushroom = _mushroom_version()
     return [
         f"- Machine: {platform.platform()}; CPU: {cpu}; {os.cpu_count()} logical cores; "
         f"{mem:.1f} GiB RAM; no GPU (JAX CPU backend).",
         f"- Versions: Python {platform.python_version()}, jax {jax.__version__}, "
-        f"numba {numba.__version__}, numpy {np.__version__}.",
+        f"numba {numba.__version__}, numpy {np.__version__}, "
+        f"mushroom-rl {mushroom or 'not installed'}.",
         f"- Date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC}.",
     ]
 
 
-def _fmt_row(name, r, ref=None, note=""):
+def _fmt_row(name, r, ref=None, note="", *, threads="1", agree=""):
     sps = r["steps"] / r["wall"]
-    cells = [name, f"{r['wall']:.2f}", f"{r['compile']:.2f}", f"{r['wall'] - r['compile']:.2f}",
-             f"{sps / 1e6:.2f}", f"{r['peak_rss_mb']:.0f}"]
+    cells = [name, str(threads), f"{r['wall']:.2f}", f"{r['compile']:.2f}",
+             f"{r['wall'] - r['compile']:.2f}", f"{sps / 1e6:.2f}", f"{r['peak_rss_mb']:.0f}",
+             agree or "–"]
     if ref is not None:
-        cells.append(f"{ref['wall'] / r['wall']:.2f}×")
+        x = ref["wall"] / r["wall"]
+        cells.append(f"{x:.2f}×" if x >= 0.01 else f"{x:.2g}×")
     return "| " + " | ".join(cells) + f" | {note} |"
+
+
+def _seeds(n: int) -> str:
+    return f"{n} seed" + ("" if n == 1 else "s")
+
+
+def _extrapolate(measured: dict, grid_steps: int) -> tuple[dict, float]:
+    """A peer's full-grid run estimated from its measured agents: time per real step."""
+    per_step = measured["wall"] / measured["steps"]
+    return dict(measured, wall=per_step * grid_steps, steps=grid_steps), per_step
+
+
+def _covered_rows(returns: np.ndarray, settings, subset) -> np.ndarray:
+    """The rows of a config-major grid's returns that belong to the settings ``subset``."""
+    per = returns.reshape(len(settings), -1, returns.shape[-1])
+    index = [settings.index(s) for s in subset]
+    return per[index].reshape(-1, returns.shape[-1])
 
 
 def main(argv=None) -> int:
@@ -241,6 +340,13 @@ def main(argv=None) -> int:
     p.add_argument("--python-seeds", type=int, default=4,
                    help="seeds per setting for the pure-Python peer (time extrapolated)")
     p.add_argument("--skip-python", action="store_true")
+    p.add_argument("--mushroom-seeds", type=int, default=4,
+                   help="seeds per covered setting for the MushroomRL peer (time extrapolated)")
+    p.add_argument("--skip-mushroom", action="store_true")
+    p.add_argument("--skip-numba-parallel", action="store_true")
+    p.add_argument("--threads", type=int, default=0,
+                   help="threads of vdbejax and of the multi-threaded Numba peer "
+                        "(default: the CPUs this process may use)")
     p.add_argument("--scaling", default="1,10,100,1000,10000,100000",
                    help="agent counts of the scaling benchmark ('' to skip)")
     p.add_argument("--scaling-episodes", type=int, default=20)
@@ -256,6 +362,10 @@ def main(argv=None) -> int:
     p.add_argument("--worker-out", help=argparse.SUPPRESS)
     p.add_argument("--agents", type=int, default=0, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    if args.threads < 1:
+        from vdbejax.engine import available_cpus
+
+        args.threads = available_cpus()
 
     if args.worker:
         res = WORKERS[args.worker](args)
@@ -270,33 +380,81 @@ def main(argv=None) -> int:
     args.tmp = str(tmp)
     args.jax_cache = args.jax_cache or str(tmp / "jax-cache")
     numba_cache = tmp / "numba-cache"
-    shutil.rmtree(args.jax_cache, ignore_errors=True)
-    shutil.rmtree(numba_cache, ignore_errors=True)
+    numba_par_cache = tmp / "numba-parallel-cache"  # its own: a cold run compiles everything
+    for folder in (args.jax_cache, numba_cache, numba_par_cache):
+        shutil.rmtree(folder, ignore_errors=True)
     load_before = os.getloadavg()
     settings = paper_settings()
+    threads = args.threads
     nenv = {"NUMBA_CACHE_DIR": str(numba_cache)}
+    penv = {"NUMBA_CACHE_DIR": str(numba_par_cache), "NUMBA_NUM_THREADS": str(threads)}
+    par_name = f"numba-{threads}t"
+    mushroom_skipped = None
+    if not args.skip_mushroom and _mushroom_version() is None:
+        mushroom_skipped = "mushroom-rl is not installed (`pip install -e .[benchmarks]`)"
+    elif args.skip_mushroom:
+        mushroom_skipped = "--skip-mushroom"
 
-    print("numba (cold cache) ...", flush=True)
+    print("numba-1t (cold cache) ...", flush=True)
     numba_cold = _spawn("numba", args, nenv)
     print("vdbejax (cold cache) ...", flush=True)
     jax_cold = _spawn("vdbejax", args)
-    print("numba (warm cache) ...", flush=True)
+    print("numba-1t (warm cache) ...", flush=True)
     numba_warm = _spawn("numba", args, nenv)
     print("vdbejax (warm cache) ...", flush=True)
     jax_warm = _spawn("vdbejax", args)
+    par_cold = par_warm = None
+    if not args.skip_numba_parallel:
+        print(f"{par_name} (cold cache) ...", flush=True)
+        par_cold = _spawn("numba_parallel", args, penv)
+        print(f"{par_name} (warm cache) ...", flush=True)
+        par_warm = _spawn("numba_parallel", args, penv)
     lockstep = None
     if not args.skip_lockstep and jax_warm["strategy"] != "lockstep":
         print("vdbejax lockstep strategy (cold, then warm cache) ...", flush=True)
         _spawn("vdbejax", args, strategy="lockstep")
         lockstep = _spawn("vdbejax", args, strategy="lockstep")
+    mushroom = None
+    if mushroom_skipped is None:
+        print("mushroom ...", flush=True)
+        mushroom = _spawn("mushroom", args)
     python = None
     if not args.skip_python:
         print("python ...", flush=True)
         python = _spawn("python", args)
     load_after = os.getloadavg()
 
+    from benchmarks.mushroom_loop import covered
+
+    mushroom_settings = covered(settings)
     steps = jax_warm["steps"]
-    lines = ["# Benchmarks: vdbejax against a pure-Python and a Numba per-agent loop", ""]
+    strategy = jax_warm["strategy"]
+    jax_threads = str(threads) if strategy == "sequential" else "XLA"
+
+    # agreement (computed first: the side-by-side table has a column for it)
+    reference = jax_warm["returns"]
+    checks = [("numba-1t", numba_warm["returns"], settings, reference)]
+    par_identical = None
+    if par_warm is not None:
+        par_identical = bool(np.array_equal(par_warm["returns"], numba_warm["returns"]))
+        if not par_identical:  # else its verdicts are numba-1t's, bit for bit
+            checks.append((par_name, par_warm["returns"], settings, reference))
+    if mushroom is not None:
+        checks.append(("mushroom", mushroom["returns"], mushroom_settings,
+                       _covered_rows(reference, settings, mushroom_settings)))
+    if python is not None:
+        checks.append(("python", python["returns"], settings, reference))
+    tables, summary = {}, {}
+    for n, r, subset, ref in checks:
+        rows_ = agreement(r, ref, subset)
+        tables[n] = {row["setting"]: row for row in rows_}
+        ok = sum(row["early"][3] and row["final"][3] for row in rows_)
+        summary[n] = f"{ok}/{len(subset)}"
+    if par_identical:
+        summary[par_name] = summary["numba-1t"] + " (= numba-1t, bit-identical)"
+
+    lines = ["# Benchmarks: vdbejax against Numba (1 and N threads), MushroomRL and a pure-Python "
+             "per-agent loop", ""]
     lines += _machine()
     lines += [
         f"- Command: `{command}` (from the repository root, in the project venv).",
@@ -304,6 +462,10 @@ def main(argv=None) -> int:
         f"{load_before[2]:.1f}, after: {load_after[0]:.1f}/{load_after[1]:.1f}/"
         f"{load_after[2]:.1f}. The machine is shared; a load above the core count inflates "
         "every wall time (all peers ran in the same session, one after another).",
+        "- Threads: vdbejax's sequential strategy"
+        + (f" and `{par_name}`" if par_warm is not None else "")
+        + f" ran on {threads} threads (`--threads`; default: the CPUs the process may use); "
+        "`numba-1t`, MushroomRL and pure Python are single-threaded.",
         "",
         f"## Full paper grid: {len(settings)} settings × {args.seeds} seeds × "
         f"{args.episodes} episodes",
@@ -315,47 +477,116 @@ def main(argv=None) -> int:
         "loading them from the executable copy beside JAX's cache, `vdbejax/_executables.py`); "
         "*steps/s* = real environment steps (Σ `lengths`) / wall; *peak RSS* = the "
         "subprocess's maximum resident memory (interpreter and libraries included); "
-        "*vdbejax (warm) / peer* = vdbejax's warm wall time over the peer's (> 1: vdbejax "
-        "is slower).",
+        "*curves agree* = settings whose learning curves agree with vdbejax's (next "
+        "section); *vdbejax (warm) / peer* = vdbejax's warm wall time over the peer's (> 1: "
+        "vdbejax is slower).",
         "",
-        "| peer | wall s | compile s | run s | M steps/s | peak RSS MB | vdbejax (warm) / "
-        "peer, wall | note |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        "The peers: `numba-1t` runs the agents one after another in one `@njit` loop; "
+        f"`{par_name}` runs the same per-agent `@njit` function under `prange` "
+        f"(`parallel=True`, {threads} threads, each agent with its own tables and its own "
+        "random stream seeded by its seed, so its returns are those of `numba-1t` for any "
+        "thread count); `mushroom` is MushroomRL's `QLearning` / `SARSA` with `EpsGreedy` / "
+        "`Boltzmann` (β = 1/τ) trained through its `Core` on the task as a `FiniteMDP` "
+        "(`benchmarks/mushroom_loop.py`); `python` is a plain per-agent loop.",
+        "",
+        "| peer | threads | wall s | compile s | run s | M steps/s | peak RSS MB | curves agree "
+        "| vdbejax (warm) / peer, wall | note |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
-    strategy = jax_warm["strategy"]
+
     def programs(r: dict) -> str:
         disk = r.get("disk") or {}
         return (f"programs: {disk.get('loaded', 0)} loaded, {disk.get('stored', 0)} compiled "
                 "and stored")
 
-    rows = [(f"vdbejax {strategy} (warm JAX cache)", jax_warm, programs(jax_warm)),
-            (f"vdbejax {strategy} (cold JAX cache)", jax_cold, programs(jax_cold))]
+    def same(r: dict, ref: dict) -> str:
+        return ("bit-identical to warm" if np.array_equal(r["returns"], ref["returns"])
+                else "returns differ from warm!")
+
+    rows = [(f"vdbejax {strategy} (warm JAX cache)", jax_warm, programs(jax_warm),
+             jax_threads, "reference"),
+            (f"vdbejax {strategy} (cold JAX cache)", jax_cold, programs(jax_cold),
+             jax_threads, same(jax_cold, jax_warm))]
     if lockstep is not None:
         rows.append(("vdbejax lockstep (warm JAX cache)", lockstep,
-                     "vectorised strategy (accelerators); " + programs(lockstep)))
-    rows += [
-            ("numba (warm cache=True)", numba_warm, ""),
-            ("numba (cold)", numba_cold, "")]
+                     "vectorised strategy (accelerators); " + programs(lockstep), "XLA",
+                     "bit-identical" if np.array_equal(lockstep["returns"], reference)
+                     else "returns differ!"))
+    if par_warm is not None:
+        rows += [(f"{par_name} (warm cache=True)", par_warm,
+                  f"threading layer {par_warm.get('threading_layer')}", str(threads),
+                  summary[par_name]),
+                 (f"{par_name} (cold)", par_cold, "", str(threads), same(par_cold, par_warm))]
+    rows += [("numba-1t (warm cache=True)", numba_warm, "", "1", summary["numba-1t"]),
+             ("numba-1t (cold)", numba_cold, "", "1", same(numba_cold, numba_warm))]
+    # the candidates for "fastest peer on the same cores": warm / extrapolated full grids
+    candidates = [("numba-1t (warm)", numba_warm)]
+    if par_warm is not None:
+        candidates.append((f"{par_name} (warm)", par_warm))
+    if mushroom is not None:
+        agents = len(mushroom_settings) * args.mushroom_seeds
+        m_extra, m_step = _extrapolate(mushroom, steps)
+        covered_steps = int(_covered_rows(np.asarray(jax_warm["agent_steps"])[:, None],
+                                          settings, mushroom_settings).sum())
+        rows.append((f"mushroom ({agents} agents measured)", mushroom,
+                     f"{len(mushroom_settings)} ε-greedy / softmax settings × "
+                     f"{_seeds(args.mushroom_seeds)}, {mushroom['steps']:,} steps; task built "
+                     f"in {mushroom['setup']:.2f} s before the clock started", "1",
+                     f"{summary['mushroom']} (covered settings)"))
+        rows.append(("mushroom (extrapolated to the grid)", m_extra,
+                     f"{m_step * 1e6:.2f} µs/step × {steps:,} steps", "1", ""))
+        candidates.append(("mushroom (extrapolated)", m_extra))
     if python is not None:
         agents = len(settings) * args.python_seeds
-        per_step = python["wall"] / python["steps"]
-        extrapolated = dict(python, wall=per_step * steps)
+        extrapolated, per_step = _extrapolate(python, steps)
         rows.append((f"python ({agents} agents measured)", python,
-                     f"{python['steps']:,} steps"))
+                     f"{python['steps']:,} steps", "1", summary["python"]))
         rows.append(("python (extrapolated to the grid)", extrapolated,
-                     f"{per_step * 1e6:.2f} µs/step × {steps:,} steps"))
-    for name, r, note in rows:
-        lines.append(_fmt_row(name, r, jax_warm, note))
+                     f"{per_step * 1e6:.2f} µs/step × {steps:,} steps", "1", ""))
+        candidates.append(("python (extrapolated)", extrapolated))
+    for name, r, note, th, agree in rows:
+        lines.append(_fmt_row(name, r, jax_warm, note, threads=th, agree=agree))
+    if mushroom is not None:
+        lines += ["", f"MushroomRL (`mushroom`) measured: {len(mushroom_settings)} of the "
+                  f"{len(settings)} settings (both learners × ε-greedy and softmax; MushroomRL "
+                  f"has no VDBE / VDBE-Softmax) × {_seeds(args.mushroom_seeds)} × "
+                  f"{args.episodes} episodes = {mushroom['steps']:,} real steps in "
+                  f"{mushroom['wall']:.2f} s of training (building the `FiniteMDP` from "
+                  "vdbejax's table excluded; imports excluded; peak RSS includes torch, which "
+                  "`mushroom_rl.core` imports, and JAX, which vdbejax's settings import). "
+                  f"Extrapolated: {m_step * 1e6:.2f} µs per real step × the {steps:,} real "
+                  "steps of vdbejax's full grid (all 46 settings: the VDBE settings' steps "
+                  "costed at the ε-greedy / softmax rate)"
+                  + (f"; the covered settings alone: {m_step * covered_steps:.1f} s for "
+                     f"vdbejax's {covered_steps:,} steps there" if covered_steps else "")
+                  + "."]
+    elif mushroom_skipped:
+        lines += ["", f"MushroomRL peer not run: {mushroom_skipped}."]
     # ratios
     lines += ["", "Ratios (peer wall / vdbejax wall; > 1 means vdbejax is faster):", ""]
 
     def ratio(a, b):
         return b["wall"] / a["wall"]
 
-    lines.append(f"- warm vs warm: Numba / vdbejax = **{ratio(jax_warm, numba_warm):.2f}×** "
+    fastest_name, fastest = min(candidates, key=lambda c: c[1]["wall"])
+    lines.append(f"- **fastest peer on the same cores** ({threads} CPUs; peers' warm or "
+                 f"extrapolated full-grid wall): {fastest_name}, {fastest['wall']:.2f} s; "
+                 f"{fastest_name.split(' ')[0]} / vdbejax (warm) = "
+                 f"**{ratio(jax_warm, fastest):.2f}×**")
+    if par_warm is not None:
+        lines.append(f"- warm vs warm: {par_name} / vdbejax = **{ratio(jax_warm, par_warm):.2f}×** "
+                     f"(both on {threads} threads); run time only (compile excluded): "
+                     f"{(par_warm['wall'] - par_warm['compile']) / (jax_warm['wall'] - jax_warm['compile']):.2f}×; "
+                     f"cold vs cold: {ratio(jax_cold, par_cold):.2f}×; {par_name} speed-up over "
+                     f"numba-1t (run time): "
+                     f"{(numba_warm['wall'] - numba_warm['compile']) / (par_warm['wall'] - par_warm['compile']):.2f}×")
+    lines.append(f"- warm vs warm: numba-1t / vdbejax = **{ratio(jax_warm, numba_warm):.2f}×** "
                  f"(target ≥ 2); run time only (compile excluded): "
                  f"{(numba_warm['wall'] - numba_warm['compile']) / (jax_warm['wall'] - jax_warm['compile']):.2f}×")
-    lines.append(f"- cold vs cold: Numba / vdbejax = {ratio(jax_cold, numba_cold):.2f}×")
+    lines.append(f"- cold vs cold: numba-1t / vdbejax = {ratio(jax_cold, numba_cold):.2f}×")
+    if mushroom is not None:
+        lines.append(f"- MushroomRL (extrapolated) / vdbejax (warm) = "
+                     f"**{ratio(jax_warm, m_extra):.1f}×**")
     if python is not None:
         lines.append(f"- Python (extrapolated) / vdbejax (warm) = **{ratio(jax_warm, extrapolated):.1f}×** "
                      "(target ≥ 100)")
@@ -364,9 +595,11 @@ def main(argv=None) -> int:
                      f"{steps:,} real steps (one per step, plus one per episode start after a "
                      f"truncation); step loops compiled natively: {jax_warm['native']}.")
     if lockstep is not None:
-        same = np.array_equal(lockstep["returns"], jax_warm["returns"])
+        same_ = np.array_equal(lockstep["returns"], jax_warm["returns"])
         lines.append(f"- Returns of the lockstep and the {strategy} strategy bit-identical: "
-                     f"{same}.")
+                     f"{same_}.")
+    if par_warm is not None:
+        lines.append(f"- Returns of {par_name} and numba-1t bit-identical: {par_identical}.")
     for name, r in [("lockstep", jax_warm if strategy == "lockstep" else lockstep)]:
         if r is not None:
             lines.append(
@@ -380,25 +613,28 @@ def main(argv=None) -> int:
               "(*early*, learning speed) and 901–1000 (*final*); a peer agrees when the "
               "difference to vdbejax lies in the 99.9 % acceptance interval of a bootstrap "
               "test of equal means (agents of both resampled from the pooled agents; valid "
-              "for the Python peer's few seeds) or |difference| ≤ 0.02. Different random "
-              "streams, so only distributions can agree; with 46 settings × 2 windows a "
-              "few rejections at 99.9 % would still be chance only rarely.", ""]
-    checks = [("numba", numba_warm["returns"])]
-    if python is not None:
-        checks.append(("python", python["returns"]))
-    summary = {}
-    detail = ["| setting | " + " | ".join(f"{n} early Δ | {n} final Δ" for n, _ in checks) + " |",
-              "| --- |" + " --- | --- |" * len(checks)]
-    tables = {n: agreement(r, jax_warm["returns"], settings) for n, r in checks}
-    for n, t in tables.items():
-        ok = sum(row["early"][3] and row["final"][3] for row in t)
-        summary[n] = ok
-        lines.append(f"- {n}: {ok}/{len(settings)} settings agree on both windows.")
-    for i, setting in enumerate(settings):
+              "for the Python and MushroomRL peers' few seeds) or |difference| ≤ 0.02. "
+              "Different random streams, so only distributions can agree; with 46 settings × "
+              "2 windows a few rejections at 99.9 % would still be chance only rarely. "
+              "MushroomRL is checked on the 22 settings it covers (– elsewhere).", ""]
+    for n, _, subset, _ in checks:
+        lines.append(f"- {n}: {summary[n]} settings agree on both windows"
+                     + (" (the ε-greedy and softmax settings)" if n == "mushroom" else "") + ".")
+    if par_identical:
+        lines.append(f"- {par_name}: returns bit-identical to numba-1t's, so the same "
+                     f"{summary['numba-1t']}.")
+    names = [n for n, *_ in checks]
+    detail = ["| setting | " + " | ".join(f"{n} early Δ | {n} final Δ" for n in names) + " |",
+              "| --- |" + " --- | --- |" * len(names)]
+    for setting in settings:
         cells = []
-        for n, _ in checks:
+        for n in names:
+            row = tables[n].get(setting.label)
             for w in ("early", "final"):
-                d, lo, hi, good = tables[n][i][w]
+                if row is None:
+                    cells.append("–")
+                    continue
+                d, lo, hi, good = row[w]
                 cells.append(f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]{'' if good else ' ✗'}")
         detail.append(f"| {setting.label} | " + " | ".join(cells) + " |")
     lines += ["", "<details><summary>per-setting differences (peer − vdbejax, 99.9 % "

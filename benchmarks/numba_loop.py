@@ -3,8 +3,11 @@
 An independent implementation of `docs/task.md` for speed comparison and
 as a statistical cross-check of the engine. It uses its own transition table (built from
 :func:`benchmarks.python_loop.env_step`, not from :mod:`vdbejax`), its own random numbers
-(splitmix64 per agent, seeded by the agent's seed) and runs the agents one after another
-in a single ``@njit(cache=True)`` function (single-threaded, like the Python peer).
+(splitmix64 per agent, seeded by the agent's seed). One ``@njit`` function trains one agent
+(:func:`_train_one`); two drivers call it: :func:`run_grid` runs the agents one after another
+on one thread (like the Python peer), :func:`run_grid_parallel` spreads them over Numba's
+threads with ``prange`` (``parallel=True``). Every agent owns its tables and its random
+stream, so both drivers return the same arrays, bit for bit, for any thread count.
 
 numba is a dependency of the ``benchmarks`` extra only; :mod:`vdbejax` never imports it.
 """
@@ -12,9 +15,10 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from benchmarks.python_loop import NUM_ACTIONS, env_step
 
@@ -101,6 +105,55 @@ def _choose(rng, q, s, explorer, param, eps_s, tie_first, w):
 
 
 @njit(cache=True)
+def _train_one(next_state, reward, terminal, starts, is_sarsa, exp_kind, prm, seed, episodes,
+               alpha, gamma, max_steps, delta, q_init, tie_first, q, eps, w, rng, returns,
+               lengths):
+    """One agent's whole training run (the step logic of both drivers).
+
+    Writes the agent's episode returns and lengths into the rows ``returns`` / ``lengths``;
+    ``q``, ``eps``, ``w`` and ``rng`` are scratch buffers owned by the caller (reset here).
+    The agent's random stream depends on ``seed`` alone.
+    """
+    rng[0] = np.uint64(seed) * np.uint64(0xD1B54A32D192ED03) + np.uint64(1)
+    q[:, :] = q_init
+    eps[:] = 1.0
+    sigma = prm if exp_kind >= 2 else 1.0
+    for e in range(episodes):
+        s = starts[min(int(_next(rng) * 2), 1)]
+        a = _choose(rng, q, s, exp_kind, prm, eps[s], tie_first, w)
+        total = 0.0
+        t = 0
+        while True:
+            s2 = next_state[s, a]
+            r = reward[s, a]
+            term = terminal[s, a]
+            t += 1
+            total += r
+            a2 = 0
+            if is_sarsa:
+                a2 = _choose(rng, q, s2, exp_kind, prm, eps[s2], tie_first, w)
+                target = r if term else r + gamma * q[s2, a2]
+            else:
+                m = q[s2, 0]
+                for b in range(1, NUM_ACTIONS):
+                    if q[s2, b] > m:
+                        m = q[s2, b]
+                target = r if term else r + gamma * m
+            dq = alpha * (target - q[s, a])
+            q[s, a] += dq
+            x = math.exp(-abs(dq) / sigma)
+            eps[s] = delta * (1.0 - x) / (1.0 + x) + (1.0 - delta) * eps[s]
+            if term or t >= max_steps:
+                break
+            if not is_sarsa:
+                a2 = _choose(rng, q, s2, exp_kind, prm, eps[s2], tie_first, w)
+            s = s2
+            a = a2
+        returns[e] = total
+        lengths[e] = t
+
+
+@njit(cache=True)
 def train_agents(next_state, reward, terminal, starts, sarsa, explorer, param, seeds,
                  episodes, alpha, gamma, max_steps, delta, q_init, tie_first):
     """Train each agent in turn; returns ``(returns [n, E] float64, lengths [n, E] int32)``."""
@@ -113,56 +166,104 @@ def train_agents(next_state, reward, terminal, starts, sarsa, explorer, param, s
     w = np.empty(NUM_ACTIONS, np.float64)
     rng = np.empty(1, np.uint64)
     for i in range(n):
-        rng[0] = np.uint64(seeds[i]) * np.uint64(0xD1B54A32D192ED03) + np.uint64(1)
-        q[:, :] = q_init
-        eps[:] = 1.0
-        exp_kind = explorer[i]
-        prm = param[i]
-        sigma = prm if exp_kind >= 2 else 1.0
-        is_sarsa = sarsa[i]
-        for e in range(episodes):
-            s = starts[min(int(_next(rng) * 2), 1)]
-            a = _choose(rng, q, s, exp_kind, prm, eps[s], tie_first, w)
-            total = 0.0
-            t = 0
-            while True:
-                s2 = next_state[s, a]
-                r = reward[s, a]
-                term = terminal[s, a]
-                t += 1
-                total += r
-                a2 = 0
-                if is_sarsa:
-                    a2 = _choose(rng, q, s2, exp_kind, prm, eps[s2], tie_first, w)
-                    target = r if term else r + gamma * q[s2, a2]
-                else:
-                    m = q[s2, 0]
-                    for b in range(1, NUM_ACTIONS):
-                        if q[s2, b] > m:
-                            m = q[s2, b]
-                    target = r if term else r + gamma * m
-                dq = alpha * (target - q[s, a])
-                q[s, a] += dq
-                x = math.exp(-abs(dq) / sigma)
-                eps[s] = delta * (1.0 - x) / (1.0 + x) + (1.0 - delta) * eps[s]
-                if term or t >= max_steps:
-                    break
-                if not is_sarsa:
-                    a2 = _choose(rng, q, s2, exp_kind, prm, eps[s2], tie_first, w)
-                s = s2
-                a = a2
-            returns[i, e] = total
-            lengths[i, e] = t
+        _train_one(next_state, reward, terminal, starts, sarsa[i], explorer[i], param[i],
+                   seeds[i], episodes, alpha, gamma, max_steps, delta, q_init, tie_first, q, eps,
+                   w, rng, returns[i], lengths[i])
     return returns, lengths
 
 
-def run_grid(settings, seeds, episodes, *, alpha=0.8, gamma=0.9, max_steps=100, delta=0.1,
-             q_init=0.0, tie_break="random", invalid_action="noop"):
-    """Run ``settings × seeds`` agents (config-major order); returns (returns, lengths)."""
-    next_state, reward, terminal, starts = build_tables(invalid_action)
+@njit(cache=True, parallel=True)
+def train_agents_parallel(next_state, reward, terminal, starts, sarsa, explorer, param, seeds,
+                          episodes, alpha, gamma, max_steps, delta, q_init, tie_first, order):
+    """:func:`train_agents` with the agents spread over Numba's threads (``prange``).
+
+    Each agent has its own scratch tables and its own random stream (seeded by its seed,
+    nothing shared between iterations), so the results are those of :func:`train_agents`
+    whatever the number of threads or the schedule. ``order`` is the order in which the
+    ``prange`` iterations visit the agents (a permutation; it balances the threads).
+    """
+    n = seeds.shape[0]
+    num_states = next_state.shape[0]
+    returns = np.zeros((n, episodes), np.float64)
+    lengths = np.zeros((n, episodes), np.int32)
+    pad = 8  # 64 bytes each side: no two threads' scratch buffers share a cache line
+    for k in prange(n):
+        i = order[k]
+        q = np.empty(num_states * NUM_ACTIONS + 2 * pad, np.float64)[pad:-pad].reshape(
+            (num_states, NUM_ACTIONS))
+        eps = np.empty(num_states + 2 * pad, np.float64)[pad:-pad]
+        w = np.empty(NUM_ACTIONS + 2 * pad, np.float64)[pad:-pad]
+        rng = np.empty(1 + 2 * pad, np.uint64)[pad:-pad]
+        _train_one(next_state, reward, terminal, starts, sarsa[i], explorer[i], param[i],
+                   seeds[i], episodes, alpha, gamma, max_steps, delta, q_init, tie_first, q, eps,
+                   w, rng, returns[i], lengths[i])
+    return returns, lengths
+
+
+def _grid_arrays(settings, seeds):
     sarsa = np.array([s.learner == "sarsa" for s in settings for _ in seeds], np.bool_)
     explorer = np.array([EXPLORER_CODES[s.explorer] for s in settings for _ in seeds], np.int64)
     param = np.array([s.param for s in settings for _ in seeds], np.float64)
     seed_arr = np.array([seed for _ in settings for seed in seeds], np.int64)
+    return sarsa, explorer, param, seed_arr
+
+
+def run_grid(settings, seeds, episodes, *, alpha=0.8, gamma=0.9, max_steps=100, delta=0.1,
+             q_init=0.0, tie_break="random", invalid_action="noop"):
+    """Run ``settings × seeds`` agents (config-major order) on one thread.
+
+    Returns ``(returns, lengths)``.
+    """
+    next_state, reward, terminal, starts = build_tables(invalid_action)
+    sarsa, explorer, param, seed_arr = _grid_arrays(settings, seeds)
     return train_agents(next_state, reward, terminal, starts, sarsa, explorer, param, seed_arr,
                         episodes, alpha, gamma, max_steps, delta, q_init, tie_break == "first")
+
+
+def interleaved_order(n: int, threads: int) -> np.ndarray:
+    """Agents ``t, t + T, t + 2T, …`` next to each other for ``t = 0 … T-1`` (``T`` = threads).
+
+    Numba splits a ``prange`` into one contiguous block per thread; the grid's agents are
+    config-major (all Q-learning agents first, the costlier SARSA ones last), so contiguous
+    blocks of the plain order would give the threads unequal work. In this order every
+    block holds every ``T``-th agent: a mix of all settings.
+    """
+    return np.argsort(np.arange(n) % max(int(threads), 1), kind="stable").astype(np.int64)
+
+
+def run_grid_parallel(settings, seeds, episodes, *, threads=None, alpha=0.8, gamma=0.9,
+                      max_steps=100, delta=0.1, q_init=0.0, tie_break="random",
+                      invalid_action="noop"):
+    """:func:`run_grid` with the agents spread over ``threads`` Numba threads (``prange``).
+
+    ``threads`` defaults to the CPUs this process may use; it may not exceed
+    ``numba.config.NUMBA_NUM_THREADS`` (set the ``NUMBA_NUM_THREADS`` environment variable
+    before importing numba for more). The results are bit-identical to :func:`run_grid`'s
+    for every thread count: each agent's random stream depends on its seed alone.
+    """
+    import numba
+
+    if threads is None:
+        threads = _available_cpus()
+    threads = int(threads)
+    if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
+        raise ValueError(f"threads={threads}: must be in 1..{numba.config.NUMBA_NUM_THREADS} "
+                         "(NUMBA_NUM_THREADS)")
+    next_state, reward, terminal, starts = build_tables(invalid_action)
+    sarsa, explorer, param, seed_arr = _grid_arrays(settings, seeds)
+    order = interleaved_order(len(seed_arr), threads)
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        return train_agents_parallel(next_state, reward, terminal, starts, sarsa, explorer,
+                                     param, seed_arr, episodes, alpha, gamma, max_steps, delta,
+                                     q_init, tie_break == "first", order)
+    finally:
+        numba.set_num_threads(before)
+
+
+def _available_cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
