@@ -330,3 +330,26 @@ def test_a_log_that_misses_episodes_is_refused(tmp_path):
     log_path(path).write_bytes(data[: len(data) // 2])
     with pytest.raises(ValueError, match="checkpoint log .* is damaged"):
         run_small(checkpoint=path, resume=True)
+
+
+# ------------------------------------------------------------------ defect 3: size estimate
+def test_a_huge_run_is_refused_at_once_with_its_estimate(capsys):
+    started = time.perf_counter()
+    assert cli.main(["reproduce", "--out", "/nonexistent-never-created", "--seeds", "10000000",
+                     "--episodes", "10000000"]) == 2
+    line = one_error_line(capsys)
+    assert "PiB of memory" in line and "free" in line
+    assert time.perf_counter() - started < 30  # refused before anything is allocated
+    assert not Path("/nonexistent-never-created").exists()
+
+
+def test_the_size_estimate_counts_results_and_the_checkpoint_log(tmp_path, monkeypatch):
+    from vdbejax import batching
+
+    needed = batching.check_run_size(10, 1000, available_bytes=10**9)
+    assert needed == 10 * (1000 * 16 + 512)
+    with pytest.raises(ValueError, match="need ≈ 161.2 KiB of memory.*100.0 KiB are free"):
+        batching.check_run_size(10, 1000, available_bytes=100 * 1024)
+    monkeypatch.setattr(batching.shutil, "disk_usage", lambda path: type("U", (), {"free": 1000})())
+    with pytest.raises(ValueError, match="episode log would need ≈ 78.1 KiB of disk"):
+        batching.check_run_size(10, 1000, tmp_path / "ckpt.npz", available_bytes=10**9)

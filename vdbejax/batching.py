@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shutil
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -66,6 +68,61 @@ def _host_available_bytes() -> int:
     except OSError:
         pass
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+#: Host bytes per agent-episode of a grid's results: float32 returns and int32 lengths,
+#: once as the run's records and once as the returned arrays.
+RESULT_BYTES_PER_EPISODE = 16
+#: Host bytes per agent besides its episodes (hyperparameters, key, progress, summary).
+RESULT_BYTES_PER_AGENT = 512
+#: Bytes per agent-episode of a checkpoint's episode log (returns and lengths).
+LOG_BYTES_PER_EPISODE = 8
+
+
+def check_run_size(num_agents: int, num_episodes: int, checkpoint: Any = None,
+                   available_bytes: int | None = None) -> int:
+    """Refuse, before anything is allocated, a run whose results cannot fit.
+
+    Args:
+      num_agents: agents of the run.
+      num_episodes: episodes per agent.
+      checkpoint: the checkpoint path, if any (its episode log needs disk space).
+      available_bytes: free host memory (default: ``MemAvailable``).
+
+    Returns:
+      the estimated host bytes of the results.
+
+    Raises:
+      ValueError: the results need more memory than is free, or the checkpoint log more
+        disk space: one line with the estimate and the limit.
+    """
+    needed = num_agents * (num_episodes * RESULT_BYTES_PER_EPISODE + RESULT_BYTES_PER_AGENT)
+    available = _host_available_bytes() if available_bytes is None else available_bytes
+    if needed > available:
+        raise ValueError(
+            f"num_seeds × num_episodes is too large: {num_agents:,} agents × {num_episodes:,}"
+            f" episodes need ≈ {_size(needed)} of memory for their results, but"
+            f" {_size(available)} are free: use fewer seeds or episodes, or split the run")
+    if checkpoint is not None:
+        folder = Path(checkpoint).parent
+        log = num_agents * num_episodes * LOG_BYTES_PER_EPISODE
+        try:
+            free = shutil.disk_usage(folder if folder.exists() else Path.cwd()).free
+        except OSError:
+            free = None
+        if free is not None and log > free:
+            raise ValueError(
+                f"checkpoint={str(checkpoint)!r} is invalid: its episode log would need ≈"
+                f" {_size(log)} of disk, but {_size(free)} are free there")
+    return needed
+
+
+def _size(num_bytes: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if num_bytes < 1024 or unit == "PiB":
+            return f"{num_bytes:,.1f} {unit}" if unit != "B" else f"{int(num_bytes)} B"
+        num_bytes /= 1024
+    return f"{num_bytes:.1f} PiB"
 
 
 def device_free_bytes(device: jax.Device) -> int:

@@ -39,6 +39,7 @@ from vdbejax.batching import (
     SweepProgress,
     agents_per_batch,
     bytes_per_agent,
+    check_run_size,
     default_memory_budget,
     mdp_bytes,
     run_batched,
@@ -415,6 +416,7 @@ def run_grid(
     num_seeds, num_episodes, seed, chunk_episodes = (
         int(v) for v in (num_seeds, num_episodes, seed, chunk_episodes))
     _check_grid_inputs(mdp, settings, progress, checkpoint)
+    check_run_size(len(settings) * num_seeds, num_episodes, checkpoint)  # before allocating
     device_list = select_devices(devices)
     params, keys = grid_agents(settings, num_seeds, seed, options)
     check_params(params, mdp.num_actions)  # a bad plug-in: one line before anything runs

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from vdbejax import io
+from vdbejax.batching import check_run_size
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.experiment import GridResult, check_run_options, run_grid
 from vdbejax.methods.agents import AgentOptions, make_agent, sweep
@@ -223,6 +224,7 @@ def run_sweep(
                       chunk_episodes=chunk_episodes, resume=False, memory_budget_bytes=None)
     check_bool("progress", progress)
     check_bool("figures", figures)
+    check_run_size(len(settings) * seeds, episodes)  # before the folder is even created
     out = check_writable_dir("out", out_dir)
     check_output_paths(out, RUN_FILES)
     with FolderLock(out):

@@ -17,6 +17,7 @@ from vdbejax.methods.agents import AgentOptions, Setting, make_agent, owners, pa
 from vdbejax.paper.claims import ClaimResult, evaluate_claims, render_report
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.learners import PAPER_ALPHA
+from vdbejax.batching import check_run_size
 from vdbejax.checkpoint import log_path, remove_checkpoint
 from vdbejax.distributed import process_checkpoint_path, select_devices
 from vdbejax.experiment import GridResult, check_run_options, run_grid
@@ -195,6 +196,7 @@ def reproduce(
     select_devices(devices)
     check_bool("progress", progress)
     check_bool("figures", figures)
+    check_run_size(len(settings) * seeds, episodes)  # before the folder is even created
     out = check_writable_dir("out", out_dir)
     check_output_paths(out, [*sweeps.RUN_FILES, REPORT_FILE, CHECKPOINT_FILE,
                              log_path(CHECKPOINT_FILE).name])

@@ -1,0 +1,209 @@
+"""Episodes to solve on hand-made curves, and the censored summaries (vdbejax.solving)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from vdbejax import stats
+from vdbejax.solving import (
+    SolveSummary,
+    episodes_to_solve,
+    median_episodes,
+    solve_threshold,
+    solving_rows,
+    summarize_solving,
+)
+
+
+def step_curve(length: int, jump: int, low: float = 0.0, high: float = 1.0) -> np.ndarray:
+    """``low`` for the first ``jump`` episodes, ``high`` afterwards (float32, like the engine)."""
+    curve = np.full(length, low, np.float32)
+    curve[jump:] = high
+    return curve
+
+
+# ---------------------------------------------------------------- episodes to solve
+
+
+def test_solved_at_the_first_full_window_above_the_threshold():
+    # Window 5, threshold 0.9: episodes 11..15 are 1.0, so the mean of episodes 11..15 is
+    # the first that reaches 0.9 (episode 14's window holds one 0: 0.8).
+    times = episodes_to_solve(step_curve(50, 10), best=1.0, fraction=0.9, window=5)
+    assert times.solved.item() and times.episodes.item() == 15
+
+
+def test_the_threshold_is_a_fraction_of_the_best_return_and_returns_may_be_negative():
+    # best 0.8 → threshold 0.72; failures score −1. With window 4, three successes and a
+    # failure average (3 · 0.8 − 1) / 4 = 0.35 < 0.72; four successes in a row: 0.8.
+    curve = np.array([-1, -1, 0.8, 0.8, 0.8, -1, 0.8, 0.8, 0.8, 0.8, 0.8], np.float32)
+    times = episodes_to_solve(curve, best=0.8, fraction=0.9, window=4)
+    assert times.solved.item() and times.episodes.item() == 10
+    assert solve_threshold(0.8, 0.9) == pytest.approx(0.72)
+    # 0.7 ≥ 0.9 × 0.8 fails; a lower fraction accepts it.
+    flat = np.full(30, 0.7, np.float32)
+    assert not episodes_to_solve(flat, best=0.8, window=4).solved.item()
+    assert episodes_to_solve(flat, best=0.8, fraction=0.85, window=4).episodes.item() == 4
+
+
+def test_never_solved_is_censored_at_the_budget():
+    times = episodes_to_solve(np.full(40, 0.5, np.float32), best=1.0, window=5)
+    assert not times.solved.item() and times.episodes.item() == 40
+
+
+def test_solved_exactly_at_the_last_episode():
+    times = episodes_to_solve(step_curve(15, 10), best=1.0, fraction=0.9, window=5)
+    assert times.solved.item() and times.episodes.item() == 15
+    one_short = episodes_to_solve(step_curve(14, 10), best=1.0, fraction=0.9, window=5)
+    assert not one_short.solved.item() and one_short.episodes.item() == 14
+
+
+def test_partial_windows_at_the_start_do_not_count():
+    # A lucky first episode: the moving average's partial window (1 episode) would be 1.0.
+    curve = np.zeros(30, np.float32)
+    curve[0] = 1.0
+    assert stats.moving_average(curve, 5)[0] == 1.0
+    assert not episodes_to_solve(curve, best=1.0, window=5).solved.item()
+    # A whole run shorter than the window is never solved.
+    short = episodes_to_solve(np.ones(3, np.float32), best=1.0, window=5)
+    assert not short.solved.item() and short.episodes.item() == 3
+
+
+def test_float32_returns_at_the_threshold_count():
+    # float32(0.9) < 0.9 in float64: the tolerance accepts returns equal to the threshold.
+    curve = np.full(10, 0.9, np.float32)
+    assert float(curve[0]) < 0.9
+    assert episodes_to_solve(curve, best=1.0, fraction=0.9, window=3).episodes.item() == 3
+
+
+def test_moving_average_is_stats_trailing_one():
+    rng = np.random.default_rng(1)
+    curves = rng.uniform(-1, 1, size=(6, 200)).astype(np.float32)
+    best, window = 0.5, 7
+    times = episodes_to_solve(curves, best, fraction=0.9, window=window)
+    smoothed = stats.moving_average(curves, window)
+    for row, episode, solved in zip(smoothed, times.episodes, times.solved):
+        hits = np.flatnonzero(row[window - 1:] >= 0.45 - 1e-6) + window
+        assert solved == bool(hits.size)
+        assert episode == (hits[0] if hits.size else 200)
+
+
+def test_batched_shapes_and_episodes_run_ignore_the_padding():
+    curves = np.stack([step_curve(60, 10), step_curve(60, 30), np.zeros(60, np.float32)])
+    curves[0, 20:] = np.nan  # agent 0 stopped after 20 episodes: NaN padding
+    times = episodes_to_solve(curves[None], best=1.0, window=5,
+                              episodes_run=np.array([[20, 60, 45]]))
+    assert times.episodes.shape == (1, 3)
+    np.testing.assert_array_equal(times.episodes, [[15, 35, 45]])
+    np.testing.assert_array_equal(times.solved, [[True, True, False]])
+    # A solve after an agent's stop does not count.
+    late = episodes_to_solve(step_curve(60, 30), best=1.0, window=5, episodes_run=34)
+    assert not late.solved.item() and late.episodes.item() == 34
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    ({"best": 0.0}, "best=0.0 is invalid"),
+    ({"best": -0.5}, "best=-0.5 is invalid"),
+    ({"best": float("nan")}, "best=nan is invalid"),
+    ({"best": "x"}, "best='x' is invalid"),
+    ({"best": 1.0, "fraction": 0.0}, "fraction=0.0 is invalid"),
+    ({"best": 1.0, "fraction": 1.5}, "fraction=1.5 is invalid"),
+    ({"best": 1.0, "window": 0}, "window=0 is invalid"),
+    ({"best": 1.0, "episodes_run": 11}, "episodes_run holds 11"),
+    ({"best": 1.0, "episodes_run": np.array([3, 4])}, "episodes_run has shape"),
+    ({"best": 1.0, "episodes_run": 2.5}, "episodes_run has dtype"),
+])
+def test_bad_inputs_are_one_line_value_errors(kwargs, match):
+    with pytest.raises(ValueError, match=match) as error:
+        episodes_to_solve(np.zeros(10, np.float32), **kwargs)
+    assert "\n" not in str(error.value)
+
+
+# ---------------------------------------------------------------- summaries
+
+
+def test_all_solved_summary():
+    episodes = np.array([100, 120, 110, 130, 90])
+    s = summarize_solving(episodes, np.ones(5, bool))
+    assert (s.agents, s.solved, s.fraction) == (5, 5, 1.0)
+    assert (s.fraction_low, s.fraction_high) == (1.0, 1.0)
+    assert s.median == 110.0 and s.median_low <= 110.0 <= s.median_high
+    assert 90 <= s.median_low and s.median_high <= 130
+    assert not s.median_censored and s.budget == 130
+    assert s.median_text() == f"110 [{s.median_low:.0f}, {s.median_high:.0f}]"
+
+
+def test_median_is_defined_while_fewer_than_half_are_censored():
+    solved_at = np.array([10, 20, 30, 40, 50, 60], float)
+    # 10 agents, 4 censored at the budget 1000: the middle two are the 5th and 6th solved.
+    episodes = np.concatenate([solved_at, np.full(4, 1000)])
+    solved = np.arange(10) < 6
+    assert median_episodes(episodes, solved) == 55.0
+    s = summarize_solving(episodes, solved)
+    assert s.median == 55.0 and s.fraction == 0.6 and s.budget == 1000
+    assert math.isinf(s.median_high)  # resamples with ≥ half censored: "> 1000"
+    assert s.median_text() == f"55 [{s.median_low:.0f}, > 1000]"
+    # 5 of 10 censored: the 6th value is "> budget", so the median is censored — it is not
+    # the mean of the censoring points nor of anything else.
+    solved5 = np.arange(10) < 5
+    s5 = summarize_solving(np.where(solved5, episodes, 1000), solved5)
+    assert s5.median_censored and math.isinf(s5.median) and s5.median_text() == "> 1000"
+    # Odd count: 2 of 5 censored → the 3rd value is finite; 3 of 5 → censored.
+    assert median_episodes([10, 20, 30, 99, 99], [True, True, True, False, False]) == 30.0
+    assert math.isinf(median_episodes([10, 20, 30, 99, 99], [True, True, False, False, False]))
+
+
+def test_none_solved():
+    s = summarize_solving(np.full(4, 500), np.zeros(4, bool))
+    assert s.solved == 0 and s.fraction == 0.0 and (s.fraction_low, s.fraction_high) == (0.0, 0.0)
+    assert s.median_censored and math.isinf(s.median_low) and s.median_text() == "> 500"
+    assert s.fraction_text() == "0/4 (0.00 [0.00, 0.00])"
+
+
+def test_fraction_interval_is_stats_bootstrap_of_the_indicators():
+    solved = np.array([True, False, True, True, False, True, True, False])
+    episodes = np.where(solved, 50, 200)
+    s = summarize_solving(episodes, solved)
+    assert (s.fraction_low, s.fraction_high) == stats.bootstrap_ci(solved.astype(float))
+    assert s.fraction_low <= s.fraction <= s.fraction_high
+
+
+def test_median_interval_uses_the_stats_resamples():
+    rng = np.random.default_rng(3)
+    episodes = rng.integers(100, 1000, size=12)
+    s = summarize_solving(episodes, np.ones(12, bool), num_resamples=500, seed=2)
+    medians = np.sort(np.median(episodes[stats.bootstrap_indices(12, 500, 2)], axis=1))
+    assert s.median_low == medians[int(np.floor(499 * 0.025))]
+    assert s.median_high == medians[int(np.ceil(499 * 0.975))]
+    assert s.median == np.median(episodes)
+
+
+def test_budget_is_the_smallest_censoring_point():
+    s = summarize_solving([10, 300, 400], [True, False, False])
+    assert s.budget == 300 and s.median_text() == "> 300"
+
+
+@pytest.mark.parametrize("episodes,solved,match", [
+    ([], [], "non-empty"),
+    ([1, 2], [True], "same length"),
+    ([1, 2], [1, 0], "solved has dtype"),
+    ([1.0, float("nan")], [True, True], "no NaN"),
+])
+def test_bad_summary_inputs(episodes, solved, match):
+    with pytest.raises(ValueError, match=match):
+        summarize_solving(np.asarray(episodes), np.asarray(solved))
+
+
+def test_solving_rows_of_a_grid():
+    returns = np.stack([
+        np.stack([step_curve(40, 5), step_curve(40, 8)]),          # both solve
+        np.stack([step_curve(40, 5), np.zeros(40, np.float32)]),   # one of two: censored
+    ])
+    rows = solving_rows(returns, 1.0, ["fast", "half"], window=5)
+    assert [r["setting"] for r in rows] == ["fast", "half"]
+    assert rows[0]["solved"] == 2 and rows[0]["median_episodes"] == 11.5
+    assert rows[1]["solved"] == 1 and rows[1]["median_text"] == "> 40"
+    with pytest.raises(ValueError, match="must be \\[settings, agents, episodes\\]"):
+        solving_rows(returns[0], 1.0)
+    assert isinstance(summarize_solving([1], [True]), SolveSummary)
