@@ -47,6 +47,9 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-figures", action="store_true",
                    help="no fig3.png / sensitivity.png ('vdbejax plot' draws them later)")
+    p.add_argument("--long-csv", action="store_true",
+                   help="also write returns_long.csv: one row per agent-episode (setting,"
+                        " hyperparameters, seed, episode, return, length)")
 
 
 def _reproduce(args: argparse.Namespace) -> None:
@@ -61,6 +64,8 @@ def _reproduce(args: argparse.Namespace) -> None:
     )
     for claim in rep.claims:
         print(f"claim {claim.number}: {claim.verdict}")
+    if args.long_csv:
+        print(_write_long_csv(rep.result, args.out))
     print(f"elapsed: {rep.elapsed_seconds:.1f} s (training {rep.result.meta['elapsed_seconds']:.1f} s)")
 
 
@@ -91,6 +96,9 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--chunk-episodes", type=number, default=None, help="episodes per jitted chunk")
     p.add_argument("--no-figures", action="store_true", help="no fig3.png / sensitivity.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--long-csv", action="store_true",
+                   help="also write returns_long.csv: one row per agent-episode (setting,"
+                        " hyperparameters, seed, episode, return, length)")
 
 
 def _pairs(texts: list[str], flag: str) -> list[tuple[str, str]]:
@@ -131,12 +139,15 @@ def _run(args: argparse.Namespace) -> None:
         if key not in spec:
             raise ValueError(f"{key} is missing: give --{key} or a sweep file with {key} = [...]")
     result = run_sweep(args.out, progress=not args.quiet, figures=not args.no_figures, **spec)
-    from vdbejax.analysis import summarize
+    from vdbejax import io
+    from vdbejax.sweeps import SUMMARY_FILE
 
-    for row, setting in zip(summarize(result), result.settings):
-        print(f"{setting.label}: final return {row['final_return']:.3f}"
-              f" [{row['final_ci_low']:.3f}, {row['final_ci_high']:.3f}]")
+    for row, setting in zip(io.read_csv(Path(args.out) / SUMMARY_FILE), result.settings):
+        print(f"{setting.label}: final return {float(row['final_return']):.3f}"
+              f" [{float(row['final_ci_low']):.3f}, {float(row['final_ci_high']):.3f}]")
     print(f"training {result.meta['elapsed_seconds']:.1f} s → {args.out}")
+    if args.long_csv:
+        print(_write_long_csv(result, args.out))
 
 
 def _add_plot(sub: argparse._SubParsersAction) -> None:
@@ -144,14 +155,33 @@ def _add_plot(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--results", required=True, help="folder with returns.npz, configs.csv, meta.json")
     p.add_argument("--out", default=None, help="output folder (default: the results folder)")
     p.add_argument("--bands", action="store_true", help="95%% bootstrap bands on Figure 3")
+    p.add_argument("--long-csv", action="store_true",
+                   help="also write returns_long.csv: one row per agent-episode")
 
 
 def _plot(args: argparse.Namespace) -> None:
     from vdbejax.paper.reproduce import replot
 
     written = replot(args.results, args.out, bands=args.bands)
+    if args.long_csv:
+        from vdbejax.experiment import GridResult
+
+        written.append(_write_long_csv(GridResult.load(args.results),
+                                       args.results if args.out is None else args.out))
     for path in written:
         print(path)
+
+
+def _write_long_csv(result: object, out: str) -> Path:
+    """``returns_long.csv`` of a result (GridResult.to_records) into ``out``."""
+    from vdbejax import io
+
+    path = Path(out) / io.LONG_CSV_FILE
+    try:
+        io.write_columns_csv(path, result.to_records())
+    except OSError as error:
+        raise ValueError(f"cannot write {str(path)!r}: {error.strerror or error}") from None
+    return path
 
 
 def _add_ablate(sub: argparse._SubParsersAction) -> None:

@@ -108,6 +108,59 @@ class GridResult:
             return dict(recorded[config])
         return agent_hyperparameters(make_agent(self.settings[config]))
 
+    def to_records(self, all_hyperparameters: bool = False) -> dict[str, np.ndarray]:
+        """The curves in long format, one row per agent-episode, as columns: ``config``,
+        ``setting`` (its label), ``learner``, ``explorer``, ``param``, the hyperparameters
+        (:meth:`hyperparameters`; blank where a config has no such field), ``seed``,
+        ``episode`` (1-based), ``return`` and ``length``.
+
+        Args:
+          all_hyperparameters: a column for every hyperparameter; by default only for
+            those whose values differ between configs (the others are in ``meta.json``).
+
+        Returns:
+          ``{column: array}``, all of length configs × seeds × episodes, in the order
+          config, seed, episode.
+        """
+        configs, seeds, episodes = self.returns.shape
+        per_config = [self.hyperparameters(c) for c in range(configs)]
+        names = sorted({name for values in per_config for name in values})
+        if not all_hyperparameters:
+            names = [n for n in names if len({repr(v.get(n, "")) for v in per_config}) > 1]
+        rows = seeds * episodes
+
+        def repeat(values: list[Any]) -> np.ndarray:
+            return np.repeat(np.asarray(values, dtype=object), rows)
+
+        records = {
+            "config": np.repeat(np.arange(configs), rows),
+            "setting": repeat([s.label for s in self.settings]),
+            "learner": repeat([s.learner for s in self.settings]),
+            "explorer": repeat([s.explorer for s in self.settings]),
+            "param": repeat(["" if s.param is None else s.param for s in self.settings]),
+        }
+        for name in names:
+            records[name] = repeat([values.get(name, "") for values in per_config])
+        records["seed"] = np.tile(np.repeat(np.arange(seeds), episodes), configs)
+        records["episode"] = np.tile(np.arange(1, episodes + 1), configs * seeds)
+        records["return"] = self.returns.reshape(-1)
+        records["length"] = self.lengths.reshape(-1)
+        return records
+
+    def to_dataframe(self, all_hyperparameters: bool = False) -> Any:
+        """:meth:`to_records` as a ``pandas.DataFrame`` (long format: one row per
+        agent-episode; ``pip install pandas``).
+
+        Raises:
+          ValueError: pandas is not installed.
+        """
+        try:
+            import pandas
+        except ImportError:
+            raise ValueError("GridResult.to_dataframe needs pandas: pip install pandas (or"
+                             " use to_records(), plain numpy columns)") from None
+        return pandas.DataFrame(self.to_records(all_hyperparameters))
+
     def select(self, learner: str | None = None, explorer: str | None = None,
                **values: Any) -> list[int]:
         """Config indices matching a learner, an explorer and any hyperparameter values.

@@ -99,6 +99,21 @@ def write_csv(path: str | os.PathLike, rows: list[dict[str, Any]], columns: list
     atomic_write_text(path, buffer.getvalue())
 
 
+LONG_CSV_FILE = "returns_long.csv"
+
+
+def write_columns_csv(path: str | os.PathLike, columns: dict[str, np.ndarray]) -> None:
+    """Write equal-length ``columns`` as a CSV (header = their names) atomically; floats
+    with 6 significant digits."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(list(columns))
+    formatted = [np.char.mod("%.6g", values).astype(object) if np.issubdtype(values.dtype, np.floating)
+                 else values for values in columns.values()]
+    writer.writerows(zip(*formatted))
+    atomic_write_text(path, buffer.getvalue())
+
+
 def _format(value: Any) -> Any:
     if isinstance(value, (float, np.floating)):
         return f"{float(value):.6g}"
