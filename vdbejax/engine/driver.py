@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -57,29 +56,8 @@ class RunResult:
     strategy: str = "lockstep"
 
 
-ProgressCallback = Callable[[int, int, float], None]
-
-
-def text_progress(stream: Any = None) -> ProgressCallback:
-    """A progress bar on ``stream`` (stderr by default): ``done/total`` agent-episodes.
-
-    Args:
-      stream: a text stream (default ``sys.stderr``).
-
-    Returns:
-      a :data:`ProgressCallback` that redraws the bar on each call.
-    """
-    stream = sys.stderr if stream is None else stream
-
-    def show(done: int, total: int, elapsed: float) -> None:
-        width = 30
-        filled = int(width * done / max(total, 1))
-        bar = "#" * filled + "." * (width - filled)
-        end = "\n" if done >= total else ""
-        stream.write(f"\r[{bar}] {100 * done / max(total, 1):5.1f}%  {elapsed:6.1f}s{end}")
-        stream.flush()
-
-    return show
+# The progress display lives in vdbejax.progress (one implementation); kept importable here.
+from vdbejax.progress import ProgressCallback, text_progress  # noqa: E402,F401
 
 
 def run_agents(

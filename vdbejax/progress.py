@@ -1,0 +1,113 @@
+"""Progress of a run as users expect it: a rate and an ETA; on a terminal one bar redrawn
+in place; in a pipe or log plain lines (no carriage returns), one per tenth of the run or
+per half minute; in a Jupyter notebook one line updated in place (no stderr block per
+chunk). No dependency: the conventions of ``tqdm.auto``, in a few lines.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+#: ``progress(done, total, elapsed_seconds)``, ``done`` and ``total`` in agent-episodes.
+ProgressCallback = Callable[[int, int, float], None]
+#: Shortest time between two redraws of a bar (terminal, notebook).
+REDRAW_SECONDS = 0.1
+#: Longest time between two lines in a pipe or log.
+LOG_SECONDS = 30.0
+
+
+def format_progress(done: int, total: int, elapsed: float, width: int = 24) -> str:
+    """``[#####.......]  42.0%  386,400/920,000 agent-episodes  210k/s  ETA 0:02``."""
+    fraction = done / total if total > 0 else 1.0
+    filled = int(width * min(max(fraction, 0.0), 1.0))
+    rate = done / elapsed if elapsed > 0 else 0.0
+    eta = f"ETA {_clock((total - done) / rate)}" if 0 < rate and done < total else (
+        f"in {_clock(elapsed)}" if done >= total else "ETA ?")
+    return (f"[{'#' * filled}{'.' * (width - filled)}] {100 * fraction:5.1f}%  "
+            f"{done:,}/{total:,} agent-episodes  {_rate(rate)}/s  {eta}")
+
+
+def _clock(seconds: float) -> str:
+    seconds = int(round(seconds))
+    hours, rest = divmod(seconds, 3600)
+    return f"{hours}:{rest // 60:02d}:{rest % 60:02d}" if hours else f"{rest // 60}:{rest % 60:02d}"
+
+
+def _rate(rate: float) -> str:
+    for unit, scale in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
+        if rate >= scale:
+            return f"{rate / scale:.1f}{unit}"
+    return f"{rate:.0f}"
+
+
+def text_progress(stream: Any = None, *, clock: Callable[[], float] = time.monotonic
+                  ) -> ProgressCallback:
+    """A progress display for :func:`~vdbejax.experiment.run_grid` and the engine.
+
+    Args:
+      stream: where to write (default: a notebook's display when running in Jupyter,
+        else ``sys.stderr``). A terminal gets one bar redrawn in place, anything else
+        plain lines.
+      clock: the time source that paces the redraws (tests pass their own).
+
+    Returns:
+      the :data:`ProgressCallback`.
+    """
+    if stream is None and "ipykernel" in sys.modules:
+        notebook = _notebook_display()
+        if notebook is not None:
+            return notebook
+    stream = sys.stderr if stream is None else stream
+    interactive = bool(getattr(stream, "isatty", lambda: False)())
+    last = {"time": -float("inf"), "tenth": -1}
+
+    def show(done: int, total: int, elapsed: float) -> None:
+        now = clock()
+        finished = done >= total
+        if interactive:
+            if finished or now - last["time"] >= REDRAW_SECONDS:
+                stream.write("\r" + format_progress(done, total, elapsed) + ("\n" if finished else ""))
+                stream.flush()
+                last["time"] = now
+            return
+        tenth = int(10 * done / total) if total > 0 else 10
+        if finished or tenth > last["tenth"] or now - last["time"] >= LOG_SECONDS:
+            stream.write(format_progress(done, total, elapsed) + "\n")
+            stream.flush()
+            last["time"], last["tenth"] = now, tenth
+
+    return show
+
+
+def _notebook_display() -> ProgressCallback | None:
+    """One output line of the running notebook cell, updated in place."""
+    try:
+        from IPython.display import display
+    except ImportError:
+        return None
+    handle = {"display": None, "time": -float("inf")}
+
+    def show(done: int, total: int, elapsed: float) -> None:
+        now = time.monotonic()
+        if done < total and now - handle["time"] < REDRAW_SECONDS:
+            return
+        text = _PlainText(format_progress(done, total, elapsed))
+        if handle["display"] is None:
+            handle["display"] = display(text, display_id=True)
+        else:
+            handle["display"].update(text)
+        handle["time"] = now
+
+    return show
+
+
+class _PlainText:
+    """An object IPython shows as plain text (no quotes, as a ``str`` would get)."""
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+    def __repr__(self) -> str:
+        return self.text
