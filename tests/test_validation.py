@@ -286,3 +286,35 @@ def test_cli_prints_the_nonfinite_configs(tmp_path, capsys, monkeypatch):
 
     summary = io.read_csv(tmp_path / "summary.csv")
     assert int(summary[0]["nonfinite_agents"]) == 1  # the summary shows it per config
+
+
+# ------------------------------------------------------------- NaN action weights
+def test_nan_or_vanishing_action_weights_are_flagged_not_hidden():
+    # An unstabilised softmax (the authors' formula, here in float32): with τ = 1e-4 every
+    # weight underflows to 0 once all Q values are below ≈ −0.01, and a positive Q
+    # overflows to inf. Either way the draw is no distribution, and the agents must be
+    # flagged (nonfinite), not silently take some action.
+    import jax.numpy as jnp
+
+    from vdbejax.methods import Explorer, explorer, greedy
+    from vdbejax.methods.explorers import sample_categorical
+
+    @explorer("raw_softmax_test", parameter="tau")
+    class RawSoftmax(Explorer):
+        tau: float = 1e-4
+        num_uniforms = 2
+
+        def select(self, q, tables, context, uniforms):
+            return sample_categorical(jnp.exp(q / self.tau), uniforms[0])
+
+    assert int(sample_categorical(jnp.array([jnp.nan, 1.0]), jnp.float32(0.5))) == 2
+    assert int(sample_categorical(jnp.zeros(3), jnp.float32(0.5))) == 3
+    assert int(sample_categorical(jnp.array([0.0, jnp.inf]), jnp.float32(0.5))) == 2
+    assert int(sample_categorical(jnp.array([0.0, 2.0]), jnp.float32(0.5))) == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        result = run_grid(make_mdp(max_steps=20), [Setting("qlearning", "raw_softmax_test", 1e-4),
+                                        Setting("qlearning", "egreedy", 0.1)],
+                          num_seeds=3, num_episodes=30)
+    assert result.nonfinite[0].all() and not result.nonfinite[1].any()
+    assert "raw_softmax_test" in result.meta["nonfinite_message"]

@@ -170,11 +170,15 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
     else:
         update, new_explorer_s = learn(jnp.zeros((), jnp.int32), probabilities_next())
         next_action = select_after(update, new_explorer_s, explorer_uniforms)
-    finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(leaf))
-                                  for leaf in jax.tree.leaves((update.q, update.tables,
-                                                               new_explorer_s))]))
+    next_action = jnp.asarray(next_action, jnp.int32)
+    # An action outside [0, A) is what sample_categorical returns for NaN, infinite or
+    # all-zero weights (a plug-in's own draw may do the same): flagged like a NaN in Q.
+    valid = (next_action >= 0) & (next_action < q_next.shape[0])
+    finite = valid & jnp.all(jnp.asarray([jnp.all(jnp.isfinite(leaf))
+                                          for leaf in jax.tree.leaves((update.q, update.tables,
+                                                                       new_explorer_s))]))
     return (update.q, update.tables, new_explorer_s,
-            jnp.asarray(next_action, jnp.int32), finite)
+            jnp.clip(next_action, 0, q_next.shape[0] - 1), finite)
 
 
 def lockstep_iteration(
