@@ -111,14 +111,21 @@ def test_reproduce_under_the_authors_reading(tmp_path):
     assert grid.meta["options"]["tie_break"] == "first" and grid.meta["max_steps"] == 10_000
     assert grid.settings == reading_settings("authors") and len(grid.settings) == 46
     sarsa_vdbe = grid.hyperparameters(grid.select("sarsa", "vdbe")[0])
+    sarsa_softmax = grid.hyperparameters(grid.select("sarsa", "softmax")[0])
     for name, value in AUTHORS_DETAILS.items():
-        assert sarsa_vdbe[[k for k in sarsa_vdbe if k.endswith("." + name)][0]] == value
+        values = sarsa_softmax if name == "softmax_numerics" else sarsa_vdbe
+        assert values[[k for k in values if k.endswith("." + name)][0]] == value
+    assert "explorer.softmax_numerics" not in sarsa_vdbe  # VDBE draws uniformly: no softmax
     assert len(rep.claims) == 6 and (tmp_path / "report.md").exists()
     assert is_paper_grid(vdbejax.GridResult.load(tmp_path))
     (tmp_path / "report.md").unlink()
     replot(tmp_path)
     assert (tmp_path / "report.md").exists()  # the authors' grid is the paper's grid too
     assert grid.meta["longest_episode"] <= 10_000
+    # The cap is reported: in meta, as summary columns and in the report.
+    assert grid.meta["step_cap"] is True
+    header = (tmp_path / "summary.csv").read_text().splitlines()[0].split(",")
+    assert header[-2:] == ["episodes_cut", "agents_cut"]
 
 
 @pytest.mark.parametrize("args, message", [
@@ -136,3 +143,34 @@ def test_reproduce_reading_errors_are_one_line(tmp_path, args, message):
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], lines
     assert not (tmp_path / "returns.npz").exists()
+
+
+# ------------------------------------------------------------- 8: float64 softmax numerics
+def test_float64_softmax_draw_by_hand():
+    import jax.numpy as jnp
+
+    from vdbejax.methods.explorers import float64_softmax_draw
+
+    stable = jnp.array([2, 2, 2, 1], jnp.int32)
+    q = jnp.array([
+        [-0.08, -0.09, -0.10],  # every Q/τ < −745: all weights 0, 0/0 = NaN → action 0
+        [-0.08, 0.00, 0.20],    # 0.2/τ = 2000 > 709.8: inf/inf = NaN, the first such → 2
+        [0.05, 0.08, 0.09],     # 800 and 900 overflow: the *first* one wins (1), not the max
+        [-0.01, 0.0, -0.02],    # a proper distribution: the stable draw stands
+    ]).T
+    np.testing.assert_array_equal(float64_softmax_draw(q, 1e-4, stable), [0, 2, 1, 1])
+
+
+def test_float64_softmax_loops_a_state_that_the_stable_one_leaves():
+    # State 0: action 0 loops (−0.01), action 1 reaches the goal (+1). With every Q at −0.5
+    # and τ = 1e-4, the authors' weights all vanish, the draw is always action 0, and
+    # Q(0, 0) climbs only to −0.1 (< −0.0745): the episode never ends but at the cap.
+    mdp = make_tabular_mdp(np.array([[0, 0]]), np.array([[-0.01, 1.0]], np.float32),
+                           np.array([[False, True]]), np.array([1.0]), max_steps=60)
+    settings = [Setting("qlearning", "softmax", 1e-4, {"softmax_numerics": numerics})
+                for numerics in ("float64", "stable")]
+    grid = run_grid(mdp, settings, num_seeds=3, num_episodes=20,
+                    options=AgentOptions(q_init=-0.5))
+    assert (grid.lengths[0] == 60).all()  # every episode cut at the cap
+    assert (grid.lengths[1][:, 1:] == 1).all()  # the stable draw finds the goal
+    assert grid.meta["truncated_episodes_by_config"][0] == 60

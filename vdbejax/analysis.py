@@ -108,6 +108,9 @@ def summarize(
                 "nonfinite_agents": int(result.nonfinite[c].sum()),
             }
         )
+        if result.meta.get("step_cap"):  # a task without step limit: cuts at its cap
+            cut = result.lengths[c] >= max_steps
+            rows[-1].update(episodes_cut=int(cut.sum()), agents_cut=int(cut.any(-1).sum()))
     return rows
 
 
@@ -130,10 +133,12 @@ SUMMARY_COLUMNS = [
 
 
 def summary_columns(result: GridResult) -> list[str]:
-    """:data:`SUMMARY_COLUMNS`, and ``hyperparameters`` when a setting of ``result`` has
-    values besides its swept parameter."""
+    """:data:`SUMMARY_COLUMNS`, ``hyperparameters`` when a setting of ``result`` has values
+    besides its swept parameter, and ``episodes_cut`` / ``agents_cut`` for a task whose
+    step limit is only a safety cap (``meta["step_cap"]``, the authors' reading)."""
     extra = ["hyperparameters"] if any(s.hyperparameters for s in result.settings) else []
-    return SUMMARY_COLUMNS[:4] + extra + SUMMARY_COLUMNS[4:]
+    capped = ["episodes_cut", "agents_cut"] if result.meta.get("step_cap") else []
+    return SUMMARY_COLUMNS[:4] + extra + SUMMARY_COLUMNS[4:] + capped
 
 
 def probability_of_improvement_matrix(

@@ -533,6 +533,7 @@ def run_grid(
     cut = lengths >= mdp.max_steps
     meta["truncated_episodes"] = int(cut.sum())
     meta["agents_truncated"] = int(cut.any(axis=2).sum())
+    meta["truncated_episodes_by_config"] = cut.sum(axis=(1, 2)).tolist()
     meta["hyperparameters"] = [agent_hyperparameters(make_agent(s, options)) for s in settings]
     meta["parameter_names"] = {s.explorer: parameter_name(s.explorer) for s in settings}
     return GridResult(settings, returns, lengths, nonfinite, meta)

@@ -136,12 +136,50 @@ def softmax_probabilities(q: Array, tau: Array) -> Array:
     return w / jnp.sum(w, axis=0)
 
 
+#: Softmax numerics: ``"stable"`` (exp((Q − max Q)/τ), never NaN), or ``"float64"``: the
+#: authors' published formula exp(Q/τ)/Σ exp(Q/τ) in float64 without the max, sampled with
+#: ``searchsorted(cumsum(p), u)`` (see :func:`float64_softmax_draw`).
+SOFTMAX_NUMERICS = ("stable", "float64")
+#: exp(x) overflows float64 above log(DBL_MAX) …
+_FLOAT64_EXP_OVERFLOW = 709.782712893384
+#: … and is exactly 0 below log of half the smallest subnormal.
+_FLOAT64_EXP_ZERO = -745.1332191019412
+
+
+def float64_softmax_draw(q: Array, tau: Array, stable_draw: Array) -> Array:
+    """The action the authors' float64 softmax draws, given the stable draw's action.
+
+    Where the float64 weights are a distribution the two draws agree (up to rounding of
+    probabilities below 1e-30). They differ in two cases only: (1) some ``Q/τ`` exceeds
+    709.78, its weight is inf, its probability inf/inf = NaN, and ``searchsorted`` (NaN
+    sorts last) returns the *first* such action, whatever the others are worth; (2) every
+    ``Q/τ`` is below −745.13: all weights are 0, all probabilities 0/0 = NaN, and the draw
+    is action 0. (Case 2 is what loops a state of the published task onto itself: with
+    τ = 0.0001, once all of a state's Q values are below ≈ −0.075.)
+
+    Args:
+      q: ``[num_actions, batch...]`` action values.
+      tau: temperature.
+      stable_draw: the action :func:`sample_categorical` drew from the stable weights.
+
+    Returns:
+      int32 ``[batch...]`` actions.
+    """
+    x = q / tau
+    overflow = x > _FLOAT64_EXP_OVERFLOW
+    vanished = jnp.all(x < _FLOAT64_EXP_ZERO, axis=0)
+    first_overflow = jnp.argmax(overflow, axis=0).astype(jnp.int32)
+    return jnp.where(jnp.any(overflow, axis=0), first_overflow,
+                     jnp.where(vanished, 0, stable_draw)).astype(jnp.int32)
+
+
 def select_action(
     q: Array,
     explore_probability: Array,
     tau: Array | None,
     uniforms: Array,
     tie_break: str = "random",
+    numerics: str = "stable",
 ) -> Array:
     """The one action-selection rule behind the paper's explorers (module docstring).
 
@@ -153,6 +191,7 @@ def select_action(
       uniforms: three uniforms in [0, 1) (an array ``[3, batch...]`` or a sequence of 3):
         explore test, exploratory draw, tie break.
       tie_break: ``"random"`` or ``"first"`` (static).
+      numerics: :data:`SOFTMAX_NUMERICS` of the exploratory softmax draw (static).
 
     Returns:
       int32 ``[batch...]`` action indices.
@@ -161,6 +200,8 @@ def select_action(
     # exp((q − max)/∞) is exactly 1 for finite q: uniform weights are the same draw.
     weights = jnp.ones_like(q) if tau is None else softmax_weights(q, tau)
     exploratory = sample_categorical(weights, uniforms[1])
+    if numerics == "float64" and tau is not None:
+        exploratory = float64_softmax_draw(q, tau, exploratory)
     return jnp.where(explore, exploratory, greedy(q, uniforms[2], tie_break))
 
 
@@ -302,17 +343,20 @@ class Softmax(Explorer):
     """Softmax (Boltzmann): sample ``P(a) ∝ exp(Q(s,a)/τ)``."""
 
     tau: Array = 1.0
+    #: :data:`SOFTMAX_NUMERICS` (``"float64"``: the authors' unstabilised formula).
+    softmax_numerics: str = static_field("stable")
 
     def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
         # The paper's rule with p = 1 (uniforms are < 1, so the draw is always
         # exploratory); XLA compiles this form faster than the draw alone (measured).
-        return select_action(q, 1.0, self.tau, uniforms)
+        return select_action(q, 1.0, self.tau, uniforms, numerics=self.softmax_numerics)
 
     def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
         return softmax_probabilities(q, self.tau)
 
     def validate(self) -> None:
         check_positive("tau", self.tau)
+        check_choice("softmax_numerics", self.softmax_numerics, SOFTMAX_NUMERICS)
 
 
 @explorer("vdbe", parameter="sigma")
@@ -334,7 +378,11 @@ class VDBE(Explorer):
         return None  # uniform exploratory draws
 
     def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
-        return select_action(q, tables["epsilon"], self._tau(), uniforms, self.tie_break)
+        return select_action(q, tables["epsilon"], self._tau(), uniforms, self.tie_break,
+                             self._numerics())
+
+    def _numerics(self) -> str:
+        return "stable"  # uniform exploratory draws: no softmax
 
     def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
         return mixture_probabilities(q, tables["epsilon"], self._tau(), self.tie_break)
@@ -358,14 +406,20 @@ class VDBESoftmax(VDBE):
     """VDBE-Softmax (Tokic & Palm 2011): with probability ε(s) a softmax(τ) draw, else greedy."""
 
     tau: Array = VDBE_SOFTMAX_TAU
+    #: :data:`SOFTMAX_NUMERICS` of the exploratory draw.
+    softmax_numerics: str = static_field("stable")
     option_aliases = {"vdbe_softmax_tau": "tau"}
 
     def _tau(self) -> Array | None:
         return self.tau
 
+    def _numerics(self) -> str:
+        return self.softmax_numerics
+
     def validate(self) -> None:
         super().validate()
         check_positive("tau", self.tau)
+        check_choice("softmax_numerics", self.softmax_numerics, SOFTMAX_NUMERICS)
 
 
 @explorer("max_boltzmann", parameter="epsilon")

@@ -244,6 +244,14 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
     return claims
 
 
+def cap_message(meta: dict[str, Any]) -> str:
+    """One line on the episodes cut at a task's safety cap (a task without step limit)."""
+    cut, agents = meta.get("truncated_episodes", 0), meta.get("agents_truncated", 0)
+    return (f"{cut:,} episodes of {agents} agents ran into the safety cap of"
+            f" {meta.get('max_steps', '?'):,} steps and were cut there (the published code would"
+            f" never have finished them); longest episode {meta.get('longest_episode', '?'):,} steps")
+
+
 def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_return: float) -> str:
     """``report.md``: each claim with the paper's and our numbers, checks and verdict.
 
@@ -268,6 +276,15 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
         f"average reaches 95% of its final level; a figure the paper gives as \"about\" a value "
         f"must lie within ±{ABOUT:.0%} of it.",
         "",
+    ]
+    if meta.get("step_cap"):
+        by_config = meta.get("truncated_episodes_by_config") or []
+        labels = meta.get("config_labels") or []
+        where = [f"{labels[c] if c < len(labels) else f'config {c}'} ({n:,})"
+                 for c, n in enumerate(by_config) if n]
+        lines += [f"**Safety cap.** The task has no step limit: {cap_message(meta)}"
+                  + (f". Per setting: {'; '.join(where)}." if where else "."), ""]
+    lines += [
         "| # | verdict | checks passed |",
         "| --- | --- | --- |",
     ]

@@ -14,7 +14,7 @@ from typing import Any
 from vdbejax import io, sweeps
 from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, make_agent, owners, paper_settings
-from vdbejax.paper.claims import ClaimResult, evaluate_claims, render_report
+from vdbejax.paper.claims import ClaimResult, cap_message, evaluate_claims, render_report
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.batching import check_run_size
@@ -90,6 +90,7 @@ AUTHORS_DETAILS = {
     "next_action": "redrawn",
     "epsilon_init": 0.1,
     "update_on_terminal": False,
+    "softmax_numerics": "float64",
 }
 
 
@@ -178,9 +179,11 @@ def reproduce(
             raise ValueError(f"invalid_action={invalid_action!r} is invalid with reading="
                              "'authors': the published table decides every action's effect")
         mdp = make_authors_mdp(STEP_CAP if max_steps is None else max_steps)
+        capped = max_steps is None
     else:
         mdp = make_mdp(max_steps=100 if max_steps is None else max_steps,
                        invalid_action=invalid_action)
+        capped = False
     if tie_break is None:
         tie_break = "first" if reading == "authors" else "random"
     options = AgentOptions(alpha=alpha, q_init=q_init, tie_break=tie_break)
@@ -203,13 +206,14 @@ def reproduce(
     with FolderLock(out):
         return _reproduce_locked(out, mdp, settings, options, reading, details, seeds, episodes,
                                  seed, invalid_action, chunk_episodes, progress, resume,
-                                 memory_budget_bytes, devices, figures)
+                                 memory_budget_bytes, devices, figures, capped)
 
 
 def _reproduce_locked(out: Path, mdp: Any, settings: list[Setting], options: AgentOptions,
                       reading: str, details: dict | None, seeds: int, episodes: int, seed: int,
                       invalid_action: str, chunk_episodes: int, progress: bool, resume: bool,
-                      memory_budget_bytes: Any, devices: int | None, figures: bool) -> Reproduction:
+                      memory_budget_bytes: Any, devices: int | None, figures: bool,
+                      capped: bool) -> Reproduction:
     """:func:`reproduce` once its inputs are checked and ``out`` is locked."""
     checkpoint = out / CHECKPOINT_FILE
     started = time.perf_counter()
@@ -221,12 +225,18 @@ def _reproduce_locked(out: Path, mdp: Any, settings: list[Setting], options: Age
     )
     if result.meta.get("nonfinite_message"):
         print(f"warning: {result.meta['nonfinite_message']}", file=sys.stderr)
+    if capped and result.meta["truncated_episodes"]:
+        print(f"warning: {cap_message(result.meta)}", file=sys.stderr)
     best = best_return(mdp)
     result.meta["invalid_action"] = invalid_action
     result.meta["reading"] = reading
     result.meta["details"] = dict(AUTHORS_DETAILS if details is None and reading == "authors"
                                   else details or {})
     result.meta["best_return"] = best  # lets `vdbejax plot` redraw without the MDP
+    # The authors' task has no step limit: its max_steps is a safety cap, and episodes cut
+    # there are episodes the published code would never have finished (summary, report).
+    result.meta["step_cap"] = capped
+    result.meta["config_labels"] = [f"{s.learner}/{s.explorer}/{s.param:g}" for s in result.settings]
     summary, claims = save_run(
         result, out, lambda stats: write_outputs(result, out, best, figures=figures,
                                                  statistics=stats),
