@@ -126,6 +126,7 @@ def test_reproduce_under_the_authors_reading(tmp_path):
     assert grid.meta["step_cap"] is True
     header = (tmp_path / "summary.csv").read_text().splitlines()[0].split(",")
     assert header[-2:] == ["episodes_cut", "agents_cut"]
+    assert (tmp_path / "fig3_authors.png").stat().st_size > 10_000  # as the authors plot it
 
 
 @pytest.mark.parametrize("args, message", [

@@ -80,3 +80,25 @@ def test_epsilon_heatmap(tmp_path):
     assert ax.get_xlabel() == "episode" and ax.get_ylabel() == "state"
     assert [t.get_text() for t in ax.get_xticklabels()][-1] == "100"
     plt.close(fig)
+
+
+def test_figure3_as_the_authors_plot_it(grid):
+    from vdbejax import stats
+
+    window = 20
+    fig = plotting.figure3(grid, smoothing="authors", window=window)
+    line = fig.axes[0].get_lines()[0]
+    x, y = line.get_xdata(), line.get_ydata()
+    # np.convolve 'full' of the agents' mean, shown from episode 20 to its end.
+    full = np.convolve(grid.returns[0].mean(0).astype(np.float64), np.ones(window) / window)
+    assert x[0] == window and len(x) == grid.num_episodes
+    np.testing.assert_allclose(y, full[window - 1:])
+    # Up to the last episode it is the trailing moving average; past it, it falls off.
+    trailing = stats.moving_average(grid.returns[0].mean(0), window)
+    np.testing.assert_allclose(y[: grid.num_episodes - window + 1], trailing[window - 1:], atol=1e-12)
+    assert "np.convolve" in fig._suptitle.get_text()
+    plt.close(fig)
+    with pytest.raises(ValueError, match="smoothing='median'"):
+        plotting.figure3(grid, smoothing="median")
+    with pytest.raises(ValueError, match="no bands"):
+        plotting.figure3(grid, smoothing="authors", bands=True)

@@ -18,7 +18,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vdbejax.methods.agents import parameter_name  # noqa: E402
-from vdbejax.stats import WINDOW, CurveStatistics, curve_statistics  # noqa: E402
+from vdbejax.stats import WINDOW, CurveStatistics, convolve_full, curve_statistics  # noqa: E402
+from vdbejax.validation import check_choice  # noqa: E402
 from vdbejax.paper.claims import LEARNER_NAMES  # noqa: E402
 from vdbejax.experiment import GridResult  # noqa: E402
 
@@ -32,6 +33,8 @@ EXPLORER_TITLES = {
     "softmax_decay": "decaying softmax",
     "ucb1": "UCB-1",
 }
+#: Figure 3's smoothing conventions (:func:`figure3`).
+SMOOTHINGS = ("trailing", "authors")
 #: Display names of the learners (the claims report's).
 LEARNER_TITLES = LEARNER_NAMES
 PARAMETER_SYMBOLS = {"epsilon": "ε", "tau": "τ", "sigma": "σ", "alpha": "α", "gamma": "γ",
@@ -60,6 +63,7 @@ def figure3(
     path: str | os.PathLike | None = None,
     bands: bool = False,
     statistics: CurveStatistics | None = None,
+    smoothing: str = "trailing",
 ) -> plt.Figure:
     """Average return per episode (moving average over ``window``), one curve per parameter.
 
@@ -71,10 +75,18 @@ def figure3(
       bands: shade each curve's pointwise 95% bootstrap interval over seeds.
       statistics: the curves (and, for ``bands``, their bands) already computed by
         :func:`~vdbejax.stats.curve_statistics` with this ``window``.
+      smoothing: ``"trailing"`` (:func:`~vdbejax.stats.moving_average`, from episode 1)
+        or ``"authors"``: as the first author's code plots Figure 3 —
+        :func:`~vdbejax.stats.convolve_full` of the agents' mean, from episode ``window``
+        to its end, the fall-off past the last episode included (no bands).
 
     Returns:
       the matplotlib figure.
     """
+    check_choice("smoothing", smoothing, SMOOTHINGS)
+    if smoothing == "authors" and bands:
+        raise ValueError("bands=True is invalid with smoothing='authors': the authors' figure"
+                         " has no bands")
     if statistics is None:
         statistics = curve_statistics(result.returns, window, bands=bands)
     elif statistics.window != window or len(statistics.curves) != len(result.settings) or (
@@ -90,6 +102,8 @@ def figure3(
         sharex=True, sharey=True, squeeze=False,
     )
     episodes = np.arange(1, result.num_episodes + 1)
+    if smoothing == "authors":  # full convolution, shown from episode `window` on
+        episodes = np.arange(window, result.num_episodes + window)
     for row, learner in enumerate(learners):
         for col, explorer in enumerate(explorers):
             ax = axes[row, col]
@@ -100,7 +114,9 @@ def figure3(
                 if bands:
                     ax.fill_between(episodes, statistics.band_low[c], statistics.band_high[c],
                                     color=color, alpha=0.25, lw=0)
-                ax.plot(episodes, statistics.curves[c], color=color, lw=1.2,
+                curve = statistics.curves[c] if smoothing == "trailing" else convolve_full(
+                    result.returns[c].mean(0), window)[window - 1:]
+                ax.plot(episodes, curve, color=color, lw=1.2,
                         label=curve_label(result.settings[c], varying))
             if best_return is not None:
                 ax.axhline(best_return, color="crimson", ls="--", lw=1, label=f"best {best_return:.2f}")
@@ -116,6 +132,8 @@ def figure3(
             if col == 0:
                 ax.set_ylabel(f"average return (MA {window})")
     band_note = " (bands: 95% bootstrap CI over agents)" if bands else ""
+    if smoothing == "authors":
+        band_note = f" (smoothed as the authors plot it: np.convolve 'full', from episode {window})"
     fig.suptitle(
         f"{result.meta.get('mdp', 'task')}: {result.num_seeds} agents × {result.num_episodes} episodes"
         + band_note

@@ -64,6 +64,16 @@ def _trailing_mean(x: np.ndarray, window: int) -> np.ndarray:
     return np.divide(out, counts, out=out)
 
 
+def convolve_full(curve: np.ndarray, window: int = WINDOW) -> np.ndarray:
+    """The authors' smoothing: ``np.convolve(curve, ones(window) / window)`` ("full"
+    mode), ``len(curve) + window − 1`` points. Index ``k ≥ window − 1`` up to the curve's
+    end equals :func:`moving_average`'s; the first ``window − 1`` points count missing
+    episodes as 0 (the authors plot from episode ``window``), and the last ``window − 1``
+    fall off towards 0 as the window runs past the last episode.
+    """
+    return np.convolve(np.asarray(curve, np.float64), np.ones(window) / window)
+
+
 def final_return(returns: np.ndarray, last: int = LAST) -> np.ndarray:
     """Mean over the last ``last`` episodes (the episode axis is the last one).
 

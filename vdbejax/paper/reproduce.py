@@ -28,6 +28,8 @@ from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, c
 
 SUMMARY_FILE, FIGURE_FILE, SENSITIVITY_FILE = sweeps.SUMMARY_FILE, sweeps.FIGURE_FILE, sweeps.SENSITIVITY_FILE
 REPORT_FILE = "report.md"
+#: Figure 3 smoothed and cut as the authors plot it (the authors' reading only).
+AUTHORS_FIGURE_FILE = "fig3_authors.png"
 CHECKPOINT_FILE = "checkpoint.npz"
 
 
@@ -65,6 +67,12 @@ def write_outputs(
     out = Path(out_dir)
     summary = sweeps.write_outputs(result, out, best, bands=bands, figures=figures,
                                    statistics=statistics)
+    if figures and result.meta.get("reading") == "authors":
+        from vdbejax.plotting import figure3  # matplotlib only when plotting
+
+        # Figure 3 as the first author's code draws it (np.convolve "full", from episode 20).
+        io.save_figure(figure3(result, best_return=best, smoothing="authors"),
+                       out / AUTHORS_FIGURE_FILE)
     claims = evaluate_claims(summary, best)
     io.atomic_write_text(out / REPORT_FILE, render_report(claims, result.meta, best))
     return summary, claims
@@ -132,7 +140,8 @@ def reproduce(
 
     Writes into ``out_dir``: ``returns.npz``, ``configs.csv``, ``meta.json``,
     ``summary.csv``, ``fig3.png`` (with bootstrap bands), ``sensitivity.png``,
-    ``report.md``. A checkpoint (``checkpoint.npz`` and its episode log
+    ``report.md`` (and, for the authors' reading, ``fig3_authors.png``: Figure 3 smoothed
+    as their code plots it). A checkpoint (``checkpoint.npz`` and its episode log
     ``checkpoint.npz.episodes``) is written after every chunk and removed once the
     results are saved.
 
@@ -201,7 +210,7 @@ def reproduce(
     check_bool("figures", figures)
     check_run_size(len(settings) * seeds, episodes)  # before the folder is even created
     out = check_writable_dir("out", out_dir)
-    check_output_paths(out, [*sweeps.RUN_FILES, REPORT_FILE, CHECKPOINT_FILE,
+    check_output_paths(out, [*sweeps.RUN_FILES, REPORT_FILE, AUTHORS_FIGURE_FILE, CHECKPOINT_FILE,
                              log_path(CHECKPOINT_FILE).name])
     with FolderLock(out):
         return _reproduce_locked(out, mdp, settings, options, reading, details, seeds, episodes,
