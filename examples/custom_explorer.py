@@ -19,7 +19,8 @@ import argparse
 import jax
 import jax.numpy as jnp
 
-from vdbejax.methods import Explorer, Learner, LearnerUpdate, Table, explorer, greedy, learner
+from vdbejax.methods import (Explorer, Learner, LearnerUpdate, Table, explorer, greedy, learner,
+                             rounded)
 from vdbejax.methods.learners import td_update
 
 
@@ -34,7 +35,10 @@ class CountBonus(Explorer):
         return {"visits": Table("pair", 0.0)}
 
     def select(self, q, tables, context, uniforms):
-        return greedy(q + self.beta / jnp.sqrt(tables["visits"] + 1.0), uniforms[0])
+        # `rounded` keeps the bonus out of an FMA with the addition, so every compiled
+        # program adds the same bits and greedy's max always matches an action.
+        bonus = rounded(self.beta / jnp.sqrt(tables["visits"] + 1.0), self.beta)
+        return greedy(q + bonus, uniforms[0])
 
     def update(self, tables, action, delta_q, context):
         visits = tables["visits"]

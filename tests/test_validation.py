@@ -253,7 +253,7 @@ def test_nonfinite_values_are_reported_with_their_config(tmp_path):
                           options=AgentOptions(q_init=3e38))
     assert result.nonfinite[0].all()
     messages = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
-    assert any("NaN or inf appeared in Q or ε for: qlearning/egreedy/epsilon=0.1 (2/2 agents)" in m
+    assert any("NaN or inf appeared in Q or ε, or an invalid action was drawn, for: qlearning/egreedy/epsilon=0.1 (2/2 agents)" in m
                and "'q_init': 3e+38" in m for m in messages), messages
     assert result.meta["nonfinite_agents"] == int(result.nonfinite.sum())
     assert "qlearning/egreedy/epsilon=0.1" in result.meta["nonfinite_message"]
@@ -280,7 +280,7 @@ def test_cli_prints_the_nonfinite_configs(tmp_path, capsys, monkeypatch):
                            "--q-init", "3e38", "--quiet"])
     assert status == 0
     err = capsys.readouterr().err
-    assert "warning: NaN or inf appeared in Q or ε for: qlearning/egreedy/epsilon=0.01" in err
+    assert "warning: NaN or inf appeared in Q or ε, or an invalid action was drawn, for: qlearning/egreedy/epsilon=0.01" in err
     assert GridResult.load(tmp_path).meta["nonfinite_agents"] > 0
     from vdbejax import io
 

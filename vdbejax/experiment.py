@@ -293,7 +293,7 @@ def nonfinite_message(settings: Sequence[Setting], nonfinite: np.ndarray,
            for c in np.flatnonzero(counts)]
     if not bad:
         return None
-    return (f"NaN or inf appeared in Q or ε for: {'; '.join(bad)}"
+    return (f"NaN or inf appeared in Q or ε, or an invalid action was drawn, for: {'; '.join(bad)}"
             f" [options {dataclasses.asdict(options)}]")
 
 

@@ -513,7 +513,11 @@ class UCB1(Explorer):
         untried."""
         untried = counts == 0
         total = jnp.sum(counts, axis=0)
-        bonus = self.c * jnp.sqrt(jnp.log(jnp.maximum(total, 1.0)) / jnp.maximum(counts, 1.0))
+        # The bonus rounds on its own (no FMA with the addition): otherwise XLA may fuse it
+        # into Q + bonus in one fusion and not in another, and greedy's max would then
+        # match no action at all (vdbejax._numerics).
+        bonus = rounded(self.c * jnp.sqrt(jnp.log(jnp.maximum(total, 1.0))
+                                          / jnp.maximum(counts, 1.0)), self.c)
         return jnp.where(jnp.any(untried, axis=0), untried.astype(q.dtype), q + bonus)
 
     def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
