@@ -104,5 +104,48 @@ def test_attribution_mode_switches_one_authors_detail_at_a_time(tmp_path):
 
 
 def test_unknown_mode_is_one_line(capsys):
-    assert cli.main(["ablate", "--out", "x", "--mode", "factorial"]) == 2
-    assert "mode='factorial'" in capsys.readouterr().err
+    assert cli.main(["ablate", "--out", "x", "--mode", "fractal"]) == 2
+    assert "mode='fractal'" in capsys.readouterr().err
+
+
+def test_factorial_variants_are_every_combination_from_each_reading():
+    import itertools
+
+    variants = ablation.FACTORIAL_VARIANTS
+    assert len(variants) == 2 * 2 * 2 * 3 * 2 and len({v.name for v in variants}) == len(variants)
+    for reading in ("textbook", "authors"):
+        mine = [v for v in variants if v.reading == reading]
+        combos = {(dict(v.details)["failure_update"], dict(v.details)["goal_update"], v.alpha,
+                   dict(v.details)["q_init_distribution"]) for v in mine}
+        assert combos == set(itertools.product(*ablation.FACTORIAL_FACTORS.values()))
+        if reading == "authors":  # the reading's other details stay
+            assert all(dict(v.details)["next_action"] == "redrawn" and v.tie_break == "first"
+                       for v in mine)
+        else:
+            assert all(set(dict(v.details)) == set(ablation.FACTORIAL_FACTORS) - {"alpha"}
+                       for v in mine)
+    assert all("/" not in v.name and ":" not in v.name for v in variants)  # folder names
+
+
+def test_factorial_mode_and_sections_in_the_document(tmp_path):
+    names = "textbook-overwrite-skip-alpha0.3-uniform,authors-td-td-alpha0.8-constant"
+    assert cli.main(["ablate", "--mode", "factorial", "--out", str(tmp_path), "--variants",
+                     names, "--seeds", "2", "--episodes", "12", "--quiet"]) == 0
+    text = (tmp_path / "FACTORIAL.md").read_text()
+    assert "--mode factorial" in text and "`authors-td-td-alpha0.8-constant`" in text
+    from vdbejax.experiment import GridResult
+
+    grid = GridResult.load(tmp_path / "factorial" / names.split(",")[0])
+    assert grid.meta["options"]["alpha"] == pytest.approx(0.3)
+    assert grid.meta["details"]["goal_update"] == "skip"
+    # REPRODUCTION.md's sections: a variants × claims table per other mode, with "Most".
+    results = ablation.ablate(tmp_path / "doc", results_dir=tmp_path / "raw",
+                              variants=ablation.select_variants("spec"), seeds=2, episodes=12,
+                              progress=False)
+    section = ("Factorial", "intro text", "factorial", [
+        ablation.run_variant(v, tmp_path / "factorial" / v.name, seeds=2, episodes=12)
+        for v in ablation.select_variants(names, "factorial")])
+    doc = ablation.render_document(results, "ablation", "cmd", sections=[section])
+    assert "## Factorial" in doc and "intro text" in doc
+    assert "[report](factorial/authors-td-td-alpha0.8-constant/report.md)" in doc
+    assert "Most claims fully reproduced" in doc

@@ -199,9 +199,14 @@ def _add_ablate(sub: argparse._SubParsersAction) -> None:
                         " (default: docs/reproduction_notes.md if it exists)")
     p.add_argument("--rerun", action="store_true", help="ignore saved results of the same variant and size")
     p.add_argument("--mode", default="options",
-                   help="options (default: the spec's open details, REPRODUCTION.md) or attribution"
-                        " (each detail of the authors' code switched alone from either reading,"
-                        " ATTRIBUTION.md)")
+                   help="options (default: the two readings and the spec's open details,"
+                        " REPRODUCTION.md), attribution (each detail of the authors' code"
+                        " switched alone from either reading, ATTRIBUTION.md) or factorial"
+                        " (failure update x goal update x alpha x initial Q from each reading,"
+                        " FACTORIAL.md)")
+    p.add_argument("--sections", action="store_true",
+                   help="(options) also run the attribution and factorial variants and add"
+                        " their claims tables to REPRODUCTION.md")
     p.add_argument("--quiet", action="store_true", help="no status lines")
 
 
@@ -211,7 +216,7 @@ def _ablate(args: argparse.Namespace) -> None:
     default_notes = DEFAULT_NOTES if args.mode == "options" and Path(DEFAULT_NOTES).is_file() else None
     notes = args.notes if args.notes is not None else default_notes
     results = ablate(args.out, results_dir=args.results, variants=select_variants(args.variants, args.mode),
-                     mode=args.mode,
+                     mode=args.mode, sections=args.sections,
                      seeds=args.seeds, episodes=args.episodes, seed=args.seed, notes=notes,
                      reuse=not args.rerun, progress=not args.quiet)
     for result in results:

@@ -16,6 +16,7 @@ Regenerate the committed document with::
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import os
 import sys
 import time
@@ -68,9 +69,15 @@ class Variant:
                 "reading": self.reading, "details": dict(self.details)}
 
 
-#: One factor at a time away from the spec's defaults, plus one combination.
+#: The authors' reading: their task table and every agent detail (:data:`AUTHORS_DETAILS`).
+AUTHORS_OPTIONS = {"reading": "authors", "max_steps": STEP_CAP, "tie_break": "first",
+                   "details": tuple(AUTHORS_DETAILS.items())}
+
+#: The two readings side by side, then one factor at a time away from the spec's defaults,
+#: plus one combination.
 VARIANTS: tuple[Variant, ...] = (
-    Variant("spec", "the spec's defaults"),
+    Variant("spec", "the spec's defaults (the textbook reading)"),
+    Variant("authors", "the authors' code: their task and every agent detail", **AUTHORS_OPTIONS),
     Variant("invalid_fail", "invalid_action = fail (an action that changes nothing ends the episode, −1)",
             invalid_action="fail"),
     Variant("tie_first", "tie_break = first (greedy takes the lowest-index maximal action)",
@@ -90,8 +97,7 @@ VARIANTS: tuple[Variant, ...] = (
 def _attribution_variants() -> tuple[Variant, ...]:
     """From each reading, each detail of the other one switched alone (and the task)."""
     details = list(AUTHORS_DETAILS.items())
-    authors = {"reading": "authors", "max_steps": STEP_CAP, "tie_break": "first",
-               "details": tuple(details)}
+    authors = AUTHORS_OPTIONS
     variants = [Variant("textbook", "the paper's text (docs/task.md)"),
                 Variant("authors", "the authors' code: their task and every agent detail",
                         **authors)]
@@ -123,9 +129,41 @@ def _attribution_variants() -> tuple[Variant, ...]:
 #: The attribution mode (``vdbejax ablate --mode attribution``): which single detail of
 #: the authors' code turns a claim's verdict.
 ATTRIBUTION_VARIANTS: tuple[Variant, ...] = _attribution_variants()
+
+#: The factorial mode's factors: the details that matter most, all combinations.
+FACTORIAL_FACTORS = {
+    "failure_update": ("td", "overwrite"),
+    "goal_update": ("td", "skip"),
+    "alpha": (0.1, 0.3, PAPER_ALPHA),
+    "q_init_distribution": ("constant", "uniform"),
+}
+
+
+def _factorial_variants() -> tuple[Variant, ...]:
+    """Every combination of :data:`FACTORIAL_FACTORS`, from each reading (the other
+    details of the reading kept)."""
+    variants = []
+    for base, options in (("textbook", {}), ("authors", AUTHORS_OPTIONS)):
+        others = tuple((k, v) for k, v in dict(options.get("details", ())).items()
+                       if k not in FACTORIAL_FACTORS)
+        for failure, goal, alpha, q_init in itertools.product(*FACTORIAL_FACTORS.values()):
+            details = others + (("failure_update", failure), ("goal_update", goal),
+                                ("q_init_distribution", q_init))
+            name = f"{base}-{failure}-{goal}-alpha{alpha:g}-{q_init}"
+            description = (f"{base} reading, failure {failure}, goal {goal}, α = {alpha:g},"
+                           f" initial Q {q_init}")
+            variants.append(Variant(name, description, alpha=alpha,
+                                    **{**options, "details": details}))
+    return tuple(variants)
+
+
+#: The factorial mode (``vdbejax ablate --mode factorial``): failure update × goal update
+#: × α × initial Q, from each reading.
+FACTORIAL_VARIANTS: tuple[Variant, ...] = _factorial_variants()
 #: Document and figure folder of each mode.
 MODES = {"options": ("REPRODUCTION.md", "ablation"),
-         "attribution": ("ATTRIBUTION.md", "attribution")}
+         "attribution": ("ATTRIBUTION.md", "attribution"),
+         "factorial": ("FACTORIAL.md", "factorial")}
 
 
 @dataclasses.dataclass
@@ -183,7 +221,7 @@ def run_variant(
 
 def render_document(
     results: Sequence[VariantResult], figures_dir: str, command: str, notes: str | None = None,
-    figures: bool = True,
+    figures: bool = True, sections: Sequence[tuple[str, str, str, Sequence[VariantResult]]] = (),
 ) -> str:
     """The markdown of ``REPRODUCTION.md``.
 
@@ -192,6 +230,9 @@ def render_document(
       figures_dir: folder of the per-variant figures, relative to the document.
       command: the command that regenerates the document.
       notes: hand-written discussion appended verbatim.
+      figures: link each variant's figures.
+      sections: ``(title, introduction, reports folder, results)`` of other modes, each
+        added as a variants × claims table.
 
     Returns:
       markdown text.
@@ -248,6 +289,16 @@ def render_document(
     lines += ["", "Cells: verdict (checks passed / checks). The claims:", ""]
     for c in first.claims:
         lines.append(f"{c.number}. {c.claim}")
+    for title, intro, reports, section in sections:
+        lines += ["", f"## {title}", "", intro, "",
+                  "| variant | " + " | ".join(f"claim {n}" for n in numbers) + " | report |",
+                  "| --- | " + " | ".join("---" for _ in numbers) + " | --- |"]
+        lines += [f"| `{r.variant.name}` | " + " | ".join(cell(r, n) for n in numbers)
+                  + f" | [report]({reports}/{r.variant.name}/report.md) |" for r in section]
+        counts = {r.variant.name: sum(c.verdict == "reproduced" for c in r.claims) for r in section}
+        most = max(counts.values())
+        lines += ["", f"Most claims fully reproduced ({most}/{len(first.claims)}): "
+                  + ", ".join(f"`{n}`" for n, c in counts.items() if c == most) + "."]
 
     # Key numbers per variant: best final return of each explorer and how many of its
     # parameters end near the best return.
@@ -312,9 +363,11 @@ def ablate(
     reuse: bool = True,
     progress: bool = True,
     mode: str = "options",
+    sections: bool = False,
 ) -> list[VariantResult]:
-    """Run every variant, score the claims, write ``REPRODUCTION.md`` (mode ``options``)
-    or ``ATTRIBUTION.md`` (mode ``attribution``) and its figures.
+    """Run every variant, score the claims, write ``REPRODUCTION.md`` (mode ``options``),
+    ``ATTRIBUTION.md`` (mode ``attribution``) or ``FACTORIAL.md`` (mode ``factorial``)
+    and its figures.
 
     Args:
       out_dir: document folder: ``REPRODUCTION.md`` and ``ablation/<variant>/`` (figures,
@@ -326,9 +379,14 @@ def ablate(
       notes: a hand-written markdown file appended as the discussion.
       reuse: reuse saved results of the same variant and size.
       progress: one status line per variant on stderr.
-      mode: ``"options"`` (the spec's open details) or ``"attribution"`` (the authors'
-        details one at a time, :data:`ATTRIBUTION_VARIANTS`): the document's name and
-        figure folder (:data:`MODES`).
+      mode: ``"options"`` (the two readings and the spec's open details),
+        ``"attribution"`` (the authors' details one at a time, :data:`ATTRIBUTION_VARIANTS`)
+        or ``"factorial"`` (:data:`FACTORIAL_VARIANTS`): the document's name and figure
+        folder (:data:`MODES`).
+      sections: (mode ``options``) also run the attribution and factorial variants and
+        add their claims tables to the document, so that ``REPRODUCTION.md`` shows which
+        detail of which reading decides each claim (results in ``results_dir``'s
+        ``attribution/`` and ``factorial/`` subfolders, reports beside the document).
 
     Returns:
       the scored variants.
@@ -363,19 +421,61 @@ def ablate(
             verdicts = ", ".join(f"{c.number}:{c.verdict}" for c in result.claims)
             print(f"{variant.name}: {verdicts} ({time.perf_counter() - started:.1f} s)",
                   file=sys.stderr, flush=True)
+    extra = []
+    if sections and mode == "options":
+        for section_mode, title in (("attribution", SECTION_TITLES["attribution"]),
+                                    ("factorial", SECTION_TITLES["factorial"])):
+            section_dir = MODES[section_mode][1]
+            section_raw = (Path(results_dir) / section_dir if results_dir is not None
+                           else out / section_dir)
+            extra.append((title, SECTION_INTROS[section_mode], section_dir, [
+                _run_reporting(v, section_raw, out / section_dir, seeds, episodes, seed, reuse,
+                               progress) for v in _mode_variants(section_mode)]))
     text = Path(notes).read_text() if notes is not None else None
-    command = _command(out, raw, figures, variants, seeds, episodes, seed, mode)
+    command = _command(out, raw, figures, variants, seeds, episodes, seed, mode, sections)
     io.atomic_write_text(out / document, render_document(results, figures_dir, command, text,
-                                                         figures=mode == "options"))
+                                                         figures=mode == "options",
+                                                         sections=extra))
     return results
 
 
+#: Titles and introductions of REPRODUCTION.md's sections from the other modes.
+SECTION_TITLES = {"attribution": "Which single detail decides each claim",
+                  "factorial": "Factorial: failure update × goal update × α × initial Q"}
+SECTION_INTROS = {
+    "attribution": ("From each reading, one detail of the other reading switched alone "
+                    "(`textbook+X`: the textbook reading with the authors' X; `authors-X`: "
+                    "the authors' reading without it). A verdict that changes against its "
+                    "reading's row is decided by that detail."),
+    "factorial": ("Every combination of the four details that matter most, from each "
+                  "reading (its other details kept); α = 0.8 is the paper's."),
+}
+
+
+def _run_reporting(variant: Variant, raw: Path, reports: Path, seeds: int, episodes: int,
+                   seed: int, reuse: bool, progress: bool) -> VariantResult:
+    """Run (or reuse) a section's variant; copy its report and summary beside the document."""
+    started = time.perf_counter()
+    result = run_variant(variant, raw / variant.name, seeds=seeds, episodes=episodes, seed=seed,
+                         reuse=reuse)
+    if raw != reports:
+        for name in ("report.md", "summary.csv"):
+            io.atomic_write_bytes(reports / variant.name / name, (result.folder / name).read_bytes())
+    if progress:
+        verdicts = ", ".join(f"{c.number}:{c.verdict}" for c in result.claims)
+        print(f"{variant.name}: {verdicts} ({time.perf_counter() - started:.1f} s)",
+              file=sys.stderr, flush=True)
+    return result
+
+
 def _command(out: Path, raw: Path, figures: Path, variants: Sequence[Variant], seeds: int,
-             episodes: int, seed: int, mode: str = "options") -> str:
+             episodes: int, seed: int, mode: str = "options", sections: bool = False) -> str:
     """The ``vdbejax ablate`` command line that reproduces this call."""
     parts = ["vdbejax ablate", f"--out {out}"]
     if mode != "options":
         parts.append(f"--mode {mode}")
+    elif sections:
+        parts.append("--sections")
     if raw != figures:
         parts.append(f"--results {raw}")
     if [v.name for v in variants] != [v.name for v in _mode_variants(mode)]:
@@ -387,7 +487,7 @@ def _command(out: Path, raw: Path, figures: Path, variants: Sequence[Variant], s
 
 
 def _mode_variants(mode: str) -> tuple[Variant, ...]:
-    return ATTRIBUTION_VARIANTS if mode == "attribution" else VARIANTS
+    return {"attribution": ATTRIBUTION_VARIANTS, "factorial": FACTORIAL_VARIANTS}.get(mode, VARIANTS)
 
 
 def select_variants(names: str | Sequence[str] | None, mode: str = "options") -> list[Variant]:
@@ -430,5 +530,5 @@ def claims_table(results: Sequence[VariantResult]) -> list[dict[str, Any]]:
                             for r in results}} for n in numbers]
 
 
-__all__ = ["ATTRIBUTION_VARIANTS", "MODES", "VARIANTS", "Variant", "VariantResult", "ablate", "claims_table", "render_document",
+__all__ = ["ATTRIBUTION_VARIANTS", "FACTORIAL_VARIANTS", "MODES", "VARIANTS", "Variant", "VariantResult", "ablate", "claims_table", "render_document",
            "run_variant", "select_variants"]
