@@ -29,7 +29,13 @@ from typing import Any
 import numpy as np
 
 from vdbejax import io
-from vdbejax.methods.agents import AgentOptions, Setting, make_agent
+from vdbejax.methods.agents import (
+    AgentOptions,
+    Setting,
+    make_agent,
+    parameter_name,
+    remember_parameter_names,
+)
 from vdbejax.solving import (
     FRACTION,
     TOLERANCE,
@@ -75,19 +81,21 @@ class Method:
 #: grid (textbook reading, 20 agents × 1000 episodes, ``docs/ablation/spec/summary.csv``):
 #: the highest final return averaged over both learners — :func:`best_parameters` applied
 #: to that file gives exactly these (tested). The others at the value that does best on the
-#: paper's task by the same rule among three candidates (docs/SCALING.md: the candidates
-#: and the commands).
+#: paper's task by the same rule among three candidates (docs/SCALING.md: the candidates,
+#: the commands, and the one value a 20-agent check would change).
 METHODS: tuple[Method, ...] = (
     Method("egreedy", 0.01, why="paper grid: best ε of {0.01, …, 0.2}"),
     Method("softmax", 0.0001, why="paper grid: best τ of {0.0001, …, 10}"),
     Method("vdbe", 100.0, why="paper grid: best σ of {0.001, …, 100}"),
-    Method("vdbe_softmax", 100.0, why="paper grid: best σ of {0.001, …, 100} (τ = 1)"),
+    Method("vdbe_softmax", 100.0,
+           why="paper grid: best σ of {0.001, …, 100} (τ = 0.001, the spec's)"),
     Method("ucb1", 0.001, why="paper task: best c of {0.001, 0.01, 0.1}"),
     Method("count_bonus", 0.005,
            why="paper task: best β of {0.005, 0.05, 0.5} (plug-in examples/custom_explorer.py)"),
     Method("max_boltzmann", 0.01, why="paper task: best ε of {0.01, 0.1, 0.3} (τ = 0.1)"),
     Method("egreedy_decay", 1.0, (("decay", 0.99),),
-           why="paper task: best decay of {0.99, 0.995, 0.999} (ε from 1 to 0.01)"),
+           why="paper task, 5-agent pilot: best decay of {0.99, 0.995, 0.999} (ε from 1 to"
+               " 0.01); 20 agents prefer 0.995 by SARSA's failing runs (docs/SCALING.md)"),
 )
 #: The paper's explorers (their values come from the paper's grid).
 PAPER_METHODS = ("egreedy", "softmax", "vdbe", "vdbe_softmax")
@@ -129,14 +137,16 @@ def best_parameters(rows: Sequence[dict[str, Any]]) -> dict[str, float]:
 
 
 def parse_sizes(sizes: str | Sequence[str]) -> list[tuple[int, int]]:
-    """``"2x1,3x1"`` or ``["2x1", "3x1"]`` → ``[(2, 1), (3, 1)]`` (N ≥ 2 sections, K ≥ 1 goblets).
+    """``"2x1,3x1"`` or ``["2x1", "3x1"]`` → ``[(2, 1), (3, 1)]`` (N ≥ 2 sections, K ≥ 1
+    goblets).
 
     Raises:
       ValueError: empty, malformed or repeated sizes.
     """
     items = [s for s in (sizes.split(",") if isinstance(sizes, str) else list(sizes)) if str(s)]
     if not items:
-        raise ValueError(f"sizes={sizes!r} is invalid: must name at least one variant, e.g. 2x1,4x2")
+        raise ValueError(f"sizes={sizes!r} is invalid: must name at least one variant,"
+                         " e.g. 2x1,4x2")
     parsed = []
     for item in items:
         sections, sep, goblets = str(item).strip().lower().partition("x")
@@ -360,6 +370,7 @@ def run_until_solved(
         if stopped != "solved":
             break
         state = jax.tree.map(lambda leaf: np.asarray(leaf)[keep], result.final_state)
+        del result, initial  # the previous states are not needed during the next chunk
     elapsed = time.perf_counter() - started
     shape = (len(settings), num_seeds)
     solve = episodes_to_solve(returns, best, fraction=fraction, window=window,
@@ -436,7 +447,8 @@ class ScalingResult:
 
 ROW_COLUMNS = [
     "size", "config", "states", "actions", "best_return", "threshold", "learner", "explorer",
-    "param", "method", "status", "agents", "solved", "fraction_solved", "fraction_low", "fraction_high",
+    "param", "method", "status", "agents", "solved", "fraction_solved", "fraction_low",
+    "fraction_high",
     "median_episodes", "median_low", "median_high", "budget", "median_text", "agent_episodes",
     "nonfinite_agents",
 ]
@@ -456,7 +468,8 @@ def method_label(setting: Setting) -> str:
               "vdbe_softmax": "VDBE-Softmax", "max_boltzmann": "Max-Boltzmann",
               "egreedy_decay": "decaying ε-greedy", "softmax_decay": "decaying softmax",
               "ucb1": "UCB-1", "count_bonus": "count bonus"}
-    return f"{LEARNER_NAMES.get(setting.learner, setting.learner)} {titles.get(setting.explorer, setting.explorer)}"
+    learner = LEARNER_NAMES.get(setting.learner, setting.learner)
+    return f"{learner} {titles.get(setting.explorer, setting.explorer)}"
 
 
 def run_scaling(
@@ -562,6 +575,7 @@ def run_scaling(
         tasks.append((size, mdp, best, threshold, shortest))
     tasks.sort(key=lambda task: task[1].num_states)
 
+    versions = version_info()  # the code that runs: read before training, not after
     rows: list[dict[str, Any]] = []
     variants: list[dict[str, Any]] = []
     runs: dict[str, AdaptiveRun] = {}
@@ -600,7 +614,8 @@ def run_scaling(
             (out / RUNS_FOLDER).mkdir(exist_ok=True)
             io.atomic_savez(out / RUNS_FOLDER / f"{size}.npz", returns=run.returns,
                             episodes_run=run.episodes_run, solve_episode=run.solve.episodes,
-                            solved=run.solve.solved, labels=np.asarray([s.label for s in run.settings]))
+                            solved=run.solve.solved,
+                            labels=np.asarray([s.label for s in run.settings]))
         reached = int(run.episodes_run.max())
         for c, setting in enumerate(run.settings):
             summary = summarize_solving(run.solve.episodes[c], run.solve.solved[c])
@@ -627,13 +642,17 @@ def run_scaling(
     rank = {task[0]: i for i, task in enumerate(tasks)}
     rows.sort(key=lambda r: (rank[r["size"]], order[_row_setting(r)]))
     options = {"sizes": [t[0] for t in tasks], "seeds": seeds, "episodes": episodes,
-               "episodes_per_state": episodes_per_state, "seconds": seconds, "seed": seed, "learners": list(learners),
+               "episodes_per_state": episodes_per_state, "seconds": seconds, "seed": seed,
+               "learners": list(learners),
                "methods": [dataclasses.asdict(m) for m in chosen], "fraction": fraction,
                "window": window, "chunk_episodes": chunk_episodes, "max_steps": max_steps,
                "drop_unsolved": drop_unsolved, "quick": quick}
-    meta = {"command": command, "options": options, "elapsed_seconds": time.perf_counter() - started,
-            "settings": [[s.learner, s.explorer, s.param, dict(s.hyperparameters)] for s in settings],
-            "variants": variants, **version_info()}
+    meta = {"command": command, "options": options,
+            "elapsed_seconds": time.perf_counter() - started,
+            "settings": [[s.learner, s.explorer, s.param, dict(s.hyperparameters)]
+                         for s in settings],
+            "parameter_names": {m.explorer: parameter_name(m.explorer) for m in chosen},
+            "variants": variants, **versions}
     import jax
 
     meta.update(jax_version=jax.__version__, backend=jax.default_backend())
@@ -666,6 +685,7 @@ def load_scaling(out_dir: str | Path) -> tuple[list[dict[str, Any]], list[dict[s
     if missing:
         raise ValueError(f"scaling folder {str(out)!r} lacks {', '.join(missing)}")
     meta = io.load_json(out / META_FILE)
+    remember_parameter_names(meta.get("parameter_names", {}))  # plug-ins not imported here
     settings = [Setting(learner, explorer, param, values)
                 for learner, explorer, param, values in meta["settings"]]
     integers = {"config", "states", "actions", "agents", "solved", "budget", "agent_episodes",
@@ -767,7 +787,8 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
         " with a median (how many in brackets; 1 = proportional to the states).", "",
         "## Variants", ""]
     columns = ["size", "states", "actions", "best_return", "shortest_solution", "settings_run",
-               "budget_episodes", "episodes_reached", "stopped", "agent_episodes", "fixed_budget_agent_episodes",
+               "budget_episodes", "episodes_reached", "stopped", "agent_episodes",
+               "fixed_budget_agent_episodes",
                "training_seconds", "compile_seconds", "steps_per_second"]
     table = []
     for v in variants:
@@ -785,8 +806,8 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
     for r in rows:
         setting = _row_setting(r)
         cells = pivot.setdefault(setting, {"method": f"{r['method']} ({_param_text(setting)})"})
-        cells[f"{r['size']} ({r['states']})"] = ("-" if r["status"] != "run" else
-                                                 f"{r['median_text']} ({r['solved']}/{r['agents']})")
+        cells[f"{r['size']} ({r['states']})"] = (
+            "-" if r["status"] != "run" else f"{r['median_text']} ({r['solved']}/{r['agents']})")
     for setting, cells in pivot.items():
         slope, count = slopes[setting]
         cells["exponent"] = "-" if math.isnan(slope) else f"{slope:.2f} ({count})"
@@ -804,54 +825,69 @@ def _param_text(setting: Setting) -> str:
 
 
 def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, Any]]) -> Any:
-    """Median episodes to solve (log-log, 95% intervals) and fraction solved against
-    reachable states, one line per method, one row of panels per learner.
+    """One row of panels per learner, one line per method, against reachable states:
+    median episodes to solve (log-log, 95% intervals), the same relative to the fastest
+    method on each variant (the constant factors the log-log panel hides), and the
+    fraction of agents solved within the budget.
 
     Censored medians are drawn as open triangles at the budget ("> budget"), not joined;
     the methods are spread a little along the state axis so that their bars stay apart.
     """
-    from vdbejax import plotting  # noqa: F401  (selects the headless backend)
+    import matplotlib
+
+    if "ipykernel" not in sys.modules:  # headless, as vdbejax.plotting; a notebook keeps its own
+        matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from vdbejax.paper.claims import LEARNER_NAMES
 
     learners = list(dict.fromkeys(r["learner"] for r in rows))
     explorers = list(dict.fromkeys(r["explorer"] for r in rows))
     colors = {e: plt.get_cmap("tab10")(i % 10) for i, e in enumerate(explorers)}
-    fig, axes = plt.subplots(len(learners), 2, figsize=(12, 3.9 * len(learners) + 0.9),
-                             squeeze=False)
+    height = 3.9 * len(learners) + 0.9
+    fig, axes = plt.subplots(len(learners), 3, figsize=(17, height), squeeze=False)
     budgets = [(v["states"], v["episodes_reached"]) for v in variants if v["episodes_reached"]]
     handles: dict[str, Any] = {}
     bars = {"capsize": 2, "elinewidth": 0.8, "markersize": 4}
+
+    def column(mine: list[dict[str, Any]], key: str) -> np.ndarray:
+        return np.array([r[key] for r in mine], float)
+
     for i, learner in enumerate(learners):
-        ax_median, ax_fraction = axes[i]
+        ax_median, ax_relative, ax_fraction = axes[i]
+        ran = [r for r in rows if r["learner"] == learner and r["status"] == "run"]
+        fastest: dict[str, float] = {}
+        for r in ran:
+            if math.isfinite(r["median_episodes"]):
+                fastest[r["size"]] = min(fastest.get(r["size"], math.inf), r["median_episodes"])
         for j, explorer in enumerate(explorers):
-            mine = [r for r in rows if r["learner"] == learner and r["explorer"] == explorer
-                    and r["status"] == "run"]
+            mine = [r for r in ran if r["explorer"] == explorer]
             if not mine:
                 continue
             label = (method_label(_row_setting(mine[0])).split(" ", 1)[1]
                      + f" ({_param_text(_row_setting(mine[0]))})")
             spread = 1.0 + 0.015 * (j - (len(explorers) - 1) / 2)
-            x = np.array([r["states"] for r in mine], float) * spread
-            median = np.array([r["median_episodes"] for r in mine], float)
-            low = np.array([r["median_low"] for r in mine], float)
-            budget = np.array([r["budget"] for r in mine], float)
-            high = np.array([r["median_high"] for r in mine], float)
+            x = column(mine, "states") * spread
+            median, low, budget = (column(mine, k) for k in ("median_episodes", "median_low",
+                                                                "budget"))
+            high = column(mine, "median_high")
             high = np.where(np.isfinite(high), high, budget)
             ok = np.isfinite(median)
             line = ax_median.errorbar(x[ok], median[ok], yerr=[median[ok] - low[ok],
                                                                high[ok] - median[ok]],
-                                      color=colors[explorer], marker="o", label=label, **bars)
+                                      color=colors[explorer], marker="o", **bars)
             handles.setdefault(label, line)
             if (~ok).any():
                 ax_median.plot(x[~ok], budget[~ok], linestyle="none", marker="^",
                                markerfacecolor="none", color=colors[explorer])
-            fraction = np.array([r["fraction_solved"] for r in mine], float)
-            ax_fraction.errorbar(
-                x, fraction,
-                yerr=[fraction - np.array([r["fraction_low"] for r in mine], float),
-                      np.array([r["fraction_high"] for r in mine], float) - fraction],
-                color=colors[explorer], marker="o", alpha=0.85, **bars)
+            scale = np.array([fastest.get(r["size"], math.nan) for r in mine])
+            ax_relative.errorbar(x[ok], median[ok] / scale[ok],
+                                 yerr=[(median[ok] - low[ok]) / scale[ok],
+                                       (high[ok] - median[ok]) / scale[ok]],
+                                 color=colors[explorer], marker="o", **bars)
+            fraction = column(mine, "fraction_solved")
+            ax_fraction.errorbar(x, fraction, yerr=[fraction - column(mine, "fraction_low"),
+                                                    column(mine, "fraction_high") - fraction],
+                                 color=colors[explorer], marker="o", alpha=0.85, **bars)
         if budgets:
             bx, by = zip(*budgets)
             (budget_line,) = ax_median.plot(bx, by, color="0.6", linestyle=":")
@@ -859,14 +895,17 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
         title = LEARNER_NAMES.get(learner, learner)
         ax_median.set(xscale="log", yscale="log", xlabel="reachable states",
                       ylabel="median episodes to solve", title=f"{title}: episodes to solve")
+        ax_relative.set(xscale="log", xlabel="reachable states",
+                        ylabel="median / fastest method's median",
+                        title=f"{title}: relative to the fastest method")
         ax_fraction.set(xscale="log", ylim=(-0.05, 1.05), xlabel="reachable states",
                         ylabel="fraction of agents solved",
                         title=f"{title}: solved within the budget")
-        for ax in (ax_median, ax_fraction):
+        for ax in (ax_median, ax_relative, ax_fraction):
             ax.grid(alpha=0.3, which="both")
     fig.legend(list(handles.values()), list(handles.keys()), loc="lower center",
                ncol=min(5, len(handles)), fontsize=8, frameon=False)
-    fig.tight_layout(rect=(0, 0.9 / (3.9 * len(learners) + 0.9) + 0.02, 1, 1))
+    fig.tight_layout(rect=(0, 0.9 / height + 0.02, 1, 1))
     return fig
 
 
