@@ -1,0 +1,153 @@
+"""Accelerator benchmark: the full paper grid and an agent-count sweep on one device.
+
+    python -m benchmarks.gpu --out benchmarks/RESULTS.md          # on the GPU machine
+    python -m benchmarks.gpu --out /tmp/gpu.md --quick            # a smoke test anywhere
+
+For each run it prints and records the wall time (warm: the programs compiled in a first,
+untimed run of the same shapes), agent-steps per second and the device's peak memory
+(``memory_stats()['peak_bytes_in_use']`` where the backend reports it, else the host's peak
+RSS). The sweep multiplies the paper grid's seeds (46 settings × seeds agents) until the
+next size would not fit the device (:func:`vdbejax.batching.check_run_size` and the device's
+free memory) or ``--max-agents``.
+
+The result is written as the section ``## GPU (benchmarks.gpu)`` of ``--out``: replaced if
+present, else appended after the hand-written analysis, which ``benchmarks.compare`` keeps
+when it rewrites the file. Nothing here changes what vdbejax computes: the same engine with
+its default strategy for the backend (lockstep on accelerators).
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import platform
+import resource
+import time
+from pathlib import Path
+
+import numpy as np
+
+HEADING = "## GPU (benchmarks.gpu)"
+
+
+def _device_summary() -> tuple[str, dict | None]:
+    import jax
+
+    device = jax.devices()[0]
+    try:
+        stats = device.memory_stats()
+    except Exception:  # CPU backends raise or return None
+        stats = None
+    return f"{device.platform}: {device.device_kind} ({len(jax.devices())} device(s))", stats
+
+
+def _peak_bytes() -> tuple[int, str]:
+    """Peak device memory in bytes and where it was read."""
+    _, stats = _device_summary()
+    if stats and "peak_bytes_in_use" in stats:
+        return int(stats["peak_bytes_in_use"]), "device peak"
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024, "host peak RSS"
+
+
+def run_once(seeds: int, episodes: int) -> dict:
+    """The paper grid with ``seeds`` agents per setting: compile (untimed), then time it."""
+    from vdbejax.envs.table_cleaning import make_mdp
+    from vdbejax.experiment import run_grid
+    from vdbejax.methods.agents import paper_settings
+
+    mdp, settings = make_mdp(), paper_settings()
+    run_grid(mdp, settings, num_seeds=seeds, num_episodes=min(episodes, 2))  # compile
+    started = time.perf_counter()
+    result = run_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes)
+    wall = time.perf_counter() - started
+    steps = int(result.lengths.astype(np.int64).sum())
+    peak, where = _peak_bytes()
+    return {"agents": len(settings) * seeds, "seeds": seeds, "episodes": episodes, "wall": wall,
+            "train": float(result.meta["elapsed_seconds"]), "steps": steps,
+            "steps_per_s": steps / max(wall, 1e-9), "peak_bytes": peak, "peak_where": where}
+
+
+def _fits(agents: int, episodes: int) -> bool:
+    from vdbejax.batching import check_run_size
+
+    try:
+        check_run_size(agents, episodes)
+    except ValueError:
+        return False
+    return True
+
+
+def sweep(episodes: int, max_agents: int, first_seeds: int = 20) -> list[dict]:
+    """Grid runs with 20, 80, 320, … seeds per setting while they fit."""
+    rows, seeds = [], first_seeds
+    while 46 * seeds <= max_agents and _fits(46 * seeds, episodes):
+        try:
+            rows.append(run_once(seeds, episodes))
+        except Exception as error:  # out of device memory: the sweep ends there
+            rows.append({"agents": 46 * seeds, "error": f"{type(error).__name__}: {str(error)[:120]}"})
+            break
+        print(_row(rows[-1]), flush=True)
+        seeds *= 4
+    return rows
+
+
+def _row(r: dict) -> str:
+    if "error" in r:
+        return f"| {r['agents']:,} | failed: {r['error']} | | | |"
+    return (f"| {r['agents']:,} | {r['episodes']:,} | {r['wall']:.2f} | {r['steps']:,} |"
+            f" {r['steps_per_s'] / 1e6:.1f} | {r['peak_bytes'] / 2**20:,.0f} ({r['peak_where']}) |")
+
+
+def render(grid: dict, rows: list[dict], command: str) -> str:
+    """The markdown section."""
+    import jax
+
+    device, _ = _device_summary()
+    lines = [
+        HEADING, "",
+        f"Command: `{command}`; {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC};"
+        f" {device}; jax {jax.__version__}, Python {platform.python_version()}. Warm runs"
+        " (programs compiled by an untimed run first).", "",
+        f"Full paper grid (46 settings × 20 agents × {grid['episodes']:,} episodes):"
+        f" {grid['wall']:.2f} s, {grid['steps']:,} agent-steps, {grid['steps_per_s'] / 1e6:.1f} M"
+        f" agent-steps/s, peak memory {grid['peak_bytes'] / 2**20:,.0f} MiB ({grid['peak_where']}).",
+        "", "| agents | episodes | wall s | agent-steps | M agent-steps/s | peak MiB |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    lines += [_row(r) for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def write_section(path: Path, section: str) -> None:
+    """Replace the section in ``path`` (up to the next ``## `` heading), or append it."""
+    text = path.read_text() if path.exists() else ""
+    if HEADING in text:
+        start = text.index(HEADING)
+        rest = text[start + len(HEADING):]
+        end = rest.find("\n## ")
+        tail = "" if end < 0 else rest[end + 1:]
+        text = text[:start] + section + ("\n" + tail if tail else "")
+    else:
+        text = text.rstrip("\n") + ("\n\n" if text else "") + section
+    path.write_text(text)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", required=True, help="markdown file that gets the section")
+    parser.add_argument("--episodes", type=int, default=1000, help="episodes per agent (default 1000)")
+    parser.add_argument("--max-agents", type=int, default=2_000_000,
+                        help="largest sweep size in agents (default 2,000,000)")
+    parser.add_argument("--quick", action="store_true", help="tiny sizes: a smoke test")
+    args = parser.parse_args(argv)
+    episodes = 20 if args.quick else args.episodes
+    max_agents = 46 * 8 if args.quick else args.max_agents
+    command = "python -m benchmarks.gpu " + " ".join(argv if argv is not None else [])
+    grid = run_once(2 if args.quick else 20, episodes)
+    print(f"grid: {grid['wall']:.2f} s, {grid['steps_per_s'] / 1e6:.1f} M agent-steps/s", flush=True)
+    rows = sweep(episodes, max_agents, first_seeds=2 if args.quick else 20)
+    write_section(Path(args.out), render(grid, rows, command.strip()))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
