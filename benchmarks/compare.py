@@ -155,56 +155,37 @@ def _worker_numba_parallel(args) -> dict:
     }
 
 
+def _train_each(train_agent, settings, seeds: int, seed_base: int, episodes: int, **kwargs) -> dict:
+    """A per-agent peer's loop over settings × seeds: wall time, real steps, returns."""
+    started = time.perf_counter()
+    returns, steps = [], 0
+    for setting in settings:
+        for seed in range(seeds):
+            r, lengths = train_agent(setting.learner, setting.explorer, setting.param,
+                                     1000 * seed + seed_base, episodes, **kwargs)
+            returns.append(r)
+            steps += sum(lengths)
+    return {"wall": time.perf_counter() - started, "compile": 0.0, "steps": steps,
+            "peak_rss_mb": _peak_rss_mb(), "returns": np.asarray(returns, np.float32)}
+
+
 def _worker_mushroom(args) -> dict:
     from benchmarks.mushroom_loop import covered, make_environment, train_agent
     from vdbejax.methods.agents import paper_settings
 
-    settings = covered(paper_settings())
     started = time.perf_counter()
     env = make_environment()  # from vdbejax's table (traces it with JAX); not timed below
     setup = time.perf_counter() - started
-    started = time.perf_counter()
-    returns, steps = [], 0
-    for setting in settings:
-        for seed in range(args.mushroom_seeds):
-            r, lengths = train_agent(setting.learner, setting.explorer, setting.param,
-                                     1000 * seed + 11, args.episodes, env=env)
-            returns.append(r)
-            steps += sum(lengths)
-    wall = time.perf_counter() - started
-    return {
-        "wall": wall,
-        "compile": 0.0,
-        "setup": setup,
-        "steps": steps,
-        "peak_rss_mb": _peak_rss_mb(),
-        "returns": np.asarray(returns, np.float32),
-    }
+    result = _train_each(train_agent, covered(paper_settings()), args.mushroom_seeds, 11,
+                         args.episodes, env=env)
+    return {**result, "setup": setup}
 
 
 def _worker_python(args) -> dict:
     from benchmarks.python_loop import train_agent
     from vdbejax.methods.agents import paper_settings
 
-    settings = paper_settings()
-    started = time.perf_counter()
-    returns, steps = [], 0
-    for setting in settings:
-        for seed in range(args.python_seeds):
-            r, lengths = train_agent(
-                setting.learner, setting.explorer, setting.param, 1000 * seed + 7,
-                args.episodes,
-            )
-            returns.append(r)
-            steps += sum(lengths)
-    wall = time.perf_counter() - started
-    return {
-        "wall": wall,
-        "compile": 0.0,
-        "steps": steps,
-        "peak_rss_mb": _peak_rss_mb(),
-        "returns": np.asarray(returns, np.float32),
-    }
+    return _train_each(train_agent, paper_settings(), args.python_seeds, 7, args.episodes)
 
 
 WORKERS = {"vdbejax": _worker_vdbejax, "numba": _worker_numba,
