@@ -170,15 +170,11 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
     else:
         update, new_explorer_s = learn(jnp.zeros((), jnp.int32), probabilities_next())
         next_action = select_after(update, new_explorer_s, explorer_uniforms)
-    next_action = jnp.asarray(next_action, jnp.int32)
-    # An action outside [0, A) is what sample_categorical returns for NaN, infinite or
-    # all-zero weights (a plug-in's own draw may do the same): flagged like a NaN in Q.
-    valid = (next_action >= 0) & (next_action < q_next.shape[0])
-    finite = valid & jnp.all(jnp.asarray([jnp.all(jnp.isfinite(leaf))
-                                          for leaf in jax.tree.leaves((update.q, update.tables,
-                                                                       new_explorer_s))]))
+    finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(leaf))
+                                  for leaf in jax.tree.leaves((update.q, update.tables,
+                                                               new_explorer_s))]))
     return (update.q, update.tables, new_explorer_s,
-            jnp.clip(next_action, 0, q_next.shape[0] - 1), finite)
+            jnp.asarray(next_action, jnp.int32), finite)
 
 
 def lockstep_iteration(
@@ -228,6 +224,7 @@ def lockstep_iteration(
     resetting = agents.pending_reset
     learn = active & ~resetting
     s, a = agents.state, agents.action
+    valid_a = (a >= 0) & (a < A)
 
     s_next, reward, terminal = _transition(mdp, s, a, u[1])
     length = agents.episode_length + 1
@@ -299,7 +296,11 @@ def lockstep_iteration(
         episode_length=jnp.where(learn, jnp.where(done, 0, length), agents.episode_length),
         counter=agents.counter + active.astype(jnp.uint32),
         key=agents.key,
-        nonfinite=agents.nonfinite | (learn & ~finite),
+        # An action outside [0, A) — what sample_categorical returns for NaN, infinite or
+        # all-zero weights, or a plug-in's own draw — is flagged like a NaN in Q when the
+        # agent is about to take it (checked on the stored action: cheaper than on the
+        # freshly drawn one inside the step's fusions).
+        nonfinite=agents.nonfinite | (learn & ~finite) | (active & ~resetting & ~valid_a),
     )
     return agents, returns, lengths
 

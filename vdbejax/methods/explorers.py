@@ -59,8 +59,8 @@ def sample_categorical(weights: Array, u: Array) -> Array:
 
     Returns:
       int32 ``[batch...]`` index ``i`` with probability ``weights[i] / sum(weights)``; an
-      index of zero weight is never returned. Weights whose sum is not a positive finite
-      number (NaN, inf, all zero) give ``n``, an invalid index, which the engine flags as
+      index of zero weight is never returned. Weights that sum to 0 or to inf (all
+      underflowed, one overflowed) give ``n``, an invalid index, which the engine flags as
       non-finite (``nonfinite_agents``) instead of silently taking some action.
     """
     n = weights.shape[0]
@@ -71,8 +71,7 @@ def sample_categorical(weights: Array, u: Array) -> Array:
         # Weights shared by a batch of uniforms ([n] against [batch]): compare per column.
         batch_dims = threshold.ndim - (cdf.ndim - 1)
         cdf = cdf.reshape(cdf.shape[:1] + (1,) * batch_dims + cdf.shape[1:])
-        count = jnp.sum(cdf <= threshold, axis=0, dtype=jnp.int32)
-        return jnp.where(_drawable(cdf[-1]), count, n)
+        return jnp.sum(cdf <= threshold, axis=0, dtype=jnp.int32)
     # Left-to-right prefix sums, unrolled: for the few actions of a tabular task this is
     # much cheaper on CPU than XLA's reduce-window cumsum.
     partial = [weights[0]]
@@ -82,12 +81,7 @@ def sample_categorical(weights: Array, u: Array) -> Array:
     count = (partial[0] <= threshold).astype(jnp.int32)
     for value in partial[1:]:
         count = count + (value <= threshold).astype(jnp.int32)
-    return jnp.where(_drawable(partial[-1]), count, n)
-
-
-def _drawable(total: Array) -> Array:
-    """Whether weights summing to ``total`` define a distribution (finite, positive)."""
-    return (total > 0) & (total < jnp.inf)
+    return count
 
 
 def greedy(q: Array, u: Array, tie_break: str = "random") -> Array:
