@@ -34,3 +34,21 @@ def test_notebook_runs(path):
     images = [o for c in notebook.cells if c.cell_type == "code" for o in c.outputs
               if "image/png" in o.get("data", {})]
     assert images, f"{path.name} drew no figure"
+
+
+RENDERED = Path(__file__).resolve().parents[1] / "docs" / "notebooks"
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_rendered_copy_is_an_execution_of_the_current_source(path):
+    # docs/notebooks/ holds executed copies (python notebooks/render.py) for browsing;
+    # a source edited without re-rendering fails here.
+    copy = RENDERED / path.name
+    assert copy.exists(), f"render it: python notebooks/render.py {path.stem[:2]}"
+    source = nbformat.read(path, as_version=4)
+    rendered = nbformat.read(copy, as_version=4)
+    assert [c.source for c in rendered.cells] == [c.source for c in source.cells]
+    code = [c for c in rendered.cells if c.cell_type == "code"]
+    assert all(c.outputs for c in code[1:]), "every code cell after the imports has outputs"
+    assert not [o for c in code for o in c.outputs if o.output_type == "error"]
+    assert copy.stat().st_size < 3_000_000  # small enough to browse
