@@ -307,7 +307,9 @@ def test_nan_or_vanishing_action_weights_are_flagged_not_hidden():
         def select(self, q, tables, context, uniforms):
             return sample_categorical(jnp.exp(q / self.tau), uniforms[0])
 
+    assert int(sample_categorical(jnp.array([jnp.nan, 1.0]), jnp.float32(0.5))) == 2
     assert int(sample_categorical(jnp.zeros(3), jnp.float32(0.5))) == 3
+    assert int(sample_categorical(jnp.full((40,), jnp.nan), jnp.float32(0.5))) == 40  # cumsum path
     assert int(sample_categorical(jnp.array([0.0, jnp.inf]), jnp.float32(0.5))) == 2
     assert int(sample_categorical(jnp.array([0.0, 2.0]), jnp.float32(0.5))) == 1
     with warnings.catch_warnings():

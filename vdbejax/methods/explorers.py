@@ -59,8 +59,8 @@ def sample_categorical(weights: Array, u: Array) -> Array:
 
     Returns:
       int32 ``[batch...]`` index ``i`` with probability ``weights[i] / sum(weights)``; an
-      index of zero weight is never returned. Weights that sum to 0 or to inf (all
-      underflowed, one overflowed) give ``n``, an invalid index, which the engine flags as
+      index of zero weight is never returned. Weights that are no distribution (a NaN,
+      all zero, one infinite) give ``n``, an invalid index, which the engine flags as
       non-finite (``nonfinite_agents``) instead of silently taking some action.
     """
     n = weights.shape[0]
@@ -71,17 +71,19 @@ def sample_categorical(weights: Array, u: Array) -> Array:
         # Weights shared by a batch of uniforms ([n] against [batch]): compare per column.
         batch_dims = threshold.ndim - (cdf.ndim - 1)
         cdf = cdf.reshape(cdf.shape[:1] + (1,) * batch_dims + cdf.shape[1:])
-        return jnp.sum(cdf <= threshold, axis=0, dtype=jnp.int32)
+        return n - jnp.sum(cdf > threshold, axis=0, dtype=jnp.int32)
     # Left-to-right prefix sums, unrolled: for the few actions of a tabular task this is
     # much cheaper on CPU than XLA's reduce-window cumsum.
     partial = [weights[0]]
     for i in range(1, n):
         partial.append(partial[-1] + weights[i])
     threshold = u * partial[-1]
-    count = (partial[0] <= threshold).astype(jnp.int32)
+    # n minus the prefix sums above the threshold: the same index for real weights, and n
+    # (invalid, flagged by the engine) when a NaN makes every comparison false.
+    above = (partial[0] > threshold).astype(jnp.int32)
     for value in partial[1:]:
-        count = count + (value <= threshold).astype(jnp.int32)
-    return count
+        above = above + (value > threshold).astype(jnp.int32)
+    return n - above
 
 
 def greedy(q: Array, u: Array, tie_break: str = "random") -> Array:
