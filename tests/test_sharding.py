@@ -198,5 +198,6 @@ def test_two_processes_like_two_hosts_equal_one_process(tmp_path, reference):
         assert process.returncode == 0, err
     for i in range(2):  # every process holds the whole, gathered result
         assert_same_curves(reference, GridResult.load(tmp_path / f"process{i}"))
-    assert sorted(p.name for p in tmp_path.glob("ckpt*")) == [
-        "ckpt.process0of2.npz", "ckpt.process1of2.npz"]
+    assert sorted(p.name for p in tmp_path.glob("ckpt*")) == [  # each with its episode log
+        "ckpt.process0of2.npz", "ckpt.process0of2.npz.episodes",
+        "ckpt.process1of2.npz", "ckpt.process1of2.npz.episodes"]
