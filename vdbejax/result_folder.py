@@ -212,7 +212,7 @@ def save_run(
             if error is not None:
                 raise error
     except OSError as error:
-        raise ValueError(f"cannot write the results in {str(out)!r}: {_describe(error)};"
+        raise ValueError(f"cannot write the results in {str(out)!r}: {describe_os_error(error)};"
                          f" {_rescue(result)}") from None
     if on_saved is not None:
         on_saved()
@@ -221,13 +221,14 @@ def save_run(
         value = write(statistics)
         unmark(out)
     except OSError as error:
-        raise ValueError(f"cannot write the outputs in {str(out)!r}: {_describe(error)}; the"
+        raise ValueError(f"cannot write the outputs in {str(out)!r}: {describe_os_error(error)}; the"
                          f" results are saved there: 'vdbejax plot --results {out}' writes"
                          " the summary and figures again") from None
     return value
 
 
-def _describe(error: OSError) -> str:
+def describe_os_error(error: OSError) -> str:
+    """``error``'s reason and, where known, the path it concerns (for one-line errors)."""
     where = f" ({error.filename})" if getattr(error, "filename", None) else ""
     return f"{error.strerror or error}{where}"
 
@@ -240,5 +241,5 @@ def _rescue(result: Any) -> str:
         folder = Path(tempfile.mkdtemp(prefix="vdbejax-rescued-"))
         result.save(folder)
     except OSError as error:
-        return f"the results could not be kept elsewhere either ({_describe(error)})"
+        return f"the results could not be kept elsewhere either ({describe_os_error(error)})"
     return f"the results were kept in {str(folder)!r} ('vdbejax plot --results {folder}' draws them)"

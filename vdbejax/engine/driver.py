@@ -25,6 +25,7 @@ from vdbejax.engine.state import AgentState, init_agents
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams, kind_key
 from vdbejax.methods.api import check_plugin
+from vdbejax.progress import ProgressCallback, text_progress  # noqa: F401  (re-exported: engine API)
 from vdbejax.validation import check_choice, check_int
 
 Array = jax.Array
@@ -54,10 +55,6 @@ class RunResult:
     final_state: AgentState | None
     lane_iterations: int = 0
     strategy: str = "lockstep"
-
-
-# The progress display lives in vdbejax.progress (one implementation); kept importable here.
-from vdbejax.progress import ProgressCallback, text_progress  # noqa: E402,F401
 
 
 def run_agents(

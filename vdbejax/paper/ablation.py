@@ -349,6 +349,8 @@ def _run_size(result: VariantResult) -> str:
 
 #: Files of a variant's folder copied next to the document (small; no raw arrays).
 DOCUMENT_ASSETS = (FIGURE_FILE, SENSITIVITY_FILE, "report.md", "summary.csv")
+#: The same for documents that link reports only (attribution, factorial, sections).
+REPORT_ASSETS = ("report.md", "summary.csv")
 
 
 def ablate(
@@ -408,29 +410,19 @@ def ablate(
     out = check_writable_dir("out", out_dir)
     figures = check_writable_dir("out", out / figures_dir)
     raw = check_writable_dir("results_dir", results_dir) if results_dir is not None else figures
-    results = []
-    for variant in variants:
-        started = time.perf_counter()
-        result = run_variant(variant, raw / variant.name, seeds=seeds, episodes=episodes,
-                             seed=seed, reuse=reuse)
-        if raw != figures:  # the attribution document links reports, not figures (size)
-            for name in DOCUMENT_ASSETS if mode == "options" else ("report.md", "summary.csv"):
-                io.atomic_write_bytes(figures / variant.name / name, (result.folder / name).read_bytes())
-        results.append(result)
-        if progress:
-            verdicts = ", ".join(f"{c.number}:{c.verdict}" for c in result.claims)
-            print(f"{variant.name}: {verdicts} ({time.perf_counter() - started:.1f} s)",
-                  file=sys.stderr, flush=True)
+    # The options document shows figures; the others link reports only (size).
+    assets = DOCUMENT_ASSETS if mode == "options" else REPORT_ASSETS
+    results = [_run_reporting(v, raw, figures, assets, seeds, episodes, seed, reuse, progress)
+               for v in variants]
     extra = []
     if sections and mode == "options":
-        for section_mode, title in (("attribution", SECTION_TITLES["attribution"]),
-                                    ("factorial", SECTION_TITLES["factorial"])):
+        for section_mode, title in SECTION_TITLES.items():
             section_dir = MODES[section_mode][1]
             section_raw = (Path(results_dir) / section_dir if results_dir is not None
                            else out / section_dir)
             extra.append((title, SECTION_INTROS[section_mode], section_dir, [
-                _run_reporting(v, section_raw, out / section_dir, seeds, episodes, seed, reuse,
-                               progress) for v in _mode_variants(section_mode)]))
+                _run_reporting(v, section_raw, out / section_dir, REPORT_ASSETS, seeds, episodes,
+                               seed, reuse, progress) for v in _mode_variants(section_mode)]))
     text = Path(notes).read_text() if notes is not None else None
     command = _command(out, raw, figures, variants, seeds, episodes, seed, mode, sections)
     io.atomic_write_text(out / document, render_document(results, figures_dir, command, text,
@@ -452,14 +444,15 @@ SECTION_INTROS = {
 }
 
 
-def _run_reporting(variant: Variant, raw: Path, reports: Path, seeds: int, episodes: int,
-                   seed: int, reuse: bool, progress: bool) -> VariantResult:
-    """Run (or reuse) a section's variant; copy its report and summary beside the document."""
+def _run_reporting(variant: Variant, raw: Path, reports: Path, assets: Sequence[str], seeds: int,
+                   episodes: int, seed: int, reuse: bool, progress: bool) -> VariantResult:
+    """Run (or reuse) a variant in ``raw``; copy its ``assets`` beside the document (into
+    ``reports``) when the raw results live elsewhere; one status line if ``progress``."""
     started = time.perf_counter()
     result = run_variant(variant, raw / variant.name, seeds=seeds, episodes=episodes, seed=seed,
                          reuse=reuse)
     if raw != reports:
-        for name in ("report.md", "summary.csv"):
+        for name in assets:
             io.atomic_write_bytes(reports / variant.name / name, (result.folder / name).read_bytes())
     if progress:
         verdicts = ", ".join(f"{c.number}:{c.verdict}" for c in result.claims)

@@ -9,7 +9,6 @@ import sys
 import time
 import zipfile
 from pathlib import Path
-from typing import Any
 
 from vdbejax import io, sweeps
 from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
@@ -21,7 +20,8 @@ from vdbejax.batching import check_run_size
 from vdbejax.checkpoint import log_path, remove_checkpoint
 from vdbejax.distributed import process_checkpoint_path, select_devices
 from vdbejax.experiment import GridResult, check_run_options, run_grid
-from vdbejax.result_folder import FolderLock, check_output_paths, save_run, unmark
+from vdbejax.result_folder import (FolderLock, check_output_paths, describe_os_error, save_run,
+                                   unmark)
 from vdbejax.solvers import best_return
 from vdbejax.stats import CurveStatistics
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, check_writable_dir
@@ -212,50 +212,39 @@ def reproduce(
     out = check_writable_dir("out", out_dir)
     check_output_paths(out, [*sweeps.RUN_FILES, REPORT_FILE, AUTHORS_FIGURE_FILE, CHECKPOINT_FILE,
                              log_path(CHECKPOINT_FILE).name])
-    with FolderLock(out):
-        return _reproduce_locked(out, mdp, settings, options, reading, details, seeds, episodes,
-                                 seed, invalid_action, chunk_episodes, progress, resume,
-                                 memory_budget_bytes, devices, figures, capped)
-
-
-def _reproduce_locked(out: Path, mdp: Any, settings: list[Setting], options: AgentOptions,
-                      reading: str, details: dict | None, seeds: int, episodes: int, seed: int,
-                      invalid_action: str, chunk_episodes: int, progress: bool, resume: bool,
-                      memory_budget_bytes: Any, devices: int | None, figures: bool,
-                      capped: bool) -> Reproduction:
-    """:func:`reproduce` once its inputs are checked and ``out`` is locked."""
-    checkpoint = out / CHECKPOINT_FILE
-    started = time.perf_counter()
-    result = run_grid(
-        mdp, settings, num_seeds=seeds, num_episodes=episodes, seed=seed,
-        options=options, chunk_episodes=chunk_episodes, progress=progress,
-        checkpoint=checkpoint, resume=resume, memory_budget_bytes=memory_budget_bytes,
-        devices=devices,
-    )
-    if result.meta.get("nonfinite_message"):
-        print(f"warning: {result.meta['nonfinite_message']}", file=sys.stderr)
-    if capped and result.meta["truncated_episodes"]:
-        print(f"warning: {cap_message(result.meta)}", file=sys.stderr)
-    best = best_return(mdp)
-    result.meta["invalid_action"] = invalid_action
-    result.meta["reading"] = reading
-    result.meta["details"] = dict(AUTHORS_DETAILS if details is None and reading == "authors"
-                                  else details or {})
-    result.meta["best_return"] = best  # lets `vdbejax plot` redraw without the MDP
-    # The authors' task has no step limit: its max_steps is a safety cap, and episodes cut
-    # there are episodes the published code would never have finished (summary, report).
-    result.meta["step_cap"] = capped
-    result.meta["config_labels"] = [f"{s.learner}/{s.explorer}/{s.param:g}" for s in result.settings]
-    summary, claims = save_run(
-        result, out, lambda stats: write_outputs(result, out, best, figures=figures,
-                                                 statistics=stats),
-        bands=figures, on_saved=lambda: remove_checkpoint(process_checkpoint_path(checkpoint)))
-    elapsed = time.perf_counter() - started
-    if progress:
-        print(f"{len(result.settings)} settings × {seeds} agents × {episodes} episodes: "
-              f"training {result.meta['elapsed_seconds']:.1f} s, total {elapsed:.1f} s "
-              f"→ {out}", file=sys.stderr)
-    return Reproduction(result, summary, claims, best, out, elapsed)
+    with FolderLock(out):  # held from before training to the last file
+        checkpoint = out / CHECKPOINT_FILE
+        started = time.perf_counter()
+        result = run_grid(
+            mdp, settings, num_seeds=seeds, num_episodes=episodes, seed=seed,
+            options=options, chunk_episodes=chunk_episodes, progress=progress,
+            checkpoint=checkpoint, resume=resume, memory_budget_bytes=memory_budget_bytes,
+            devices=devices,
+        )
+        if result.meta.get("nonfinite_message"):
+            print(f"warning: {result.meta['nonfinite_message']}", file=sys.stderr)
+        if capped and result.meta["truncated_episodes"]:
+            print(f"warning: {cap_message(result.meta)}", file=sys.stderr)
+        best = best_return(mdp)
+        result.meta["invalid_action"] = invalid_action
+        result.meta["reading"] = reading
+        result.meta["details"] = dict(AUTHORS_DETAILS if details is None and reading == "authors"
+                                      else details or {})
+        result.meta["best_return"] = best  # lets `vdbejax plot` redraw without the MDP
+        # The authors' task has no step limit: its max_steps is a safety cap, and episodes cut
+        # there are episodes the published code would never have finished (summary, report).
+        result.meta["step_cap"] = capped
+        result.meta["config_labels"] = [f"{s.learner}/{s.explorer}/{s.param:g}" for s in result.settings]
+        summary, claims = save_run(
+            result, out, lambda stats: write_outputs(result, out, best, figures=figures,
+                                                     statistics=stats),
+            bands=figures, on_saved=lambda: remove_checkpoint(process_checkpoint_path(checkpoint)))
+        elapsed = time.perf_counter() - started
+        if progress:
+            print(f"{len(result.settings)} settings × {seeds} agents × {episodes} episodes: "
+                  f"training {result.meta['elapsed_seconds']:.1f} s, total {elapsed:.1f} s "
+                  f"→ {out}", file=sys.stderr)
+        return Reproduction(result, summary, claims, best, out, elapsed)
 
 
 def saved_best_return(result: GridResult) -> float:
@@ -319,8 +308,8 @@ def replot(
                 best = result.meta.get("best_return")
                 sweeps.write_outputs(result, out, None if best is None else float(best), bands=bands)
         except OSError as error:
-            raise ValueError(f"cannot write the outputs in {str(out)!r}: {error.strerror or error}"
-                             + (f" ({error.filename})" if error.filename else "")) from None
+            raise ValueError(f"cannot write the outputs in {str(out)!r}:"
+                             f" {describe_os_error(error)}") from None
         if Path(out).resolve() == Path(results_dir).resolve():
             unmark(out)  # summary, figures and report now belong to the saved results
     return written + ([out / REPORT_FILE] if paper else [])
