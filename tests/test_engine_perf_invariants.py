@@ -152,6 +152,40 @@ def test_sequential_strategy_on_a_stochastic_mdp_equals_lockstep():
     _assert_same_run(sequential, lockstep)
 
 
+@pytest.mark.parametrize("lanes", [1, 2, 4])
+def test_loop_width_changes_nothing(mdp, monkeypatch, lanes):
+    """Agents side by side in a loop (sequential.LANES) give the bits of one agent alone
+    and of lockstep, for any number of agents per work item (idle and padding lanes)."""
+    monkeypatch.setattr(sequential, "LANES", lanes)
+    params, keys = _grid(3)
+    lockstep = engine.run_agents(mdp, params, keys, 14, chunk_episodes=5, strategy="lockstep")
+    for threads in (1, 3):
+        run = engine.run_agents(mdp, params, keys, 14, chunk_episodes=5, threads=threads,
+                                strategy="sequential")
+        _assert_same_run(run, lockstep)
+        assert run.iterations <= run.lane_iterations
+
+
+def test_a_self_loop_that_traps_the_agent_is_learned_in_both_strategies():
+    """One state whose action 0 loops onto itself: an agent that takes it first is trapped
+    (Q(0,0) climbs above Q(0,1), and τ = 1e-4 never tries the goal again). The sequential
+    engine once lost that episode's updates to Q(0,0) and left the trap (issue 13)."""
+    from vdbejax.envs.tabular import make_tabular_mdp
+    from vdbejax.experiment import grid_agents
+
+    trap = make_tabular_mdp(np.array([[0, 0]]), np.array([[-0.01, 1.0]], np.float32),
+                            np.array([[False, True]]), np.array([1.0]), max_steps=60)
+    params, keys = grid_agents([Setting("qlearning", "softmax", 1e-4)], 3,
+                               options=AgentOptions(q_init=-0.5))
+    lockstep = engine.run_agents(trap, params, keys, 5, strategy="lockstep")
+    sequential_run = engine.run_agents(trap, params, keys, 5, strategy="sequential")
+    _assert_same_run(sequential_run, lockstep)
+    trapped = (lockstep.lengths == 60).all(axis=1)
+    assert trapped.any() and (lockstep.lengths[~trapped] == 1).all()
+    q = lockstep.final_state.q.reshape(3, 2)
+    assert (q[trapped, 0] > q[trapped, 1]).all()
+
+
 def test_many_start_states_in_both_strategies():
     """More start states than sample_categorical unrolls (its cumsum path), shared by a
     batch of agents: both strategies run and agree."""

@@ -9,7 +9,7 @@ Read it one module at a time:
   (:mod:`vdbejax.methods`);
 * :mod:`~vdbejax.engine.lockstep` — all agents of a batch advance together, with
   compaction (accelerators, sharded agents);
-* :mod:`~vdbejax.engine.sequential` — each agent runs its own native step loop, one
+* :mod:`~vdbejax.engine.sequential` — native step loops of four agents side by side, one
   program per kind, work items on threads (the default on a CPU);
 * :mod:`~vdbejax.engine.driver` — :func:`run_agents`, the Python loop over chunks.
 

@@ -39,10 +39,11 @@ class RunResult:
       returns: float32 ``[agents, episodes]`` undiscounted episode returns.
       lengths: int32 ``[agents, episodes]`` episode lengths (steps).
       nonfinite: bool ``[agents]``: a NaN or inf appeared in the agent's Q or ε.
-      iterations: lockstep iterations executed (for efficiency statistics).
+      iterations: lockstep iterations executed; for the sequential strategy, the agents'
+        own iterations (steps, plus one per episode start after a truncation).
       final_state: the agents' states after the last episode (numpy leaves; ``None``
         with ``keep_final_state=False``).
-      lane_iterations: Σ over executed lockstep iterations of the batch width (the
+      lane_iterations: Σ over executed loop iterations of the batch width (the
         agent-iterations paid for, idle lanes included; lower with compaction).
       strategy: the strategy that ran (``"sequential"`` or ``"lockstep"``; the last one
         if the sequential strategy fell back, see :func:`native_step_loops`).
@@ -100,7 +101,7 @@ def run_agents(
         another (keeps each group's Q tables cache-sized, so throughput per agent-step
         does not fall as the number of agents grows).
 
-      strategy: ``"sequential"`` (each agent runs its own native step loop; agents are
+      strategy: ``"sequential"`` (native step loops of a few agents side by side; agents are
         spread over ``threads`` threads; the fast choice on CPU), ``"lockstep"`` (all
         agents of a batch advance together, one vectorised step per iteration, with
         compaction and groups as above; for accelerators and sharded agents), or
@@ -165,8 +166,7 @@ def run_agents(
             if result is None:  # not compiled natively: lockstep is faster
                 strategy, agents, sequential = "lockstep", sequential.agents(), None
         if result is not None:
-            chunk_returns, chunk_lengths, chunk_iterations = result
-            chunk_lanes = chunk_iterations  # one lane per loop iteration
+            chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes = result
         else:
             agents, chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes = (
                 run_chunk_lockstep(

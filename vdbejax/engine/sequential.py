@@ -1,10 +1,10 @@
-"""The sequential strategy (the default on a CPU backend): each agent runs its own
-``while`` loop of steps, one lane wide, agents one after another inside a program and
-work items of agents on several threads.
+"""The sequential strategy (the default on a CPU backend): agents run their own
+``while`` loops of steps, :data:`LANES` agents side by side in one loop, groups of agents
+one after another inside a program and work items of agents on several threads.
 
-With one lane every table access is a dynamic slice, so XLA's CPU backend compiles the
-whole loop into one native function (see :mod:`vdbejax._xla_flags`), and no agent ever
-waits for another. One program is compiled per kind of agent (learner and explorer type,
+With a few lanes every table access is a dynamic slice, so XLA's CPU backend compiles the
+whole loop into one native function (see :mod:`vdbejax._xla_flags`); an agent waits only
+for the few others of its loop. One program is compiled per kind of agent (learner and explorer type,
 with their static fields): XLA keeps only the kind's own work. Results are bit-identical
 to the lockstep strategy (products are rounded on their own, :mod:`vdbejax._numerics`).
 """
@@ -23,59 +23,87 @@ import numpy as np
 from vdbejax import _executables, _xla_flags
 from vdbejax.engine.lockstep import _next_power_of_two
 from vdbejax.engine.state import AgentState, init_agents, state_bytes
-from vdbejax.engine.step import run_loop, start_support
+from vdbejax.engine.step import UNROLLED_LANES_MAX, run_loop, start_support
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams, table_layout
 
 Array = jax.Array
 
 
-@partial(jax.jit, static_argnames=("chunk_length",), donate_argnames=("agents",))
-def _run_sequential(mdp, agent, agents, chunk_start, chunk_end, count, support, *,
-                    chunk_length):
-    """Agents ``0 .. count-1`` of the batch in turn run their own step loop to ``chunk_end``.
+#: Agents one native step loop runs side by side, one vector lane each. Their steps are
+#: independent (each lane reads and writes only its own agent's rows), so the width
+#: changes the speed, not the results: the products are rounded on their own
+#: (:mod:`vdbejax._numerics`), and widths 1, 2, 4, 8 and 16 give the same bits on the
+#: paper grid (tests check 1 against 4). Four lanes were the fastest on a 2-core AVX-512
+#: machine (``benchmarks/RESULTS.md``). Work items of fewer agents run at their own
+#: (power-of-two) size, so no table is padded beyond the next power of two.
+LANES = 4
+assert LANES <= UNROLLED_LANES_MAX  # wider loops would use scatters: not native
 
-    The step is :func:`lockstep_iteration` on a batch of one lane, which uses dynamic
-    slices only, so XLA's CPU backend compiles an agent's whole loop into one native
-    function (given the small-while-loop threshold that :mod:`vdbejax._xla_flags` sets)
-    instead of dispatching ~30 kernels per step. ``agent`` holds the work item's
+
+def lanes_for(rows: int) -> int:
+    """The loop width for a work item of ``rows`` (padded, power-of-two) rows."""
+    return min(LANES, rows)
+
+
+@partial(jax.jit, static_argnames=("chunk_length", "lanes"), donate_argnames=("agents",))
+def _run_sequential(mdp, agent, agents, chunk_start, chunk_end, count, support, *,
+                    chunk_length, lanes):
+    """Agents ``0 .. count-1`` of the batch run their own step loops to ``chunk_end``,
+    ``lanes`` agents at a time side by side.
+
+    The step is :func:`lockstep_iteration` on a batch of ``lanes`` lanes, whose table
+    accesses are unrolled dynamic slices, so XLA's CPU backend compiles the loop into one
+    native function (given the small-while-loop threshold that :mod:`vdbejax._xla_flags`
+    sets) instead of dispatching ~30 kernels per step. A lane whose agent has finished the
+    chunk idles until the other lanes' agents have too. ``agent`` holds the work item's
     hyperparameters, all of one kind: the kind's types fix the program, so XLA keeps only
-    the work that kind needs. Rows from ``count`` on are padding and left as they are.
-    The batch's tables are updated in place (``agents`` is donated): an agent's loop
-    indexes them at its own offset.
+    the work that kind needs. Rows from ``count`` on are padding: their lanes never run.
+    The batch's tables are updated in place (``agents`` is donated): a loop indexes them
+    at its agents' offsets.
+
+    Returns:
+      ``(agents, returns, lengths, iterations, lane_iterations)``: the agents' active
+      iterations (steps, plus one per episode start after a truncation) and the loops'
+      iterations × ``lanes``.
     """
     num_agents = agents.episode.shape[0]
     big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
+    lane = jnp.arange(lanes, dtype=jnp.int32)
 
-    def one_agent(i: Array, carry: tuple) -> tuple:
-        agents, returns, lengths, iterations = carry
+    def one_group(g: Array, carry: tuple) -> tuple:
+        agents, returns, lengths, iterations, lane_iterations = carry
+        first = g * lanes
 
         def pick(leaf: Array) -> Array:
-            return jax.lax.dynamic_slice_in_dim(leaf, i, 1)
+            return jax.lax.dynamic_slice_in_dim(leaf, first, lanes)
 
         def put(full: Array, new: Array) -> Array:
-            return jax.lax.dynamic_update_slice_in_dim(full, new, i, 0)
+            return jax.lax.dynamic_update_slice_in_dim(full, new, first, 0)
 
-        # The agent's scalars are sliced out and written back; its Q and tables are
-        # updated in the item's tables (``table_offset``): no copy of a table per agent.
+        # The agents' scalars are sliced out and written back; their Q and tables are
+        # updated in the item's tables (``table_offset``): no copy of a table per group.
         def scalars(state: AgentState) -> AgentState:
             return dataclasses.replace(state, q=None, tables=None)
 
-        one = dataclasses.replace(jax.tree.map(pick, scalars(agents)), q=agents.q,
-                                  tables=agents.tables)
-        one, one_returns, one_lengths, one_iterations = run_loop(
-            mdp, jax.tree.map(pick, agent), one, pick(returns), pick(lengths),
-            chunk_start, chunk_end, big, 1, support, table_offset=i,
+        group = dataclasses.replace(jax.tree.map(pick, scalars(agents)), q=agents.q,
+                                    tables=agents.tables)
+        real = first + lane < count
+        group, group_returns, group_lengths, trips = run_loop(
+            mdp, jax.tree.map(pick, agent), group, pick(returns), pick(lengths),
+            chunk_start, jnp.where(real, chunk_end, 0), big, 1, support, table_offset=first,
         )
-        agents = dataclasses.replace(jax.tree.map(put, scalars(agents), scalars(one)),
-                                     q=one.q, tables=one.tables)
-        return (agents, put(returns, one_returns), put(lengths, one_lengths),
-                iterations + one_iterations)
+        active = jnp.sum(jnp.where(real, group.counter - pick(agents.counter), 0))
+        agents = dataclasses.replace(jax.tree.map(put, scalars(agents), scalars(group)),
+                                     q=group.q, tables=group.tables)
+        return (agents, put(returns, group_returns), put(lengths, group_lengths),
+                iterations + active.astype(jnp.int32), lane_iterations + trips * lanes)
 
     returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
     lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
     zero = jnp.asarray(0, jnp.int32)
-    return jax.lax.fori_loop(0, count, one_agent, (agents, returns, lengths, zero))
+    return jax.lax.fori_loop(0, (count + lanes - 1) // lanes, one_group,
+                             (agents, returns, lengths, zero, zero))
 
 
 #: Per-compilation XLA options of the CPU engine: with region analysis, copy insertion
@@ -126,12 +154,15 @@ def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None
     ``costs`` estimates each agent's work (its steps in the previous chunk; ``None``: all
     equal). Within a kind, the agents are dealt to the kind's items in order of
     decreasing cost, back and forth, so the items have equal sizes (few shapes to
-    compile) and similar costs; items are returned most costly first, so that the last
-    items to start are short ones and the threads finish together.
+    compile) and similar costs, and an item's agents stay in order of decreasing cost,
+    so that the agents side by side in a loop (:data:`LANES`) finish at similar times.
+    Items are returned most costly first, so that the last items to start are short ones
+    and the threads finish together.
     """
     num_agents = kinds.shape[0]
     costs = np.ones(num_agents) if costs is None else np.asarray(costs, np.float64)
-    target = max(1, -(-num_agents // (4 * threads)))  # agents per item
+    # Agents per item: a multiple of the loop width, so that no lane is padding.
+    target = LANES * max(1, -(-num_agents // (4 * threads * LANES)))
     groups = []
     for kind in np.unique(kinds):
         members = np.flatnonzero(kinds == kind)
@@ -139,7 +170,7 @@ def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None
         ordered = members[np.argsort(-costs[members], kind="stable")]
         deal = np.arange(ordered.size) % (2 * parts)
         deal = np.where(deal < parts, deal, 2 * parts - 1 - deal)  # 0,1,..,p-1,p-1,..,0
-        groups += [np.sort(ordered[deal == k]) for k in range(parts)]
+        groups += [ordered[deal == k] for k in range(parts)]
     return sorted(groups, key=lambda group: (-costs[group].sum(), -len(group)))
 
 
@@ -165,9 +196,10 @@ class _SequentialRun:
     Agents are split by kind (learner and explorer type), one program per kind
     (:func:`_run_sequential`), and into about ``4 × threads`` work items
     (:func:`_sequential_groups`); worker threads take items as they become free (XLA
-    releases the GIL while a program runs). An item's arrays are padded to a power-of-two
-    number of rows (few shapes to compile; padding rows are not run). Each agent's result
-    depends on its own lane only, so the grouping changes nothing.
+    releases the GIL while a program runs). An item's loop runs :data:`LANES` agents side
+    by side. An item's arrays are padded to a power-of-two number of rows (few shapes to
+    compile; padding rows are not run). Each agent's result depends on its own lane only,
+    so the grouping changes nothing.
 
     Between chunks an item's state stays in the engine's buffers, which each chunk's
     program updates in place (donated). Small agents are regrouped by cost every chunk
@@ -224,7 +256,7 @@ class _SequentialRun:
         rows = _padded(index)
         kind = self.params.kinds[int(self.kinds[index[0]])]
         agent = jax.tree.map(lambda leaf: leaf[rows], kind)
-        static = {"chunk_length": chunk_length}
+        static = {"chunk_length": chunk_length, "lanes": lanes_for(rows.size)}
         args = (self.mdp, agent, agents, jnp.int32(chunk_start), jnp.int32(chunk_end),
                 jnp.int32(index.size), self.support)
         return _executables.compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
@@ -260,12 +292,13 @@ class _SequentialRun:
         return True
 
     def run_chunk(self, chunk_start: int, chunk_end: int, chunk_length: int,
-                  costs: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int] | None:
+                  costs: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int, int] | None:
         """Advance every agent to ``chunk_end`` episodes.
 
         Returns:
-          ``(returns, lengths, iterations)``: numpy ``[agents, chunk_length]`` buffers and
-          Σ agent loop iterations (steps, plus one per episode start after a truncation);
+          ``(returns, lengths, iterations, lane_iterations)``: numpy ``[agents,
+          chunk_length]`` buffers, Σ agent iterations (steps, plus one per episode start
+          after a truncation) and Σ loop iterations × lanes (idle lanes included);
           ``None`` (nothing run) if a loop did not compile natively
           (:func:`native_step_loops`).
         """
@@ -279,10 +312,10 @@ class _SequentialRun:
         def run(k: int) -> tuple:
             index, state = self.items[k]
             executable, args = self._call(index, state, chunk)
-            new_state, returns, lengths, iterations = executable(*args)  # state donated
+            new_state, returns, lengths, iterations, lanes = executable(*args)  # donated
             self.items[k] = (index, new_state)
             return (np.asarray(returns)[: index.size], np.asarray(lengths)[: index.size],
-                    int(iterations))
+                    int(iterations), int(lanes))
 
         self.host_current = False
         if self.threads == 1 or len(order) == 1:
@@ -293,11 +326,12 @@ class _SequentialRun:
         num_agents = int(self.keys.shape[0])
         returns = np.zeros((num_agents, chunk_length), np.float32)
         lengths = np.zeros((num_agents, chunk_length), np.int32)
-        iterations = 0
-        for k, (item_returns, item_lengths, item_iterations) in zip(order, outputs):
+        iterations = lane_iterations = 0
+        for k, (item_returns, item_lengths, item_iterations, item_lanes) in zip(order, outputs):
             index = self.items[k][0]
             returns[index], lengths[index] = item_returns, item_lengths
             iterations += item_iterations
-        return returns, lengths, iterations
+            lane_iterations += item_lanes
+        return returns, lengths, iterations, lane_iterations
 
 

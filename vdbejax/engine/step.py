@@ -14,8 +14,9 @@ One iteration of one agent (``s, a`` = current state and the action already chos
 The per-agent part (:func:`_agent_step`) calls the plug-ins on one agent's rows and is
 ``vmap``-ed over the lanes; around it, :func:`lockstep_iteration` reads and writes the
 lanes' tables. Tables are flat 1-D buffers (``[B·S·A]``, ``[B·S]``), so every access is a
-1-D gather or scatter of one row per lane, and for a batch of one lane (the sequential
-strategy) a dynamic slice: XLA's CPU backend then compiles the whole loop natively.
+1-D gather or scatter of one row per lane, and for a batch of a few lanes (the
+sequential strategy) unrolled dynamic slices: XLA's CPU backend then compiles the whole
+loop natively.
 """
 from __future__ import annotations
 
@@ -62,22 +63,34 @@ def start_support(mdp: TabularMDP) -> tuple[Array, Array]:
     return jnp.asarray(support), jnp.asarray(probability[support])
 
 
-# Per-lane buffer access. A batch of one lane (the CPU engine's per-agent loop) uses
+# Per-lane buffer access. A batch of a few lanes (the CPU engine's loops) uses unrolled
 # dynamic slices instead of gathers/scatters: XLA's CPU backend then compiles the whole
 # loop into one native function (scatters would keep it on the per-op runtime).
 
 
+#: Batches of at most this many lanes access their rows by unrolled dynamic slices (the
+#: sequential strategy's loops, :data:`~vdbejax.engine.sequential.LANES`); wider ones by
+#: gathers and scatters.
+UNROLLED_LANES_MAX = 4
+
+
+def _unrolled(index: Array) -> bool:
+    return index.ndim == 1 and index.shape[0] <= UNROLLED_LANES_MAX
+
+
 def take(buffer: Array, index: Array) -> Array:
     """``buffer[index]``, one value per lane (``[B]``)."""
-    if index.shape == (1,):
-        return jax.lax.dynamic_slice(buffer, (index[0],), (1,))
+    if _unrolled(index):
+        return jnp.concatenate([jax.lax.dynamic_slice(buffer, (index[k],), (1,))
+                                for k in range(index.shape[0])])
     return buffer.at[index].get(mode="promise_in_bounds")
 
 
 def take_row(buffer: Array, index: Array, width: int) -> Array:
     """``buffer[index + j]`` for ``j < width``, one row per lane (``[B, width]``)."""
-    if index.shape == (1,):
-        return jax.lax.dynamic_slice(buffer, (index[0],), (width,))[None, :]
+    if _unrolled(index):
+        return jnp.stack([jax.lax.dynamic_slice(buffer, (index[k],), (width,))
+                          for k in range(index.shape[0])])
     columns = jnp.arange(width, dtype=index.dtype)[None, :]
     return buffer.at[index[:, None] + columns].get(mode="promise_in_bounds")
 
@@ -86,8 +99,11 @@ def put(buffer: Array, index: Array, value: Array, rows: bool = False) -> Array:
     """``buffer[index] = value`` (``[B]``), or with ``rows`` ``buffer[index + j] =
     value[:, j]`` (``[B, width]``), for distinct in-bounds lanes."""
     value = value.astype(buffer.dtype)
-    if index.shape == (1,):
-        return jax.lax.dynamic_update_slice(buffer, value.reshape(-1), (index[0],))
+    if _unrolled(index):
+        rows_of = value.reshape(index.shape[0], -1)
+        for k in range(index.shape[0]):
+            buffer = jax.lax.dynamic_update_slice(buffer, rows_of[k], (index[k],))
+        return buffer
     if not rows:
         return buffer.at[index].set(value, mode="promise_in_bounds", unique_indices=True)
     columns = jnp.arange(value.shape[1], dtype=index.dtype)[None, :]
@@ -97,9 +113,17 @@ def put(buffer: Array, index: Array, value: Array, rows: bool = False) -> Array:
 
 def put_where(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
     """``buffer[index] = value`` where ``mask``; lanes without it write nothing."""
-    if index.shape == (1,):
+    if _unrolled(index):
+        # Lane by lane, each reading what it would overwrite just before: a lane without
+        # ``mask`` may point anywhere (an idle lane's slot is out of its range), and then
+        # rewrites the value that is there, even one another lane has just written.
+        value = value.astype(buffer.dtype)
         index = jnp.clip(index, 0, buffer.shape[0] - 1)
-        return put(buffer, index, jnp.where(mask, value, take(buffer, index)))
+        for k in range(index.shape[0]):
+            old = jax.lax.dynamic_slice(buffer, (index[k],), (1,))
+            buffer = jax.lax.dynamic_update_slice(
+                buffer, jnp.where(mask[k], value[k:k + 1], old), (index[k],))
+        return buffer
     index = jnp.where(mask, index, buffer.shape[0])  # past the end: dropped
     return buffer.at[index].set(value.astype(buffer.dtype), mode="drop")
 
@@ -225,6 +249,9 @@ def lockstep_iteration(
     learn = active & ~resetting
     s, a = agents.state, agents.action
     valid_a = (a >= 0) & (a < A)
+    # An invalid action (flagged below) still indexes this agent's own rows only: its
+    # neighbours' tables lie next to them in the same buffer.
+    a = jnp.clip(a, 0, A - 1)
 
     s_next, reward, terminal = _transition(mdp, s, a, u[1])
     length = agents.episode_length + 1
