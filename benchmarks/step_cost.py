@@ -38,6 +38,7 @@ def step_cost(settings: list, seeds: int, episodes: int, threads: int, strategy:
     steps = int(result.lengths.sum())
     return {"agents": len(keys), "steps": steps, "seconds": round(seconds, 3),
             "ns_per_step_per_thread": round(seconds * threads / steps * 1e9, 1),
+            "lane_efficiency": round(result.iterations / max(result.lane_iterations, 1), 3),
             "strategy": result.strategy}
 
 

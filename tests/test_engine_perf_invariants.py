@@ -152,18 +152,49 @@ def test_sequential_strategy_on_a_stochastic_mdp_equals_lockstep():
     _assert_same_run(sequential, lockstep)
 
 
-@pytest.mark.parametrize("lanes", [1, 2, 4])
-def test_loop_width_changes_nothing(mdp, monkeypatch, lanes):
-    """Agents side by side in a loop (sequential.LANES) give the bits of one agent alone
-    and of lockstep, for any number of agents per work item (idle and padding lanes)."""
+@pytest.mark.parametrize("lanes, seeds", [(1, 3), (2, 3), (4, 3), (4, 8)])
+def test_loop_width_changes_nothing(mdp, monkeypatch, lanes, seeds):
+    """Agents side by side in a loop (sequential.LANES), each lane taking the next agent
+    when its own has finished, give the bits of lockstep, for any number of agents per
+    work item: padding rows (3 seeds: items of 3 agents in 4 rows), idle lanes that point
+    at a real agent still running in another lane (8 seeds: items of 8 agents)."""
     monkeypatch.setattr(sequential, "LANES", lanes)
-    params, keys = _grid(3)
+    params, keys = _grid(seeds)
     lockstep = engine.run_agents(mdp, params, keys, 14, chunk_episodes=5, strategy="lockstep")
     for threads in (1, 3):
         run = engine.run_agents(mdp, params, keys, 14, chunk_episodes=5, threads=threads,
                                 strategy="sequential")
         _assert_same_run(run, lockstep)
         assert run.iterations <= run.lane_iterations
+
+
+@pytest.mark.parametrize("lanes", [1, 2, 4])
+def test_masked_lanes_write_nothing_even_where_another_lane_writes(lanes):
+    """An idle lane of the sequential strategy points at another agent's rows: its write
+    must leave what a real lane wrote there in the same iteration. (Wide lockstep batches
+    never alias: every lane is its own agent.)"""
+    from vdbejax.engine.step import put_learned
+
+    rng = np.random.default_rng(lanes)
+    buffer = jnp.asarray(rng.normal(size=3 * lanes + 2).astype(np.float32))
+    index = np.arange(lanes, dtype=np.int32) * 3
+    mask = rng.random(lanes) < 0.5
+    mask[0] = True
+    index[1:][~mask[1:]] = index[0]  # every masked lane aliases lane 0's cell
+    new = jnp.asarray(rng.normal(size=lanes).astype(np.float32))
+    old = buffer[index]
+    expected = np.asarray(buffer).copy()
+    expected[index[mask]] = np.asarray(new)[mask]
+    got = jax.jit(put_learned)(buffer, jnp.asarray(index), new, old, jnp.asarray(mask))
+    np.testing.assert_array_equal(np.asarray(got), expected)
+    rows = jnp.asarray(rng.normal(size=(lanes, 2)).astype(np.float32))
+    row_old = jnp.stack([buffer[i:i + 2] for i in index])
+    expected_rows = np.asarray(buffer).copy()
+    for k in np.flatnonzero(mask):
+        expected_rows[index[k]:index[k] + 2] = np.asarray(rows[k])
+    got_rows = put_learned(buffer, jnp.asarray(index), rows, row_old, jnp.asarray(mask),
+                           rows=True)
+    np.testing.assert_array_equal(np.asarray(got_rows), expected_rows)
 
 
 def test_a_self_loop_that_traps_the_agent_is_learned_in_both_strategies():
@@ -175,14 +206,16 @@ def test_a_self_loop_that_traps_the_agent_is_learned_in_both_strategies():
 
     trap = make_tabular_mdp(np.array([[0, 0]]), np.array([[-0.01, 1.0]], np.float32),
                             np.array([[False, True]]), np.array([1.0]), max_steps=60)
-    params, keys = grid_agents([Setting("qlearning", "softmax", 1e-4)], 3,
+    # 8 agents in one work item of 4 lanes: lanes that run out of agents idle pointing at
+    # the last agent's rows (one state: every cell is updated often), and must not write.
+    params, keys = grid_agents([Setting("qlearning", "softmax", 1e-4)], 8,
                                options=AgentOptions(q_init=-0.5))
     lockstep = engine.run_agents(trap, params, keys, 5, strategy="lockstep")
-    sequential_run = engine.run_agents(trap, params, keys, 5, strategy="sequential")
+    sequential_run = engine.run_agents(trap, params, keys, 5, strategy="sequential", threads=1)
     _assert_same_run(sequential_run, lockstep)
     trapped = (lockstep.lengths == 60).all(axis=1)
     assert trapped.any() and (lockstep.lengths[~trapped] == 1).all()
-    q = lockstep.final_state.q.reshape(3, 2)
+    q = lockstep.final_state.q.reshape(8, 2)
     assert (q[trapped, 0] > q[trapped, 1]).all()
 
 

@@ -55,12 +55,13 @@ def _run_sequential(mdp, agent, agents, chunk_start, chunk_end, count, support, 
     The step is :func:`lockstep_iteration` on a batch of ``lanes`` lanes, whose table
     accesses are unrolled dynamic slices, so XLA's CPU backend compiles the loop into one
     native function (given the small-while-loop threshold that :mod:`vdbejax._xla_flags`
-    sets) instead of dispatching ~30 kernels per step. A lane whose agent has finished the
-    chunk idles until the other lanes' agents have too. ``agent`` holds the work item's
-    hyperparameters, all of one kind: the kind's types fix the program, so XLA keeps only
-    the work that kind needs. Rows from ``count`` on are padding: their lanes never run.
-    The batch's tables are updated in place (``agents`` is donated): a loop indexes them
-    at its agents' offsets.
+    sets) instead of dispatching ~30 kernels per step. When a lane's agent has finished
+    the chunk, the loop stops, the lane's agent is written back and the next waiting agent
+    takes the lane; once none waits, the lanes run until their agents have all finished.
+    ``agent`` holds the work item's hyperparameters, all of one kind: the kind's types
+    fix the program, so XLA keeps only the work that kind needs. Rows from ``count`` on
+    are padding and never run. The batch's tables are updated in place (``agents`` is
+    donated): a loop indexes them at its agents' rows.
 
     Returns:
       ``(agents, returns, lengths, iterations, lane_iterations)``: the agents' active
@@ -69,41 +70,68 @@ def _run_sequential(mdp, agent, agents, chunk_start, chunk_end, count, support, 
     """
     num_agents = agents.episode.shape[0]
     big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
-    lane = jnp.arange(lanes, dtype=jnp.int32)
 
-    def one_group(g: Array, carry: tuple) -> tuple:
-        agents, returns, lengths, iterations, lane_iterations = carry
-        first = g * lanes
+    def scalars(state: AgentState) -> AgentState:
+        return dataclasses.replace(state, q=None, tables=None)
 
-        def pick(leaf: Array) -> Array:
-            return jax.lax.dynamic_slice_in_dim(leaf, first, lanes)
+    def gather(tree: Any, rows: Array) -> Any:
+        """Rows ``rows`` (clipped to the batch) of every leaf: one per lane."""
+        rows = jnp.clip(rows, 0, num_agents - 1)
+        return jax.tree.map(lambda leaf: jnp.concatenate(
+            [jax.lax.dynamic_slice_in_dim(leaf, rows[k], 1) for k in range(lanes)]), tree)
 
-        def put(full: Array, new: Array) -> Array:
-            return jax.lax.dynamic_update_slice_in_dim(full, new, first, 0)
-
-        # The agents' scalars are sliced out and written back; their Q and tables are
-        # updated in the item's tables (``table_offset``): no copy of a table per group.
-        def scalars(state: AgentState) -> AgentState:
-            return dataclasses.replace(state, q=None, tables=None)
-
-        group = dataclasses.replace(jax.tree.map(pick, scalars(agents)), q=agents.q,
-                                    tables=agents.tables)
-        real = first + lane < count
-        group, group_returns, group_lengths, trips = run_loop(
-            mdp, jax.tree.map(pick, agent), group, pick(returns), pick(lengths),
-            chunk_start, jnp.where(real, chunk_end, 0), big, 1, support, table_offset=first,
+    def refill(carry: tuple) -> tuple:
+        """Run the lanes until one finishes; hand finished lanes the next agents."""
+        full, lane_state, rows, waiting_from, returns, lengths, trips = carry
+        real = rows < count
+        lane_state = dataclasses.replace(lane_state, q=full.q, tables=full.tables)
+        lane_state, returns, lengths, loop_trips = run_loop(
+            mdp, gather(agent, rows), lane_state, returns, lengths, chunk_start,
+            jnp.where(real, chunk_end, 0), big, 1, support, table_rows=rows,
+            stop_at_first_finish=waiting_from < count,
         )
-        active = jnp.sum(jnp.where(real, group.counter - pick(agents.counter), 0))
-        agents = dataclasses.replace(jax.tree.map(put, scalars(agents), scalars(group)),
-                                     q=group.q, tables=group.tables)
-        return (agents, put(returns, group_returns), put(lengths, group_lengths),
-                iterations + active.astype(jnp.int32), lane_iterations + trips * lanes)
+        full = dataclasses.replace(full, q=lane_state.q, tables=lane_state.tables)
+        finished = real & (lane_state.episode >= chunk_end)
+        fields, lane_fields = scalars(full), scalars(lane_state)
+        for k in range(lanes):  # write back a finished lane's agent, take the next one
+            row = jnp.clip(rows[k], 0, num_agents - 1)
 
+            def write(leaf: Array, lane_leaf: Array, k=k, row=row) -> Array:
+                old = jax.lax.dynamic_slice_in_dim(leaf, row, 1)
+                new = jnp.where(finished[k], lane_leaf[k:k + 1], old)
+                return jax.lax.dynamic_update_slice_in_dim(leaf, new, row, 0)
+
+            fields = jax.tree.map(write, fields, lane_fields)
+            take_next = finished[k] & (waiting_from < count)
+            rows = rows.at[k].set(jnp.where(finished[k], jnp.where(
+                take_next, waiting_from, num_agents), rows[k]))
+            waiting_from = waiting_from + take_next.astype(jnp.int32)
+        fresh = gather(fields, rows)
+        lane_fields = jax.tree.map(
+            lambda new, old: jnp.where(
+                finished.reshape(finished.shape + (1,) * (new.ndim - 1)), new, old),
+            fresh, lane_fields)
+        full = dataclasses.replace(fields, q=full.q, tables=full.tables)
+        lane_state = dataclasses.replace(lane_fields, q=None, tables=None)
+        return (full, lane_state, rows, waiting_from, returns, lengths,
+                trips + loop_trips * lanes)
+
+    def any_lane_busy(carry: tuple) -> Array:
+        return jnp.any(carry[2] < count)
+
+    lane = jnp.arange(lanes, dtype=jnp.int32)
+    rows = jnp.where(lane < count, lane, num_agents)
     returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
     lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
     zero = jnp.asarray(0, jnp.int32)
-    return jax.lax.fori_loop(0, (count + lanes - 1) // lanes, one_group,
-                             (agents, returns, lengths, zero, zero))
+    started = agents.counter
+    lane_state = dataclasses.replace(gather(scalars(agents), rows), q=None, tables=None)
+    agents, _, _, _, returns, lengths, lane_iterations = jax.lax.while_loop(
+        any_lane_busy, refill,
+        (agents, lane_state, rows, jnp.asarray(lanes, jnp.int32), returns, lengths, zero))
+    real_rows = jnp.arange(num_agents) < count
+    iterations = jnp.sum(jnp.where(real_rows, agents.counter - started, 0)).astype(jnp.int32)
+    return agents, returns, lengths, iterations, lane_iterations
 
 
 #: Per-compilation XLA options of the CPU engine: with region analysis, copy insertion

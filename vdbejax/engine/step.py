@@ -111,21 +111,37 @@ def put(buffer: Array, index: Array, value: Array, rows: bool = False) -> Array:
                                                    unique_indices=True)
 
 
+def _write_lanes(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
+    """Unrolled ``buffer[index[k] + j] = value[k, j]`` where ``mask[k]``, lane by lane.
+
+    Each lane reads what it would overwrite just before writing, so a lane without
+    ``mask`` rewrites the value that is there, even one another lane has just written: a
+    masked lane may point anywhere (an idle lane of the sequential strategy points past
+    its work item's agents, clamped onto the last one's rows)."""
+    value = value.astype(buffer.dtype).reshape(index.shape[0], -1)
+    for k in range(index.shape[0]):
+        old = jax.lax.dynamic_slice(buffer, (index[k],), (value.shape[1],))
+        buffer = jax.lax.dynamic_update_slice(
+            buffer, jnp.where(mask[k], value[k], old), (index[k],))
+    return buffer
+
+
 def put_where(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
     """``buffer[index] = value`` where ``mask``; lanes without it write nothing."""
     if _unrolled(index):
-        # Lane by lane, each reading what it would overwrite just before: a lane without
-        # ``mask`` may point anywhere (an idle lane's slot is out of its range), and then
-        # rewrites the value that is there, even one another lane has just written.
-        value = value.astype(buffer.dtype)
-        index = jnp.clip(index, 0, buffer.shape[0] - 1)
-        for k in range(index.shape[0]):
-            old = jax.lax.dynamic_slice(buffer, (index[k],), (1,))
-            buffer = jax.lax.dynamic_update_slice(
-                buffer, jnp.where(mask[k], value[k:k + 1], old), (index[k],))
-        return buffer
+        return _write_lanes(buffer, index, value, mask)
     index = jnp.where(mask, index, buffer.shape[0])  # past the end: dropped
     return buffer.at[index].set(value.astype(buffer.dtype), mode="drop")
+
+
+def put_learned(buffer: Array, index: Array, new: Array, old: Array, mask: Array,
+                rows: bool = False) -> Array:
+    """:func:`put` of ``new`` where ``mask``, of ``old`` (the value read) elsewhere; a few
+    lanes write lane by lane, those without ``mask`` nothing (see :func:`_write_lanes`)."""
+    if _unrolled(index):
+        return _write_lanes(buffer, index, new, mask)
+    kept = jnp.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
+    return put(buffer, index, kept, rows)
 
 
 def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array) -> tuple[Array, Array, Array]:
@@ -210,7 +226,7 @@ def lockstep_iteration(
     chunk_start: Array,
     chunk_end: Array,
     support: tuple[Array, Array],
-    table_offset: Array | None = None,
+    table_rows: Array | None = None,
 ) -> tuple[AgentState, Array, Array]:
     """One lockstep iteration of a batch of one kind: every agent advances by one step.
 
@@ -226,9 +242,9 @@ def lockstep_iteration(
       chunk_start: episode index stored in each agent's buffer slot 0.
       chunk_end: episode count at which an agent stops being active.
       support: ``(states, weights)`` of the start distribution (:func:`start_support`).
-      table_offset: the tables hold the tables of more agents than the batch, whose lane
-        ``i`` is their agent ``table_offset + i`` (the sequential strategy updates a work
-        item's tables in place this way).
+      table_rows: the tables, ``returns`` and ``lengths`` hold the rows of more agents
+        than the batch, lane ``i`` being their agent ``table_rows[i]`` (the sequential
+        strategy updates a work item's buffers in place this way).
 
     Returns:
       ``(agents, returns, lengths)`` after the iteration.
@@ -236,9 +252,10 @@ def lockstep_iteration(
     learner, explorer = agent.learner, agent.explorer
     num_agents = agents.episode.shape[0]
     S, A = mdp.num_states, mdp.num_actions  # noqa: N806
-    chunk_length = returns.shape[0] // num_agents
     lane = jnp.arange(num_agents, dtype=jnp.int32)
-    table_lane = lane if table_offset is None else lane + table_offset
+    table_lane = lane if table_rows is None else table_rows
+    rows = num_agents if table_rows is None else agents.q.shape[0] // (S * A)
+    chunk_length = returns.shape[0] // rows
     pair_base, state_base = table_lane * (S * A), table_lane * S
 
     active = agents.episode < chunk_end
@@ -290,22 +307,19 @@ def lockstep_iteration(
         u[explorer_end:learner_end], u[learner_end:],
     )
 
-    def keep_learned(new: Array, old: Array) -> Array:
-        return jnp.where(learn.reshape(learn.shape + (1,) * (new.ndim - 1)), new, old)
-
-    q = put(agents.q, sa_index, keep_learned(new_q_sa, q_sa))
+    q = put_learned(agents.q, sa_index, new_q_sa, q_sa, learn)
     tables = dict(agents.tables)
     for name in learner_specs:
-        tables[name] = put(tables[name], sa_index, keep_learned(new_learner_sa[name],
-                                                                 learner_sa[name]))
+        tables[name] = put_learned(tables[name], sa_index, new_learner_sa[name],
+                                   learner_sa[name], learn)
     for name, spec in explorer_specs.items():
         index = state_base + s if spec.per == "state" else pair_base + s * A
-        tables[name] = put(tables[name], index, keep_learned(new_explorer_s[name],
-                                                              explorer_s[name]), spec.per == "pair")
+        tables[name] = put_learned(tables[name], index, new_explorer_s[name],
+                                   explorer_s[name], learn, spec.per == "pair")
 
     episode_return = agents.episode_return + reward
     slot = agents.episode - chunk_start
-    out = lane * chunk_length + slot
+    out = table_lane * chunk_length + slot
     returns = put_where(returns, out, episode_return, done)
     lengths = put_where(lengths, out, length, done)
 
@@ -333,12 +347,14 @@ def lockstep_iteration(
 
 
 def run_loop(mdp, agent, agents, returns, lengths, chunk_start, chunk_end, max_iterations,
-             unroll, support, table_offset=None):
+             unroll, support, table_rows=None, stop_at_first_finish=None):
     """``while`` any agent is active and fewer than ``max_iterations`` iterations ran.
 
     The body runs ``unroll`` iterations (fewer loop trips); iterations of an agent that
-    is no longer active change nothing, so overshooting is harmless. ``table_offset``:
-    see :func:`lockstep_iteration`.
+    is no longer active change nothing, so overshooting is harmless. ``table_rows``:
+    see :func:`lockstep_iteration`. ``stop_at_first_finish`` (a boolean scalar): where
+    true, the loop also stops as soon as one agent has finished the chunk (so that its
+    lane can take another agent).
     """
     q_shape, out_shape = agents.q.shape, returns.shape
     table_shapes = {name: table.shape for name, table in agents.tables.items()}
@@ -349,14 +365,18 @@ def run_loop(mdp, agent, agents, returns, lengths, chunk_start, chunk_end, max_i
 
     def cond(carry: tuple) -> Array:
         agents, _, _, iterations = carry
-        return jnp.any(agents.episode < chunk_end) & (iterations < max_iterations)
+        active = agents.episode < chunk_end
+        go = jnp.any(active) & (iterations < max_iterations)
+        if stop_at_first_finish is not None:
+            go &= ~stop_at_first_finish | jnp.all(active)
+        return go
 
     def body(carry: tuple) -> tuple:
         agents, returns, lengths, iterations = carry
         for _ in range(unroll):
             agents, returns, lengths = lockstep_iteration(
                 mdp, agent, agents, returns, lengths, chunk_start, chunk_end, support,
-                table_offset,
+                table_rows,
             )
         return agents, returns, lengths, iterations + unroll
 
