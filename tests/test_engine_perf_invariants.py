@@ -294,14 +294,15 @@ def test_sequential_work_items_are_equal_sized_cost_balanced_and_cover_every_age
     assert sum(len(group) for group in plain) == kinds.size
 
 
-@pytest.mark.parametrize("regroup_max_bytes", [0, 1 << 40])
+@pytest.mark.parametrize("host_init_max_bytes", [0, 1 << 40])
 def test_agents_kept_in_their_work_items_equal_lockstep_and_checkpoint_the_same(
-    mdp, monkeypatch, regroup_max_bytes
+    mdp, monkeypatch, host_init_max_bytes
 ):
-    """Large agents stay in their first work item for the whole run (their tables are
-    updated in place, never copied between chunks); small ones are regrouped by cost.
-    Either way the results, and the states handed to ``on_chunk``, equal lockstep's."""
-    monkeypatch.setattr(sequential, "REGROUP_MAX_BYTES", regroup_max_bytes)
+    """Agents stay in their first work item for the whole run (their tables are updated
+    in place, never copied between chunks); large ones are created there, small ones on
+    the host first. Either way the results, and the states handed to ``on_chunk``, equal
+    lockstep's."""
+    monkeypatch.setattr(sequential, "HOST_INIT_MAX_BYTES", host_init_max_bytes)
     params = engine.broadcast_agents(stack_agents([make_agent(s) for s in SETTINGS]), 3)
     keys = np.tile(engine.agent_keys(9, 3), (len(SETTINGS), 1))
     seen = {"sequential": [], "lockstep": []}

@@ -33,7 +33,9 @@ import hashlib
 import os
 import pickle
 import tempfile
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 import warnings
 from functools import lru_cache
 from pathlib import Path
@@ -48,6 +50,11 @@ _EXECUTABLES: dict[Any, Any] = {}
 _SECONDS = [0.0]
 #: Executables loaded from / written to the disk copy in this process.
 _DISK = {"loaded": 0, "stored": 0, "write_failed": 0}
+#: Guards the counters above, and serialises compilations that switch JAX's cache off
+#: (a process-wide setting) when several threads get executables (:func:`compiled_all`).
+_LOCK = threading.RLock()
+#: Set on the threads of :func:`compiled_all`, which counts their seconds as one wall time.
+_UNTIMED = threading.local()
 #: JAX options that change what a function lowers to.
 _LOWERING_OPTIONS = (
     "jax_enable_x64",
@@ -103,6 +110,15 @@ def _node_types(treedef: Any) -> tuple:
     return (data[0] if data else None, tuple(_node_types(c) for c in treedef.children()))
 
 
+def call_key(function: Any, args: tuple, static: dict[str, Any],
+             compiler_options: dict[str, Any] | None = None) -> tuple:
+    """The in-process table's key of a :func:`compiled` call."""
+    options = dict(sorted((compiler_options or {}).items()))
+    sig = signature(args)
+    return (function, tuple(sorted(static.items())), sig, _node_types(sig[0]),
+            tuple(options.items()))
+
+
 def compiled(function: Any, args: tuple, static: dict[str, Any],
              compiler_options: dict[str, Any] | None = None) -> Any:
     """``function``'s executable for ``args`` (explicit ``trace().lower().compile()``, cached).
@@ -120,10 +136,9 @@ def compiled(function: Any, args: tuple, static: dict[str, Any],
     Returns:
       the compiled executable.
     """
-    options = dict(sorted((compiler_options or {}).items()))
-    sig = signature(args)
-    key = (function, tuple(sorted(static.items())), sig, _node_types(sig[0]),
-           tuple(options.items()))
+    key = call_key(function, args, static, compiler_options)
+    options = dict(key[4])
+    sig = key[2]
     executable = _EXECUTABLES.get(key)
     if executable is not None:
         return executable
@@ -145,9 +160,33 @@ def compiled(function: Any, args: tuple, static: dict[str, Any],
         executable = _compile(traced or function.trace(*args, **static), options,
                               bypass_jax_cache=True)
         _store(path, executable)
-    _SECONDS[0] += time.perf_counter() - started
+    if not getattr(_UNTIMED, "active", False):
+        with _LOCK:
+            _SECONDS[0] += time.perf_counter() - started
     _EXECUTABLES[key] = executable
     return executable
+
+
+def compiled_all(calls: list[tuple], threads: int) -> list[Any]:
+    """:func:`compiled` for each ``(function, args, static, compiler_options)``, on up to
+    ``threads`` threads (loading a stored program and compiling one mostly run outside
+    the GIL); the wall time is what :func:`compile_seconds` counts."""
+    started = time.perf_counter()
+
+    def get(call: tuple) -> Any:
+        _UNTIMED.active = True
+        try:
+            return compiled(*call)
+        finally:
+            _UNTIMED.active = False
+
+    if threads <= 1 or len(calls) <= 1:
+        return [compiled(*call) for call in calls]
+    with ThreadPoolExecutor(max_workers=min(threads, len(calls))) as pool:
+        executables = list(pool.map(get, calls))
+    with _LOCK:
+        _SECONDS[0] += time.perf_counter() - started
+    return executables
 
 
 def _compile(traced: Any, options: dict[str, Any], *, bypass_jax_cache: bool = False) -> Any:
@@ -156,14 +195,15 @@ def _compile(traced: Any, options: dict[str, Any], *, bypass_jax_cache: bool = F
         return lowered.compile(options) if options else lowered.compile()
     from jax.experimental.compilation_cache import compilation_cache as jax_cache
 
-    enabled = jax.config.jax_enable_compilation_cache
-    jax.config.update("jax_enable_compilation_cache", False)
-    jax_cache.reset_cache()  # JAX decides once whether to use its cache: ask again
-    try:
-        return lowered.compile(options) if options else lowered.compile()
-    finally:
-        jax.config.update("jax_enable_compilation_cache", enabled)
-        jax_cache.reset_cache()
+    with _LOCK:
+        enabled = jax.config.jax_enable_compilation_cache
+        jax.config.update("jax_enable_compilation_cache", False)
+        jax_cache.reset_cache()  # JAX decides once whether to use its cache: ask again
+        try:
+            return lowered.compile(options) if options else lowered.compile()
+        finally:
+            jax.config.update("jax_enable_compilation_cache", enabled)
+            jax_cache.reset_cache()
 
 
 class _FromDisk:
@@ -393,7 +433,8 @@ def _load(path: Path) -> Any:
         executable = deserialize_and_load(payload, in_tree, out_tree)
     except Exception:  # noqa: BLE001  (absent, truncated, another jaxlib: compile again)
         return None
-    _DISK["loaded"] += 1
+    with _LOCK:
+        _DISK["loaded"] += 1
     return executable
 
 
@@ -417,4 +458,5 @@ def _store(path: Path, executable: Any) -> None:
                           stacklevel=3)
         _DISK["write_failed"] += 1
         return
-    _DISK["stored"] += 1
+    with _LOCK:
+        _DISK["stored"] += 1

@@ -20,7 +20,7 @@ import numpy as np
 
 from vdbejax import _executables
 from vdbejax.engine.lockstep import DEFAULT_UNROLL, MAX_SAFE_BATCH, run_chunk_lockstep
-from vdbejax.engine.sequential import _SequentialRun, kept_in_items
+from vdbejax.engine.sequential import _SequentialRun, created_in_items
 from vdbejax.engine.state import AgentState, init_agents
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams, kind_key
@@ -139,7 +139,7 @@ def run_agents(
     if initial is None:
         done = 0
         agents = None  # created by the sequential strategy in its work items
-        if strategy != "sequential" or not kept_in_items(mdp, params):
+        if strategy != "sequential" or not created_in_items(mdp, params):
             agents = _executables.compiled(init_agents, (mdp, params, keys), {})(mdp, params, keys)
     else:
         done, agents, returns[:, : initial[0]], lengths[:, : initial[0]] = initial

@@ -179,7 +179,7 @@ def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None
                        ) -> list[np.ndarray]:
     """Agent indices per work item: one kind each, ≈ ``4 × threads`` items in all.
 
-    ``costs`` estimates each agent's work (its steps in the previous chunk; ``None``: all
+    ``costs`` estimates each agent's work (e.g. its steps in an earlier run; ``None``: all
     equal). Within a kind, the agents are dealt to the kind's items in order of
     decreasing cost, back and forth, so the items have equal sizes (few shapes to
     compile) and similar costs, and an item's agents stay in order of decreasing cost,
@@ -202,10 +202,9 @@ def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None
     return sorted(groups, key=lambda group: (-costs[group].sum(), -len(group)))
 
 
-#: Agents whose state (Q, ε(s)) is at most this many bytes are regrouped into new work
-#: items every chunk (cost balance); larger agents stay in their first work item for the
-#: whole run, their tables never leaving the engine's buffers between chunks.
-REGROUP_MAX_BYTES = 1 << 20
+#: Agents whose state (Q, ε(s)) exceeds this many bytes are created in their work items,
+#: on the device, instead of on the host first (no host copy of large tables).
+HOST_INIT_MAX_BYTES = 1 << 20
 
 
 def _padded(index: np.ndarray) -> np.ndarray:
@@ -213,9 +212,9 @@ def _padded(index: np.ndarray) -> np.ndarray:
     return np.resize(index, _next_power_of_two(index.size))
 
 
-def kept_in_items(mdp: TabularMDP, params: AgentParams) -> bool:
-    """Whether an agent's tables exceed :data:`REGROUP_MAX_BYTES` (see _SequentialRun)."""
-    return state_bytes(mdp, table_layout(params)) > REGROUP_MAX_BYTES
+def created_in_items(mdp: TabularMDP, params: AgentParams) -> bool:
+    """Whether an agent's tables exceed :data:`HOST_INIT_MAX_BYTES` (see _SequentialRun)."""
+    return state_bytes(mdp, table_layout(params)) > HOST_INIT_MAX_BYTES
 
 
 class _SequentialRun:
@@ -229,12 +228,13 @@ class _SequentialRun:
     compile; padding rows are not run). Each agent's result depends on its own lane only,
     so the grouping changes nothing.
 
-    Between chunks an item's state stays in the engine's buffers, which each chunk's
-    program updates in place (donated). Small agents are regrouped by cost every chunk
-    (the state goes through the host, cheap for them); agents larger than
-    :data:`REGROUP_MAX_BYTES` keep their first item, so their tables are not copied per
-    chunk. :meth:`agents` gathers the full state on the host when it is needed
-    (checkpoints, the end of the run).
+    Work items are formed once, at the first chunk, and keep their agents for the whole
+    run: between chunks an item's state stays in the engine's buffers, which each chunk's
+    program updates in place (donated), and no table is copied. (Regrouping agents by
+    their cost every chunk balanced the threads no better than lanes that take the next
+    waiting agent, and its copies through the host cost more: ``benchmarks/RESULTS.md``.)
+    Items start most costly first by the previous chunk's steps. :meth:`agents` gathers
+    the full state on the host when it is needed (checkpoints, the end of the run).
     """
 
     def __init__(self, mdp: TabularMDP, params: AgentParams, agents: AgentState | None,
@@ -247,7 +247,6 @@ class _SequentialRun:
         self.host_current = True
         self.items: list[tuple[np.ndarray, Any]] | None = None
         self.kinds = np.asarray(self.params.kind)
-        self.regroup = not kept_in_items(mdp, self.params)
         self.support = start_support(mdp)
         self.layout = (jax.eval_shape(init_agents, mdp, self.params, self.keys)
                        if agents is None else
@@ -287,10 +286,10 @@ class _SequentialRun:
         static = {"chunk_length": chunk_length, "lanes": lanes_for(rows.size)}
         args = (self.mdp, agent, agents, jnp.int32(chunk_start), jnp.int32(chunk_end),
                 jnp.int32(index.size), self.support)
-        return _executables.compiled(_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
+        return (_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
 
     def _group(self, costs: np.ndarray | None, chunk: tuple[int, int, int]) -> bool:
-        """New work items from the current state; ``False`` if a loop is not native."""
+        """The work items, from the current state; ``False`` if a loop is not native."""
         groups = _sequential_groups(self.kinds, self.threads, costs)
 
         def shapes(index: np.ndarray) -> Any:  # enough to compile: no copy of the rows
@@ -300,8 +299,14 @@ class _SequentialRun:
                 self.layout,
             )
 
-        # Compile on this thread (one program per kind and padded size) before running.
-        if not all(_check_native(self._call(index, shapes(index), chunk)[0]) for index in groups):
+        # Get the programs (one per kind and padded size) before running, on the worker
+        # threads: loading a stored program or compiling one mostly runs outside the GIL.
+        programs = {}
+        for index in groups:
+            call = self._call(index, shapes(index), chunk)[0]
+            programs.setdefault(_executables.call_key(*call), call)
+        executables = _executables.compiled_all(list(programs.values()), self.threads)
+        if not all(_check_native(executable) for executable in executables):
             return False
         fresh = self.host is None  # large fresh agents: created in their item, on the device
         host = None if fresh else self.agents()
@@ -331,7 +336,7 @@ class _SequentialRun:
           (:func:`native_step_loops`).
         """
         chunk = (chunk_start, chunk_end, chunk_length)
-        if (self.items is None or self.regroup) and not self._group(costs, chunk):
+        if self.items is None and not self._group(costs, chunk):
             return None
         # Items most costly first (one kind each; their order only affects the balance).
         order = sorted(range(len(self.items)), key=lambda k: -(
@@ -339,7 +344,8 @@ class _SequentialRun:
 
         def run(k: int) -> tuple:
             index, state = self.items[k]
-            executable, args = self._call(index, state, chunk)
+            call, args = self._call(index, state, chunk)
+            executable = _executables.compiled(*call)  # got by _group: a table lookup
             new_state, returns, lengths, iterations, lanes = executable(*args)  # donated
             self.items[k] = (index, new_state)
             return (np.asarray(returns)[: index.size], np.asarray(lengths)[: index.size],

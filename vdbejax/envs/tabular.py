@@ -152,6 +152,12 @@ def _first_bad(label: str, arr: np.ndarray, bad: np.ndarray, allowed: str) -> No
         raise ValueError(f"{label}{list(where)} = {arr[where].item()!r}: {allowed}")
 
 
+def _on_device(value: Any, dtype: Any) -> Array:
+    """``value`` as a device array of ``dtype``, converted on the host (a plain copy to
+    the device: ``jnp.asarray`` would compile a small conversion program per shape)."""
+    return jax.device_put(np.asarray(value, dtype, order="C"))
+
+
 def make_tabular_mdp(
     next_state: Any,
     reward: Any,
@@ -283,14 +289,14 @@ def make_tabular_mdp(
                              " must list distinct non-negative codes in increasing order")
         if codes[-1] > np.iinfo(np.int32).max:
             raise ValueError(f"state_codes holds {codes[-1]}: must be < 2**31")
-        codes = jnp.asarray(codes, jnp.int32)
+        codes = _on_device(codes, np.int32)
     return TabularMDP(
-        next_state=jnp.asarray(next_state, jnp.int32),
-        probability=jnp.asarray(probability),
-        reward=jnp.asarray(reward),
-        terminal=jnp.asarray(terminal),
-        start_probability=jnp.asarray(start / start.sum(), jnp.float32),
-        max_steps=jnp.asarray(max_steps, jnp.int32),
+        next_state=_on_device(next_state, np.int32),
+        probability=_on_device(probability, np.float32),
+        reward=_on_device(reward, np.float32),
+        terminal=_on_device(terminal, bool),
+        start_probability=_on_device(start / start.sum(), np.float32),
+        max_steps=_on_device(max_steps, np.int32),
         name=name,
         state_codes=codes,
     )
@@ -315,7 +321,7 @@ MAX_CODES = 2**31 - 1
 def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, Array]:
     """``(step, actions)``: jitted ``step(codes [B], actions) -> (next_codes, reward,
     terminal)``, each ``[B, A]``, and the int32 action indices."""
-    actions = jnp.arange(env.num_actions, dtype=jnp.int32)
+    actions = np.arange(env.num_actions, dtype=np.int32)
 
     def one(code: Array, action: Array) -> tuple[Array, Array, Array]:
         fields = env.decode(code, params)
@@ -338,7 +344,7 @@ def _step_codes(step: Any, actions: Array, codes: np.ndarray, batch_size: int
         part = codes[begin: begin + batch_size]
         padded = np.zeros(small if len(part) <= small else batch_size, np.int32)
         padded[: len(part)] = part
-        next_codes, reward, terminal = step(jnp.asarray(padded), actions)
+        next_codes, reward, terminal = step(padded, actions)
         outputs.append((np.asarray(next_codes)[: len(part)], np.asarray(reward)[: len(part)],
                         np.asarray(terminal)[: len(part)]))
     return tuple(np.concatenate(arrays) for arrays in zip(*outputs))
