@@ -50,11 +50,10 @@ _EXECUTABLES: dict[Any, Any] = {}
 _SECONDS = [0.0]
 #: Executables loaded from / written to the disk copy in this process.
 _DISK = {"loaded": 0, "stored": 0, "write_failed": 0}
-#: Guards the counters above, and serialises compilations that switch JAX's cache off
-#: (a process-wide setting) when several threads get executables (:func:`compiled_all`).
-_LOCK = threading.RLock()
-#: Set on the threads of :func:`compiled_all`, which counts their seconds as one wall time.
-_UNTIMED = threading.local()
+#: Guards the counters above (several threads get executables: :func:`compiled_all`).
+_LOCK = threading.Lock()
+#: Held while JAX's persistent cache is switched off (a process-wide setting).
+_CACHE_OFF_LOCK = threading.Lock()
 #: JAX options that change what a function lowers to.
 _LOWERING_OPTIONS = (
     "jax_enable_x64",
@@ -136,33 +135,51 @@ def compiled(function: Any, args: tuple, static: dict[str, Any],
     Returns:
       the compiled executable.
     """
+    started = time.perf_counter()
+    executable, miss = _stored(function, args, static, compiler_options)
+    if executable is None:
+        # Compiled afresh, not read from JAX's cache, when it is stored: XLA's CPU backend
+        # serialises an executable it loaded from a cache (or compiled again after
+        # loading it) incompletely, and the copy would fail to run (kernels "not found").
+        # This costs one full compilation per program when JAX's cache had it but the
+        # disk copy not.
+        if miss[2] is None:
+            executable = _compile_miss(miss)
+        else:
+            with _jax_cache_off():
+                executable = _compile_miss(miss)
+    with _LOCK:
+        _SECONDS[0] += time.perf_counter() - started
+    return executable
+
+
+def _stored(function: Any, args: tuple, static: dict[str, Any],
+            compiler_options: dict[str, Any] | None) -> tuple[Any, tuple | None]:
+    """``(executable, None)`` from this process's table or the disk copy, else
+    ``(None, miss)``: what :func:`_compile_miss` needs to compile it."""
     key = call_key(function, args, static, compiler_options)
-    options = dict(key[4])
-    sig = key[2]
     executable = _EXECUTABLES.get(key)
     if executable is not None:
-        return executable
-    started = time.perf_counter()
+        return executable, None
+    options = dict(key[4])
     traced = None if _vdbejax_only(key[3]) else function.trace(*args, **static)
-    path = _disk_path(function, static, sig, options, traced)
+    path = _disk_path(function, static, key[2], options, traced)
     executable = _load(path) if path is not None else None
-    if executable is not None:
-        shapes = _abstract(args)  # not the arrays: the entry must not keep them alive
-        executable = _FromDisk(executable, path, key,
-                               lambda: _compile(function.trace(*shapes, **static), options))
-    elif path is None:
-        executable = _compile(traced or function.trace(*args, **static), options)
-    else:
-        # Compiled afresh, not read from JAX's cache: XLA's CPU backend serialises an
-        # executable it loaded from a cache (or compiled again after loading it)
-        # incompletely, and the copy would fail to run (kernels "not found"). This costs
-        # one full compilation per program when JAX's cache had it but the disk copy not.
-        executable = _compile(traced or function.trace(*args, **static), options,
-                              bypass_jax_cache=True)
+    if executable is None:
+        return None, (key, traced or function.trace(*args, **static), path, options)
+    shapes = _abstract(args)  # not the arrays: the entry must not keep them alive
+    executable = _FromDisk(executable, path, key,
+                           lambda: _compile(function.trace(*shapes, **static), options))
+    _EXECUTABLES[key] = executable
+    return executable, None
+
+
+def _compile_miss(miss: tuple) -> Any:
+    """Compile a :func:`_stored` miss, keep it, and store it on disk where it has a path."""
+    key, traced, path, options = miss
+    executable = _compile(traced, options)
+    if path is not None:
         _store(path, executable)
-    if not getattr(_UNTIMED, "active", False):
-        with _LOCK:
-            _SECONDS[0] += time.perf_counter() - started
     _EXECUTABLES[key] = executable
     return executable
 
@@ -170,40 +187,50 @@ def compiled(function: Any, args: tuple, static: dict[str, Any],
 def compiled_all(calls: list[tuple], threads: int) -> list[Any]:
     """:func:`compiled` for each ``(function, args, static, compiler_options)``, on up to
     ``threads`` threads (loading a stored program and compiling one mostly run outside
-    the GIL); the wall time is what :func:`compile_seconds` counts."""
-    started = time.perf_counter()
-
-    def get(call: tuple) -> Any:
-        _UNTIMED.active = True
-        try:
-            return compiled(*call)
-        finally:
-            _UNTIMED.active = False
-
+    the GIL); the wall time is what :func:`compile_seconds` counts. Programs that are
+    neither in this process nor on disk are compiled together, with JAX's cache off."""
     if threads <= 1 or len(calls) <= 1:
         return [compiled(*call) for call in calls]
+    started = time.perf_counter()
     with ThreadPoolExecutor(max_workers=min(threads, len(calls))) as pool:
-        executables = list(pool.map(get, calls))
+        found = list(pool.map(lambda call: _stored(*call), calls))
+        misses = [k for k, (executable, _) in enumerate(found) if executable is None]
+        executables = [executable for executable, _ in found]
+        if misses:
+            with _jax_cache_off():
+                fresh = list(pool.map(_compile_miss, [found[k][1] for k in misses]))
+            for k, executable in zip(misses, fresh):
+                executables[k] = executable
     with _LOCK:
         _SECONDS[0] += time.perf_counter() - started
     return executables
 
 
-def _compile(traced: Any, options: dict[str, Any], *, bypass_jax_cache: bool = False) -> Any:
+def _compile(traced: Any, options: dict[str, Any]) -> Any:
     lowered = traced.lower()
-    if not bypass_jax_cache:
-        return lowered.compile(options) if options else lowered.compile()
-    from jax.experimental.compilation_cache import compilation_cache as jax_cache
+    return lowered.compile(options) if options else lowered.compile()
 
-    with _LOCK:
-        enabled = jax.config.jax_enable_compilation_cache
+
+class _jax_cache_off:  # noqa: N801  (a context manager, named like one)
+    """JAX's persistent cache switched off for the compilations inside (process-wide: a
+    JAX setting; entered by one caller at a time, others wait)."""
+
+    def __enter__(self) -> None:
+        from jax.experimental.compilation_cache import compilation_cache as jax_cache
+
+        _CACHE_OFF_LOCK.acquire()
+        self.enabled = jax.config.jax_enable_compilation_cache
         jax.config.update("jax_enable_compilation_cache", False)
         jax_cache.reset_cache()  # JAX decides once whether to use its cache: ask again
+
+    def __exit__(self, *exc: Any) -> None:
+        from jax.experimental.compilation_cache import compilation_cache as jax_cache
+
         try:
-            return lowered.compile(options) if options else lowered.compile()
-        finally:
-            jax.config.update("jax_enable_compilation_cache", enabled)
+            jax.config.update("jax_enable_compilation_cache", self.enabled)
             jax_cache.reset_cache()
+        finally:
+            _CACHE_OFF_LOCK.release()
 
 
 class _FromDisk:
