@@ -572,9 +572,14 @@ def main(argv=None) -> int:
         lines.append(f"- Python (extrapolated) / vdbejax (warm) = **{ratio(jax_warm, extrapolated):.1f}×** "
                      "(target ≥ 100)")
     if strategy == "sequential":
-        lines.append(f"- vdbejax sequential: {jax_warm['iterations']:,} loop iterations for "
+        from vdbejax.engine import sequential
+
+        lines.append(f"- vdbejax sequential: {jax_warm['iterations']:,} agent iterations for "
                      f"{steps:,} real steps (one per step, plus one per episode start after a "
-                     f"truncation); step loops compiled natively: {jax_warm['native']}.")
+                     f"truncation), {jax_warm['lane_iterations']:,} lane iterations of its "
+                     f"{sequential.LANES}-lane loops (lane efficiency "
+                     f"{jax_warm['iterations'] / max(jax_warm['lane_iterations'], 1):.1%}); "
+                     f"step loops compiled natively: {jax_warm['native']}.")
     if lockstep is not None:
         same_ = np.array_equal(lockstep["returns"], jax_warm["returns"])
         lines.append(f"- Returns of the lockstep and the {strategy} strategy bit-identical: "
