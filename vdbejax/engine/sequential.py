@@ -284,8 +284,8 @@ class _SequentialRun:
         kind = self.params.kinds[int(self.kinds[index[0]])]
         agent = jax.tree.map(lambda leaf: leaf[rows], kind)
         static = {"chunk_length": chunk_length, "lanes": lanes_for(rows.size)}
-        args = (self.mdp, agent, agents, jnp.int32(chunk_start), jnp.int32(chunk_end),
-                jnp.int32(index.size), self.support)
+        args = (self.mdp, agent, agents, np.int32(chunk_start), np.int32(chunk_end),
+                np.int32(index.size), self.support)
         return (_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
 
     def _group(self, costs: np.ndarray | None, chunk: tuple[int, int, int]) -> bool:
@@ -318,7 +318,8 @@ class _SequentialRun:
                         self.keys[rows])
                 state = _executables.compiled(init_agents, args, {})(*args)
             else:  # on a CPU np.asarray of a device array is a view: one gather, one copy
-                state = jax.tree.map(lambda leaf, rows=rows: jnp.asarray(np.asarray(leaf)[rows]),
+                # (device_put, not jnp.asarray, which compiles a small program per shape)
+                state = jax.tree.map(lambda leaf, rows=rows: jax.device_put(np.asarray(leaf)[rows]),
                                      host)
             items.append((index, state))
         self.items = items
