@@ -246,6 +246,7 @@ class _SequentialRun:
         self.host = agents  # the full state while host_current (numpy or device arrays)
         self.host_current = True
         self.items: list[tuple[np.ndarray, Any]] | None = None
+        self.programs: list[tuple[Any, Any]] = []  # per item: executable, hyperparameters
         self.kinds = np.asarray(self.params.kind)
         self.support = start_support(mdp)
         self.layout = (jax.eval_shape(init_agents, mdp, self.params, self.keys)
@@ -278,15 +279,20 @@ class _SequentialRun:
         return flags
 
     def _call(self, index: np.ndarray, agents: Any, chunk: tuple[int, int, int]) -> tuple:
-        """``(executable, args)`` of an item; ``agents`` may be shapes only."""
-        chunk_start, chunk_end, chunk_length = chunk
+        """The :func:`_executables.compiled` call of an item's program; ``agents`` may be
+        shapes only."""
         rows = _padded(index)
         kind = self.params.kinds[int(self.kinds[index[0]])]
         agent = jax.tree.map(lambda leaf: leaf[rows], kind)
-        static = {"chunk_length": chunk_length, "lanes": lanes_for(rows.size)}
-        args = (self.mdp, agent, agents, np.int32(chunk_start), np.int32(chunk_end),
+        static = {"chunk_length": chunk[2], "lanes": lanes_for(rows.size)}
+        args = self._arguments(agent, agents, index, chunk)
+        return _run_sequential, args, static, _CPU_COMPILER_OPTIONS
+
+    def _arguments(self, agent: Any, agents: Any, index: np.ndarray,
+                   chunk: tuple[int, int, int]) -> tuple:
+        """The positional arguments of :func:`_run_sequential` for an item."""
+        return (self.mdp, agent, agents, np.int32(chunk[0]), np.int32(chunk[1]),
                 np.int32(index.size), self.support)
-        return (_run_sequential, args, static, _CPU_COMPILER_OPTIONS), args
 
     def _group(self, costs: np.ndarray | None, chunk: tuple[int, int, int]) -> bool:
         """The work items, from the current state; ``False`` if a loop is not native."""
@@ -301,13 +307,14 @@ class _SequentialRun:
 
         # Get the programs (one per kind and padded size) before running, on the worker
         # threads: loading a stored program or compiling one mostly runs outside the GIL.
-        programs = {}
-        for index in groups:
-            call = self._call(index, shapes(index), chunk)[0]
-            programs.setdefault(_executables.call_key(*call), call)
+        calls = [self._call(index, shapes(index), chunk) for index in groups]
+        programs = {_executables.call_key(*call): call for call in calls}
         executables = _executables.compiled_all(list(programs.values()), self.threads)
         if not all(_check_native(executable) for executable in executables):
             return False
+        # Each item's program and hyperparameters, for every chunk (items keep their
+        # agents, and a run's chunks have one length, a static argument of the program).
+        self.programs = [(_executables.compiled(*call), call[1][1]) for call in calls]
         fresh = self.host is None  # large fresh agents: created in their item, on the device
         host = None if fresh else self.agents()
         items = []
@@ -327,7 +334,8 @@ class _SequentialRun:
 
     def run_chunk(self, chunk_start: int, chunk_end: int, chunk_length: int,
                   costs: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int, int] | None:
-        """Advance every agent to ``chunk_end`` episodes.
+        """Advance every agent to ``chunk_end`` episodes (``chunk_length``: the same for
+        every chunk of the run, the buffers' length).
 
         Returns:
           ``(returns, lengths, iterations, lane_iterations)``: numpy ``[agents,
@@ -345,9 +353,9 @@ class _SequentialRun:
 
         def run(k: int) -> tuple:
             index, state = self.items[k]
-            call, args = self._call(index, state, chunk)
-            executable = _executables.compiled(*call)  # got by _group: a table lookup
-            new_state, returns, lengths, iterations, lanes = executable(*args)  # donated
+            executable, agent = self.programs[k]
+            new_state, returns, lengths, iterations, lanes = executable(  # state donated
+                *self._arguments(agent, state, index, chunk))
             self.items[k] = (index, new_state)
             return (np.asarray(returns)[: index.size], np.asarray(lengths)[: index.size],
                     int(iterations), int(lanes))
