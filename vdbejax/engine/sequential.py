@@ -35,8 +35,8 @@ Array = jax.Array
 #: changes the speed, not the results: the products are rounded on their own
 #: (:mod:`vdbejax._numerics`), and widths 1, 2, 4, 8 and 16 give the same bits on the
 #: paper grid (tests check 1, 2 and 4 against lockstep). Four were the fastest on the
-#: 2-core AVX-512 machine (``benchmarks/RESULTS.md``). Work items of fewer agents run at their own
-#: (power-of-two) size, so no table is padded beyond the next power of two.
+#: 2-core AVX-512 machine (``benchmarks/RESULTS.md``). Work items of fewer agents run at
+#: their own (power-of-two) size, so no table is padded beyond the next power of two.
 LANES = 4
 assert LANES <= UNROLLED_LANES_MAX  # wider loops would use scatters: not native
 
