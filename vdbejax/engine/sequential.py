@@ -1,12 +1,12 @@
-"""The sequential strategy (the default on a CPU backend): agents run their own
-``while`` loops of steps, :data:`LANES` agents side by side in one loop, groups of agents
-one after another inside a program and work items of agents on several threads.
+"""The sequential strategy (the default on a CPU backend): native ``while`` loops of
+steps, each running :data:`LANES` agents side by side (a lane whose agent has finished
+takes the work item's next agent), and work items of agents on several threads.
 
 With a few lanes every table access is a dynamic slice, so XLA's CPU backend compiles the
-whole loop into one native function (see :mod:`vdbejax._xla_flags`); an agent waits only
-for the few others of its loop. One program is compiled per kind of agent (learner and explorer type,
-with their static fields): XLA keeps only the kind's own work. Results are bit-identical
-to the lockstep strategy (products are rounded on their own, :mod:`vdbejax._numerics`).
+whole loop into one native function (see :mod:`vdbejax._xla_flags`). One program is
+compiled per kind of agent (learner and explorer type, with their static fields): XLA
+keeps only the kind's own work. Results are bit-identical to the lockstep strategy
+(products are rounded on their own, :mod:`vdbejax._numerics`).
 """
 from __future__ import annotations
 
