@@ -95,15 +95,11 @@ def take_row(buffer: Array, index: Array, width: int) -> Array:
     return buffer.at[index[:, None] + columns].get(mode="promise_in_bounds")
 
 
-def put(buffer: Array, index: Array, value: Array, rows: bool = False) -> Array:
+def _scatter(buffer: Array, index: Array, value: Array, rows: bool = False) -> Array:
     """``buffer[index] = value`` (``[B]``), or with ``rows`` ``buffer[index + j] =
-    value[:, j]`` (``[B, width]``), for distinct in-bounds lanes."""
+    value[:, j]`` (``[B, width]``), for distinct in-bounds lanes (wide batches; a few
+    lanes write through :func:`_write_lanes`)."""
     value = value.astype(buffer.dtype)
-    if _unrolled(index):
-        rows_of = value.reshape(index.shape[0], -1)
-        for k in range(index.shape[0]):
-            buffer = jax.lax.dynamic_update_slice(buffer, rows_of[k], (index[k],))
-        return buffer
     if not rows:
         return buffer.at[index].set(value, mode="promise_in_bounds", unique_indices=True)
     columns = jnp.arange(value.shape[1], dtype=index.dtype)[None, :]
@@ -136,12 +132,12 @@ def put_where(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
 
 def put_learned(buffer: Array, index: Array, new: Array, old: Array, mask: Array,
                 rows: bool = False) -> Array:
-    """:func:`put` of ``new`` where ``mask``, of ``old`` (the value read) elsewhere; a few
+    """``buffer[index] = new`` where ``mask``, ``old`` (the value read) elsewhere; a few
     lanes write lane by lane, those without ``mask`` nothing (see :func:`_write_lanes`)."""
     if _unrolled(index):
         return _write_lanes(buffer, index, new, mask)
     kept = jnp.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
-    return put(buffer, index, kept, rows)
+    return _scatter(buffer, index, kept, rows)
 
 
 def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array) -> tuple[Array, Array, Array]:
