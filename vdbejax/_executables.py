@@ -29,6 +29,7 @@ read (truncated, another jaxlib) is ignored and rewritten.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import pickle
@@ -135,22 +136,10 @@ def compiled(function: Any, args: tuple, static: dict[str, Any],
     Returns:
       the compiled executable.
     """
-    started = time.perf_counter()
-    executable, miss = _stored(function, args, static, compiler_options)
-    if executable is None:
-        # Compiled afresh, not read from JAX's cache, when it is stored: XLA's CPU backend
-        # serialises an executable it loaded from a cache (or compiled again after
-        # loading it) incompletely, and the copy would fail to run (kernels "not found").
-        # This costs one full compilation per program when JAX's cache had it but the
-        # disk copy not.
-        if miss[2] is None:
-            executable = _compile_miss(miss)
-        else:
-            with _jax_cache_off():
-                executable = _compile_miss(miss)
-    with _LOCK:
-        _SECONDS[0] += time.perf_counter() - started
-    return executable
+    executable = _EXECUTABLES.get(call_key(function, args, static, compiler_options))
+    if executable is not None:  # the common case: not timed, nothing else to do
+        return executable
+    return compiled_all([(function, args, static, compiler_options)], threads=1)[0]
 
 
 def _stored(function: Any, args: tuple, static: dict[str, Any],
@@ -187,20 +176,30 @@ def _compile_miss(miss: tuple) -> Any:
 def compiled_all(calls: list[tuple], threads: int) -> list[Any]:
     """:func:`compiled` for each ``(function, args, static, compiler_options)``, on up to
     ``threads`` threads (loading a stored program and compiling one mostly run outside
-    the GIL); the wall time is what :func:`compile_seconds` counts. Programs that are
-    neither in this process nor on disk are compiled together, with JAX's cache off."""
-    if threads <= 1 or len(calls) <= 1:
-        return [compiled(*call) for call in calls]
+    the GIL); the wall time is what :func:`compile_seconds` counts."""
     started = time.perf_counter()
-    with ThreadPoolExecutor(max_workers=min(threads, len(calls))) as pool:
-        found = list(pool.map(lambda call: _stored(*call), calls))
-        misses = [k for k, (executable, _) in enumerate(found) if executable is None]
+    pool = (ThreadPoolExecutor(max_workers=min(threads, len(calls)))
+            if threads > 1 and len(calls) > 1 else None)
+    each = map if pool is None else pool.map
+    try:
+        found = list(each(lambda call: _stored(*call), calls))
         executables = [executable for executable, _ in found]
-        if misses:
-            with _jax_cache_off():
-                fresh = list(pool.map(_compile_miss, [found[k][1] for k in misses]))
-            for k, executable in zip(misses, fresh):
-                executables[k] = executable
+        misses = [k for k, (executable, _) in enumerate(found) if executable is None]
+        # The misses to store on disk are compiled afresh, not read from JAX's cache:
+        # XLA's CPU backend serialises an executable it loaded from a cache (or compiled
+        # again after loading it) incompletely, and the copy would fail to run (kernels
+        # "not found"). This costs one full compilation per program when JAX's cache had
+        # it but the disk copy not. The others may come from JAX's cache.
+        for stored in (False, True):
+            group = [k for k in misses if (found[k][1][2] is not None) == stored]
+            if group:
+                with _jax_cache_off() if stored else contextlib.nullcontext():
+                    fresh = list(each(_compile_miss, [found[k][1] for k in group]))
+                for k, executable in zip(group, fresh):
+                    executables[k] = executable
+    finally:
+        if pool is not None:
+            pool.shutdown()
     with _LOCK:
         _SECONDS[0] += time.perf_counter() - started
     return executables
