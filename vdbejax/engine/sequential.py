@@ -294,9 +294,9 @@ class _SequentialRun:
         return (self.mdp, agent, agents, np.int32(chunk[0]), np.int32(chunk[1]),
                 np.int32(index.size), self.support)
 
-    def _group(self, costs: np.ndarray | None, chunk: tuple[int, int, int]) -> bool:
+    def _group(self, chunk: tuple[int, int, int]) -> bool:
         """The work items, from the current state; ``False`` if a loop is not native."""
-        groups = _sequential_groups(self.kinds, self.threads, costs)
+        groups = _sequential_groups(self.kinds, self.threads)
 
         def shapes(index: np.ndarray) -> Any:  # enough to compile: no copy of the rows
             size = _padded(index).size
@@ -308,13 +308,16 @@ class _SequentialRun:
         # Get the programs (one per kind and padded size) before running, on the worker
         # threads: loading a stored program or compiling one mostly runs outside the GIL.
         calls = [self._call(index, shapes(index), chunk) for index in groups]
-        programs = {_executables.call_key(*call): call for call in calls}
-        executables = _executables.compiled_all(list(programs.values()), self.threads)
-        if not all(_check_native(executable) for executable in executables):
+        keys = [_executables.call_key(*call) for call in calls]
+        distinct = dict(zip(keys, calls))
+        executables = dict(zip(distinct, _executables.compiled_all(list(distinct.values()),
+                                                                  self.threads)))
+        if not all(_check_native(executable) for executable in executables.values()):
             return False
         # Each item's program and hyperparameters, for every chunk (items keep their
         # agents, and a run's chunks have one length, a static argument of the program).
-        self.programs = [(_executables.compiled(*call), call[1][1]) for call in calls]
+        self.programs = [(executables[key], args[1])
+                         for key, (_, args, _, _) in zip(keys, calls)]
         fresh = self.host is None  # large fresh agents: created in their item, on the device
         host = None if fresh else self.agents()
         items = []
@@ -335,7 +338,8 @@ class _SequentialRun:
     def run_chunk(self, chunk_start: int, chunk_end: int, chunk_length: int,
                   costs: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int, int] | None:
         """Advance every agent to ``chunk_end`` episodes (``chunk_length``: the same for
-        every chunk of the run, the buffers' length).
+        every chunk of the run, the buffers' length; ``costs``: each agent's steps in the
+        previous chunk, ``None`` at the first, which orders the items).
 
         Returns:
           ``(returns, lengths, iterations, lane_iterations)``: numpy ``[agents,
@@ -345,7 +349,7 @@ class _SequentialRun:
           (:func:`native_step_loops`).
         """
         chunk = (chunk_start, chunk_end, chunk_length)
-        if self.items is None and not self._group(costs, chunk):
+        if self.items is None and not self._group(chunk):
             return None
         # Items most costly first (one kind each; their order only affects the balance).
         order = sorted(range(len(self.items)), key=lambda k: -(

@@ -318,7 +318,7 @@ class FunctionalEnv(Protocol):
 MAX_CODES = 2**31 - 1
 
 
-def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, Array]:
+def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, np.ndarray]:
     """``(step, actions)``: jitted ``step(codes [B], actions) -> (next_codes, reward,
     terminal)``, each ``[B, A]``, and the int32 action indices."""
     actions = np.arange(env.num_actions, dtype=np.int32)
@@ -332,7 +332,7 @@ def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, Array]:
     return jax.jit(jax.vmap(over_actions, in_axes=(0, None))), actions
 
 
-def _step_codes(step: Any, actions: Array, codes: np.ndarray, batch_size: int
+def _step_codes(step: Any, actions: np.ndarray, codes: np.ndarray, batch_size: int
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Apply ``step`` to ``codes`` in batches padded to ``batch_size`` or, for a short
     last batch, to ``batch_size / 16``: two shapes at most, as each costs a compilation
@@ -350,7 +350,7 @@ def _step_codes(step: Any, actions: Array, codes: np.ndarray, batch_size: int
     return tuple(np.concatenate(arrays) for arrays in zip(*outputs))
 
 
-def _reachable_codes(step: Any, actions: Array, start_codes: np.ndarray, num_codes: int,
+def _reachable_codes(step: Any, actions: np.ndarray, start_codes: np.ndarray, num_codes: int,
                      batch_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Closure of ``start_codes`` under every action: level-synchronous BFS over codes.
 
