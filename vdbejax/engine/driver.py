@@ -145,7 +145,6 @@ def run_agents(
         done, agents, returns[:, : initial[0]], lengths[:, : initial[0]] = initial
         agents = jax.tree.map(jnp.asarray, agents)
     iterations = lane_iterations = 0
-    costs = None
     started = time.perf_counter()
     if progress:
         progress(done * num_agents, num_episodes * num_agents, 0.0)
@@ -158,26 +157,30 @@ def run_agents(
     def current_agents() -> AgentState:
         return agents if sequential is None else sequential.agents()
 
-    while done < num_episodes:
-        end = min(done + chunk, num_episodes)
-        result = None
-        if sequential is not None:
-            result = sequential.run_chunk(done, end, chunk, costs)
-            if result is None:  # not compiled natively: lockstep is faster
-                strategy, agents, sequential = "lockstep", sequential.agents(), None
-        if result is not None:
-            chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes = result
-        else:
-            agents, chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes = (
-                run_chunk_lockstep(
-                    mdp, params, agents, done, end, chunk, compact=compact,
-                    block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
-                    max_batch=max_batch,
-                )
+    bounds = [(first, min(first + chunk, num_episodes))
+              for first in range(done, num_episodes, chunk)]
+    if sequential is not None and not sequential.prepare(chunk):
+        # not compiled natively: lockstep is faster
+        strategy, agents, sequential = "lockstep", sequential.agents(), None
+
+    def lockstep_chunks():
+        nonlocal agents
+        for first, end in bounds:
+            agents, *outputs = run_chunk_lockstep(
+                mdp, params, agents, first, end, chunk, compact=compact,
+                block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
+                max_batch=max_batch,
             )
-        costs = np.asarray(chunk_lengths).sum(axis=1)  # the next chunk's work, roughly
-        returns[:, done:end] = np.asarray(chunk_returns)[:, : end - done]
-        lengths[:, done:end] = np.asarray(chunk_lengths)[:, : end - done]
+            yield outputs
+
+    # Without checkpoints the sequential strategy runs the next chunk while this loop
+    # stores one; a checkpoint needs every agent at the chunk's end.
+    chunks = (lockstep_chunks() if sequential is None else
+              sequential.run_chunks(bounds, chunk, ahead=0 if on_chunk else 1))
+    for (first, end), (chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes) in zip(
+            bounds, chunks):
+        returns[:, first:end] = np.asarray(chunk_returns)[:, : end - first]
+        lengths[:, first:end] = np.asarray(chunk_lengths)[:, : end - first]
         iterations += chunk_iterations
         lane_iterations += chunk_lanes
         done = end
@@ -185,6 +188,7 @@ def run_agents(
             on_chunk(done, current_agents(), returns[:, :done], lengths[:, :done])
         if progress:
             progress(done * num_agents, num_episodes * num_agents, time.perf_counter() - started)
+    chunks.close()
     if keep_final_state:
         final = jax.tree.map(np.asarray, current_agents())
         nonfinite = np.asarray(final.nonfinite)

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from functools import partial
 from typing import Any
 
@@ -233,7 +234,9 @@ class _SequentialRun:
     program updates in place (donated), and no table is copied. (Regrouping agents by
     their cost every chunk balanced the threads no better than lanes that take the next
     waiting agent, and its copies through the host cost more: ``benchmarks/RESULTS.md``.)
-    Items start most costly first by the previous chunk's steps. :meth:`agents` gathers
+    Chunks follow each other without waiting for the slowest item at each chunk's end
+    (:meth:`run_chunks`); items start most costly first by the latest chunk's steps
+    known when they are queued. :meth:`agents` gathers
     the full state on the host when it is needed (checkpoints, the end of the run).
     """
 
@@ -335,50 +338,73 @@ class _SequentialRun:
         self.items = items
         return True
 
-    def run_chunk(self, chunk_start: int, chunk_end: int, chunk_length: int,
-                  costs: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int, int] | None:
-        """Advance every agent to ``chunk_end`` episodes (``chunk_length``: the same for
-        every chunk of the run, the buffers' length; ``costs``: each agent's steps in the
-        previous chunk, ``None`` at the first, which orders the items).
+    def prepare(self, chunk_length: int) -> bool:
+        """Form the work items and get their programs (``chunk_length``: every chunk's
+        buffers' length); ``False`` (nothing run) if a loop did not compile natively
+        (:func:`native_step_loops`)."""
+        return self.items is not None or self._group((0, chunk_length, chunk_length))
 
-        Returns:
-          ``(returns, lengths, iterations, lane_iterations)``: numpy ``[agents,
-          chunk_length]`` buffers, Σ agent iterations (steps, plus one per episode start
-          after a truncation) and Σ loop iterations × lanes (idle lanes included);
-          ``None`` (nothing run) if a loop did not compile natively
-          (:func:`native_step_loops`).
+    def _run_item(self, k: int, chunk: tuple[int, int, int], before: Future | None) -> tuple:
+        """Item ``k``'s chunk, once its previous chunk (``before``) has finished."""
+        if before is not None:
+            before.result()  # started earlier (the pool is FIFO), so this does not deadlock
+        index, state = self.items[k]
+        executable, agent = self.programs[k]
+        new_state, returns, lengths, iterations, lanes = executable(  # state donated
+            *self._arguments(agent, state, index, chunk))
+        self.items[k] = (index, new_state)
+        return (np.asarray(returns)[: index.size], np.asarray(lengths)[: index.size],
+                int(iterations), int(lanes))
+
+    def run_chunks(self, bounds: list[tuple[int, int]], chunk_length: int, ahead: int
+                   ) -> Iterator[tuple[np.ndarray, np.ndarray, int, int]]:
+        """Advance every agent chunk by chunk (after :meth:`prepare`); yields each chunk's
+        ``(returns, lengths, iterations, lane_iterations)``: numpy ``[agents,
+        chunk_length]`` buffers, Σ agent iterations (steps, plus one per episode start
+        after a truncation) and Σ loop iterations × lanes (idle lanes included).
+
+        ``bounds``: each chunk's ``(first, end)`` episodes. Up to ``ahead`` later chunks
+        run while a chunk is handed out (no wait for the slowest item at every chunk's
+        end); ``ahead=0`` keeps every agent at the chunk's end until the next value is
+        asked for (what :meth:`agents` then gathers, e.g. for a checkpoint). An item's
+        chunks run in order; items start most costly first by the steps of the latest
+        chunk known when they are queued (their order only affects the balance).
         """
-        chunk = (chunk_start, chunk_end, chunk_length)
-        if self.items is None and not self._group(chunk):
-            return None
-        # Items most costly first (one kind each; their order only affects the balance).
-        order = sorted(range(len(self.items)), key=lambda k: -(
-            1.0 if costs is None else float(costs[self.items[k][0]].sum())))
-
-        def run(k: int) -> tuple:
-            index, state = self.items[k]
-            executable, agent = self.programs[k]
-            new_state, returns, lengths, iterations, lanes = executable(  # state donated
-                *self._arguments(agent, state, index, chunk))
-            self.items[k] = (index, new_state)
-            return (np.asarray(returns)[: index.size], np.asarray(lengths)[: index.size],
-                    int(iterations), int(lanes))
-
-        self.host_current = False
-        if self.threads == 1 or len(order) == 1:
-            outputs = [run(k) for k in order]
-        else:
-            with ThreadPoolExecutor(max_workers=self.threads) as pool:
-                outputs = list(pool.map(run, order))
         num_agents = int(self.keys.shape[0])
-        returns = np.zeros((num_agents, chunk_length), np.float32)
-        lengths = np.zeros((num_agents, chunk_length), np.int32)
-        iterations = lane_iterations = 0
-        for k, (item_returns, item_lengths, item_iterations, item_lanes) in zip(order, outputs):
-            index = self.items[k][0]
-            returns[index], lengths[index] = item_returns, item_lengths
-            iterations += item_iterations
-            lane_iterations += item_lanes
-        return returns, lengths, iterations, lane_iterations
+        serial = self.threads == 1 or len(self.items) == 1
+        pool = None if serial else ThreadPoolExecutor(max_workers=self.threads)
+        pending: dict[tuple[int, int], Any] = {}  # (chunk, item) -> Future or output
+        costs = None
 
+        def queue(c: int) -> None:
+            order = sorted(range(len(self.items)), key=lambda k: -(
+                1.0 if costs is None else float(costs[self.items[k][0]].sum())))
+            chunk = (*bounds[c], chunk_length)
+            self.host_current = False  # the items move on
+            for k in order:
+                if pool is None:
+                    pending[c, k] = self._run_item(k, chunk, None)
+                else:
+                    pending[c, k] = pool.submit(self._run_item, k, chunk, pending.get((c - 1, k)))
 
+        try:
+            queued = 0
+            for c in range(len(bounds)):
+                while queued < min(len(bounds), c + 1 + (0 if pool is None else ahead)):
+                    queue(queued)
+                    queued += 1
+                returns = np.zeros((num_agents, chunk_length), np.float32)
+                lengths = np.zeros((num_agents, chunk_length), np.int32)
+                iterations = lane_iterations = 0
+                for k, (index, _) in enumerate(self.items):
+                    output = pending.pop((c, k))
+                    item_returns, item_lengths, item_iterations, item_lanes = (
+                        output if pool is None else output.result())
+                    returns[index], lengths[index] = item_returns, item_lengths
+                    iterations += item_iterations
+                    lane_iterations += item_lanes
+                costs = lengths.sum(axis=1)
+                yield returns, lengths, iterations, lane_iterations
+        finally:
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
