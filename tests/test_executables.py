@@ -218,3 +218,15 @@ def test_a_loaded_entry_recompiles_from_shapes_and_keeps_no_arrays_alive(disk):
     loaded._executable = broken
     for got, want in zip(jax.tree.leaves(loaded(*args)), jax.tree.leaves(expected)):
         np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+
+
+def test_programs_are_compiled_without_source_locations_and_compute_the_same(disk):
+    # Locations are most of what a process parses when it loads a stored program.
+    executable = _keys_program(11)
+    text = executable.as_text()
+    assert "op_name=" not in text and "source_file=" not in text
+    plain = jax.jit(lambda **static: engine.state._agent_keys.__wrapped__(**static),
+                    static_argnames=("seed", "num_seeds"))
+    with_locations = plain.trace(seed=11, num_seeds=3).lower().compile()
+    assert "op_name=" in with_locations.as_text()
+    np.testing.assert_array_equal(np.asarray(executable()), np.asarray(with_locations()))

@@ -207,7 +207,28 @@ def compiled_all(calls: list[tuple], threads: int) -> list[Any]:
 
 def _compile(traced: Any, options: dict[str, Any]) -> Any:
     lowered = traced.lower()
+    _strip_locations(lowered)
     return lowered.compile(options) if options else lowered.compile()
+
+
+def _strip_locations(lowered: Any) -> None:
+    """Drop the source locations and name stacks from ``lowered``'s module, in place.
+
+    XLA keeps them as every instruction's metadata: ≈ 25 % of the bytes of the engine's
+    stored programs and ≈ 15 % of the time a process takes to load them. The machine code
+    is the same. The module is JAX's own (its cache of this lowering then holds the
+    stripped module, which compiles to the same program); where it cannot be changed in
+    place (another JAX), it compiles as it is.
+    """
+    from jax.extend.mlir import passmanager
+
+    try:
+        module = lowered.compiler_ir("stablehlo")
+        with module.context:
+            passmanager.PassManager.parse("builtin.module(strip-debuginfo)").run(
+                module.operation)
+    except Exception:  # noqa: BLE001  (only a smaller program is lost)
+        return
 
 
 class _jax_cache_off:  # noqa: N801  (a context manager, named like one)

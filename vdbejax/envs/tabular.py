@@ -13,6 +13,8 @@ stored in :attr:`TabularMDP.state_codes` (state index ↔ environment code).
 """
 from __future__ import annotations
 
+import importlib
+from functools import partial
 from typing import Any, Protocol
 
 import jax
@@ -318,18 +320,61 @@ class FunctionalEnv(Protocol):
 MAX_CODES = 2**31 - 1
 
 
-def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, np.ndarray]:
-    """``(step, actions)``: jitted ``step(codes [B], actions) -> (next_codes, reward,
-    terminal)``, each ``[B, A]``, and the int32 action indices."""
-    actions = np.arange(env.num_actions, dtype=np.int32)
+def _vmapped_step(env: FunctionalEnv, params: Any) -> Any:
+    """``step(codes [B], actions [A]) -> (next_codes, reward, terminal)``, each ``[B, A]``."""
 
     def one(code: Array, action: Array) -> tuple[Array, Array, Array]:
         fields = env.decode(code, params)
         next_fields, reward, terminal = env.transition(fields, action, params)
         return env.encode(next_fields, params), reward, terminal
 
-    over_actions = jax.vmap(one, in_axes=(None, 0))
-    return jax.jit(jax.vmap(over_actions, in_axes=(0, None))), actions
+    return jax.vmap(jax.vmap(one, in_axes=(None, 0)), in_axes=(0, None))
+
+
+@partial(jax.jit, static_argnames=("env_class",))
+def _stateless_env_step(params: Any, codes: Array, actions: Array, *, env_class: str
+                        ) -> tuple[Array, Array, Array]:
+    """:func:`_vmapped_step` of a fresh ``env_class()`` (``"module:Class"``)."""
+    module, _, name = env_class.partition(":")
+    env = getattr(importlib.import_module(module), name)()
+    return _vmapped_step(env, params)(codes, actions)
+
+
+def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, np.ndarray]:
+    """``(step, actions)``: jitted ``step(codes [B], actions) -> (next_codes, reward,
+    terminal)``, each ``[B, A]``, and the int32 action indices.
+
+    The step of one of vdbejax's own environments that keeps no state of its own (its
+    behaviour is its class and ``params``) is a program stored between processes
+    (:mod:`vdbejax._executables`): a warm process neither traces nor compiles it. Any
+    other environment, or one whose code needs ``params`` as constants (Python control
+    flow on them), is traced with ``params`` baked in.
+    """
+    from vdbejax import _executables
+
+    actions = np.arange(env.num_actions, dtype=np.int32)
+    cls = type(env)
+    closed = [None]
+
+    def traced(codes: np.ndarray, actions: np.ndarray) -> tuple[Array, Array, Array]:
+        if closed[0] is None:
+            closed[0] = jax.jit(_vmapped_step(env, params))
+        return closed[0](codes, actions)
+
+    if not cls.__module__.startswith("vdbejax.") or vars(env) or hasattr(cls, "__slots__"):
+        return traced, actions
+    static = {"env_class": f"{cls.__module__}:{cls.__qualname__}"}
+
+    def step(codes: np.ndarray, actions: np.ndarray) -> tuple[Array, Array, Array]:
+        if closed[0] is None:
+            args = (params, codes, actions)
+            try:
+                return _executables.compiled(_stateless_env_step, args, static)(*args)
+            except (jax.errors.JAXTypeError, OverflowError, ImportError, AttributeError):
+                pass  # params used as constants, or not int32 / the class not importable
+        return traced(codes, actions)
+
+    return step, actions
 
 
 def _step_codes(step: Any, actions: np.ndarray, codes: np.ndarray, batch_size: int
