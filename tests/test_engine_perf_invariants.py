@@ -337,3 +337,39 @@ def test_without_the_final_state_results_and_nonfinite_flags_are_the_same(mdp, s
     assert light.final_state is None and full.final_state is not None
     np.testing.assert_array_equal(light.returns, full.returns)
     np.testing.assert_array_equal(light.nonfinite, full.nonfinite)
+
+
+@pytest.mark.parametrize("chunk_episodes", [1, 4, 25])
+def test_chunks_that_run_ahead_change_nothing_and_progress_stays_in_order(mdp, chunk_episodes):
+    """Without checkpoints an item's next chunk starts while the driver stores the last
+    one (no barrier); with them every agent waits at the chunk's end."""
+    params, keys = _grid(3)
+    calls = []
+    ahead = engine.run_agents(mdp, params, keys, 25, chunk_episodes=chunk_episodes, threads=2,
+                              strategy="sequential",
+                              progress=lambda done, total, _: calls.append((done, total)))
+    barrier = engine.run_agents(mdp, params, keys, 25, chunk_episodes=chunk_episodes,
+                                threads=2, strategy="sequential",
+                                on_chunk=lambda *_: None)
+    lockstep = engine.run_agents(mdp, params, keys, 25, strategy="lockstep")
+    _assert_same_run(ahead, lockstep)
+    _assert_same_run(barrier, lockstep)
+    agents = len(keys)
+    ends = list(range(chunk_episodes, 25, chunk_episodes)) + [25]
+    assert calls == [(0, 25 * agents)] + [(end * agents, 25 * agents) for end in ends]
+
+
+def test_an_error_between_chunks_stops_the_workers_and_propagates(mdp):
+    import threading
+
+    params, keys = _grid(3)
+    before = threading.active_count()
+
+    def progress(done, total, elapsed):
+        if done >= 2 * len(keys):
+            raise RuntimeError("stop here")
+
+    with pytest.raises(RuntimeError, match="stop here"):
+        engine.run_agents(mdp, params, keys, 25, chunk_episodes=2, threads=2,
+                          strategy="sequential", progress=progress)
+    assert threading.active_count() == before

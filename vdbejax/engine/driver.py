@@ -173,10 +173,10 @@ def run_agents(
             )
             yield outputs
 
-    # Without checkpoints the sequential strategy runs the next chunk while this loop
-    # stores one; a checkpoint needs every agent at the chunk's end.
+    # The sequential strategy runs the next chunk while this loop stores one (and a
+    # checkpoint gets the copies each work item takes at the chunk's end).
     chunks = (lockstep_chunks() if sequential is None else
-              sequential.run_chunks(bounds, chunk, ahead=0 if on_chunk else 1))
+              sequential.run_chunks(bounds, chunk, ahead=1, snapshots=on_chunk is not None))
     for (first, end), (chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes) in zip(
             bounds, chunks):
         returns[:, first:end] = np.asarray(chunk_returns)[:, : end - first]

@@ -264,13 +264,17 @@ class _SequentialRun:
                 init_agents, (self.mdp, self.params, self.keys), {}
             )(self.mdp, self.params, self.keys)
         if not self.host_current:
-            # Fresh arrays: ones handed out before (checkpoints) must not change.
-            host = jax.tree.map(lambda leaf: np.empty(leaf.shape, leaf.dtype), self.layout)
-            for index, state in self.items:
-                for full, rows in zip(jax.tree.leaves(host), jax.tree.leaves(state)):
-                    full[index] = np.asarray(rows)[: index.size]
-            self.host, self.host_current = host, True
+            self._hold(self.items)
         return self.host
+
+    def _hold(self, items: list[tuple[np.ndarray, Any]]) -> None:
+        """Make the state of ``items`` (index, rows) the full state on the host."""
+        # Fresh arrays: ones handed out before (checkpoints) must not change.
+        host = jax.tree.map(lambda leaf: np.empty(leaf.shape, leaf.dtype), self.layout)
+        for index, state in items:
+            for full, rows in zip(jax.tree.leaves(host), jax.tree.leaves(state)):
+                full[index] = np.asarray(rows)[: index.size]
+        self.host, self.host_current = host, True
 
     def nonfinite_flags(self) -> np.ndarray:
         """Each agent's ``nonfinite`` flag, without gathering the tables."""
@@ -344,8 +348,11 @@ class _SequentialRun:
         (:func:`native_step_loops`)."""
         return self.items is not None or self._group((0, chunk_length, chunk_length))
 
-    def _run_item(self, k: int, chunk: tuple[int, int, int], before: Future | None) -> tuple:
-        """Item ``k``'s chunk, once its previous chunk (``before``) has finished."""
+    def _run_item(self, k: int, chunk: tuple[int, int, int], before: Future | None,
+                  snapshot: bool) -> tuple:
+        """Item ``k``'s chunk, once its previous chunk (``before``) has finished; with
+        ``snapshot``, also a host copy of the item's state at the chunk's end (taken
+        before its next chunk updates the state in place)."""
         if before is not None:
             before.result()  # started earlier (the pool is FIFO), so this does not deadlock
         index, state = self.items[k]
@@ -353,10 +360,13 @@ class _SequentialRun:
         new_state, returns, lengths, iterations, lanes = executable(  # state donated
             *self._arguments(agent, state, index, chunk))
         self.items[k] = (index, new_state)
+        copy = (jax.tree.map(lambda leaf: np.array(np.asarray(leaf)[: index.size]), new_state)
+                if snapshot else None)
         return (np.asarray(returns)[: index.size], np.asarray(lengths)[: index.size],
-                int(iterations), int(lanes))
+                int(iterations), int(lanes), copy)
 
-    def run_chunks(self, bounds: list[tuple[int, int]], chunk_length: int, ahead: int
+    def run_chunks(self, bounds: list[tuple[int, int]], chunk_length: int, ahead: int,
+                   snapshots: bool = False
                    ) -> Iterator[tuple[np.ndarray, np.ndarray, int, int]]:
         """Advance every agent chunk by chunk (after :meth:`prepare`); yields each chunk's
         ``(returns, lengths, iterations, lane_iterations)``: numpy ``[agents,
@@ -364,11 +374,12 @@ class _SequentialRun:
         after a truncation) and Σ loop iterations × lanes (idle lanes included).
 
         ``bounds``: each chunk's ``(first, end)`` episodes. Up to ``ahead`` later chunks
-        run while a chunk is handed out (no wait for the slowest item at every chunk's
-        end); ``ahead=0`` keeps every agent at the chunk's end until the next value is
-        asked for (what :meth:`agents` then gathers, e.g. for a checkpoint). An item's
-        chunks run in order; items start most costly first by the steps of the latest
-        chunk known when they are queued (their order only affects the balance).
+        run while a chunk is handed out, so no thread waits for the slowest item at each
+        chunk's end. With ``snapshots`` (checkpoints), :meth:`agents` returns the state at
+        the end of the chunk just handed out, from copies each item takes at its chunk's
+        end; without, only once the last chunk is handed out. An item's chunks run in
+        order; items start most costly first by the steps of the latest chunk known when
+        they are queued (their order only affects the balance).
         """
         num_agents = int(self.keys.shape[0])
         serial = self.threads == 1 or len(self.items) == 1
@@ -383,9 +394,10 @@ class _SequentialRun:
             self.host_current = False  # the items move on
             for k in order:
                 if pool is None:
-                    pending[c, k] = self._run_item(k, chunk, None)
+                    pending[c, k] = self._run_item(k, chunk, None, snapshots)
                 else:
-                    pending[c, k] = pool.submit(self._run_item, k, chunk, pending.get((c - 1, k)))
+                    pending[c, k] = pool.submit(self._run_item, k, chunk,
+                                                pending.get((c - 1, k)), snapshots)
 
         try:
             queued = 0
@@ -396,13 +408,17 @@ class _SequentialRun:
                 returns = np.zeros((num_agents, chunk_length), np.float32)
                 lengths = np.zeros((num_agents, chunk_length), np.int32)
                 iterations = lane_iterations = 0
+                copies = []
                 for k, (index, _) in enumerate(self.items):
                     output = pending.pop((c, k))
-                    item_returns, item_lengths, item_iterations, item_lanes = (
+                    item_returns, item_lengths, item_iterations, item_lanes, copy = (
                         output if pool is None else output.result())
                     returns[index], lengths[index] = item_returns, item_lengths
                     iterations += item_iterations
                     lane_iterations += item_lanes
+                    copies.append((index, copy))
+                if snapshots:
+                    self._hold(copies)
                 costs = lengths.sum(axis=1)
                 yield returns, lengths, iterations, lane_iterations
         finally:
