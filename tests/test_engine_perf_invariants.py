@@ -6,7 +6,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import chex
 import pytest
+from absl.testing import parameterized
 
 from vdbejax import engine
 from vdbejax.engine import sequential
@@ -373,3 +375,37 @@ def test_an_error_between_chunks_stops_the_workers_and_propagates(mdp):
         engine.run_agents(mdp, params, keys, 25, chunk_episodes=2, threads=2,
                           strategy="sequential", progress=progress)
     assert threading.active_count() == before
+
+
+class PackedRowsTest(parameterized.TestCase):
+    """The sequential loops move an agent's scalars as one packed row of 32-bit words:
+    packing and unpacking give back every value bit for bit, with and without jit."""
+
+    @chex.variants(with_jit=True, without_jit=True)
+    def test_pack_then_unpack_is_exact(self):
+        rows = 5
+        tree = {
+            "flag": np.array([True, False, True, True, False]),
+            "small": np.array([-128, -1, 0, 1, 127], np.int8),
+            "count": np.array([-(2**31), -1, 0, 7, 2**31 - 1], np.int32),
+            "counter": np.array([0, 1, 2**31, 2**32 - 1, 12345], np.uint32),
+            "value": np.array([-0.0, np.nan, np.inf, -1e-45, 3.25], np.float32),
+            "key": np.arange(rows * 2, dtype=np.uint32).reshape(rows, 2) * np.uint32(2654435761),
+        }
+        packed = self.variant(sequential._pack)(tree)
+        assert packed.dtype == jnp.uint32 and packed.shape == (rows, 1 + 1 + 1 + 1 + 1 + 2)
+        layout = {name: jax.ShapeDtypeStruct(v.shape, v.dtype) for name, v in tree.items()}
+        back = self.variant(lambda words: sequential._unpack(words, layout))(packed)
+        for name, value in tree.items():
+            assert back[name].dtype == value.dtype and back[name].shape == value.shape
+            np.testing.assert_array_equal(np.asarray(back[name]).view(np.uint8),
+                                          value.view(np.uint8))
+
+    def test_float64_rows_take_two_words(self):
+        with jax.enable_x64(True):
+            value = np.array([np.pi, -2.0**-1074, np.nan], np.float64)
+            packed = sequential._pack({"v": value})
+            assert packed.shape == (3, 2)
+            back = sequential._unpack(packed, {"v": jax.ShapeDtypeStruct((3,), np.float64)})["v"]
+            np.testing.assert_array_equal(np.asarray(back).view(np.uint64), value.view(np.uint64))
+
