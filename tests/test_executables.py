@@ -189,8 +189,10 @@ def test_only_vdbejax_functions_and_an_enabled_cache_use_the_disk(disk, monkeypa
 
     sig = _executables.signature((jnp.zeros(2),))
     traced = engine.state._agent_keys.trace(seed=0, num_seeds=3)
-    assert _executables._disk_path(outside, {}, sig, {}, traced) is None
-    assert _executables._disk_path(engine.state._agent_keys, {"seed": 0}, sig, {}, traced) is not None
+    live = _executables.live_fingerprint()
+    assert _executables._disk_path(outside, {}, sig, {}, traced, live) is None
+    assert _executables._disk_path(engine.state._agent_keys, {"seed": 0}, sig, {}, traced,
+                                   live) is not None
     monkeypatch.undo()  # the real disk_folder: off by the variable, else JAX's cache dir
     monkeypatch.setenv("VDBEJAX_EXECUTABLE_CACHE", "off")
     assert _executables.disk_folder() is None
