@@ -5,6 +5,7 @@ Bad input prints one ``error: …`` line and exits with status 2 (no traceback).
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import signal
 import sys
@@ -55,6 +56,7 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
 def _reproduce(args: argparse.Namespace) -> None:
     from vdbejax.paper.reproduce import reproduce
 
+    _freeze_imports()
     rep = reproduce(
         args.out, reading=args.reading, seeds=args.seeds, episodes=args.episodes, seed=args.seed,
         max_steps=args.max_steps, invalid_action=args.invalid_action, tie_break=args.tie_break,
@@ -320,6 +322,13 @@ def build_parser() -> argparse.ArgumentParser:
     for add, _ in COMMANDS.values():
         add(sub)
     return parser
+
+
+def _freeze_imports() -> None:
+    """Leave what the imports made (≈ a million objects, JAX's) out of the garbage
+    collector's full passes: a command's run then spends no time re-scanning them
+    (≈ 0.05 s per pass). Only the CLI does this: it owns its process."""
+    gc.freeze()
 
 
 def enable_compilation_cache() -> None:
