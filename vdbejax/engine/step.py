@@ -60,7 +60,8 @@ def start_support(mdp: TabularMDP) -> tuple[Array, Array]:
         return jnp.arange(mdp.num_states, dtype=jnp.int32), probability
     probability = np.asarray(probability)
     support = np.flatnonzero(probability > 0).astype(np.int32)
-    return jnp.asarray(support), jnp.asarray(probability[support])
+    # device_put, not jnp.asarray: that compiles a small program per shape (≈ 10 ms each)
+    return jax.device_put(support), jax.device_put(probability[support])
 
 
 # Per-lane buffer access. A batch of a few lanes (the CPU engine's loops) uses unrolled
