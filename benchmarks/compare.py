@@ -203,6 +203,13 @@ def _mushroom_version() -> str | None:
         return None
 
 
+def _median_run(runs: list[dict]) -> dict:
+    """The run of median wall time (the lower middle one of an even count), with every
+    run's wall in ``walls``."""
+    ordered = sorted(runs, key=lambda r: r["wall"])
+    return {**ordered[(len(ordered) - 1) // 2], "walls": [r["wall"] for r in runs]}
+
+
 def _spawn(kind: str, args, env_extra: dict | None = None, **overrides) -> dict:
     out = Path(args.tmp) / f"{kind}-{time.time_ns()}.npz"
     cmd = [
@@ -337,12 +344,20 @@ def main(argv=None) -> int:
                    help="vdbejax engine strategy of the main rows (the lockstep strategy "
                         "also gets a row of its own unless --skip-lockstep)")
     p.add_argument("--skip-lockstep", action="store_true")
+    p.add_argument("--warm-runs", type=int, default=3,
+                   help="warm runs of vdbejax and the Numba peers, interleaved; each peer's "
+                        "median is reported (default 3)")
     p.add_argument("--tmp", default=None)
     p.add_argument("--jax-cache", default=None)
     p.add_argument("--worker", choices=sorted(WORKERS), help=argparse.SUPPRESS)
     p.add_argument("--worker-out", help=argparse.SUPPRESS)
     p.add_argument("--agents", type=int, default=0, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    if args.warm_runs < 1:
+        p.error(f"--warm-runs={args.warm_runs} is invalid: must be >= 1")
+    bad = [c for c in args.scaling.split(",") if c.strip() and not (c.strip().isdigit() and int(c) >= 1)]
+    if bad:
+        p.error(f"--scaling={args.scaling!r} is invalid: must be agent counts >= 1, comma-separated")
     if args.threads < 1:
         from vdbejax.engine import available_cpus
 
@@ -380,16 +395,22 @@ def main(argv=None) -> int:
     numba_cold = _spawn("numba", args, nenv)
     print("vdbejax (cold cache) ...", flush=True)
     jax_cold = _spawn("vdbejax", args)
-    print("numba-1t (warm cache) ...", flush=True)
-    numba_warm = _spawn("numba", args, nenv)
-    print("vdbejax (warm cache) ...", flush=True)
-    jax_warm = _spawn("vdbejax", args)
-    par_cold = par_warm = None
+    par_cold = None
     if not args.skip_numba_parallel:
         print(f"{par_name} (cold cache) ...", flush=True)
         par_cold = _spawn("numba_parallel", args, penv)
-        print(f"{par_name} (warm cache) ...", flush=True)
-        par_warm = _spawn("numba_parallel", args, penv)
+    # Warm runs: rounds of one fresh process per peer, interleaved so that a change in
+    # the machine's load falls on every peer alike; each peer's median run is reported.
+    warm: dict[str, list[dict]] = {"numba": [], "vdbejax": [], "numba_parallel": []}
+    for round_ in range(args.warm_runs):
+        print(f"warm caches, round {round_ + 1} of {args.warm_runs}: numba-1t, vdbejax"
+              + ("" if args.skip_numba_parallel else f", {par_name}") + " ...", flush=True)
+        warm["numba"].append(_spawn("numba", args, nenv))
+        warm["vdbejax"].append(_spawn("vdbejax", args))
+        if not args.skip_numba_parallel:
+            warm["numba_parallel"].append(_spawn("numba_parallel", args, penv))
+    numba_warm, jax_warm = _median_run(warm["numba"]), _median_run(warm["vdbejax"])
+    par_warm = _median_run(warm["numba_parallel"]) if warm["numba_parallel"] else None
     lockstep = None
     if not args.skip_lockstep and jax_warm["strategy"] != "lockstep":
         print("vdbejax lockstep strategy (cold, then warm cache) ...", flush=True)
@@ -451,7 +472,10 @@ def main(argv=None) -> int:
         f"## Full paper grid: {len(settings)} settings × {args.seeds} seeds × "
         f"{args.episodes} episodes",
         "",
-        "Each peer ran in its own fresh subprocess. *Wall* = end to end (building the task "
+        "Each peer ran in its own fresh subprocess; the warm rows of vdbejax and the Numba "
+        f"peers are each the median of {args.warm_runs} runs, interleaved (rounds of one run "
+        "per peer, so a change in the machine's load falls on all of them). "
+        "*Wall* = end to end (building the task "
         "and agents, compiling, running, results on the host; interpreter start and imports "
         "excluded); *compile* = Numba's first call (compiling or loading its cache) / "
         "vdbejax's time to get its executables (tracing, lowering and compiling them, or "
@@ -484,7 +508,13 @@ def main(argv=None) -> int:
         return ("bit-identical to warm" if np.array_equal(r["returns"], ref["returns"])
                 else "returns differ from warm!")
 
-    rows = [(f"vdbejax {strategy} (warm JAX cache)", jax_warm, programs(jax_warm),
+    def walls(r: dict) -> str:
+        runs = r.get("walls", [])
+        return (f"median of {len(runs)} warm runs ({', '.join(f'{w:.2f}' for w in runs)} s)"
+                if len(runs) > 1 else "")
+
+    rows = [(f"vdbejax {strategy} (warm JAX cache)", jax_warm,
+             "; ".join(filter(None, [programs(jax_warm), walls(jax_warm)])),
              jax_threads, "reference"),
             (f"vdbejax {strategy} (cold JAX cache)", jax_cold, programs(jax_cold),
              jax_threads, same(jax_cold, jax_warm))]
@@ -495,10 +525,12 @@ def main(argv=None) -> int:
                      else "returns differ!"))
     if par_warm is not None:
         rows += [(f"{par_name} (warm cache=True)", par_warm,
-                  f"threading layer {par_warm.get('threading_layer')}", str(threads),
+                  "; ".join(filter(None, [f"threading layer {par_warm.get('threading_layer')}",
+                                          walls(par_warm)])), str(threads),
                   summary[par_name]),
                  (f"{par_name} (cold)", par_cold, "", str(threads), same(par_cold, par_warm))]
-    rows += [("numba-1t (warm cache=True)", numba_warm, "", "1", summary["numba-1t"]),
+    rows += [("numba-1t (warm cache=True)", numba_warm, walls(numba_warm), "1",
+              summary["numba-1t"]),
              ("numba-1t (cold)", numba_cold, "", "1", same(numba_cold, numba_warm))]
     # the candidates for "fastest peer on the same cores": warm / extrapolated full grids
     candidates = [("numba-1t (warm)", numba_warm)]

@@ -202,9 +202,10 @@ def test_harness_end_to_end_writes_every_peer_row(tmp_path):
     cmd = [sys.executable, "-m", "benchmarks.compare", "--out", str(out),
            "--tmp", str(tmp_path / "work"), "--episodes", "20", "--seeds", "2",
            "--python-seeds", "1", "--mushroom-seeds", "1", "--scaling", "",
-           "--skip-lockstep", "--threads", "2"]
-    subprocess.run(cmd, check=True, cwd=ROOT, capture_output=True, timeout=240)
+           "--skip-lockstep", "--threads", "2", "--warm-runs", "2"]
+    subprocess.run(cmd, check=True, cwd=ROOT, capture_output=True, timeout=300)
     text = out.read_text()
+    assert text.count("median of 2 warm runs (") == 3  # vdbejax, numba-2t, numba-1t
     for row in ("| vdbejax sequential (warm JAX cache) | 2 |", "| numba-2t (warm cache=True) | 2 |",
                 "| numba-2t (cold) | 2 |", "| numba-1t (warm cache=True) | 1 |",
                 "| mushroom (22 agents measured) | 1 |",
@@ -216,3 +217,15 @@ def test_harness_end_to_end_writes_every_peer_row(tmp_path):
     assert "MushroomRL (`mushroom`) measured: 22 of the 46 settings" in text
     assert text.rstrip().endswith("hand-written text kept")  # the Analysis section is kept
     assert text.count("## Analysis") == 1
+
+
+@pytest.mark.parametrize("flag, value", [("--warm-runs", "0"), ("--scaling", "10,0"),
+                                         ("--scaling", "ten")])
+def test_harness_bad_counts_are_one_line_errors_before_any_run(tmp_path, flag, value):
+    done = subprocess.run([sys.executable, "-m", "benchmarks.compare", "--out",
+                           str(tmp_path / "R.md"), "--tmp", str(tmp_path / "work"), flag, value],
+                          cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    assert f"{flag}=" in done.stderr and "is invalid" in done.stderr
+    assert "Traceback" not in done.stderr
+    assert not (tmp_path / "R.md").exists()
