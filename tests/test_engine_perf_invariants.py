@@ -387,13 +387,15 @@ class PackedRowsTest(parameterized.TestCase):
         tree = {
             "flag": np.array([True, False, True, True, False]),
             "small": np.array([-128, -1, 0, 1, 127], np.int8),
+            "half": np.array([1.5, -0.0, np.inf, 6.1e-5, 65504.0], np.float16),
+            "brain": np.array([1.5, -2.0, 3.0e38, -1e-38, 0.0], jnp.bfloat16),
             "count": np.array([-(2**31), -1, 0, 7, 2**31 - 1], np.int32),
             "counter": np.array([0, 1, 2**31, 2**32 - 1, 12345], np.uint32),
             "value": np.array([-0.0, np.nan, np.inf, -1e-45, 3.25], np.float32),
             "key": np.arange(rows * 2, dtype=np.uint32).reshape(rows, 2) * np.uint32(2654435761),
         }
         packed = self.variant(sequential._pack)(tree)
-        assert packed.dtype == jnp.uint32 and packed.shape == (rows, 1 + 1 + 1 + 1 + 1 + 2)
+        assert packed.dtype == jnp.uint32 and packed.shape == (rows, 1 + 1 + 1 + 1 + 1 + 1 + 1 + 2)
         layout = {name: jax.ShapeDtypeStruct(v.shape, v.dtype) for name, v in tree.items()}
         back = self.variant(lambda words: sequential._unpack(words, layout))(packed)
         for name, value in tree.items():

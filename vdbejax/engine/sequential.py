@@ -159,9 +159,14 @@ def _chunk_loops(mdp, agent, agents, chunk_start, chunk_end, count, support, *,
 def _words(leaf: Array) -> Array:
     """``leaf`` (``[rows, ...]``) as uint32 words, ``[rows, n]``; exact (see :func:`_unpack`)."""
     flat = leaf.reshape(leaf.shape[0], -1)
-    if flat.dtype == jnp.bool_ or flat.dtype.itemsize < 4:
+    if flat.dtype == jnp.bool_:
         return flat.astype(jnp.uint32)
+    if flat.dtype.itemsize < 4:  # the bits of an 8- or 16-bit value, widened
+        return jax.lax.bitcast_convert_type(flat, _UNSIGNED[flat.dtype.itemsize]).astype(jnp.uint32)
     return jax.lax.bitcast_convert_type(flat, jnp.uint32).reshape(leaf.shape[0], -1)
+
+
+_UNSIGNED = {1: jnp.uint8, 2: jnp.uint16}
 
 
 def _pack(tree: Any) -> Array:
@@ -184,7 +189,7 @@ def _unpack(packed: Array, layout: Any) -> Any:
         if dtype == jnp.bool_:
             value = words != 0
         elif dtype.itemsize < 4:
-            value = words.astype(dtype)
+            value = jax.lax.bitcast_convert_type(words.astype(_UNSIGNED[dtype.itemsize]), dtype)
         elif dtype.itemsize == 4:
             value = jax.lax.bitcast_convert_type(words, dtype)
         else:
