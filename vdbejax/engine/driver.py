@@ -177,18 +177,20 @@ def run_agents(
     # checkpoint gets the copies each work item takes at the chunk's end).
     chunks = (lockstep_chunks() if sequential is None else
               sequential.run_chunks(bounds, chunk, ahead=1, snapshots=on_chunk is not None))
-    for (first, end), (chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes) in zip(
-            bounds, chunks):
-        returns[:, first:end] = np.asarray(chunk_returns)[:, : end - first]
-        lengths[:, first:end] = np.asarray(chunk_lengths)[:, : end - first]
-        iterations += chunk_iterations
-        lane_iterations += chunk_lanes
-        done = end
-        if on_chunk:
-            on_chunk(done, current_agents(), returns[:, :done], lengths[:, :done])
-        if progress:
-            progress(done * num_agents, num_episodes * num_agents, time.perf_counter() - started)
-    chunks.close()
+    try:
+        for (first, end), (chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes) in zip(
+                bounds, chunks):
+            returns[:, first:end] = np.asarray(chunk_returns)[:, : end - first]
+            lengths[:, first:end] = np.asarray(chunk_lengths)[:, : end - first]
+            iterations += chunk_iterations
+            lane_iterations += chunk_lanes
+            done = end
+            if on_chunk:
+                on_chunk(done, current_agents(), returns[:, :done], lengths[:, :done])
+            if progress:
+                progress(done * num_agents, num_episodes * num_agents, time.perf_counter() - started)
+    finally:  # the workers stop (and none is left running) whatever happens here
+        chunks.close()
     if keep_final_state:
         final = jax.tree.map(np.asarray, current_agents())
         nonfinite = np.asarray(final.nonfinite)
