@@ -173,10 +173,13 @@ def run_agents(
             )
             yield outputs
 
-    # The sequential strategy runs the next chunk while this loop stores one (and a
-    # checkpoint gets the copies each work item takes at the chunk's end).
+    # The sequential strategy runs the next chunk while this loop stores one; a checkpoint
+    # then gets the copies each work item takes at the chunk's end, unless the agents are
+    # large (a second copy of every table): those wait at each chunk's end instead.
+    wait = on_chunk is not None and created_in_items(mdp, params)
     chunks = (lockstep_chunks() if sequential is None else
-              sequential.run_chunks(bounds, chunk, ahead=1, snapshots=on_chunk is not None))
+              sequential.run_chunks(bounds, chunk, ahead=0 if wait else 1,
+                                    snapshots=on_chunk is not None and not wait))
     try:
         for (first, end), (chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes) in zip(
                 bounds, chunks):

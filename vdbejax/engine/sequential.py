@@ -439,9 +439,10 @@ class _SequentialRun:
 
         ``bounds``: each chunk's ``(first, end)`` episodes. Up to ``ahead`` later chunks
         run while a chunk is handed out, so no thread waits for the slowest item at each
-        chunk's end. With ``snapshots`` (checkpoints), :meth:`agents` returns the state at
-        the end of the chunk just handed out, from copies each item takes at its chunk's
-        end; without, only once the last chunk is handed out. An item's chunks run in
+        chunk's end. :meth:`agents` returns the state at the end of the chunk just handed
+        out with ``snapshots`` (from copies each item takes at its chunk's end) or with
+        ``ahead=0`` (every item waits there until the next chunk is asked for); otherwise
+        only once the last chunk is handed out. An item's chunks run in
         order; items start most costly first by the steps of the latest chunk known when
         they are queued (their order only affects the balance).
         """
