@@ -5,8 +5,10 @@ takes the work item's next agent), and work items of agents on several threads.
 With a few lanes every table access is a dynamic slice, so XLA's CPU backend compiles the
 whole loop into one native function (see :mod:`vdbejax._xla_flags`). One program is
 compiled per kind of agent (learner and explorer type, with their static fields): XLA
-keeps only the kind's own work. Results are bit-identical to the lockstep strategy
-(products are rounded on their own, :mod:`vdbejax._numerics`).
+keeps only the kind's own work; a chunk of a work item is one call of it, a single
+native function. A work item's chunks follow each other without waiting for the other
+items (:meth:`_SequentialRun.run_chunks`). Results are bit-identical to the lockstep
+strategy (products are rounded on their own, :mod:`vdbejax._numerics`).
 """
 from __future__ import annotations
 
