@@ -67,3 +67,43 @@ def test_an_env_with_state_of_its_own_is_traced():
     mdp = compile_env(env, table_env.make_params(100, "noop"), name="table_cleaning")
     assert _stored_steps() == before
     _same(_tables(make_mdp()), _tables(mdp))
+
+
+def test_a_patched_environment_is_traced_anew(monkeypatch):
+    """The stored step is keyed by vdbejax's live code: a patched constant (or an edited,
+    reloaded module) gives its own program, and undoing the patch the first one again."""
+    before = make_mdp()
+    monkeypatch.setattr(table_env, "STEP_REWARD", -0.5)
+    patched = make_mdp()
+    step = ~np.asarray(patched.terminal)
+    assert np.all(np.asarray(patched.reward)[step] == np.float32(-0.5))
+    monkeypatch.undo()
+    _same(_tables(before), _tables(make_mdp()))
+
+
+class ShapesFromParams(table_env.TableCleaning):
+    """A params leaf used as a shape: a plain TypeError under a trace, fine as a constant."""
+
+    def transition(self, fields, action, params):
+        next_fields, reward, terminal = super().transition(fields, action, params)
+        return next_fields, reward + jnp.zeros(params.max_steps)[0], terminal
+
+
+def test_an_env_whose_params_set_shapes_is_traced(monkeypatch):
+    monkeypatch.setattr(ShapesFromParams, "__module__", table_env.__name__)
+    monkeypatch.setattr(table_env, "ShapesFromParams", ShapesFromParams, raising=False)
+    mdp = compile_env(ShapesFromParams(), table_env.make_params(100, "noop"), name="table_cleaning")
+    _same(_tables(make_mdp()), _tables(mdp))
+
+
+def test_only_integer_params_and_stateless_importable_classes_take_the_stored_path():
+    assert tabular._keeps_no_state(table_env.TableCleaning())
+    assert not tabular._keeps_no_state(UsersTableCleaning())  # not vdbejax's module
+
+    class Local(table_env.TableCleaning):  # not importable by its name
+        pass
+
+    Local.__module__ = table_env.__name__
+    assert not tabular._keeps_no_state(Local())
+    assert tabular._integer_leaves(table_env.make_params(100, "noop"))
+    assert not tabular._integer_leaves({"p": 0.5})

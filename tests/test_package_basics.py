@@ -294,3 +294,20 @@ def test_import_and_version_do_not_import_jax():
     assert "run_grid" in dir(vdbejax)
     with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
         vdbejax.nonexistent  # noqa: B018
+
+
+def test_cli_main_with_an_argv_leaves_the_callers_garbage_collector_alone(tmp_path, monkeypatch):
+    """Only the process's own command line (``main()`` without ``argv``) freezes the
+    imported objects; a caller's process (this test run) keeps its collector."""
+    import gc
+
+    from vdbejax import cli
+    from vdbejax.paper import reproduce as reproduce_module
+
+    def stop(*args, **kwargs):
+        raise ValueError("stopped=1 is invalid: this test runs nothing")
+
+    monkeypatch.setattr(reproduce_module, "reproduce", stop)
+    frozen = gc.get_freeze_count()
+    assert cli.main(["reproduce", "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert gc.get_freeze_count() == frozen

@@ -222,9 +222,9 @@ def _strip_locations(lowered: Any) -> None:
     stripped module, which compiles to the same program); where it cannot be changed in
     place (another JAX), it compiles as it is.
     """
-    from jax.extend.mlir import passmanager
-
     try:
+        from jax.extend.mlir import passmanager
+
         module = lowered.compiler_ir("stablehlo")
         with module.context:
             passmanager.PassManager.parse("builtin.module(strip-debuginfo)").run(

@@ -159,7 +159,7 @@ def run_agents(
 
     bounds = [(first, min(first + chunk, num_episodes))
               for first in range(done, num_episodes, chunk)]
-    if sequential is not None and not sequential.prepare(chunk):
+    if sequential is not None and bounds and not sequential.prepare(chunk):
         # not compiled natively: lockstep is faster
         strategy, agents, sequential = "lockstep", sequential.agents(), None
 

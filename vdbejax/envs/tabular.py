@@ -331,13 +331,35 @@ def _vmapped_step(env: FunctionalEnv, params: Any) -> Any:
     return jax.vmap(jax.vmap(one, in_axes=(None, 0)), in_axes=(0, None))
 
 
-@partial(jax.jit, static_argnames=("env_class",))
-def _stateless_env_step(params: Any, codes: Array, actions: Array, *, env_class: str
-                        ) -> tuple[Array, Array, Array]:
-    """:func:`_vmapped_step` of a fresh ``env_class()`` (``"module:Class"``)."""
+@partial(jax.jit, static_argnames=("env_class", "code"))
+def _stateless_env_step(params: Any, codes: Array, actions: Array, *, env_class: str,
+                        code: str) -> tuple[Array, Array, Array]:
+    """:func:`_vmapped_step` of a fresh ``env_class()`` (``"module:Class"``); ``code`` is
+    vdbejax's live code fingerprint, so that an edited or patched environment is traced
+    anew (here and in the stored programs' keys)."""
+    del code
     module, _, name = env_class.partition(":")
     env = getattr(importlib.import_module(module), name)()
     return _vmapped_step(env, params)(codes, actions)
+
+
+def _keeps_no_state(env: Any) -> bool:
+    """Whether ``env`` is one of vdbejax's own classes, importable by name, with no
+    instance state (an empty ``__dict__``, no slots)."""
+    cls = type(env)
+    if not cls.__module__.startswith("vdbejax."):
+        return False
+    module = importlib.import_module(cls.__module__)
+    return (getattr(module, cls.__qualname__, None) is cls
+            and getattr(env, "__dict__", None) == {}
+            and not any(getattr(base, "__slots__", ()) for base in cls.__mro__))
+
+
+def _integer_leaves(params: Any) -> bool:
+    """Whether every leaf of ``params`` is an integer or boolean (as inputs instead of
+    constants they then compute the same; a float constant may be folded in float64)."""
+    return all(np.issubdtype(np.asarray(leaf).dtype, np.integer)
+               or np.asarray(leaf).dtype == np.bool_ for leaf in jax.tree.leaves(params))
 
 
 def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, np.ndarray]:
@@ -345,15 +367,15 @@ def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, np.ndarray]:
     terminal)``, each ``[B, A]``, and the int32 action indices.
 
     The step of one of vdbejax's own environments that keeps no state of its own (its
-    behaviour is its class and ``params``) is a program stored between processes
-    (:mod:`vdbejax._executables`): a warm process neither traces nor compiles it. Any
-    other environment, or one whose code needs ``params`` as constants (Python control
-    flow on them), is traced with ``params`` baked in.
+    behaviour is its class, vdbejax's code and ``params``) with integer ``params`` is a
+    program stored between processes (:mod:`vdbejax._executables`): a warm process
+    neither traces nor compiles it. Any other environment, or one whose step cannot take
+    ``params`` as inputs (Python control flow or shapes on them), is traced with
+    ``params`` baked in, as a user's environment always is.
     """
     from vdbejax import _executables
 
     actions = np.arange(env.num_actions, dtype=np.int32)
-    cls = type(env)
     closed = [None]
 
     def traced(codes: np.ndarray, actions: np.ndarray) -> tuple[Array, Array, Array]:
@@ -361,17 +383,21 @@ def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, np.ndarray]:
             closed[0] = jax.jit(_vmapped_step(env, params))
         return closed[0](codes, actions)
 
-    if not cls.__module__.startswith("vdbejax.") or vars(env) or hasattr(cls, "__slots__"):
+    if not (_keeps_no_state(env) and _integer_leaves(params)):
         return traced, actions
-    static = {"env_class": f"{cls.__module__}:{cls.__qualname__}"}
+    cls = type(env)
+    env_class = f"{cls.__module__}:{cls.__qualname__}"
 
     def step(codes: np.ndarray, actions: np.ndarray) -> tuple[Array, Array, Array]:
         if closed[0] is None:
             args = (params, codes, actions)
+            static = {"env_class": env_class, "code": _executables.live_fingerprint()}
             try:
-                return _executables.compiled(_stateless_env_step, args, static)(*args)
-            except (jax.errors.JAXTypeError, OverflowError, ImportError, AttributeError):
-                pass  # params used as constants, or not int32 / the class not importable
+                program = _executables.compiled(_stateless_env_step, args, static)
+            except Exception:  # noqa: BLE001  (cannot take params as inputs: traced below,
+                program = None  # where a real error in the environment raises again)
+            if program is not None:
+                return program(*args)
         return traced(codes, actions)
 
     return step, actions
