@@ -56,24 +56,26 @@ def _run_sequential(mdp, agent, agents, chunk_start, chunk_end, count, support, 
     one trip, which XLA's CPU backend compiles into one function (the loop's contents are
     not dispatched operation by operation, and none waits for a thread of the pool that
     another work item's loop occupies)."""
-    shapes = jax.eval_shape(partial(_chunk_loops, chunk_length=chunk_length, lanes=lanes),
-                            mdp, agent, agents, chunk_start, chunk_end, count, support)
-    blank = jax.tree.map(lambda shape: jnp.zeros(shape.shape, shape.dtype), shapes[1:])
+    num_agents = agents.episode.shape[0]
+    zero = jnp.asarray(0, jnp.int32)
+    outputs = (agents, jnp.zeros((num_agents, chunk_length), jnp.float32),
+               jnp.zeros((num_agents, chunk_length), jnp.int32), zero, zero)
 
     def once(carry: tuple) -> tuple:
+        _, agents, returns, lengths, _, _ = carry
         return (jnp.asarray(True),) + _chunk_loops(
-            mdp, agent, carry[1], chunk_start, chunk_end, count, support,
-            chunk_length=chunk_length, lanes=lanes)
+            mdp, agent, agents, returns, lengths, chunk_start, chunk_end, count, support,
+            lanes=lanes)
 
-    _, *outputs = jax.lax.while_loop(lambda carry: ~carry[0], once,
-                                     (jnp.asarray(False), agents, *blank))
-    return tuple(outputs)
+    return jax.lax.while_loop(lambda carry: ~carry[0], once,
+                              (jnp.asarray(False),) + outputs)[1:]
 
 
-def _chunk_loops(mdp, agent, agents, chunk_start, chunk_end, count, support, *,
-                 chunk_length, lanes):
+def _chunk_loops(mdp, agent, agents, returns, lengths, chunk_start, chunk_end, count,
+                 support, *, lanes):
     """Agents ``0 .. count-1`` of the batch run their own step loops to ``chunk_end``,
-    ``lanes`` agents at a time side by side.
+    ``lanes`` agents at a time side by side, writing their episodes into the zeroed
+    ``[agents, chunk_length]`` buffers ``returns`` and ``lengths``.
 
     The step is :func:`lockstep_iteration` on a batch of ``lanes`` lanes, whose table
     accesses are unrolled dynamic slices, so XLA's CPU backend compiles the loop into one
@@ -143,8 +145,6 @@ def _chunk_loops(mdp, agent, agents, chunk_start, chunk_end, count, support, *,
 
     lane = jnp.arange(lanes, dtype=jnp.int32)
     rows = jnp.where(lane < count, lane, num_agents)
-    returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
-    lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
     zero = jnp.asarray(0, jnp.int32)
     started = agents.counter
     tables, packed, *_, returns, lengths, lane_iterations = jax.lax.while_loop(
