@@ -358,8 +358,8 @@ def _keeps_no_state(env: Any) -> bool:
 def _integer_leaves(params: Any) -> bool:
     """Whether every leaf of ``params`` is an integer or boolean (as inputs instead of
     constants they then compute the same; a float constant may be folded in float64)."""
-    return all(np.issubdtype(np.asarray(leaf).dtype, np.integer)
-               or np.asarray(leaf).dtype == np.bool_ for leaf in jax.tree.leaves(params))
+    dtypes = [np.asarray(leaf).dtype for leaf in jax.tree.leaves(params)]
+    return all(np.issubdtype(dtype, np.integer) or dtype == np.bool_ for dtype in dtypes)
 
 
 def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, np.ndarray]:
@@ -376,27 +376,22 @@ def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, np.ndarray]:
     from vdbejax import _executables
 
     actions = np.arange(env.num_actions, dtype=np.int32)
-    closed = [None]
-
-    def traced(codes: np.ndarray, actions: np.ndarray) -> tuple[Array, Array, Array]:
-        if closed[0] is None:
-            closed[0] = jax.jit(_vmapped_step(env, params))
-        return closed[0](codes, actions)
-
+    traced = jax.jit(_vmapped_step(env, params))  # traces at its first call only
     if not (_keeps_no_state(env) and _integer_leaves(params)):
         return traced, actions
     cls = type(env)
-    env_class = f"{cls.__module__}:{cls.__qualname__}"
+    static = {"env_class": f"{cls.__module__}:{cls.__qualname__}",
+              "code": _executables.live_fingerprint()}
+    stored = [True]  # until a trace with params as inputs fails
 
     def step(codes: np.ndarray, actions: np.ndarray) -> tuple[Array, Array, Array]:
-        if closed[0] is None:
+        if stored[0]:
             args = (params, codes, actions)
-            static = {"env_class": env_class, "code": _executables.live_fingerprint()}
             try:
                 program = _executables.compiled(_stateless_env_step, args, static)
             except Exception:  # noqa: BLE001  (cannot take params as inputs: traced below,
-                program = None  # where a real error in the environment raises again)
-            if program is not None:
+                stored[0] = False  # where a real error in the environment raises again)
+            else:
                 return program(*args)
         return traced(codes, actions)
 
