@@ -68,7 +68,8 @@ def _worker_vdbejax(args) -> dict:
     jax.config.update("jax_compilation_cache_dir", args.jax_cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
-    from vdbejax import _executables, engine
+    from vdbejax import engine
+    from vdbejax.engine import programs
     from vdbejax.methods.agents import make_agent, paper_settings, stack_agents
     from vdbejax.experiment import grid_agents
 
@@ -101,7 +102,7 @@ def _worker_vdbejax(args) -> dict:
         "compile": compile_time,
         "strategy": result.strategy,
         "native": engine.native_step_loops(),
-        "disk": _executables.disk_counts(),
+        "programs": programs.cached_programs(),
         "steps": int(result.lengths.sum()),
         "iterations": int(result.iterations),
         "lane_iterations": int(result.lane_iterations),
@@ -479,8 +480,8 @@ def main(argv=None) -> int:
         "*Wall* = end to end (building the task "
         "and agents, compiling, running, results on the host; interpreter start and imports "
         "excluded); *compile* = Numba's first call (compiling or loading its cache) / "
-        "vdbejax's time to get its executables (tracing, lowering and compiling them, or "
-        "loading them from the executable copy beside JAX's cache, `vdbejax/_executables.py`); "
+        "vdbejax's time to get its programs (tracing and lowering them, then compiling them or "
+        "reading them from JAX's persistent cache, `vdbejax/engine/programs.py`); "
         "*steps/s* = real environment steps (Σ `lengths`) / wall; *peak RSS* = the "
         "subprocess's maximum resident memory (interpreter and libraries included); "
         "*curves agree* = settings whose learning curves agree with vdbejax's (next "
@@ -501,9 +502,7 @@ def main(argv=None) -> int:
     ]
 
     def programs(r: dict) -> str:
-        disk = r.get("disk") or {}
-        return (f"programs: {disk.get('loaded', 0)} loaded, {disk.get('stored', 0)} compiled "
-                "and stored")
+        return f"programs: {r.get('programs', 0)} traced and lowered"
 
     def same(r: dict, ref: dict) -> str:
         return ("bit-identical to warm" if np.array_equal(r["returns"], ref["returns"])

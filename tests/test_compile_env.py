@@ -1,19 +1,13 @@
-"""compile_env: vdbejax's own stateless environments go through the stored-program path
-(no tracing in a warm process); every other environment is traced with its params baked
-in. Both give the same tables."""
+"""compile_env traces the environment as it is at the call (params baked in): a user's
+subclass, an environment that needs concrete params and a patched constant all give the
+tables they should."""
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vdbejax import _executables
-from vdbejax.envs import tabular
 from vdbejax.envs.table_cleaning import env as table_env
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.envs.tabular import compile_env
-
-
-def _stored_steps() -> int:
-    return sum(1 for key in _executables._EXECUTABLES if key[0] is tabular._stateless_env_step)
 
 
 def _tables(mdp):
@@ -28,11 +22,11 @@ def _same(a, b):
 
 
 class UsersTableCleaning(table_env.TableCleaning):
-    """The same task, defined outside vdbejax: its code is the user's, so it is traced."""
+    """The same task, defined outside vdbejax."""
 
 
 class ParamsAsConstants(table_env.TableCleaning):
-    """Python control flow on a params leaf: it must be traced with params baked in."""
+    """Python control flow on a params leaf: works because params are baked in."""
 
     def transition(self, fields, action, params):
         next_fields, reward, terminal = super().transition(fields, action, params)
@@ -41,37 +35,33 @@ class ParamsAsConstants(table_env.TableCleaning):
         return next_fields, reward, terminal
 
 
-def test_builtin_stateless_env_uses_a_stored_program_with_the_same_tables():
-    params = table_env.make_params(100, "noop")
-    builtin = make_mdp()
-    assert _stored_steps() >= 1  # the built-in went through the program table
-    before = _stored_steps()
-    users = compile_env(UsersTableCleaning(), params, name="table_cleaning")
-    assert _stored_steps() == before  # the user's class was traced, not stored
-    _same(_tables(builtin), _tables(users))
+class ShapesFromParams(table_env.TableCleaning):
+    """A params leaf used as a shape: fine as a constant."""
+
+    def transition(self, fields, action, params):
+        next_fields, reward, terminal = super().transition(fields, action, params)
+        return next_fields, reward + jnp.zeros(params.max_steps)[0], terminal
 
 
-def test_an_env_that_needs_concrete_params_is_traced(monkeypatch):
-    # Pretend the class is vdbejax's own, so the stored path is tried first.
-    monkeypatch.setattr(ParamsAsConstants, "__module__", table_env.__name__)
-    monkeypatch.setattr(table_env, "ParamsAsConstants", ParamsAsConstants, raising=False)
-    params = table_env.make_params(100, "fail")
-    mdp = compile_env(ParamsAsConstants(), params, name="table_cleaning")
+def test_a_users_subclass_gives_the_builtin_tables():
+    users = compile_env(UsersTableCleaning(), table_env.make_params(100, "noop"),
+                        name="table_cleaning")
+    _same(_tables(make_mdp()), _tables(users))
+
+
+def test_an_env_that_needs_concrete_params_compiles():
+    mdp = compile_env(ParamsAsConstants(), table_env.make_params(100, "fail"),
+                      name="table_cleaning")
     _same(_tables(make_mdp(invalid_action="fail")), _tables(mdp))
 
 
-def test_an_env_with_state_of_its_own_is_traced():
-    env = table_env.TableCleaning()
-    env.note = "instance state"  # could change what the step does: never keyed by class
-    before = _stored_steps()
-    mdp = compile_env(env, table_env.make_params(100, "noop"), name="table_cleaning")
-    assert _stored_steps() == before
+def test_an_env_whose_params_set_shapes_compiles():
+    mdp = compile_env(ShapesFromParams(), table_env.make_params(100, "noop"),
+                      name="table_cleaning")
     _same(_tables(make_mdp()), _tables(mdp))
 
 
-def test_a_patched_environment_is_traced_anew(monkeypatch):
-    """The stored step is keyed by vdbejax's live code: a patched constant (or an edited,
-    reloaded module) gives its own program, and undoing the patch the first one again."""
+def test_a_patched_environment_constant_is_seen_and_undone(monkeypatch):
     before = make_mdp()
     monkeypatch.setattr(table_env, "STEP_REWARD", -0.5)
     patched = make_mdp()
@@ -81,29 +71,14 @@ def test_a_patched_environment_is_traced_anew(monkeypatch):
     _same(_tables(before), _tables(make_mdp()))
 
 
-class ShapesFromParams(table_env.TableCleaning):
-    """A params leaf used as a shape: a plain TypeError under a trace, fine as a constant."""
+def test_a_patched_environment_method_is_seen(monkeypatch):
+    original = table_env.TableCleaning.transition
 
-    def transition(self, fields, action, params):
-        next_fields, reward, terminal = super().transition(fields, action, params)
-        return next_fields, reward + jnp.zeros(params.max_steps)[0], terminal
+    def never_terminal(self, fields, action, params):
+        next_fields, reward, _ = original(self, fields, action, params)
+        return next_fields, reward, jnp.asarray(False)
 
-
-def test_an_env_whose_params_set_shapes_is_traced(monkeypatch):
-    monkeypatch.setattr(ShapesFromParams, "__module__", table_env.__name__)
-    monkeypatch.setattr(table_env, "ShapesFromParams", ShapesFromParams, raising=False)
-    mdp = compile_env(ShapesFromParams(), table_env.make_params(100, "noop"), name="table_cleaning")
-    _same(_tables(make_mdp()), _tables(mdp))
-
-
-def test_only_integer_params_and_stateless_importable_classes_take_the_stored_path():
-    assert tabular._keeps_no_state(table_env.TableCleaning())
-    assert not tabular._keeps_no_state(UsersTableCleaning())  # not vdbejax's module
-
-    class Local(table_env.TableCleaning):  # not importable by its name
-        pass
-
-    Local.__module__ = table_env.__name__
-    assert not tabular._keeps_no_state(Local())
-    assert tabular._integer_leaves(table_env.make_params(100, "noop"))
-    assert not tabular._integer_leaves({"p": 0.5})
+    monkeypatch.setattr(table_env.TableCleaning, "transition", never_terminal)
+    assert not np.asarray(make_mdp().terminal).any()
+    monkeypatch.undo()
+    assert np.asarray(make_mdp().terminal).any()

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import os
 import signal
 import sys
 import threading
@@ -333,35 +332,15 @@ def _freeze_imports() -> None:
     gc.freeze()
 
 
-def enable_compilation_cache() -> None:
-    """Use JAX's persistent compilation cache, so a second run skips compiling the engine.
-
-    Location: ``$JAX_COMPILATION_CACHE_DIR`` if set, else ``$VDBEJAX_CACHE_DIR``, else
-    ``~/.cache/vdbejax/jax``; ``VDBEJAX_CACHE_DIR=off`` disables it.
-    """
-    import jax
-
-    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
-        return  # JAX reads its own variable
-    folder = os.environ.get("VDBEJAX_CACHE_DIR", str(Path.home() / ".cache" / "vdbejax" / "jax"))
-    if folder == "off":
-        return
-    try:
-        Path(folder).mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return  # an unwritable home only costs compile time
-    jax.config.update("jax_compilation_cache_dir", folder)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``vdbejax`` console script."""
     args = build_parser().parse_args(argv)
     args.own_process = argv is None
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _terminate)
-    if args.command != "plot":  # plotting compiles nothing: it need not import JAX
-        enable_compilation_cache()
+    # SIGTERM stops a command as Ctrl-C does, in the command line's own process only (a
+    # caller's handler is not replaced), and the previous handler comes back at the end.
+    previous = (signal.signal(signal.SIGTERM, _terminate)
+                if args.own_process and threading.current_thread() is threading.main_thread()
+                else None)
     try:
         COMMANDS[args.command][1](args)
     except ValueError as error:
@@ -372,6 +351,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 if args.command == "reproduce" else "")
         print(f"interrupted{hint}", file=sys.stderr)
         return 143 if isinstance(stop, _Terminated) else 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0
 
 

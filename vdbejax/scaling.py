@@ -309,6 +309,7 @@ def run_until_solved(
 
     from vdbejax.distributed import take_agents
     from vdbejax.engine import check_params, compile_seconds, run_agents
+    from vdbejax.engine.programs import Programs
     from vdbejax.envs.tabular import TabularMDP
     from vdbejax.experiment import grid_agents
 
@@ -344,13 +345,15 @@ def run_until_solved(
     done, chunks, stopped = 0, 0, "solved"
     chunk = min(chunk_episodes, max_episodes)
     compiled_before = compile_seconds()
+    programs = Programs()  # the study's: each program traced once, not once per chunk
     started = time.perf_counter()
     while active.size:
         end = min(done + chunk, max_episodes)
         initial = None if done == 0 else (done, state, returns[active, :done],
                                           lengths[active, :done])
         result = run_agents(mdp, take_agents(params, active), keys[active], end,
-                            chunk_episodes=chunk, initial=initial, threads=threads)
+                            chunk_episodes=chunk, initial=initial, threads=threads,
+                            programs=programs)
         chunks += 1
         returns[active, done:end] = result.returns[:, done:end]
         lengths[active, done:end] = result.lengths[:, done:end]

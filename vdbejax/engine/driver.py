@@ -18,8 +18,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vdbejax import _executables
 from vdbejax.engine.lockstep import DEFAULT_UNROLL, MAX_SAFE_BATCH, run_chunk_lockstep
+from vdbejax.engine.programs import Programs
+from vdbejax.engine.programs import compile_seconds as _compile_seconds
 from vdbejax.engine.sequential import _SequentialRun, created_in_items
 from vdbejax.engine.state import AgentState, init_agents
 from vdbejax.envs.tabular import TabularMDP
@@ -76,6 +77,7 @@ def run_agents(
     strategy: str = "auto",
     threads: int | None = None,
     keep_final_state: bool = True,
+    programs: Programs | None = None,
 ) -> RunResult:
     """Train a batch of agents for ``num_episodes`` episodes each.
 
@@ -114,6 +116,9 @@ def run_agents(
       ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
       keep_final_state: ``False`` leaves :attr:`RunResult.final_state` ``None``, which
         spares gathering every agent's tables on the host at the end (large tasks).
+      programs: the compiled programs to share with other calls of one study
+        (:class:`~vdbejax.engine.programs.Programs`; default: this call's own, traced
+        from the code as it is now).
 
     Returns:
       :class:`RunResult`.
@@ -136,11 +141,13 @@ def run_agents(
     chunk = min(chunk_episodes, num_episodes)
     returns = np.zeros((num_agents, num_episodes), np.float32)
     lengths = np.zeros((num_agents, num_episodes), np.int32)
+    if programs is None:
+        programs = Programs()
     if initial is None:
         done = 0
         agents = None  # created by the sequential strategy in its work items
         if strategy != "sequential" or not created_in_items(mdp, params):
-            agents = _executables.compiled(init_agents, (mdp, params, keys), {})(mdp, params, keys)
+            agents = programs.get(init_agents, (mdp, params, keys))(mdp, params, keys)
     else:
         done, agents, returns[:, : initial[0]], lengths[:, : initial[0]] = initial
         agents = jax.tree.map(jnp.asarray, agents)
@@ -152,7 +159,7 @@ def run_agents(
     # the state only while the lockstep strategy runs.
     sequential = None
     if strategy == "sequential":
-        sequential = _SequentialRun(mdp, params, agents, keys, threads)
+        sequential = _SequentialRun(mdp, params, agents, keys, threads, programs)
 
     def current_agents() -> AgentState:
         return agents if sequential is None else sequential.agents()
@@ -169,7 +176,7 @@ def run_agents(
             agents, *outputs = run_chunk_lockstep(
                 mdp, params, agents, first, end, chunk, compact=compact,
                 block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
-                max_batch=max_batch,
+                max_batch=max_batch, programs=programs,
             )
             yield outputs
 
@@ -228,9 +235,9 @@ def _auto_strategy(params: AgentParams, keys: Any) -> str:
 
 
 def compile_seconds() -> float:
-    """Seconds this process spent getting the engine's executables (tracing, lowering and
-    compiling them, or loading them from the caches; see :mod:`vdbejax._executables`)."""
-    return _executables.compile_seconds()
+    """Seconds this process spent getting the engine's programs (tracing, lowering and
+    compiling them, or reading them from a cache; see :mod:`vdbejax.engine.programs`)."""
+    return _compile_seconds()
 
 
 def check_params(params: Any, num_actions: int) -> None:

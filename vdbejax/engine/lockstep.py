@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vdbejax import _executables
+from vdbejax.engine.programs import Programs
 from vdbejax.engine.state import AgentState
 from vdbejax.engine.step import run_loop, start_support
 from vdbejax.envs.tabular import TabularMDP
@@ -50,6 +50,7 @@ def run_chunk(
     chunk_end: Array,
     chunk_length: int,
     unroll: int = DEFAULT_UNROLL,
+    programs: Programs | None = None,
 ) -> tuple[AgentState, Array, Array, Array]:
     """Advance a batch of agents until each has completed ``chunk_end`` episodes.
 
@@ -64,6 +65,8 @@ def run_chunk(
       chunk_end: episode count at which an agent stops (≤ ``chunk_start + chunk_length``).
       chunk_length: static buffer length.
       unroll: lockstep iterations per loop trip (static; results do not depend on it).
+      programs: the run's programs (:class:`~vdbejax.engine.programs.Programs`; default:
+        traced afresh for this call).
 
     Note: keep batches ≤ :data:`MAX_SAFE_BATCH` lanes for results independent of the
     batch (:func:`run_agents` splits larger ones into groups).
@@ -78,14 +81,15 @@ def run_chunk(
             raise ValueError(f"params holds {len(params.kinds)} kinds of agent: run_chunk runs"
                              " one kind (use run_agents for several)")
         params = params.kinds[0]
-    return _run_chunk_jit(
-        mdp, params, agents, chunk_start, chunk_end, chunk_length, unroll, start_support(mdp)
-    )
+    args = (mdp, params, agents, jnp.asarray(chunk_start, jnp.int32),
+            jnp.asarray(chunk_end, jnp.int32), start_support(mdp))
+    program = (programs or Programs()).get(
+        _run_chunk, args, {"chunk_length": chunk_length, "unroll": unroll})
+    return program(*args)
 
 
-@partial(jax.jit, static_argnames=("chunk_length", "unroll"))
-def _run_chunk_jit(mdp, params, agents, chunk_start, chunk_end, chunk_length, unroll,
-                   start_support):
+def _run_chunk(mdp, params, agents, chunk_start, chunk_end, start_support, *, chunk_length,
+               unroll):
     num_agents = agents.episode.shape[0]
     returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
     lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
@@ -95,7 +99,6 @@ def _run_chunk_jit(mdp, params, agents, chunk_start, chunk_end, chunk_length, un
     )
 
 
-@partial(jax.jit, static_argnames=("unroll",))
 def _run_block(mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations,
                start_support, *, unroll):
     """Up to ``max_iterations`` lockstep iterations; also returns each lane's activity."""
@@ -131,6 +134,7 @@ def _run_chunk_compacting(
     block_iterations: int,
     unroll: int,
     min_batch: int,
+    programs: Programs,
 ) -> tuple[AgentState, Array, Array, int, int]:
     """:func:`run_chunk` with compaction of the still-active agents between blocks.
 
@@ -160,9 +164,8 @@ def _run_chunk_compacting(
 
     while True:
         args = (mdp, cur_params, *cur, start, end, block, support)
-        cur_agents, cur_returns, cur_lengths, done_iterations, active = _executables.compiled(
-            _run_block, args, {"unroll": unroll}
-        )(*args)
+        cur_agents, cur_returns, cur_lengths, done_iterations, active = programs.get(
+            _run_block, args, {"unroll": unroll})(*args)
         cur = (cur_agents, cur_returns, cur_lengths)
         done_iterations = int(done_iterations)
         iterations += done_iterations
@@ -201,6 +204,7 @@ def run_chunk_lockstep(
     unroll: int,
     min_batch: int,
     max_batch: int,
+    programs: Programs,
 ) -> tuple[AgentState, Array, Array, int, int]:
     """One chunk of the lockstep strategy: kind after kind, in groups of at most
     ``max_batch`` lanes.
@@ -234,11 +238,12 @@ def run_chunk_lockstep(
                 *piece, group_iterations, group_lanes = _run_chunk_compacting(
                     mdp, part(agent), part(agents), chunk_start, chunk_end, chunk_length,
                     block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
+                    programs=programs,
                 )
             else:
                 *piece, group_iterations = run_chunk(
                     mdp, part(agent), part(agents), jnp.int32(chunk_start),
-                    jnp.int32(chunk_end), chunk_length, unroll,
+                    jnp.int32(chunk_end), chunk_length, unroll, programs,
                 )
                 group_iterations = int(group_iterations)
                 group_lanes = group_iterations * count

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
+import weakref
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from functools import partial
@@ -23,8 +24,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vdbejax import _executables, _xla_flags
+from vdbejax import _xla_flags
 from vdbejax.engine.lockstep import _next_power_of_two
+from vdbejax.engine.programs import Call, Programs
 from vdbejax.engine.state import AgentState, init_agents, state_bytes
 from vdbejax.engine.step import UNROLLED_LANES_MAX, run_loop, start_support
 from vdbejax.envs.tabular import TabularMDP
@@ -49,7 +51,6 @@ def lanes_for(rows: int) -> int:
     return min(LANES, rows)
 
 
-@partial(jax.jit, static_argnames=("chunk_length", "lanes"), donate_argnames=("agents",))
 def _run_sequential(mdp, agent, agents, chunk_start, chunk_end, count, support, *,
                     chunk_length, lanes):
     """:func:`_chunk_loops` as one native call: its whole body inside a ``while`` loop of
@@ -206,8 +207,9 @@ def _unpack(packed: Array, layout: Any) -> Any:
 _CPU_COMPILER_OPTIONS = {"xla_cpu_copy_insertion_use_region_analysis": True}
 
 
-#: Sequential executables checked by :func:`_check_native` (by id): compiled natively?
-_NATIVE: dict[int, bool] = {}
+#: Sequential executables checked by :func:`_check_native`: compiled natively? (An entry
+#: goes with its executable.)
+_NATIVE: weakref.WeakKeyDictionary[Any, bool] = weakref.WeakKeyDictionary()
 
 
 def native_step_loops() -> bool | None:
@@ -225,7 +227,7 @@ def native_step_loops() -> bool | None:
 
 def _check_native(executable: Any) -> bool:
     """Whether ``executable``'s per-agent loop compiled natively (warns once if not)."""
-    native = _NATIVE.get(id(executable))
+    native = _NATIVE.get(executable)
     if native is None:
         native = "xla_cpu_small_call" in executable.as_text()
         if not native and all(_NATIVE.values()):
@@ -238,7 +240,7 @@ def _check_native(executable: Any) -> bool:
                 RuntimeWarning,
                 stacklevel=4,
             )
-        _NATIVE[id(executable)] = native
+        _NATIVE[executable] = native
     return native
 
 
@@ -307,9 +309,9 @@ class _SequentialRun:
     """
 
     def __init__(self, mdp: TabularMDP, params: AgentParams, agents: AgentState | None,
-                 keys: Any, threads: int) -> None:
+                 keys: Any, threads: int, programs: Programs) -> None:
         """``agents=None``: fresh agents, created in their work items (large agents)."""
-        self.mdp, self.threads = mdp, threads
+        self.mdp, self.threads, self.run_programs = mdp, threads, programs
         self.params = jax.tree.map(np.asarray, params)
         self.keys = np.asarray(keys, np.uint32)
         self.host = agents  # the full state while host_current (numpy or device arrays)
@@ -318,7 +320,7 @@ class _SequentialRun:
         self.programs: list[tuple[Any, Any]] = []  # per item: executable, hyperparameters
         self.kinds = np.asarray(self.params.kind)
         self.support = start_support(mdp)
-        self.layout = (jax.eval_shape(init_agents, mdp, self.params, self.keys)
+        self.layout = (jax.eval_shape(partial(init_agents), mdp, self.params, self.keys)
                        if agents is None else
                        jax.tree.map(lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype),
                                     agents))
@@ -326,9 +328,8 @@ class _SequentialRun:
     def agents(self) -> AgentState:
         """The full state on the host (numpy), the items' rows written back."""
         if self.host is None and self.items is None:  # nothing run yet
-            self.host = _executables.compiled(
-                init_agents, (self.mdp, self.params, self.keys), {}
-            )(self.mdp, self.params, self.keys)
+            args = (self.mdp, self.params, self.keys)
+            self.host = self.run_programs.get(init_agents, args)(*args)
         if not self.host_current:
             self._hold(self.items)
         return self.host
@@ -351,15 +352,15 @@ class _SequentialRun:
             flags[index] = np.asarray(state.nonfinite)[: index.size]
         return flags
 
-    def _call(self, index: np.ndarray, agents: Any, chunk: tuple[int, int, int]) -> tuple:
-        """The :func:`_executables.compiled` call of an item's program; ``agents`` may be
-        shapes only."""
+    def _call(self, index: np.ndarray, agents: Any, chunk: tuple[int, int, int]) -> Call:
+        """The program call of an item; ``agents`` may be shapes only."""
         rows = _padded(index)
         kind = self.params.kinds[int(self.kinds[index[0]])]
         agent = jax.tree.map(lambda leaf: leaf[rows], kind)
         static = {"chunk_length": chunk[2], "lanes": lanes_for(rows.size)}
         args = self._arguments(agent, agents, index, chunk)
-        return _run_sequential, args, static, _CPU_COMPILER_OPTIONS
+        return Call(_run_sequential, args, static, donate=("agents",),
+                    options=_CPU_COMPILER_OPTIONS)
 
     def _arguments(self, agent: Any, agents: Any, index: np.ndarray,
                    chunk: tuple[int, int, int]) -> tuple:
@@ -378,19 +379,16 @@ class _SequentialRun:
                 self.layout,
             )
 
-        # Get the programs (one per kind and padded size) before running, on the worker
-        # threads: loading a stored program or compiling one mostly runs outside the GIL.
+        # Get the programs (one per kind and padded size) before running; compiling them
+        # or reading JAX's cache runs on the worker threads, mostly outside the GIL.
         calls = [self._call(index, shapes(index), chunk) for index in groups]
-        keys = [_executables.call_key(*call) for call in calls]
-        distinct = dict(zip(keys, calls))
-        executables = dict(zip(distinct, _executables.compiled_all(list(distinct.values()),
-                                                                  self.threads)))
-        if not all(_check_native(executable) for executable in executables.values()):
+        executables = self.run_programs.get_all(calls, self.threads)
+        if not all(_check_native(executable) for executable in executables):
             return False
         # Each item's program and hyperparameters, for every chunk (items keep their
         # agents, and a run's chunks have one length, a static argument of the program).
-        self.programs = [(executables[key], args[1])
-                         for key, (_, args, _, _) in zip(keys, calls)]
+        self.programs = [(executable, call.args[1])
+                         for executable, call in zip(executables, calls)]
         fresh = self.host is None  # large fresh agents: created in their item, on the device
         host = None if fresh else self.agents()
         items = []
@@ -399,7 +397,7 @@ class _SequentialRun:
             if fresh:
                 args = (self.mdp, jax.tree.map(lambda leaf, rows=rows: leaf[rows], self.params),
                         self.keys[rows])
-                state = _executables.compiled(init_agents, args, {})(*args)
+                state = self.run_programs.get(init_agents, args)(*args)
             else:  # on a CPU np.asarray of a device array is a view: one gather, one copy
                 # (device_put, not jnp.asarray, which compiles a small program per shape)
                 state = jax.tree.map(lambda leaf, rows=rows: jax.device_put(np.asarray(leaf)[rows]),

@@ -8,7 +8,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vdbejax import _executables
 from vdbejax._pytree import pytree_dataclass
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams, table_layout
@@ -92,9 +91,10 @@ def init_agent(mdp: TabularMDP, params: AgentParams, key: Array) -> AgentState:
     )
 
 
-@jax.jit
 def init_agents(mdp: TabularMDP, params: AgentParams, keys: Array) -> AgentState:
-    """:func:`init_agent` for a batch (leading axis = agents)."""
+    """:func:`init_agent` for a batch (leading axis = agents); the engine runs it as one
+    of its programs (:mod:`vdbejax.engine.programs`), wrap it in ``jax.jit`` to call it
+    alone."""
     return jax.vmap(init_agent, in_axes=(None, 0, 0))(mdp, params, keys)
 
 
@@ -140,9 +140,8 @@ def agent_keys(seed: int, num_seeds: int) -> np.ndarray:
     Returns:
       uint32 ``[num_seeds, 2]`` raw keys.
     """
-    # One small cached program per (seed, count): no tracing in a warm process.
-    static = {"seed": int(seed), "num_seeds": int(num_seeds)}
-    return np.asarray(_executables.compiled(_agent_keys, (), static)())
+    # vdbejax's code alone (no plug-in): JAX's own jit cache is enough.
+    return np.asarray(_agent_keys(seed=int(seed), num_seeds=int(num_seeds)))
 
 
 @partial(jax.jit, static_argnames=("seed", "num_seeds"))

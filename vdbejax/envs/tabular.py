@@ -13,12 +13,9 @@ stored in :attr:`TabularMDP.state_codes` (state index ↔ environment code).
 """
 from __future__ import annotations
 
-import importlib
-from functools import partial
 from typing import Any, Protocol
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from vdbejax._pytree import pytree_dataclass, static_field
@@ -331,71 +328,15 @@ def _vmapped_step(env: FunctionalEnv, params: Any) -> Any:
     return jax.vmap(jax.vmap(one, in_axes=(None, 0)), in_axes=(0, None))
 
 
-@partial(jax.jit, static_argnames=("env_class", "code"))
-def _stateless_env_step(params: Any, codes: Array, actions: Array, *, env_class: str,
-                        code: str) -> tuple[Array, Array, Array]:
-    """:func:`_vmapped_step` of a fresh ``env_class()`` (``"module:Class"``); ``code`` is
-    vdbejax's live code fingerprint, so that an edited or patched environment is traced
-    anew (here and in the stored programs' keys)."""
-    del code
-    module, _, name = env_class.partition(":")
-    env = getattr(importlib.import_module(module), name)()
-    return _vmapped_step(env, params)(codes, actions)
-
-
-def _keeps_no_state(env: Any) -> bool:
-    """Whether ``env`` is one of vdbejax's own classes, importable by name, with no
-    instance state (an empty ``__dict__``, no slots)."""
-    cls = type(env)
-    if not cls.__module__.startswith("vdbejax."):
-        return False
-    module = importlib.import_module(cls.__module__)
-    return (getattr(module, cls.__qualname__, None) is cls
-            and getattr(env, "__dict__", None) == {}
-            and not any(getattr(base, "__slots__", ()) for base in cls.__mro__))
-
-
-def _integer_leaves(params: Any) -> bool:
-    """Whether every leaf of ``params`` is an integer or boolean (as inputs instead of
-    constants they then compute the same; a float constant may be folded in float64)."""
-    dtypes = [np.asarray(leaf).dtype for leaf in jax.tree.leaves(params)]
-    return all(np.issubdtype(dtype, np.integer) or dtype == np.bool_ for dtype in dtypes)
-
-
 def _code_stepper(env: FunctionalEnv, params: Any) -> tuple[Any, np.ndarray]:
     """``(step, actions)``: jitted ``step(codes [B], actions) -> (next_codes, reward,
     terminal)``, each ``[B, A]``, and the int32 action indices.
 
-    The step of one of vdbejax's own environments that keeps no state of its own (its
-    behaviour is its class, vdbejax's code and ``params``) with integer ``params`` is a
-    program stored between processes (:mod:`vdbejax._executables`): a warm process
-    neither traces nor compiles it. Any other environment, or one whose step cannot take
-    ``params`` as inputs (Python control flow or shapes on them), is traced with
-    ``params`` baked in, as a user's environment always is.
+    A fresh ``jax.jit`` per call, so the environment is traced as it is now (a patched
+    constant or an edited method is seen), with ``params`` baked in.
     """
-    from vdbejax import _executables
-
     actions = np.arange(env.num_actions, dtype=np.int32)
-    traced = jax.jit(_vmapped_step(env, params))  # traces at its first call only
-    if not (_keeps_no_state(env) and _integer_leaves(params)):
-        return traced, actions
-    cls = type(env)
-    static = {"env_class": f"{cls.__module__}:{cls.__qualname__}",
-              "code": _executables.live_fingerprint()}
-    stored = [True]  # until a trace with params as inputs fails
-
-    def step(codes: np.ndarray, actions: np.ndarray) -> tuple[Array, Array, Array]:
-        if stored[0]:
-            args = (params, codes, actions)
-            try:
-                program = _executables.compiled(_stateless_env_step, args, static)
-            except Exception:  # noqa: BLE001  (cannot take params as inputs: traced below,
-                stored[0] = False  # where a real error in the environment raises again)
-            else:
-                return program(*args)
-        return traced(codes, actions)
-
-    return step, actions
+    return jax.jit(_vmapped_step(env, params)), actions
 
 
 def _step_codes(step: Any, actions: np.ndarray, codes: np.ndarray, batch_size: int
