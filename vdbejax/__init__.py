@@ -35,7 +35,7 @@ _PUBLIC = {
 }
 
 
-def __getattr__(name: str):  # noqa: ANN202  (module attribute hook)
+def __getattr__(name: str):
     module = _PUBLIC.get(name)
     if module is None:
         raise AttributeError(f"module 'vdbejax' has no attribute {name!r}")

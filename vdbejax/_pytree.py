@@ -33,7 +33,7 @@ def pytree_dataclass(cls: type[T]) -> type[T]:
     keys = tuple(jax.tree_util.GetAttrKey(name) for name in data)
 
     def flatten_with_keys(obj: Any) -> tuple:
-        return (tuple(zip(keys, (getattr(obj, n) for n in data))),
+        return (tuple(zip(keys, (getattr(obj, n) for n in data), strict=True)),
                 tuple(getattr(obj, n) for n in meta))
 
     def flatten(obj: Any) -> tuple:
@@ -41,9 +41,9 @@ def pytree_dataclass(cls: type[T]) -> type[T]:
 
     def unflatten(static: tuple, children: Any) -> Any:
         obj = object.__new__(cls)  # no __init__: leaves may be tracers or placeholders
-        for name, value in zip(data, children):
+        for name, value in zip(data, children, strict=True):
             object.__setattr__(obj, name, value)
-        for name, value in zip(meta, static):
+        for name, value in zip(meta, static, strict=True):
             object.__setattr__(obj, name, value)
         return obj
 

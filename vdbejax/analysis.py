@@ -12,10 +12,10 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents, table_layout
 from vdbejax.engine import AgentState, agent_keys, broadcast_agents, run_agents
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.experiment import GridResult
+from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents, table_layout
 from vdbejax.stats import (  # noqa: F401  (re-exported: the historical home of these names)
     FRACTION,
     LAST,
@@ -81,7 +81,8 @@ def summarize(
     last = min(last, result.num_episodes)
     if statistics is None:
         statistics = curve_statistics(result.returns, window, last)
-    elif (statistics.window, statistics.last) != (window, last) or len(statistics.final) != len(result.settings):
+    elif ((statistics.window, statistics.last) != (window, last)
+          or len(statistics.final) != len(result.settings)):
         raise ValueError(f"statistics (window={statistics.window}, last={statistics.last}, "
                          f"{len(statistics.final)} settings) do not match window={window}, "
                          f"last={last} and the grid's {len(result.settings)} settings")
@@ -103,7 +104,8 @@ def summarize(
                 "convergence_ci_low": float(statistics.convergence_low[c]),
                 "convergence_ci_high": float(statistics.convergence_high[c]),
                 # Fraction over all seeds of the last episodes cut off at max_steps.
-                "truncated_fraction": float(truncated_fraction(result.lengths[c], max_steps, last).mean()),
+                "truncated_fraction": float(
+                    truncated_fraction(result.lengths[c], max_steps, last).mean()),
                 "mean_length": float(result.lengths[c].mean()),
                 "nonfinite_agents": int(result.nonfinite[c].sum()),
             }

@@ -93,7 +93,8 @@ class CheckpointWriter:
         written = np.zeros_like(done) if self.written is None else self.written
         changed = np.flatnonzero(done != written)
         # One record per group of agents that ran the same episodes in this chunk.
-        spans = np.stack([written[changed], done[changed]], axis=1) if changed.size else np.zeros((0, 2), np.int64)
+        spans = (np.stack([written[changed], done[changed]], axis=1) if changed.size
+                 else np.zeros((0, 2), np.int64))
         for start, stop in np.unique(spans, axis=0):
             rows = changed[(spans[:, 0] == start) & (spans[:, 1] == stop)]
             self._log.write(_RECORD.pack(len(rows), int(start), int(stop)))
@@ -216,7 +217,8 @@ def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
         width = stop - start
         size = count * 8 + 2 * count * max(width, 0) * 4
         if count < 1 or not 0 <= start < stop <= episodes or offset + size > log_bytes:
-            raise damaged(f"a record of {count} agents × episodes [{start}, {stop}) is out of range")
+            raise damaged(f"a record of {count} agents × episodes [{start}, {stop})"
+                          " is out of range")
         rows = np.frombuffer(data, "<i8", count, offset)
         offset += count * 8
         if rows.min() < 0 or rows.max() >= agents or (covered[rows] != start).any():
@@ -242,7 +244,8 @@ def _check_progress(done: np.ndarray, nonfinite: Any, rows: np.ndarray, state: A
     if done.size and (done.min() < 0 or done.max() > episodes):
         return f"episodes_done must lie in [0, {episodes}]"
     if rows.ndim != 1 or len(np.unique(rows)) != len(rows) or (
-            rows.size and (rows.min() < 0 or rows.max() >= agents or (done[rows] >= episodes).any())):
+            rows.size and (rows.min() < 0 or rows.max() >= agents
+                           or (done[rows] >= episodes).any())):
         return "state_rows must name distinct unfinished agents"
     if state is None:
         return None if rows.size == 0 else "state_rows name agents but no agent state is stored"
@@ -254,7 +257,7 @@ def _check_progress(done: np.ndarray, nonfinite: Any, rows: np.ndarray, state: A
         return "the agents' episode counters disagree with episodes_done"
     if mdp is None:
         return None
-    S, A = mdp.num_states, mdp.num_actions  # noqa: N806
+    S, A = mdp.num_states, mdp.num_actions
     if np.shape(state.q) != (m, S, A):
         return f"Q must be [{m}, {S}, {A}], not {list(np.shape(state.q))}"
     if (np.asarray(state.state) < 0).any() or (np.asarray(state.state) >= S).any():
@@ -267,5 +270,6 @@ def _check_progress(done: np.ndarray, nonfinite: Any, rows: np.ndarray, state: A
         for name, per in layout.items():
             wanted = (m, S) if per == "state" else (m, S, A)
             if np.shape(state.tables[name]) != wanted:
-                return f"table {name!r} must be {list(wanted)}, not {list(np.shape(state.tables[name]))}"
+                return (f"table {name!r} must be {list(wanted)},"
+                        f" not {list(np.shape(state.tables[name]))}")
     return None

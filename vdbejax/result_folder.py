@@ -221,7 +221,8 @@ def save_run(
         value = write(statistics)
         unmark(out)
     except OSError as error:
-        raise ValueError(f"cannot write the outputs in {str(out)!r}: {describe_os_error(error)}; the"
+        raise ValueError(f"cannot write the outputs in {str(out)!r}:"
+                         f" {describe_os_error(error)}; the"
                          f" results are saved there: 'vdbejax plot --results {out}' writes"
                          " the summary and figures again") from None
     return value
@@ -242,4 +243,5 @@ def _rescue(result: Any) -> str:
         result.save(folder)
     except OSError as error:
         return f"the results could not be kept elsewhere either ({describe_os_error(error)})"
-    return f"the results were kept in {str(folder)!r} ('vdbejax plot --results {folder}' draws them)"
+    return (f"the results were kept in {str(folder)!r}"
+            f" ('vdbejax plot --results {folder}' draws them)")

@@ -369,7 +369,7 @@ def run_until_solved(
             progress(done, int(active.size), num_agents, elapsed)
         if stopped != "solved":
             break
-        state = jax.tree.map(lambda leaf: np.asarray(leaf)[keep], result.final_state)
+        state = jax.tree.map(lambda leaf: np.asarray(leaf)[keep], result.final_state)  # noqa: B023  (run at once)
         del result, initial  # the previous states are not needed during the next chunk
     elapsed = time.perf_counter() - started
     shape = (len(settings), num_seeds)
@@ -696,9 +696,9 @@ def load_scaling(out_dir: str | Path) -> tuple[list[dict[str, Any]], list[dict[s
         for key, value in raw.items():
             if key in integers:
                 row[key] = int(value)
-            elif key in ROW_COLUMNS[ROW_COLUMNS.index("fraction_solved"):] and key != "median_text":
-                row[key] = float(value)
-            elif key in ("best_return", "threshold"):
+            elif ((key in ROW_COLUMNS[ROW_COLUMNS.index("fraction_solved"):]
+                   and key != "median_text")
+                  or key in ("best_return", "threshold")):
                 row[key] = float(value)
             else:
                 row[key] = value
@@ -800,7 +800,9 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
         table.append(row)
     lines += [markdown_table(table, columns, digits=2), "", "## Median episodes to solve", ""]
     sizes = [v["size"] for v in variants]
-    header = ["method"] + [f"{s} ({v['states']})" for s, v in zip(sizes, variants)] + ["exponent"]
+    header = (["method"]
+              + [f"{s} ({v['states']})" for s, v in zip(sizes, variants, strict=True)]
+              + ["exponent"])
     slopes = growth_exponents(rows)
     pivot: dict[Setting, dict[str, str]] = {}
     for r in rows:
@@ -838,6 +840,7 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
     if "ipykernel" not in sys.modules:  # headless, as vdbejax.plotting; a notebook keeps its own
         matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     from vdbejax.paper.claims import LEARNER_NAMES
 
     learners = list(dict.fromkeys(r["learner"] for r in rows))
@@ -889,7 +892,7 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
                                                     column(mine, "fraction_high") - fraction],
                                  color=colors[explorer], marker="o", alpha=0.85, **bars)
         if budgets:
-            bx, by = zip(*budgets)
+            bx, by = zip(*budgets, strict=True)
             (budget_line,) = ax_median.plot(bx, by, color="0.6", linestyle=":")
             handles.setdefault("budget (open ▲: median > budget)", budget_line)
         title = LEARNER_NAMES.get(learner, learner)
@@ -910,8 +913,23 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
 
 
 __all__ = [
-    "AdaptiveRun", "LEARNERS", "METHODS", "Method", "SIZES", "ScalingResult", "auto_chunk",
-    "best_parameters", "growth_exponents", "load_scaling", "variant_budget", "write_reports",
-    "parse_sizes", "run_scaling", "run_until_solved", "scaling_figure", "scaling_markdown",
-    "select_methods", "study_settings",
+    "LEARNERS",
+    "METHODS",
+    "SIZES",
+    "AdaptiveRun",
+    "Method",
+    "ScalingResult",
+    "auto_chunk",
+    "best_parameters",
+    "growth_exponents",
+    "load_scaling",
+    "parse_sizes",
+    "run_scaling",
+    "run_until_solved",
+    "scaling_figure",
+    "scaling_markdown",
+    "select_methods",
+    "study_settings",
+    "variant_budget",
+    "write_reports",
 ]

@@ -100,7 +100,7 @@ def load_plugins(plugins: Sequence[str]) -> None:
                 importlib.import_module(plugin)
         except ValueError:
             raise
-        except Exception as error:  # noqa: BLE001  (the user's code: report it in one line)
+        except Exception as error:
             raise ValueError(f"plugin={plugin!r} is invalid: cannot import it"
                              f" ({type(error).__name__}: {error})") from None
 

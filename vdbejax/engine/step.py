@@ -248,7 +248,7 @@ def lockstep_iteration(
     """
     learner, explorer = agent.learner, agent.explorer
     num_agents = agents.episode.shape[0]
-    S, A = mdp.num_states, mdp.num_actions  # noqa: N806
+    S, A = mdp.num_states, mdp.num_actions
     lane = jnp.arange(num_agents, dtype=jnp.int32)
     table_lane = lane if table_rows is None else table_rows
     rows = num_agents if table_rows is None else agents.q.shape[0] // (S * A)
@@ -330,7 +330,8 @@ def lockstep_iteration(
         action=keep(next_action, a),
         pending_reset=keep(learn & truncated, resetting),
         episode=agents.episode + done.astype(jnp.int32),
-        episode_return=jnp.where(learn, jnp.where(done, 0.0, episode_return), agents.episode_return),
+        episode_return=jnp.where(learn, jnp.where(done, 0.0, episode_return),
+                                 agents.episode_return),
         episode_length=jnp.where(learn, jnp.where(done, 0, length), agents.episode_length),
         counter=agents.counter + active.astype(jnp.uint32),
         key=agents.key,

@@ -278,7 +278,8 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
             raise ValueError(f"{name}={values!r} is invalid: must be a non-empty list of names")
     for name, values in axes.items():
         if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or not values:
-            raise ValueError(f"axis {name}={values!r} is invalid: must be a non-empty list of values")
+            raise ValueError(f"axis {name}={values!r} is invalid: must be a non-empty list"
+                             " of values")
     used: set[str] = set()
     settings = []
     for learner in learners:
@@ -289,7 +290,7 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
                      if owners(name, learner, explorer)}
             used.update(mine, fixed)
             for combination in itertools.product(*(axes[name] for name in mine)):
-                values = dict(fixed, **dict(zip(mine, combination)))
+                values = dict(fixed, **dict(zip(mine, combination, strict=True)))
                 param = values.pop(cls.parameter, None) if cls.parameter else None
                 settings.append(Setting(learner, explorer, param, values))
     unused = [name for name in list(axes) + list(shared) if name not in used]
@@ -356,7 +357,18 @@ def table_layout(params: AgentParams) -> dict[str, str]:
 
 
 __all__ = [
-    "Agent", "AgentOptions", "AgentParams", "PAPER_PARAMETERS", "Setting", "Table",
-    "agent_hyperparameters", "make_agent", "owners", "paper_settings", "parameter_name", "stack_agents",
-    "sweep", "table_layout",
+    "PAPER_PARAMETERS",
+    "Agent",
+    "AgentOptions",
+    "AgentParams",
+    "Setting",
+    "Table",
+    "agent_hyperparameters",
+    "make_agent",
+    "owners",
+    "paper_settings",
+    "parameter_name",
+    "stack_agents",
+    "sweep",
+    "table_layout",
 ]

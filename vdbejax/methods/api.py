@@ -337,7 +337,7 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
       num_actions: actions of the task.
     """
     name = f"explorer {agent_explorer.name!r}"
-    A = num_actions  # noqa: N806
+    A = num_actions
     f32 = jnp.float32
     row, scalar = jax.ShapeDtypeStruct((A,), f32), jax.ShapeDtypeStruct((), f32)
     tables = _table_values(name, agent_explorer.tables(), row, scalar)
@@ -355,8 +355,9 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
             closed = jax.make_jaxpr(fn)(*args)
         except ValueError:
             raise
-        except Exception as error:  # noqa: BLE001  (the user's function failed to trace)
-            message = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        except Exception as error:
+            message = (str(error).strip().splitlines()[0] if str(error).strip()
+                       else type(error).__name__)
             raise ValueError(f"{what} fails on one agent's inputs: {type(error).__name__}: "
                              f"{message}") from None
         if closed.effects:
@@ -373,7 +374,8 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
     _check_same(f"{name} update()", new, tables)
     uses_probabilities = agent_learner.uses_next_probabilities
     if uses_probabilities:
-        probs = traced(f"{name} probabilities()", agent_explorer.probabilities, row, tables, context)
+        probs = traced(f"{name} probabilities()", agent_explorer.probabilities, row, tables,
+                       context)
         _check_same(f"{name} probabilities()", probs, row)
     lname = f"learner {agent_learner.name!r}"
     behaviour = traced(f"{lname} behaviour()", agent_learner.behaviour, row, ltables)
@@ -417,12 +419,25 @@ def _describe(value: Any) -> str:
 def _check_same(what: str, value: Any, expected: Any) -> None:
     got = jax.tree.map(lambda x: tuple(x.shape), value)
     want = jax.tree.map(lambda x: tuple(x.shape), expected)
-    if jax.tree.structure(got) != jax.tree.structure(want) or jax.tree.leaves(got) != jax.tree.leaves(want):
+    if (jax.tree.structure(got) != jax.tree.structure(want)
+            or jax.tree.leaves(got) != jax.tree.leaves(want)):
         raise ValueError(f"{what} returned {_describe(value)}: expected {_describe(expected)}")
 
 
 __all__ = [
-    "Context", "EXPLORERS", "Explorer", "LEARNERS", "Learner", "LearnerUpdate", "Table",
-    "Transition", "build", "check_plugin", "explorer", "field_names", "hyperparameters",
-    "learner", "static_field",
+    "EXPLORERS",
+    "LEARNERS",
+    "Context",
+    "Explorer",
+    "Learner",
+    "LearnerUpdate",
+    "Table",
+    "Transition",
+    "build",
+    "check_plugin",
+    "explorer",
+    "field_names",
+    "hyperparameters",
+    "learner",
+    "static_field",
 ]

@@ -26,6 +26,7 @@ derives them from its per-agent stream); the ``key``-taking wrappers draw them w
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -404,7 +405,7 @@ class VDBESoftmax(VDBE):
     tau: Array = VDBE_SOFTMAX_TAU
     #: :data:`SOFTMAX_NUMERICS` of the exploratory draw.
     softmax_numerics: str = static_field("stable")
-    option_aliases = {"vdbe_softmax_tau": "tau"}
+    option_aliases: ClassVar[dict[str, str]] = {"vdbe_softmax_tau": "tau"}
 
     def _tau(self) -> Array | None:
         return self.tau

@@ -100,7 +100,8 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
         measured.append(f"{name} ε→final: {_finals(rows_e)}")
         checks.append(Check(f"{name}: the two best ε are 0.05 and 0.1 (measured {sorted(top)})",
                             top == {0.05, 0.1}))
-        checks.append(Check(f"{name}: best final return {float(best['final_return']):.2f} < {bounds[learner]}",
+        checks.append(Check(f"{name}: best final return {float(best['final_return']):.2f}"
+                            f" < {bounds[learner]}",
                             float(best["final_return"]) < bounds[learner]))
     add(1, "ε-greedy: the best ε are 0.1 and 0.05 for both learners; its final average return "
            "stays below about 0.6 (SARSA) and 0.7 (Q-learning).",
@@ -121,9 +122,11 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
         others = [r for r in rows_s if float(r["param"]) not in (0.0001, 0.001)]
         worst_low = min(low, key=lambda r: float(r["final_return"])) if low else None
         tied = worst_low is not None and all(
-            float(r.get("final_ci_low", r["final_return"])) <= float(worst_low.get("final_ci_high", worst_low["final_return"]))
+            float(r.get("final_ci_low", r["final_return"]))
+            <= float(worst_low.get("final_ci_high", worst_low["final_return"]))
             for r in others)
-        checks.append(Check(f"{name}: the best τ are 0.0001 and 0.001 (measured top two {sorted(top)}"
+        checks.append(Check(f"{name}: the best τ are 0.0001 and 0.001"
+                            f" (measured top two {sorted(top)}"
                             + ("" if top == {0.0001, 0.001} else
                                f"; no other τ significantly better: {tied}") + ")",
                             top == {0.0001, 0.001} or tied))
@@ -144,20 +147,23 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
         high = [r for r in rows_v if float(r["param"]) >= good_from[learner]]
         low = [r for r in rows_v if float(r["param"]) < good_from[learner]]
         measured.append(f"{name} σ→final (convergence ep.): " + ", ".join(
-            f"{float(r['param']):g}→{float(r['final_return']):.2f} ({int(r['convergence_episode'])})"
+            f"{float(r['param']):g}→{float(r['final_return']):.2f}"
+            f" ({int(r['convergence_episode'])})"
             for r in rows_v))
-        checks.append(Check(f"{name}: every σ ≥ {good_from[learner]:g} ends within {NEAR} of {best_return:.2f}",
+        checks.append(Check(f"{name}: every σ ≥ {good_from[learner]:g} ends within {NEAR}"
+                            f" of {best_return:.2f}",
                             bool(high) and all(float(r["final_return"]) >= near for r in high)))
         if low and high:
             high_conv = max(int(r["convergence_episode"]) for r in high)
             slow = all(float(r["final_return"]) < near or int(r["convergence_episode"]) > high_conv
                        for r in low)
-            checks.append(Check(f"{name}: every σ < {good_from[learner]:g} ends lower or converges later "
-                                f"than the good σ", slow))
+            checks.append(Check(f"{name}: every σ < {good_from[learner]:g} ends lower or"
+                                " converges later than the good σ", slow))
         worst[learner] = min(float(r["final_return"]) for r in rows_v)
     if len(worst) == 2:
-        checks.append(Check(f"too-low σ is worst with SARSA (worst final SARSA {worst['sarsa']:.2f} "
-                            f"≤ Q-learning {worst['qlearning']:.2f})", worst["sarsa"] <= worst["qlearning"]))
+        checks.append(Check(f"too-low σ is worst with SARSA (worst final SARSA"
+                            f" {worst['sarsa']:.2f} ≤ Q-learning {worst['qlearning']:.2f})",
+                            worst["sarsa"] <= worst["qlearning"]))
     add(3, "VDBE: Q-learning does well for σ ≥ 0.1, SARSA for σ ≥ 1; a σ too low converges slowly "
            "or not at all, worst with SARSA.",
         "good: σ ≥ 0.1 (Q-learning), σ ≥ 1 (SARSA)", measured, checks)
@@ -171,7 +177,8 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
         name = LEARNER_NAMES[learner]
         measured.append(f"{name} σ→final: {_finals(rows_vs)}")
         for r in rows_vs:
-            checks.append(Check(f"{name} σ={float(r['param']):g} ends within {NEAR} of {best_return:.2f}",
+            checks.append(Check(f"{name} σ={float(r['param']):g} ends within {NEAR}"
+                                f" of {best_return:.2f}",
                                 float(r["final_return"]) >= near))
     add(4, "VDBE-Softmax: good for every σ tried, with either learner.",
         "every σ ends near 0.86", measured, checks)
@@ -235,9 +242,11 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
             value = float(best["final_return"])
             measured.append(f"{name} best {explorer} {value:.2f}")
             if explorer == "egreedy":
-                checks.append(Check(f"{name}: ε-greedy's best ({value:.2f}) stays below {near:.2f}", value < near))
+                checks.append(Check(f"{name}: ε-greedy's best ({value:.2f}) stays below {near:.2f}",
+                                    value < near))
             else:
-                checks.append(Check(f"{name}: best {explorer} ({value:.2f}) ends within {NEAR} of {best_return:.2f}",
+                checks.append(Check(f"{name}: best {explorer} ({value:.2f}) ends within {NEAR}"
+                                    f" of {best_return:.2f}",
                                     value >= near))
     add(6, "All methods but ε-greedy end at or near the best return, 0.86.",
         "softmax, VDBE, VDBE-Softmax ≈ 0.86; ε-greedy lower", measured, checks)
@@ -249,7 +258,8 @@ def cap_message(meta: dict[str, Any]) -> str:
     cut, agents = meta.get("truncated_episodes", 0), meta.get("agents_truncated", 0)
     return (f"{cut:,} episodes of {agents} agents ran into the safety cap of"
             f" {meta.get('max_steps', '?'):,} steps and were cut there (the published code would"
-            f" never have finished them); longest episode {meta.get('longest_episode', '?'):,} steps")
+            f" never have finished them); longest episode"
+            f" {meta.get('longest_episode', '?'):,} steps")
 
 
 def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_return: float) -> str:
@@ -289,7 +299,8 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
         "| --- | --- | --- |",
     ]
     for c in claims:
-        lines.append(f"| {c.number} | **{c.verdict}** | {sum(k.passed for k in c.checks)}/{len(c.checks)} |")
+        passed = sum(k.passed for k in c.checks)
+        lines.append(f"| {c.number} | **{c.verdict}** | {passed}/{len(c.checks)} |")
     for c in claims:
         lines += [
             "",
