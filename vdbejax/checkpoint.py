@@ -25,7 +25,7 @@ import os
 import secrets
 import struct
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -71,24 +71,29 @@ class CheckpointWriter:
                  log_bytes: int = 0, log_id: str | None = None) -> None:
         self.path = Path(path)
         self.fingerprint = fingerprint
-        self._log = None
+        self._log: BinaryIO | None = None
         if resumed is None:
             self.log_id = secrets.token_hex(8)
             self.written = None
             self._open_fresh()
         else:
+            assert log_id is not None  # a resumed run continues its own log
             self.log_id = log_id
             self.written = np.array(resumed.episodes_done, np.int64)
-            self._log = open(log_path(self.path), "r+b")  # noqa: SIM115  (kept open for the run)
-            self._log.truncate(log_bytes)  # what a killed run appended past its last checkpoint
-            self._log.seek(log_bytes)
+            log = open(log_path(self.path), "r+b")  # noqa: SIM115  (kept open for the run)
+            self._log = log
+            log.truncate(log_bytes)  # what a killed run appended past its last checkpoint
+            log.seek(log_bytes)
 
     def _open_fresh(self) -> None:
-        self._log = open(log_path(self.path), "wb")  # noqa: SIM115  (kept open for the run)
-        self._log.write(_LOG_MAGIC + _HEADER.pack(self.fingerprint.encode().ljust(16)[:16],
-                                                  self.log_id.encode()))
+        log = open(log_path(self.path), "wb")  # noqa: SIM115  (kept open for the run)
+        self._log = log
+        log.write(_LOG_MAGIC + _HEADER.pack(self.fingerprint.encode().ljust(16)[:16],
+                                            self.log_id.encode()))
 
     def __call__(self, sweep: SweepProgress) -> None:
+        log = self._log
+        assert log is not None  # open until close()
         done = np.asarray(sweep.episodes_done, np.int64)
         written = np.zeros_like(done) if self.written is None else self.written
         changed = np.flatnonzero(done != written)
@@ -97,12 +102,12 @@ class CheckpointWriter:
                  else np.zeros((0, 2), np.int64))
         for start, stop in np.unique(spans, axis=0):
             rows = changed[(spans[:, 0] == start) & (spans[:, 1] == stop)]
-            self._log.write(_RECORD.pack(len(rows), int(start), int(stop)))
-            self._log.write(rows.astype("<i8").tobytes())
-            self._log.write(np.ascontiguousarray(sweep.returns[rows, start:stop], "<f4").tobytes())
-            self._log.write(np.ascontiguousarray(sweep.lengths[rows, start:stop], "<i4").tobytes())
-        self._log.flush()
-        os.fsync(self._log.fileno())  # the log before the small file that vouches for it
+            log.write(_RECORD.pack(len(rows), int(start), int(stop)))
+            log.write(rows.astype("<i8").tobytes())
+            log.write(np.ascontiguousarray(sweep.returns[rows, start:stop], "<f4").tobytes())
+            log.write(np.ascontiguousarray(sweep.lengths[rows, start:stop], "<i4").tobytes())
+        log.flush()
+        os.fsync(log.fileno())  # the log before the small file that vouches for it
         leaves = {}
         if sweep.state is not None:
             leaves = {f"agent_{f.name}": np.asarray(getattr(sweep.state, f.name))
@@ -112,7 +117,7 @@ class CheckpointWriter:
         io.atomic_savez(
             self.path, compressed=False, fingerprint=np.asarray(self.fingerprint),
             version=np.asarray(CHECKPOINT_VERSION), log_id=np.asarray(self.log_id),
-            log_bytes=np.asarray(self._log.tell(), np.int64), num_episodes=np.asarray(
+            log_bytes=np.asarray(log.tell(), np.int64), num_episodes=np.asarray(
                 sweep.num_episodes, np.int64),
             episodes_done=done, nonfinite=sweep.nonfinite, state_rows=sweep.state_rows, **leaves,
         )

@@ -288,7 +288,7 @@ def nonfinite_message(settings: Sequence[Setting], nonfinite: np.ndarray,
       options: the options shared by all agents (part of the config that produced it).
     """
     counts = np.asarray(nonfinite).sum(axis=1)
-    bad = [f"{settings[c].label} ({counts[c]}/{nonfinite.shape[1]} agents)"
+    bad = [f"{settings[int(c)].label} ({counts[c]}/{nonfinite.shape[1]} agents)"
            for c in np.flatnonzero(counts)]
     if not bad:
         return None

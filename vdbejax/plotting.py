@@ -112,6 +112,8 @@ def figure3(
             varying = _varying([result.settings[c] for c in indices])
             for color, c in zip(colors, indices, strict=False):  # colors: at least one
                 if bands:
+                    # curve_statistics(bands=True) has both bands (checked above)
+                    assert statistics.band_low is not None and statistics.band_high is not None
                     ax.fill_between(episodes, statistics.band_low[c], statistics.band_high[c],
                                     color=color, alpha=0.25, lw=0)
                 curve = statistics.curves[c] if smoothing == "trailing" else convolve_full(
@@ -270,7 +272,10 @@ def epsilon_heatmap(
     if ax is None:
         fig, ax = plt.subplots(figsize=(8, max(3.0, 0.12 * len(states) + 1.5)))
     else:
-        fig = ax.figure
+        parent = ax.figure
+        if not isinstance(parent, plt.Figure):  # a subfigure's axes: _finish needs a figure
+            raise ValueError("ax is invalid: must be axes of a figure, not of a subfigure")
+        fig = parent
     image = ax.imshow(epsilon[:, states].T, aspect="auto", origin="lower", cmap="magma",
                       vmin=0.0, vmax=1.0, interpolation="nearest",
                       extent=(0.5, len(episodes) + 0.5, -0.5, len(states) - 0.5))

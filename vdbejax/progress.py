@@ -88,7 +88,7 @@ def _notebook_display() -> ProgressCallback | None:
         from IPython.display import display
     except ImportError:
         return None
-    handle = {"display": None, "time": -float("inf")}
+    handle: dict[str, Any] = {"display": None, "time": -float("inf")}
 
     def show(done: int, total: int, elapsed: float) -> None:
         now = time.monotonic()

@@ -103,7 +103,8 @@ LEARNERS = ("qlearning", "sarsa")
 #: The full-size family of variants (N sections × K goblets), in order of size.
 SIZES = ("2x1", "3x1", "4x1", "4x2", "5x2", "6x2", "6x3")
 #: ``--quick``: two small variants, few agents and episodes (seconds).
-QUICK = {"sizes": ("2x1", "3x1"), "seeds": 3, "episodes": 1000, "episodes_per_state": None}
+QUICK: dict[str, Any] = {"sizes": ("2x1", "3x1"), "seeds": 3, "episodes": 1000,
+                         "episodes_per_state": None}
 #: Default budget: ``max(EPISODES, EPISODES_PER_STATE × reachable states)`` per variant.
 EPISODES = 2000
 EPISODES_PER_STATE = 3.0
@@ -308,7 +309,7 @@ def run_until_solved(
     import jax
 
     from vdbejax.distributed import take_agents
-    from vdbejax.engine import check_params, compile_seconds, run_agents
+    from vdbejax.engine import AgentState, check_params, compile_seconds, run_agents
     from vdbejax.envs.tabular import TabularMDP
     from vdbejax.experiment import grid_agents
 
@@ -340,15 +341,17 @@ def run_until_solved(
     episodes_run = np.zeros(num_agents, np.int64)
     nonfinite = np.zeros(num_agents, bool)
     active = np.arange(num_agents)
-    state = None  # the active agents' state after `done` episodes
+    state: AgentState | None = None  # the active agents' state after `done` episodes
     done, chunks, stopped = 0, 0, "solved"
     chunk = min(chunk_episodes, max_episodes)
     compiled_before = compile_seconds()
     started = time.perf_counter()
     while active.size:
         end = min(done + chunk, max_episodes)
-        initial = None if done == 0 else (done, state, returns[active, :done],
-                                          lengths[active, :done])
+        initial = None
+        if done != 0:
+            assert state is not None  # kept after every chunk
+            initial = (done, state, returns[active, :done], lengths[active, :done])
         result = run_agents(mdp, take_agents(params, active), keys[active], end,
                             chunk_episodes=chunk, initial=initial, threads=threads)
         chunks += 1

@@ -140,7 +140,7 @@ def episodes_to_solve(
     eligible = (columns >= window - 1) & (columns < run[..., None])
     with np.errstate(invalid="ignore"):  # NaN padding past an agent's stop never counts
         reached = eligible & (smoothed >= threshold - TOLERANCE)
-    solved = reached.any(axis=-1)
+    solved = np.any(reached, axis=-1)
     first = np.argmax(reached, axis=-1) + 1
     return SolveTimes(np.where(solved, first, run).astype(np.int64), solved)
 

@@ -394,8 +394,10 @@ def curve_statistics(
     else:
         with ThreadPoolExecutor(workers) as pool:
             rows = list(pool.map(one, range(len(returns))))
-    finals, iqms, convergences, curves, lows, highs = zip(*rows, strict=True) if rows else ([],) * 6
-    finals, convergences = np.array(finals).reshape(-1, 3), np.array(convergences).reshape(-1, 3)
+    final_cis, iqms, convergence_cis, curves, lows, highs = (zip(*rows, strict=True) if rows
+                                                             else ([],) * 6)
+    finals = np.array(final_cis).reshape(-1, 3)
+    convergences = np.array(convergence_cis).reshape(-1, 3)
     episodes = returns.shape[-1]
     return CurveStatistics(
         window=window, last=last,

@@ -95,6 +95,7 @@ def load_plugins(plugins: Sequence[str]) -> None:
                     raise FileNotFoundError(f"no file {str(path)!r}")
                 module = importlib.util.module_from_spec(spec)
                 sys.modules[spec.name] = module
+                assert spec.loader is not None  # a .py path gets a source loader
                 spec.loader.exec_module(module)
             else:
                 importlib.import_module(plugin)

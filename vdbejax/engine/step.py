@@ -58,10 +58,10 @@ def start_support(mdp: TabularMDP) -> tuple[Array, Array]:
     probability = mdp.start_probability
     if isinstance(probability, jax.core.Tracer):
         return jnp.arange(mdp.num_states, dtype=jnp.int32), probability
-    probability = np.asarray(probability)
-    support = np.flatnonzero(probability > 0).astype(np.int32)
+    host = np.asarray(probability)
+    support = np.flatnonzero(host > 0).astype(np.int32)
     # device_put, not jnp.asarray: that compiles a small program per shape (≈ 10 ms each)
-    return jax.device_put(support), jax.device_put(probability[support])
+    return jax.device_put(support), jax.device_put(host[support])
 
 
 # Per-lane buffer access. A batch of a few lanes (the CPU engine's loops) uses unrolled
@@ -344,8 +344,20 @@ def lockstep_iteration(
     return agents, returns, lengths
 
 
-def run_loop(mdp, agent, agents, returns, lengths, chunk_start, chunk_end, max_iterations,
-             unroll, support, table_rows=None, stop_at_first_finish=None):
+def run_loop(
+    mdp: TabularMDP,
+    agent: Agent,
+    agents: AgentState,
+    returns: Array,
+    lengths: Array,
+    chunk_start: Array,
+    chunk_end: Array,
+    max_iterations: Array,
+    unroll: int,
+    support: tuple[Array, Array],
+    table_rows: Array | None = None,
+    stop_at_first_finish: Array | None = None,
+) -> tuple[AgentState, Array, Array, Array]:
     """``while`` any agent is active and fewer than ``max_iterations`` iterations ran.
 
     The body runs ``unroll`` iterations (fewer loop trips); iterations of an agent that

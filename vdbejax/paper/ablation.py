@@ -70,8 +70,9 @@ class Variant:
 
 
 #: The authors' reading: their task table and every agent detail (:data:`AUTHORS_DETAILS`).
-AUTHORS_OPTIONS = {"reading": "authors", "max_steps": STEP_CAP, "tie_break": "first",
-                   "details": tuple(AUTHORS_DETAILS.items())}
+AUTHORS_OPTIONS: dict[str, Any] = {"reading": "authors", "max_steps": STEP_CAP,
+                                   "tie_break": "first",
+                                   "details": tuple(AUTHORS_DETAILS.items())}
 
 #: The two readings side by side, then one factor at a time away from the spec's defaults,
 #: plus one combination.
@@ -134,7 +135,7 @@ def _attribution_variants() -> tuple[Variant, ...]:
 ATTRIBUTION_VARIANTS: tuple[Variant, ...] = _attribution_variants()
 
 #: The factorial mode's factors: the details that matter most, all combinations.
-FACTORIAL_FACTORS = {
+FACTORIAL_FACTORS: dict[str, tuple[Any, ...]] = {
     "failure_update": ("td", "overwrite"),
     "goal_update": ("td", "skip"),
     "alpha": (0.1, 0.3, PAPER_ALPHA),
@@ -323,6 +324,7 @@ def render_document(
             for explorer in EXPLORERS:
                 rows = table.get(learner, explorer)
                 b = table.best(learner, explorer)
+                assert b is not None  # every variant runs the paper's whole grid
                 near_count = sum(float(x["final_return"]) >= near for x in rows)
                 cells.append(f"{float(b['final_return']):.2f} [{float(b['final_ci_low']):.2f}, "
                              f"{float(b['final_ci_high']):.2f}] @{float(b['param']):g}; "

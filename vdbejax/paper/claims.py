@@ -44,7 +44,7 @@ class ClaimResult:
 class _Table:
     """Lookup over summary rows."""
 
-    def __init__(self, rows: Sequence[dict[str, Any]]):
+    def __init__(self, rows: Sequence[dict[str, Any]]) -> None:
         self.rows = list(rows)
 
     def get(self, learner: str, explorer: str) -> list[dict[str, Any]]:
@@ -97,6 +97,7 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
         name = LEARNER_NAMES[learner]
         top = t.top_params(learner, "egreedy", 2)
         best = t.best(learner, "egreedy")
+        assert best is not None  # rows_e is not empty
         measured.append(f"{name} ε→final: {_finals(rows_e)}")
         checks.append(Check(f"{name}: the two best ε are 0.05 and 0.1 (measured {sorted(top)})",
                             top == {0.05, 0.1}))
@@ -189,38 +190,39 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
     paper_episode = {"qlearning": 280, "sarsa": 300}
     for learner in learners:
         name = LEARNER_NAMES[learner]
-        best = {e: t.best(learner, e) for e in ("egreedy", "softmax", "vdbe", "vdbe_softmax")}
-        if best["vdbe_softmax"] is None:
+        bests = {e: t.best(learner, e) for e in ("egreedy", "softmax", "vdbe", "vdbe_softmax")}
+        if bests["vdbe_softmax"] is None:
             continue
-        conv = {e: int(r["convergence_episode"]) for e, r in best.items() if r is not None}
-        good = {e: float(r["final_return"]) >= near for e, r in best.items() if r is not None}
+        found = {e: r for e, r in bests.items() if r is not None}
+        conv = {e: int(r["convergence_episode"]) for e, r in found.items()}
+        good = {e: float(r["final_return"]) >= near for e, r in found.items()}
         measured.append(f"{name} convergence episode of each explorer's best setting: " + ", ".join(
             f"{e} {conv[e]}" + ("" if good[e] else " (not near best)") for e in conv)
             + f" (paper: VDBE-Softmax ≈{paper_episode[learner]}, others ≈350)")
-        others = [e for e in ("softmax", "vdbe") if e in conv]
+        rivals = [e for e in ("softmax", "vdbe") if e in conv]
         # "No later" up to noise: the lower end of VDBE-Softmax's bootstrap interval (when
         # the summary has one) must not exceed the other's convergence episode.
-        vs_row = best["vdbe_softmax"]
+        vs_row = found["vdbe_softmax"]
         vs_low = float(vs_row.get("convergence_ci_low", conv["vdbe_softmax"]))
         checks.append(Check(f"{name}: VDBE-Softmax ends near the best return and converges "
                             f"({conv['vdbe_softmax']}, CI from {vs_low:g}) no later than "
                             + ", ".join(f"{e} ({conv[e]}{'' if good[e] else ', never near best'})"
-                                        for e in others),
+                                        for e in rivals),
                             good["vdbe_softmax"] and all(
-                                not good[e] or vs_low <= conv[e] for e in others)))
+                                not good[e] or vs_low <= conv[e] for e in rivals)))
         # Every figure the paper states: VDBE-Softmax ≈ 280 / 300 episodes, the others ≈ 350.
         stated = {"vdbe_softmax": paper_episode[learner], "softmax": 350, "vdbe": 350}
         for explorer, episode in stated.items():
             if explorer in conv:
-                low, high = (1 - ABOUT) * episode, (1 + ABOUT) * episode
+                lo, hi = (1 - ABOUT) * episode, (1 + ABOUT) * episode
                 checks.append(Check(
                     f"{name}: best {explorer} converges after about {episode} episodes"
-                    f" ({conv[explorer]}; ±{ABOUT:.0%}: {low:g}–{high:g})",
-                    low <= conv[explorer] <= high))
+                    f" ({conv[explorer]}; ±{ABOUT:.0%}: {lo:g}–{hi:g})",
+                    lo <= conv[explorer] <= hi))
         if learner == "qlearning" and "egreedy" in conv:
             # "About as fast": within 25% of VDBE-Softmax (the paper's others are ~25% slower).
-            egreedy_final = float(best["egreedy"]["final_return"])
-            vs_final = float(best["vdbe_softmax"]["final_return"])
+            egreedy_final = float(found["egreedy"]["final_return"])
+            vs_final = float(found["vdbe_softmax"]["final_return"])
             checks.append(Check(
                 f"{name}: ε-greedy converges about as fast (episode {conv['egreedy']} ≤ 1.25 × "
                 f"{conv['vdbe_softmax']}) to a worse return ({egreedy_final:.2f} < {vs_final:.2f})",
