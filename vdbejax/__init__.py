@@ -7,6 +7,7 @@ Quick start::
     print(rep.claims[0].verdict)
 """
 from importlib import metadata as _metadata
+from typing import Any as _Any
 
 from vdbejax import _jax_cache, _xla_flags
 
@@ -36,7 +37,7 @@ _PUBLIC = {
 }
 
 
-def __getattr__(name: str):  # noqa: ANN202  (module attribute hook)
+def __getattr__(name: str) -> _Any:
     module = _PUBLIC.get(name)
     if module is None:
         raise AttributeError(f"module 'vdbejax' has no attribute {name!r}")

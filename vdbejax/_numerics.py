@@ -15,7 +15,7 @@ import jax
 Array = jax.Array
 
 
-def rounded(product: Array, factor: Array) -> Array:
+def rounded(product: Array, factor: float | Array) -> Array:
     """``product``, rounded to float32 before any later addition (never part of an FMA).
 
     Adding ``factor · 0`` — zero for the finite ``factor`` of the product, and a value the

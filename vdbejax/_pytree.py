@@ -6,7 +6,7 @@ Fields are pytree leaves (so a sweep is a ``vmap``) unless declared with
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast, dataclass_transform
 
 import jax
 
@@ -18,6 +18,7 @@ def static_field(default: Any = dataclasses.MISSING) -> Any:
     return dataclasses.field(default=default, metadata={"static": True})
 
 
+@dataclass_transform(frozen_default=True, field_specifiers=(dataclasses.field,))
 def pytree_dataclass(cls: type[T]) -> type[T]:
     """Turn ``cls`` into a frozen dataclass registered as a pytree.
 
@@ -27,13 +28,13 @@ def pytree_dataclass(cls: type[T]) -> type[T]:
     to SARSA, whose fields are the same).
     """
     cls = dataclasses.dataclass(frozen=True)(cls)
-    fields = dataclasses.fields(cls)
+    fields = dataclasses.fields(cast(Any, cls))
     data = tuple(f.name for f in fields if not f.metadata.get("static", False))
     meta = tuple(f.name for f in fields if f.metadata.get("static", False))
     keys = tuple(jax.tree_util.GetAttrKey(name) for name in data)
 
     def flatten_with_keys(obj: Any) -> tuple:
-        return (tuple(zip(keys, (getattr(obj, n) for n in data))),
+        return (tuple(zip(keys, (getattr(obj, n) for n in data), strict=True)),
                 tuple(getattr(obj, n) for n in meta))
 
     def flatten(obj: Any) -> tuple:
@@ -41,9 +42,9 @@ def pytree_dataclass(cls: type[T]) -> type[T]:
 
     def unflatten(static: tuple, children: Any) -> Any:
         obj = object.__new__(cls)  # no __init__: leaves may be tracers or placeholders
-        for name, value in zip(data, children):
+        for name, value in zip(data, children, strict=True):
             object.__setattr__(obj, name, value)
-        for name, value in zip(meta, static):
+        for name, value in zip(meta, static, strict=True):
             object.__setattr__(obj, name, value)
         return obj
 
@@ -53,4 +54,4 @@ def pytree_dataclass(cls: type[T]) -> type[T]:
 
 def replace(obj: T, **changes: Any) -> T:
     """``dataclasses.replace`` for pytree dataclasses."""
-    return dataclasses.replace(obj, **changes)
+    return cast(T, dataclasses.replace(cast(Any, obj), **changes))

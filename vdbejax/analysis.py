@@ -12,10 +12,10 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents, table_layout
 from vdbejax.engine import AgentState, agent_keys, broadcast_agents, run_agents
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.experiment import GridResult
+from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents, table_layout
 from vdbejax.stats import (  # noqa: F401  (re-exported: the historical home of these names)
     FRACTION,
     LAST,
@@ -81,7 +81,8 @@ def summarize(
     last = min(last, result.num_episodes)
     if statistics is None:
         statistics = curve_statistics(result.returns, window, last)
-    elif (statistics.window, statistics.last) != (window, last) or len(statistics.final) != len(result.settings):
+    elif ((statistics.window, statistics.last) != (window, last)
+          or len(statistics.final) != len(result.settings)):
         raise ValueError(f"statistics (window={statistics.window}, last={statistics.last}, "
                          f"{len(statistics.final)} settings) do not match window={window}, "
                          f"last={last} and the grid's {len(result.settings)} settings")
@@ -103,7 +104,8 @@ def summarize(
                 "convergence_ci_low": float(statistics.convergence_low[c]),
                 "convergence_ci_high": float(statistics.convergence_high[c]),
                 # Fraction over all seeds of the last episodes cut off at max_steps.
-                "truncated_fraction": float(truncated_fraction(result.lengths[c], max_steps, last).mean()),
+                "truncated_fraction": float(
+                    truncated_fraction(result.lengths[c], max_steps, last).mean()),
                 "mean_length": float(result.lengths[c].mean()),
                 "nonfinite_agents": int(result.nonfinite[c].sum()),
             }
@@ -247,14 +249,14 @@ def action_probabilities(
     if "tie_break" in field_names(explorer_class(explorer)):
         values.setdefault("tie_break", tie_break)
     chosen = make_explorer(explorer, param, **values)
-    q = jnp.asarray(q, jnp.float32)
-    defaults = {name: jnp.full(() if spec.per == "state" else q.shape, spec.init, jnp.float32)
+    q_row = jnp.asarray(q, jnp.float32)
+    defaults = {name: jnp.full(() if spec.per == "state" else q_row.shape, spec.init, jnp.float32)
                 for name, spec in chosen.tables().items()}
     if "epsilon" in defaults:
         defaults["epsilon"] = jnp.asarray(state_epsilon, jnp.float32)
     defaults.update({k: jnp.asarray(v, jnp.float32) for k, v in (tables or {}).items()})
     context = Context(jnp.int32(episode), jnp.int32(0), jnp.bool_(False))
-    return np.asarray(chosen.probabilities(q, defaults, context), np.float64)
+    return np.asarray(chosen.probabilities(q_row, defaults, context), np.float64)
 
 
 def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[str], digits: int = 3) -> str:
@@ -272,7 +274,7 @@ def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[str], digit
         if not isinstance(value, (float, np.floating)):
             return str(value)
         # Tiny parameters (τ = 0.0001) would round to 0: show them in full.
-        return f"{value:g}" if 0 < abs(value) < 10.0 ** -digits else f"{value:.{digits}f}"
+        return f"{value:g}" if 0 < np.abs(value) < 10.0 ** -digits else f"{value:.{digits}f}"
 
     lines = ["| " + " | ".join(columns) + " |", "| " + " | ".join("---" for _ in columns) + " |"]
     lines += ["| " + " | ".join(cell(r[c]) for c in columns) + " |" for r in rows]

@@ -228,7 +228,10 @@ class SweepProgress:
         self.returns[rows, :done] = returns
         self.lengths[rows, :done] = lengths
         self.episodes_done[rows] = done
-        self.nonfinite[rows] = np.asarray(agents.nonfinite if nonfinite is None else nonfinite)
+        if nonfinite is None:
+            assert agents is not None  # the states may be None only given nonfinite
+            nonfinite = np.asarray(agents.nonfinite)
+        self.nonfinite[rows] = np.asarray(nonfinite)
         keep = ~np.isin(self.state_rows, rows)
         row_parts, state_parts = [], []
         if keep.any():
@@ -248,6 +251,7 @@ class SweepProgress:
             index = np.asarray([position[int(r)] for r in rows])
         except KeyError as missing:
             raise ValueError(f"checkpoint lacks the state of agent {missing}") from None
+        assert self.state is not None  # agents in progress: their states are stored
         return take_agents(self.state, index)
 
 

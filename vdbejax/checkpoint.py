@@ -25,7 +25,7 @@ import os
 import secrets
 import struct
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -71,37 +71,43 @@ class CheckpointWriter:
                  log_bytes: int = 0, log_id: str | None = None) -> None:
         self.path = Path(path)
         self.fingerprint = fingerprint
-        self._log = None
+        self._log: BinaryIO | None = None
         if resumed is None:
             self.log_id = secrets.token_hex(8)
             self.written = None
             self._open_fresh()
         else:
+            assert log_id is not None  # a resumed run continues its own log
             self.log_id = log_id
             self.written = np.array(resumed.episodes_done, np.int64)
-            self._log = open(log_path(self.path), "r+b")  # noqa: SIM115  (kept open for the run)
-            self._log.truncate(log_bytes)  # what a killed run appended past its last checkpoint
-            self._log.seek(log_bytes)
+            log = open(log_path(self.path), "r+b")  # noqa: SIM115  (kept open for the run)
+            self._log = log
+            log.truncate(log_bytes)  # what a killed run appended past its last checkpoint
+            log.seek(log_bytes)
 
     def _open_fresh(self) -> None:
-        self._log = open(log_path(self.path), "wb")  # noqa: SIM115  (kept open for the run)
-        self._log.write(_LOG_MAGIC + _HEADER.pack(self.fingerprint.encode().ljust(16)[:16],
-                                                  self.log_id.encode()))
+        log = open(log_path(self.path), "wb")  # noqa: SIM115  (kept open for the run)
+        self._log = log
+        log.write(_LOG_MAGIC + _HEADER.pack(self.fingerprint.encode().ljust(16)[:16],
+                                            self.log_id.encode()))
 
     def __call__(self, sweep: SweepProgress) -> None:
+        log = self._log
+        assert log is not None  # open until close()
         done = np.asarray(sweep.episodes_done, np.int64)
         written = np.zeros_like(done) if self.written is None else self.written
         changed = np.flatnonzero(done != written)
         # One record per group of agents that ran the same episodes in this chunk.
-        spans = np.stack([written[changed], done[changed]], axis=1) if changed.size else np.zeros((0, 2), np.int64)
+        spans = (np.stack([written[changed], done[changed]], axis=1) if changed.size
+                 else np.zeros((0, 2), np.int64))
         for start, stop in np.unique(spans, axis=0):
             rows = changed[(spans[:, 0] == start) & (spans[:, 1] == stop)]
-            self._log.write(_RECORD.pack(len(rows), int(start), int(stop)))
-            self._log.write(rows.astype("<i8").tobytes())
-            self._log.write(np.ascontiguousarray(sweep.returns[rows, start:stop], "<f4").tobytes())
-            self._log.write(np.ascontiguousarray(sweep.lengths[rows, start:stop], "<i4").tobytes())
-        self._log.flush()
-        os.fsync(self._log.fileno())  # the log before the small file that vouches for it
+            log.write(_RECORD.pack(len(rows), int(start), int(stop)))
+            log.write(rows.astype("<i8").tobytes())
+            log.write(np.ascontiguousarray(sweep.returns[rows, start:stop], "<f4").tobytes())
+            log.write(np.ascontiguousarray(sweep.lengths[rows, start:stop], "<i4").tobytes())
+        log.flush()
+        os.fsync(log.fileno())  # the log before the small file that vouches for it
         leaves = {}
         if sweep.state is not None:
             leaves = {f"agent_{f.name}": np.asarray(getattr(sweep.state, f.name))
@@ -111,7 +117,7 @@ class CheckpointWriter:
         io.atomic_savez(
             self.path, compressed=False, fingerprint=np.asarray(self.fingerprint),
             version=np.asarray(CHECKPOINT_VERSION), log_id=np.asarray(self.log_id),
-            log_bytes=np.asarray(self._log.tell(), np.int64), num_episodes=np.asarray(
+            log_bytes=np.asarray(log.tell(), np.int64), num_episodes=np.asarray(
                 sweep.num_episodes, np.int64),
             episodes_done=done, nonfinite=sweep.nonfinite, state_rows=sweep.state_rows, **leaves,
         )
@@ -216,7 +222,8 @@ def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
         width = stop - start
         size = count * 8 + 2 * count * max(width, 0) * 4
         if count < 1 or not 0 <= start < stop <= episodes or offset + size > log_bytes:
-            raise damaged(f"a record of {count} agents × episodes [{start}, {stop}) is out of range")
+            raise damaged(f"a record of {count} agents × episodes [{start}, {stop})"
+                          " is out of range")
         rows = np.frombuffer(data, "<i8", count, offset)
         offset += count * 8
         if rows.min() < 0 or rows.max() >= agents or (covered[rows] != start).any():
@@ -242,7 +249,8 @@ def _check_progress(done: np.ndarray, nonfinite: Any, rows: np.ndarray, state: A
     if done.size and (done.min() < 0 or done.max() > episodes):
         return f"episodes_done must lie in [0, {episodes}]"
     if rows.ndim != 1 or len(np.unique(rows)) != len(rows) or (
-            rows.size and (rows.min() < 0 or rows.max() >= agents or (done[rows] >= episodes).any())):
+            rows.size and (rows.min() < 0 or rows.max() >= agents
+                           or (done[rows] >= episodes).any())):
         return "state_rows must name distinct unfinished agents"
     if state is None:
         return None if rows.size == 0 else "state_rows name agents but no agent state is stored"
@@ -254,7 +262,7 @@ def _check_progress(done: np.ndarray, nonfinite: Any, rows: np.ndarray, state: A
         return "the agents' episode counters disagree with episodes_done"
     if mdp is None:
         return None
-    S, A = mdp.num_states, mdp.num_actions  # noqa: N806
+    S, A = mdp.num_states, mdp.num_actions
     if np.shape(state.q) != (m, S, A):
         return f"Q must be [{m}, {S}, {A}], not {list(np.shape(state.q))}"
     if (np.asarray(state.state) < 0).any() or (np.asarray(state.state) >= S).any():
@@ -267,5 +275,6 @@ def _check_progress(done: np.ndarray, nonfinite: Any, rows: np.ndarray, state: A
         for name, per in layout.items():
             wanted = (m, S) if per == "state" else (m, S, A)
             if np.shape(state.tables[name]) != wanted:
-                return f"table {name!r} must be {list(wanted)}, not {list(np.shape(state.tables[name]))}"
+                return (f"table {name!r} must be {list(wanted)},"
+                        f" not {list(np.shape(state.tables[name]))}")
     return None

@@ -11,9 +11,13 @@ import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from vdbejax import __version__
 from vdbejax.validation import parse_cli_number
+
+if TYPE_CHECKING:
+    from vdbejax.experiment import GridResult
 
 #: ``vdbejax --help``'s description (plain text: argparse prints it as is).
 DESCRIPTION = ("Exploration strategies in tabular RL: 'vdbejax reproduce --out DIR' reproduces"
@@ -21,12 +25,14 @@ DESCRIPTION = ("Exploration strategies in tabular RL: 'vdbejax reproduce --out D
 
 
 def _add_reproduce(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("reproduce", help="run the paper's full grid and write figure, summary, report")
+    p = sub.add_parser("reproduce",
+                       help="run the paper's full grid and write figure, summary, report")
     p.add_argument("--out", required=True, help="output folder")
     # Numbers are parsed leniently and checked by reproduce(): one clear error line.
     number = parse_cli_number
     p.add_argument("--seeds", type=number, default=20, help="agents per setting (default 20)")
-    p.add_argument("--episodes", type=number, default=1000, help="episodes per agent (default 1000)")
+    p.add_argument("--episodes", type=number, default=1000,
+                   help="episodes per agent (default 1000)")
     p.add_argument("--seed", type=number, default=0, help="root random seed (default 0)")
     p.add_argument("--reading", default="textbook",
                    help="textbook (default: the paper's text, docs/task.md) or authors (the"
@@ -37,7 +43,8 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tie-break", default=None,
                    help="random (default) or first (the authors' reading's default)")
     p.add_argument("--q-init", type=number, default=0.0, help="initial Q value (default 0)")
-    p.add_argument("--chunk-episodes", type=number, default=100, help="episodes per jitted chunk (default 100)")
+    p.add_argument("--chunk-episodes", type=number, default=100,
+                   help="episodes per jitted chunk (default 100)")
     p.add_argument("--memory-budget", default=None,
                    help="device memory per device for the agents, e.g. 512M, 2G (default: half"
                         " the free memory); agents that do not fit run in sequential batches")
@@ -68,7 +75,8 @@ def _reproduce(args: argparse.Namespace) -> None:
         print(f"claim {claim.number}: {claim.verdict}")
     if args.long_csv:
         print(_write_long_csv(rep.result, args.out))
-    print(f"elapsed: {rep.elapsed_seconds:.1f} s (training {rep.result.meta['elapsed_seconds']:.1f} s)")
+    print(f"elapsed: {rep.elapsed_seconds:.1f} s"
+          f" (training {rep.result.meta['elapsed_seconds']:.1f} s)")
 
 
 def _add_run(sub: argparse._SubParsersAction) -> None:
@@ -91,9 +99,11 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plugin", action="append", default=[], metavar="FILE_OR_MODULE",
                    help="import this file or module first (it registers plug-ins)")
     p.add_argument("--seeds", type=number, default=None, help="agents per setting (default 20)")
-    p.add_argument("--episodes", type=number, default=None, help="episodes per agent (default 1000)")
+    p.add_argument("--episodes", type=number, default=None,
+                   help="episodes per agent (default 1000)")
     p.add_argument("--seed", type=number, default=None, help="root random seed (default 0)")
-    p.add_argument("--max-steps", type=number, default=None, help="episode truncation (default 100)")
+    p.add_argument("--max-steps", type=number, default=None,
+                   help="episode truncation (default 100)")
     p.add_argument("--invalid-action", default=None, help="noop (default) or fail")
     p.add_argument("--chunk-episodes", type=number, default=None, help="episodes per jitted chunk")
     p.add_argument("--no-figures", action="store_true", help="no fig3.png / sensitivity.png")
@@ -144,7 +154,9 @@ def _run(args: argparse.Namespace) -> None:
     from vdbejax import io
     from vdbejax.sweeps import SUMMARY_FILE
 
-    for row, setting in zip(io.read_csv(Path(args.out) / SUMMARY_FILE), result.settings):
+    # summary.csv: one row per setting of this result, written by run_sweep above.
+    rows = io.read_csv(Path(args.out) / SUMMARY_FILE)
+    for row, setting in zip(rows, result.settings, strict=True):
         print(f"{setting.label}: final return {float(row['final_return']):.3f}"
               f" [{float(row['final_ci_low']):.3f}, {float(row['final_ci_high']):.3f}]")
     print(f"training {result.meta['elapsed_seconds']:.1f} s → {args.out}")
@@ -153,8 +165,10 @@ def _run(args: argparse.Namespace) -> None:
 
 
 def _add_plot(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("plot", help="redraw figures, summary and report from saved results (no training)")
-    p.add_argument("--results", required=True, help="folder with returns.npz, configs.csv, meta.json")
+    p = sub.add_parser("plot",
+                       help="redraw figures, summary and report from saved results (no training)")
+    p.add_argument("--results", required=True,
+                   help="folder with returns.npz, configs.csv, meta.json")
     p.add_argument("--out", default=None, help="output folder (default: the results folder)")
     p.add_argument("--bands", action="store_true", help="95%% bootstrap bands on Figure 3")
     p.add_argument("--long-csv", action="store_true",
@@ -174,7 +188,7 @@ def _plot(args: argparse.Namespace) -> None:
         print(path)
 
 
-def _write_long_csv(result: object, out: str) -> Path:
+def _write_long_csv(result: GridResult, out: str) -> Path:
     """``returns_long.csv`` of a result (GridResult.to_records) into ``out``."""
     from vdbejax import io
 
@@ -187,19 +201,25 @@ def _write_long_csv(result: object, out: str) -> Path:
 
 
 def _add_ablate(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("ablate", help="claims scorecard across the spec's options; writes REPRODUCTION.md")
-    p.add_argument("--out", required=True, help="document folder: REPRODUCTION.md and ablation/<variant>/")
+    p = sub.add_parser("ablate",
+                       help="claims scorecard across the spec's options; writes REPRODUCTION.md")
+    p.add_argument("--out", required=True,
+                   help="document folder: REPRODUCTION.md and ablation/<variant>/")
     p.add_argument("--results", default=None,
                    help="folder for the raw results of every variant (default: OUT/ablation)")
-    p.add_argument("--seeds", type=parse_cli_number, default=20, help="agents per setting (default 20)")
-    p.add_argument("--episodes", type=parse_cli_number, default=1000, help="episodes per agent (default 1000)")
+    p.add_argument("--seeds", type=parse_cli_number, default=20,
+                   help="agents per setting (default 20)")
+    p.add_argument("--episodes", type=parse_cli_number, default=1000,
+                   help="episodes per agent (default 1000)")
     p.add_argument("--seed", type=parse_cli_number, default=0, help="root random seed (default 0)")
     p.add_argument("--variants", default=None,
-                   help="comma-separated variant names (default: all; see vdbejax.paper.ablation.VARIANTS)")
+                   help="comma-separated variant names"
+                        " (default: all; see vdbejax.paper.ablation.VARIANTS)")
     p.add_argument("--notes", default=None,
                    help="hand-written discussion appended to the document"
                         " (default: docs/reproduction_notes.md if it exists)")
-    p.add_argument("--rerun", action="store_true", help="ignore saved results of the same variant and size")
+    p.add_argument("--rerun", action="store_true",
+                   help="ignore saved results of the same variant and size")
     p.add_argument("--mode", default="options",
                    help="options (default: the two readings and the spec's open details,"
                         " REPRODUCTION.md), attribution (each detail of the authors' code"
@@ -215,14 +235,17 @@ def _add_ablate(sub: argparse._SubParsersAction) -> None:
 def _ablate(args: argparse.Namespace) -> None:
     from vdbejax.paper.ablation import DEFAULT_NOTES, ablate, select_variants
 
-    default_notes = DEFAULT_NOTES if args.mode == "options" and Path(DEFAULT_NOTES).is_file() else None
+    default_notes = (DEFAULT_NOTES if args.mode == "options" and Path(DEFAULT_NOTES).is_file()
+                     else None)
     notes = args.notes if args.notes is not None else default_notes
-    results = ablate(args.out, results_dir=args.results, variants=select_variants(args.variants, args.mode),
-                     mode=args.mode, sections=args.sections,
+    results = ablate(args.out, results_dir=args.results,
+                     variants=select_variants(args.variants, args.mode), mode=args.mode,
+                     sections=args.sections,
                      seeds=args.seeds, episodes=args.episodes, seed=args.seed, notes=notes,
                      reuse=not args.rerun, progress=not args.quiet)
     for result in results:
-        print(f"{result.variant.name}: " + ", ".join(f"{c.number} {c.verdict}" for c in result.claims))
+        print(f"{result.variant.name}: "
+              + ", ".join(f"{c.number} {c.verdict}" for c in result.claims))
 
 
 def _add_scale(sub: argparse._SubParsersAction) -> None:
@@ -237,7 +260,8 @@ def _add_scale(sub: argparse._SubParsersAction) -> None:
     number = parse_cli_number
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--sizes", default=",".join(SIZES),
-                   help=f"variants NxK (N sections, K goblets), comma-separated (default {','.join(SIZES)})")
+                   help="variants NxK (N sections, K goblets), comma-separated"
+                        f" (default {','.join(SIZES)})")
     p.add_argument("--seeds", type=number, default=10, help="agents per setting (default 10)")
     p.add_argument("--episodes", type=number, default=2000,
                    help="smallest episode budget per agent and variant (default 2000)")
@@ -247,7 +271,8 @@ def _add_scale(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seconds", type=number, default=None,
                    help="wall-clock budget per variant (default none; machine-dependent)")
     p.add_argument("--seed", type=number, default=0, help="root random seed (default 0)")
-    p.add_argument("--learners", default="qlearning,sarsa", help="comma-separated (default qlearning,sarsa)")
+    p.add_argument("--learners", default="qlearning,sarsa",
+                   help="comma-separated (default qlearning,sarsa)")
     p.add_argument("--methods", default=None,
                    help="comma-separated explorers of vdbejax.scaling.METHODS (default all)")
     p.add_argument("--fraction", type=number, default=0.9,
@@ -255,7 +280,8 @@ def _add_scale(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--window", type=number, default=20, help="moving-average window (default 20)")
     p.add_argument("--chunk-episodes", type=number, default=None,
                    help="episodes between stop checks (default max(100, budget/100))")
-    p.add_argument("--max-steps", type=number, default=None, help="episode truncation (default 100)")
+    p.add_argument("--max-steps", type=number, default=None,
+                   help="episode truncation (default 100)")
     p.add_argument("--drop-unsolved", action="store_true",
                    help="skip a setting on larger variants once none of its agents solved one")
     p.add_argument("--quick", action="store_true", help="2x1 and 3x1, 3 seeds, 1000 episodes")
@@ -267,8 +293,8 @@ def _add_scale(sub: argparse._SubParsersAction) -> None:
 def _scale(args: argparse.Namespace) -> None:
     from vdbejax.scaling import run_scaling
 
-    names = {"learners": [n for n in args.learners.split(",") if n],
-             "methods": None if args.methods is None else args.methods.split(",")}
+    learners = [n for n in args.learners.split(",") if n]
+    methods = None if args.methods is None else args.methods.split(",")
     command = (f"vdbejax scale --out {args.out}" + (" --quick" if args.quick else
                f" --sizes {args.sizes} --seeds {args.seeds} --episodes {args.episodes}"
                f" --episodes-per-state {args.episodes_per_state}")
@@ -285,7 +311,8 @@ def _scale(args: argparse.Namespace) -> None:
         seed=args.seed, fraction=args.fraction, window=args.window,
         chunk_episodes=args.chunk_episodes, max_steps=args.max_steps,
         drop_unsolved=args.drop_unsolved, quick=args.quick, progress=not args.quiet,
-        figure=not args.no_figure, save_runs=not args.no_runs, command=command, **names)
+        figure=not args.no_figure, save_runs=not args.no_runs, command=command,
+        learners=learners, methods=methods)
     for row in result.rows:
         print(f"{row['size']} {row['method']}: {row['median_text']}"
               f" ({row['solved']}/{row['agents']} solved)")

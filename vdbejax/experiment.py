@@ -24,6 +24,32 @@ import jax
 import numpy as np
 
 from vdbejax import io
+from vdbejax.batching import (
+    SweepProgress,
+    agents_per_batch,
+    bytes_per_agent,
+    check_run_size,
+    default_memory_budget,
+    mdp_bytes,
+    run_batched,
+)
+from vdbejax.checkpoint import CheckpointWriter, load_checkpoint, remove_checkpoint
+from vdbejax.distributed import (
+    gather_agents,
+    local_devices,
+    process_checkpoint_path,
+    process_share,
+    select_devices,
+    take_agents,
+)
+from vdbejax.engine import (
+    ProgressCallback,
+    agent_keys,
+    broadcast_agents,
+    check_params,
+    text_progress,
+)
+from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import (
     AgentOptions,
     AgentParams,
@@ -35,33 +61,6 @@ from vdbejax.methods.agents import (
     stack_agents,
     table_layout,
 )
-from vdbejax.batching import (
-    SweepProgress,
-    agents_per_batch,
-    bytes_per_agent,
-    check_run_size,
-    default_memory_budget,
-    mdp_bytes,
-    run_batched,
-)
-from vdbejax.distributed import (
-    gather_agents,
-    local_devices,
-    process_checkpoint_path,
-    process_share,
-    select_devices,
-    take_agents,
-)
-from vdbejax.engine import (
-    AgentState,
-    check_params,
-    ProgressCallback,
-    agent_keys,
-    broadcast_agents,
-    text_progress,
-)
-from vdbejax.envs.tabular import TabularMDP
-from vdbejax.checkpoint import CheckpointWriter, load_checkpoint, remove_checkpoint
 from vdbejax.result_folder import remove_stale_temporaries
 from vdbejax.validation import (
     INT32_MAX,
@@ -229,13 +228,13 @@ class GridResult:
                 returns, lengths = data["returns"], data["lengths"]
                 nonfinite = (data["nonfinite"] if "nonfinite" in data
                              else np.zeros(returns.shape[:2], bool))
-        except Exception as error:  # noqa: BLE001  (zip, pickle, EOF, key errors: damage)
-            raise ValueError(f"results file {str(returns_path)!r} is unreadable: {type(error).__name__}:"
-                             f" {error}") from None
+        except Exception as error:
+            raise ValueError(f"results file {str(returns_path)!r} is unreadable:"
+                             f" {type(error).__name__}: {error}") from None
         meta = io.load_json(out / io.META_FILE) if (out / io.META_FILE).exists() else {}
         if not isinstance(meta, dict):
-            raise ValueError(f"results file {str(out / io.META_FILE)!r} is invalid: must hold a JSON object,"
-                             f" not {type(meta).__name__}")
+            raise ValueError(f"results file {str(out / io.META_FILE)!r} is invalid: must hold a"
+                             f" JSON object, not {type(meta).__name__}")
         settings = io.load_settings(out / io.CONFIGS_FILE)
         _check_saved_arrays(returns_path, len(settings), returns, lengths, nonfinite)
         remember_parameter_names(meta.get("parameter_names", {}))
@@ -252,8 +251,8 @@ def _check_saved_arrays(path: Path, num_settings: int, returns: np.ndarray, leng
         fail(f"returns must be float [configs, seeds, episodes], not {returns.dtype}"
              f" {list(returns.shape)}")
     if returns.shape[0] != num_settings:
-        fail(f"its returns cover {returns.shape[0]} configs, which does not match the {num_settings}"
-             " of configs.csv")
+        fail(f"its returns cover {returns.shape[0]} configs, which does not match the"
+             f" {num_settings} of configs.csv")
     if lengths.shape != returns.shape or not np.issubdtype(lengths.dtype, np.integer):
         fail(f"lengths must be integer {list(returns.shape)} like returns, not {lengths.dtype}"
              f" {list(lengths.shape)}")
@@ -289,7 +288,7 @@ def nonfinite_message(settings: Sequence[Setting], nonfinite: np.ndarray,
       options: the options shared by all agents (part of the config that produced it).
     """
     counts = np.asarray(nonfinite).sum(axis=1)
-    bad = [f"{settings[c].label} ({counts[c]}/{nonfinite.shape[1]} agents)"
+    bad = [f"{settings[int(c)].label} ({counts[c]}/{nonfinite.shape[1]} agents)"
            for c in np.flatnonzero(counts)]
     if not bad:
         return None
@@ -477,9 +476,11 @@ def run_grid(
     # Several processes (hosts): each runs its share of the agents on its own devices.
     rows = process_share(num_agents)
     my_devices = local_devices(device_list)
-    budget = default_memory_budget(my_devices) if memory_budget_bytes is None else memory_budget_bytes
+    budget = (default_memory_budget(my_devices) if memory_budget_bytes is None
+              else memory_budget_bytes)
     batch_size = agents_per_batch(
-        max(len(rows), 1), bytes_per_agent(mdp, min(chunk_episodes, num_episodes), table_layout(params)),
+        max(len(rows), 1),
+        bytes_per_agent(mdp, min(chunk_episodes, num_episodes), table_layout(params)),
         budget,
         len(my_devices), fixed_bytes=mdp_bytes(mdp),
     )

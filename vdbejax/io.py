@@ -28,7 +28,8 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     # The writer's pid in the name lets a later run remove what a killed one left behind
     # (vdbejax.result_folder.remove_stale_temporaries).
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp",
+                               dir=path.parent)
     try:
         # mkstemp creates 0600 files: give the result the usual umask-based permissions.
         os.chmod(tmp, 0o666 & ~_umask())
@@ -108,9 +109,10 @@ def write_columns_csv(path: str | os.PathLike, columns: dict[str, np.ndarray]) -
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(list(columns))
-    formatted = [np.char.mod("%.6g", values).astype(object) if np.issubdtype(values.dtype, np.floating)
-                 else values for values in columns.values()]
-    writer.writerows(zip(*formatted))
+    formatted = [np.char.mod("%.6g", values).astype(object)
+                 if np.issubdtype(values.dtype, np.floating) else values
+                 for values in columns.values()]
+    writer.writerows(zip(*formatted, strict=True))
     atomic_write_text(path, buffer.getvalue())
 
 
@@ -155,17 +157,20 @@ def load_settings(path: str | os.PathLike) -> list[Setting]:
     try:
         indices = [int(r["config"]) for r in rows]
         for r in rows:
-            r["learner"], r["explorer"], r["param"]  # noqa: B018  (the columns must exist)
+            r["learner"], r["explorer"], r["param"]
     except (KeyError, TypeError, ValueError) as error:
-        raise ValueError(f"results file {str(path)!r} is damaged: {type(error).__name__}: {error}") from None
+        raise ValueError(f"results file {str(path)!r} is damaged:"
+                         f" {type(error).__name__}: {error}") from None
     if sorted(indices) != list(range(len(rows))):
         repeated = sorted({i for i in indices if indices.count(i) > 1})
-        raise ValueError(f"results file {str(path)!r} is damaged: config indices must be 0…{len(rows) - 1}"
-                         " once each" + (f"; repeated: {repeated[:5]}" if repeated else ""))
+        raise ValueError(f"results file {str(path)!r} is damaged: config indices must be"
+                         f" 0…{len(rows) - 1} once each"
+                         + (f"; repeated: {repeated[:5]}" if repeated else ""))
     rows = sorted(rows, key=lambda r: int(r["config"]))
     try:
-        return [Setting(r["learner"], r["explorer"], float(r["param"]) if r["param"] not in ("", None)
-                        else None, json.loads(r.get("hyperparameters") or "{}")) for r in rows]
+        return [Setting(r["learner"], r["explorer"],
+                        float(r["param"]) if r["param"] not in ("", None) else None,
+                        json.loads(r.get("hyperparameters") or "{}")) for r in rows]
     except ValueError as error:  # a parameter that is no number, hyperparameters no JSON
         raise ValueError(f"results file {str(path)!r} is damaged: {error}") from None
 

@@ -14,14 +14,14 @@ import matplotlib
 
 if "ipykernel" not in sys.modules:  # headless by default; keep a notebook's inline backend
     matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from vdbejax.methods.agents import parameter_name  # noqa: E402
-from vdbejax.stats import WINDOW, CurveStatistics, convolve_full, curve_statistics  # noqa: E402
-from vdbejax.validation import check_choice  # noqa: E402
-from vdbejax.paper.claims import LEARNER_NAMES  # noqa: E402
-from vdbejax.experiment import GridResult  # noqa: E402
+from vdbejax.experiment import GridResult
+from vdbejax.methods.agents import parameter_name
+from vdbejax.paper.claims import LEARNER_NAMES
+from vdbejax.stats import WINDOW, CurveStatistics, convolve_full, curve_statistics
+from vdbejax.validation import check_choice
 
 EXPLORER_TITLES = {
     "egreedy": "ε-greedy",
@@ -110,8 +110,10 @@ def figure3(
             indices = result.select(learner, explorer)
             colors = plt.cm.viridis(np.linspace(0, 0.9, max(len(indices), 1)))
             varying = _varying([result.settings[c] for c in indices])
-            for color, c in zip(colors, indices):
+            for color, c in zip(colors, indices, strict=False):  # colors: at least one
                 if bands:
+                    # curve_statistics(bands=True) has both bands (checked above)
+                    assert statistics.band_low is not None and statistics.band_high is not None
                     ax.fill_between(episodes, statistics.band_low[c], statistics.band_high[c],
                                     color=color, alpha=0.25, lw=0)
                 curve = statistics.curves[c] if smoothing == "trailing" else convolve_full(
@@ -119,8 +121,10 @@ def figure3(
                 ax.plot(episodes, curve, color=color, lw=1.2,
                         label=curve_label(result.settings[c], varying))
             if best_return is not None:
-                ax.axhline(best_return, color="crimson", ls="--", lw=1, label=f"best {best_return:.2f}")
-            ax.set_title(f"{LEARNER_TITLES.get(learner, learner)} — {EXPLORER_TITLES.get(explorer, explorer)}")
+                ax.axhline(best_return, color="crimson", ls="--", lw=1,
+                           label=f"best {best_return:.2f}")
+            ax.set_title(f"{LEARNER_TITLES.get(learner, learner)}"
+                         f" — {EXPLORER_TITLES.get(explorer, explorer)}")
             ax.grid(alpha=0.3)
             if not indices:
                 ax.text(0.5, 0.5, "not in this grid", ha="center", va="center",
@@ -135,7 +139,8 @@ def figure3(
     if smoothing == "authors":
         band_note = f" (smoothed as the authors plot it: np.convolve 'full', from episode {window})"
     fig.suptitle(
-        f"{result.meta.get('mdp', 'task')}: {result.num_seeds} agents × {result.num_episodes} episodes"
+        f"{result.meta.get('mdp', 'task')}: {result.num_seeds} agents"
+        f" × {result.num_episodes} episodes"
         + band_note
     )
     return _finish(fig, path)
@@ -188,7 +193,8 @@ def sensitivity(
     """
     rows = [r for r in rows if str(r.get("param", "")) not in ("", "None")]
     known = [e for e in EXPLORER_TITLES if any(r["explorer"] == e for r in rows)]
-    explorers = known + list(dict.fromkeys(r["explorer"] for r in rows if r["explorer"] not in known))
+    explorers = known + list(dict.fromkeys(r["explorer"] for r in rows
+                                           if r["explorer"] not in known))
     # One line per learner and per combination of the other hyperparameters.
     lines = list(dict.fromkeys((r["learner"], r.get("hyperparameters") or "") for r in rows))
     fig, axes = plt.subplots(len(SENSITIVITY_METRICS), max(len(explorers), 1), squeeze=False,
@@ -199,7 +205,8 @@ def sensitivity(
         for row, (key, low_key, high_key, label) in enumerate(SENSITIVITY_METRICS):
             ax = axes[row, col]
             for learner, extra in lines:
-                points = sorted((r for r in rows if r["learner"] == learner and r["explorer"] == explorer
+                points = sorted((r for r in rows
+                                 if r["learner"] == learner and r["explorer"] == explorer
                                  and (r.get("hyperparameters") or "") == extra),
                                 key=lambda r: float(r["param"]))
                 if not points:
@@ -220,7 +227,8 @@ def sensitivity(
                             marker=marker, ms=4, capsize=3, lw=1.2, label=name)
             ax.set_xscale("log")
             if key == "final_return" and best_return is not None:
-                ax.axhline(best_return, color="crimson", ls="--", lw=1, label=f"best {best_return:.2f}")
+                ax.axhline(best_return, color="crimson", ls="--", lw=1,
+                           label=f"best {best_return:.2f}")
             if row == 0:
                 ax.set_title(EXPLORER_TITLES.get(explorer, explorer))
             if row == len(SENSITIVITY_METRICS) - 1:
@@ -264,7 +272,10 @@ def epsilon_heatmap(
     if ax is None:
         fig, ax = plt.subplots(figsize=(8, max(3.0, 0.12 * len(states) + 1.5)))
     else:
-        fig = ax.figure
+        parent = ax.figure
+        if not isinstance(parent, plt.Figure):  # a subfigure's axes: _finish needs a figure
+            raise ValueError("ax is invalid: must be axes of a figure, not of a subfigure")
+        fig = parent
     image = ax.imshow(epsilon[:, states].T, aspect="auto", origin="lower", cmap="magma",
                       vmin=0.0, vmax=1.0, interpolation="nearest",
                       extent=(0.5, len(episodes) + 0.5, -0.5, len(states) - 0.5))

@@ -23,14 +23,14 @@ def format_progress(done: int, total: int, elapsed: float, width: int = 24) -> s
     fraction = done / total if total > 0 else 1.0
     filled = int(width * min(max(fraction, 0.0), 1.0))
     rate = done / elapsed if elapsed > 0 else 0.0
-    eta = f"ETA {_clock((total - done) / rate)}" if 0 < rate and done < total else (
+    eta = f"ETA {_clock((total - done) / rate)}" if rate > 0 and done < total else (
         f"in {_clock(elapsed)}" if done >= total else "ETA ?")
     return (f"[{'#' * filled}{'.' * (width - filled)}] {100 * fraction:5.1f}%  "
             f"{done:,}/{total:,} agent-episodes  {_rate(rate)}/s  {eta}")
 
 
 def _clock(seconds: float) -> str:
-    seconds = int(round(seconds))
+    seconds = int(round(seconds))  # noqa: RUF046  (a NumPy float's round is a float in NumPy 1)
     hours, rest = divmod(seconds, 3600)
     return f"{hours}:{rest // 60:02d}:{rest % 60:02d}" if hours else f"{rest // 60}:{rest % 60:02d}"
 
@@ -68,7 +68,8 @@ def text_progress(stream: Any = None, *, clock: Callable[[], float] = time.monot
         finished = done >= total
         if interactive:
             if finished or now - last["time"] >= REDRAW_SECONDS:
-                stream.write("\r" + format_progress(done, total, elapsed) + ("\n" if finished else ""))
+                stream.write("\r" + format_progress(done, total, elapsed)
+                             + ("\n" if finished else ""))
                 stream.flush()
                 last["time"] = now
             return
@@ -87,7 +88,7 @@ def _notebook_display() -> ProgressCallback | None:
         from IPython.display import display
     except ImportError:
         return None
-    handle = {"display": None, "time": -float("inf")}
+    handle: dict[str, Any] = {"display": None, "time": -float("inf")}
 
     def show(done: int, total: int, elapsed: float) -> None:
         now = time.monotonic()

@@ -23,8 +23,10 @@ import re
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from types import ModuleType
 from typing import Any, TypeVar
 
+fcntl: ModuleType | None
 try:
     import fcntl
 except ImportError:  # Windows: no advisory locks; the marker still tells half-written folders
@@ -111,7 +113,7 @@ def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:
     Returns:
       the files removed.
     """
-    removed = []
+    removed: list[Path] = []
     try:
         entries = list(Path(folder).iterdir())
     except OSError:
@@ -208,9 +210,9 @@ def save_run(
             try:
                 statistics = curve_statistics(result.returns, bands=bands)
             finally:
-                error = saved.exception()
-            if error is not None:
-                raise error
+                failure = saved.exception()
+            if failure is not None:
+                raise failure
     except OSError as error:
         raise ValueError(f"cannot write the results in {str(out)!r}: {describe_os_error(error)};"
                          f" {_rescue(result)}") from None
@@ -221,7 +223,8 @@ def save_run(
         value = write(statistics)
         unmark(out)
     except OSError as error:
-        raise ValueError(f"cannot write the outputs in {str(out)!r}: {describe_os_error(error)}; the"
+        raise ValueError(f"cannot write the outputs in {str(out)!r}:"
+                         f" {describe_os_error(error)}; the"
                          f" results are saved there: 'vdbejax plot --results {out}' writes"
                          " the summary and figures again") from None
     return value
@@ -242,4 +245,5 @@ def _rescue(result: Any) -> str:
         result.save(folder)
     except OSError as error:
         return f"the results could not be kept elsewhere either ({describe_os_error(error)})"
-    return f"the results were kept in {str(folder)!r} ('vdbejax plot --results {folder}' draws them)"
+    return (f"the results were kept in {str(folder)!r}"
+            f" ('vdbejax plot --results {folder}' draws them)")

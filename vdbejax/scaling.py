@@ -103,7 +103,8 @@ LEARNERS = ("qlearning", "sarsa")
 #: The full-size family of variants (N sections × K goblets), in order of size.
 SIZES = ("2x1", "3x1", "4x1", "4x2", "5x2", "6x2", "6x3")
 #: ``--quick``: two small variants, few agents and episodes (seconds).
-QUICK = {"sizes": ("2x1", "3x1"), "seeds": 3, "episodes": 1000, "episodes_per_state": None}
+QUICK: dict[str, Any] = {"sizes": ("2x1", "3x1"), "seeds": 3, "episodes": 1000,
+                         "episodes_per_state": None}
 #: Default budget: ``max(EPISODES, EPISODES_PER_STATE × reachable states)`` per variant.
 EPISODES = 2000
 EPISODES_PER_STATE = 3.0
@@ -308,7 +309,7 @@ def run_until_solved(
     import jax
 
     from vdbejax.distributed import take_agents
-    from vdbejax.engine import check_params, compile_seconds, run_agents
+    from vdbejax.engine import AgentState, check_params, compile_seconds, run_agents
     from vdbejax.engine.programs import Programs
     from vdbejax.envs.tabular import TabularMDP
     from vdbejax.experiment import grid_agents
@@ -341,7 +342,7 @@ def run_until_solved(
     episodes_run = np.zeros(num_agents, np.int64)
     nonfinite = np.zeros(num_agents, bool)
     active = np.arange(num_agents)
-    state = None  # the active agents' state after `done` episodes
+    state: AgentState | None = None  # the active agents' state after `done` episodes
     done, chunks, stopped = 0, 0, "solved"
     chunk = min(chunk_episodes, max_episodes)
     compiled_before = compile_seconds()
@@ -349,8 +350,10 @@ def run_until_solved(
     started = time.perf_counter()
     while active.size:
         end = min(done + chunk, max_episodes)
-        initial = None if done == 0 else (done, state, returns[active, :done],
-                                          lengths[active, :done])
+        initial = None
+        if done != 0:
+            assert state is not None  # kept after every chunk
+            initial = (done, state, returns[active, :done], lengths[active, :done])
         result = run_agents(mdp, take_agents(params, active), keys[active], end,
                             chunk_episodes=chunk, initial=initial, threads=threads,
                             programs=programs)
@@ -372,7 +375,7 @@ def run_until_solved(
             progress(done, int(active.size), num_agents, elapsed)
         if stopped != "solved":
             break
-        state = jax.tree.map(lambda leaf: np.asarray(leaf)[keep], result.final_state)
+        state = jax.tree.map(lambda leaf: np.asarray(leaf)[keep], result.final_state)  # noqa: B023  (run at once)
         del result, initial  # the previous states are not needed during the next chunk
     elapsed = time.perf_counter() - started
     shape = (len(settings), num_seeds)
@@ -699,9 +702,9 @@ def load_scaling(out_dir: str | Path) -> tuple[list[dict[str, Any]], list[dict[s
         for key, value in raw.items():
             if key in integers:
                 row[key] = int(value)
-            elif key in ROW_COLUMNS[ROW_COLUMNS.index("fraction_solved"):] and key != "median_text":
-                row[key] = float(value)
-            elif key in ("best_return", "threshold"):
+            elif ((key in ROW_COLUMNS[ROW_COLUMNS.index("fraction_solved"):]
+                   and key != "median_text")
+                  or key in ("best_return", "threshold")):
                 row[key] = float(value)
             else:
                 row[key] = value
@@ -803,7 +806,9 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
         table.append(row)
     lines += [markdown_table(table, columns, digits=2), "", "## Median episodes to solve", ""]
     sizes = [v["size"] for v in variants]
-    header = ["method"] + [f"{s} ({v['states']})" for s, v in zip(sizes, variants)] + ["exponent"]
+    header = (["method"]
+              + [f"{s} ({v['states']})" for s, v in zip(sizes, variants, strict=True)]
+              + ["exponent"])
     slopes = growth_exponents(rows)
     pivot: dict[Setting, dict[str, str]] = {}
     for r in rows:
@@ -841,6 +846,7 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
     if "ipykernel" not in sys.modules:  # headless, as vdbejax.plotting; a notebook keeps its own
         matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     from vdbejax.paper.claims import LEARNER_NAMES
 
     learners = list(dict.fromkeys(r["learner"] for r in rows))
@@ -892,7 +898,7 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
                                                     column(mine, "fraction_high") - fraction],
                                  color=colors[explorer], marker="o", alpha=0.85, **bars)
         if budgets:
-            bx, by = zip(*budgets)
+            bx, by = zip(*budgets, strict=True)
             (budget_line,) = ax_median.plot(bx, by, color="0.6", linestyle=":")
             handles.setdefault("budget (open ▲: median > budget)", budget_line)
         title = LEARNER_NAMES.get(learner, learner)
@@ -913,8 +919,23 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
 
 
 __all__ = [
-    "AdaptiveRun", "LEARNERS", "METHODS", "Method", "SIZES", "ScalingResult", "auto_chunk",
-    "best_parameters", "growth_exponents", "load_scaling", "variant_budget", "write_reports",
-    "parse_sizes", "run_scaling", "run_until_solved", "scaling_figure", "scaling_markdown",
-    "select_methods", "study_settings",
+    "LEARNERS",
+    "METHODS",
+    "SIZES",
+    "AdaptiveRun",
+    "Method",
+    "ScalingResult",
+    "auto_chunk",
+    "best_parameters",
+    "growth_exponents",
+    "load_scaling",
+    "parse_sizes",
+    "run_scaling",
+    "run_until_solved",
+    "scaling_figure",
+    "scaling_markdown",
+    "select_methods",
+    "study_settings",
+    "variant_budget",
+    "write_reports",
 ]

@@ -140,7 +140,7 @@ def episodes_to_solve(
     eligible = (columns >= window - 1) & (columns < run[..., None])
     with np.errstate(invalid="ignore"):  # NaN padding past an agent's stop never counts
         reached = eligible & (smoothed >= threshold - TOLERANCE)
-    solved = reached.any(axis=-1)
+    solved = np.any(reached, axis=-1)
     first = np.argmax(reached, axis=-1) + 1
     return SolveTimes(np.where(solved, first, run).astype(np.int64), solved)
 
@@ -262,8 +262,8 @@ def summarize_solving(
     resamples = stats.bootstrap_indices(values.size, num_resamples, seed)
     medians = np.sort(_medians(values[resamples]))
     alpha = (1.0 - level) / 2.0
-    low = medians[int(math.floor((num_resamples - 1) * alpha))]
-    high = medians[int(math.ceil((num_resamples - 1) * (1.0 - alpha)))]
+    low = medians[math.floor((num_resamples - 1) * alpha)]
+    high = medians[math.ceil((num_resamples - 1) * (1.0 - alpha))]
     fraction_low, fraction_high = stats.bootstrap_ci(solved.astype(np.float64), level,
                                                      num_resamples, seed)
     censored = counts[~solved]
@@ -318,7 +318,15 @@ def solving_rows(
 
 
 __all__ = [
-    "FRACTION", "SolveSummary", "SolveTimes", "TOLERANCE", "WINDOW", "censored_values",
-    "episodes_to_solve", "median_episodes", "solve_threshold", "solving_rows",
+    "FRACTION",
+    "TOLERANCE",
+    "WINDOW",
+    "SolveSummary",
+    "SolveTimes",
+    "censored_values",
+    "episodes_to_solve",
+    "median_episodes",
+    "solve_threshold",
+    "solving_rows",
     "summarize_solving",
 ]

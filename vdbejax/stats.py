@@ -154,7 +154,8 @@ def convergence_episode(
     return int(convergence_episodes(curve, window, last, fraction))
 
 
-def bootstrap_indices(num_seeds: int, num_resamples: int = NUM_RESAMPLES, seed: int = 0) -> np.ndarray:
+def bootstrap_indices(num_seeds: int, num_resamples: int = NUM_RESAMPLES,
+                      seed: int = 0) -> np.ndarray:
     """Seed indices of bootstrap resamples, drawn with replacement.
 
     Args:
@@ -169,7 +170,8 @@ def bootstrap_indices(num_seeds: int, num_resamples: int = NUM_RESAMPLES, seed: 
     return rng.integers(0, num_seeds, size=(num_resamples, num_seeds))
 
 
-def bootstrap_weights(num_seeds: int, num_resamples: int = NUM_RESAMPLES, seed: int = 0) -> np.ndarray:
+def bootstrap_weights(num_seeds: int, num_resamples: int = NUM_RESAMPLES,
+                      seed: int = 0) -> np.ndarray:
     """``[num_resamples, num_seeds]`` weights (multiplicity / n) of the same resamples as
     :func:`bootstrap_indices`, so that ``weights @ x`` is the resampled mean of ``x``.
 
@@ -267,7 +269,8 @@ def mean_curve_ci(
     mean = moving_average(returns.mean(0), window)
     # Smoothing is linear, so smoothing each seed once and then resampling equals
     # resampling then smoothing every resample, at a fraction of the cost.
-    resampled = bootstrap_weights(len(returns), num_resamples, seed) @ moving_average(returns, window)
+    resampled = (bootstrap_weights(len(returns), num_resamples, seed)
+                 @ moving_average(returns, window))
     low, high = _interval(resampled, level)
     return mean, low, high
 
@@ -311,7 +314,8 @@ def convergence_ci(
     returns = np.asarray(returns, np.float64)
     point = convergence_episode(returns.mean(0), window, last, fraction)
     resampled = bootstrap_weights(len(returns), num_resamples, seed) @ returns
-    low, high = _interval(convergence_episodes(resampled, window, last, fraction).astype(np.float64), level)
+    low, high = _interval(
+        convergence_episodes(resampled, window, last, fraction).astype(np.float64), level)
     return point, float(low), float(high)
 
 
@@ -378,7 +382,8 @@ def curve_statistics(
         if bands:
             curve, low, high = mean_curve_ci(setting, window)
         else:
-            curve, low, high = moving_average(np.asarray(setting, np.float64).mean(0), window), None, None
+            curve = moving_average(np.asarray(setting, np.float64).mean(0), window)
+            low, high = None, None
         return final, iqm, convergence, curve, low, high
 
     if workers is None:
@@ -389,8 +394,10 @@ def curve_statistics(
     else:
         with ThreadPoolExecutor(workers) as pool:
             rows = list(pool.map(one, range(len(returns))))
-    finals, iqms, convergences, curves, lows, highs = zip(*rows) if rows else ([],) * 6
-    finals, convergences = np.array(finals).reshape(-1, 3), np.array(convergences).reshape(-1, 3)
+    final_cis, iqms, convergence_cis, curves, lows, highs = (zip(*rows, strict=True) if rows
+                                                             else ([],) * 6)
+    finals = np.array(final_cis).reshape(-1, 3)
+    convergences = np.array(convergence_cis).reshape(-1, 3)
     episodes = returns.shape[-1]
     return CurveStatistics(
         window=window, last=last,

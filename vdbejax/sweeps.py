@@ -95,12 +95,13 @@ def load_plugins(plugins: Sequence[str]) -> None:
                     raise FileNotFoundError(f"no file {str(path)!r}")
                 module = importlib.util.module_from_spec(spec)
                 sys.modules[spec.name] = module
+                assert spec.loader is not None  # a .py path gets a source loader
                 spec.loader.exec_module(module)
             else:
                 importlib.import_module(plugin)
         except ValueError:
             raise
-        except Exception as error:  # noqa: BLE001  (the user's code: report it in one line)
+        except Exception as error:
             raise ValueError(f"plugin={plugin!r} is invalid: cannot import it"
                              f" ({type(error).__name__}: {error})") from None
 

@@ -43,8 +43,24 @@ from vdbejax.engine.state import (
 from vdbejax.engine.step import lockstep_iteration, start_support
 
 __all__ = [
-    "AgentState", "DEFAULT_UNROLL", "MAX_SAFE_BATCH", "ProgressCallback", "RunResult",
-    "STRATEGIES", "agent_keys", "available_cpus", "broadcast_agents", "check_params",
-    "compile_seconds", "init_agent", "init_agents", "lockstep_iteration", "native_step_loops",
-    "run_agents", "run_chunk", "start_support", "text_progress", "uniforms",
+    "DEFAULT_UNROLL",
+    "MAX_SAFE_BATCH",
+    "STRATEGIES",
+    "AgentState",
+    "ProgressCallback",
+    "RunResult",
+    "agent_keys",
+    "available_cpus",
+    "broadcast_agents",
+    "check_params",
+    "compile_seconds",
+    "init_agent",
+    "init_agents",
+    "lockstep_iteration",
+    "native_step_loops",
+    "run_agents",
+    "run_chunk",
+    "start_support",
+    "text_progress",
+    "uniforms",
 ]

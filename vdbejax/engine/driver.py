@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from typing import Any
 
 import jax
@@ -129,7 +129,7 @@ def run_agents(
     check_int("unroll", unroll, 1)
     check_int("min_batch", min_batch, 1)
     check_int("max_batch", max_batch, 1)
-    check_choice("strategy", strategy, STRATEGIES + ("auto",))
+    check_choice("strategy", strategy, (*STRATEGIES, "auto"))
     check_params(params, mdp.num_actions)
     if threads is None:
         threads = available_cpus()
@@ -143,6 +143,7 @@ def run_agents(
     lengths = np.zeros((num_agents, num_episodes), np.int32)
     if programs is None:
         programs = Programs()
+    agents: AgentState | None
     if initial is None:
         done = 0
         agents = None  # created by the sequential strategy in its work items
@@ -162,7 +163,10 @@ def run_agents(
         sequential = _SequentialRun(mdp, params, agents, keys, threads, programs)
 
     def current_agents() -> AgentState:
-        return agents if sequential is None else sequential.agents()
+        if sequential is not None:
+            return sequential.agents()
+        assert agents is not None  # created above unless the sequential strategy holds them
+        return agents
 
     bounds = [(first, min(first + chunk, num_episodes))
               for first in range(done, num_episodes, chunk)]
@@ -170,9 +174,10 @@ def run_agents(
         # not compiled natively: lockstep is faster
         strategy, agents, sequential = "lockstep", sequential.agents(), None
 
-    def lockstep_chunks():
+    def lockstep_chunks() -> Generator[list[Any], None, None]:
         nonlocal agents
         for first, end in bounds:
+            assert agents is not None  # lockstep: the agents' state is here
             agents, *outputs = run_chunk_lockstep(
                 mdp, params, agents, first, end, chunk, compact=compact,
                 block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
@@ -188,8 +193,10 @@ def run_agents(
               sequential.run_chunks(bounds, chunk, ahead=0 if wait else 1,
                                     snapshots=on_chunk is not None and not wait))
     try:
+        # strict=False: zip stops at the last bound without asking ``chunks`` for more (a
+        # strict zip would resume the generator once past its last chunk).
         for (first, end), (chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes) in zip(
-                bounds, chunks):
+                bounds, chunks, strict=False):
             returns[:, first:end] = np.asarray(chunk_returns)[:, : end - first]
             lengths[:, first:end] = np.asarray(chunk_lengths)[:, : end - first]
             iterations += chunk_iterations
@@ -198,7 +205,8 @@ def run_agents(
             if on_chunk:
                 on_chunk(done, current_agents(), returns[:, :done], lengths[:, :done])
             if progress:
-                progress(done * num_agents, num_episodes * num_agents, time.perf_counter() - started)
+                progress(done * num_agents, num_episodes * num_agents,
+                         time.perf_counter() - started)
     finally:  # the workers stop (and none is left running) whatever happens here
         chunks.close()
     if keep_final_state:
@@ -206,8 +214,11 @@ def run_agents(
         nonfinite = np.asarray(final.nonfinite)
     else:  # the flags alone: no tables gathered
         final = None
-        nonfinite = (np.asarray(agents.nonfinite) if sequential is None
-                     else sequential.nonfinite_flags())
+        if sequential is None:
+            assert agents is not None  # lockstep: the agents' state is here
+            nonfinite = np.asarray(agents.nonfinite)
+        else:
+            nonfinite = sequential.nonfinite_flags()
     return RunResult(returns, lengths, nonfinite, iterations, final, lane_iterations, strategy)
 
 
@@ -248,7 +259,8 @@ def check_params(params: Any, num_actions: int) -> None:
                          " (see vdbejax.methods.stack_agents)")
     for agent in params.kinds:
         key = (kind_key(agent), num_actions)
-        builtin = all(type(p).__module__.startswith("vdbejax.") for p in (agent.learner, agent.explorer))
+        builtin = all(type(p).__module__.startswith("vdbejax.")
+                      for p in (agent.learner, agent.explorer))
         if builtin or key in _CHECKED:
             continue
         one = jax.tree.map(lambda leaf: np.asarray(leaf)[0], agent)

@@ -16,6 +16,7 @@ batch advance together, one vectorised step per loop iteration.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
 from typing import Any
 
@@ -88,8 +89,9 @@ def run_chunk(
     return program(*args)
 
 
-def _run_chunk(mdp, params, agents, chunk_start, chunk_end, start_support, *, chunk_length,
-               unroll):
+def _run_chunk(mdp: TabularMDP, params: Agent, agents: AgentState, chunk_start: Array,
+               chunk_end: Array, start_support: Any, *, chunk_length: int,
+               unroll: int) -> tuple[AgentState, Array, Array, Array]:
     num_agents = agents.episode.shape[0]
     returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
     lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
@@ -99,8 +101,10 @@ def _run_chunk(mdp, params, agents, chunk_start, chunk_end, start_support, *, ch
     )
 
 
-def _run_block(mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations,
-               start_support, *, unroll):
+def _run_block(mdp: TabularMDP, params: Agent, agents: AgentState, returns: Array,
+               lengths: Array, chunk_start: Array, chunk_end: Array, max_iterations: Array,
+               start_support: Any, *, unroll: int
+               ) -> tuple[AgentState, Array, Array, Array, Array]:
     """Up to ``max_iterations`` lockstep iterations; also returns each lane's activity."""
     agents, returns, lengths, iterations = run_loop(
         mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations, unroll,
@@ -121,6 +125,21 @@ def _scatter_rows(tree: Any, index: Array, rows: Any) -> Any:
 
 def _next_power_of_two(n: int) -> int:
     return 1 << max(0, (n - 1).bit_length())
+
+
+def _whole(tree: Any) -> Any:
+    """A group that is the whole batch: the tree itself."""
+    return tree
+
+
+def _row_slice(tree: Any, first: int, count: int) -> Any:
+    """Rows ``first .. first + count - 1`` of every leaf (a slice keeps the sharding)."""
+    return jax.tree.map(lambda leaf: leaf[first:first + count], tree)
+
+
+def _row_gather(tree: Any, rows: np.ndarray) -> Any:
+    """Rows ``rows`` of every leaf."""
+    return _gather_rows(tree, jnp.asarray(rows, jnp.int32))
 
 
 def _run_chunk_compacting(
@@ -216,7 +235,8 @@ def run_chunk_lockstep(
       ``(agents, returns, lengths, iterations, lane_iterations)``.
     """
     num_agents = int(agents.episode.shape[0])
-    pieces, order = [], []
+    pieces: list[list[Any]] = []
+    order: list[np.ndarray] = []
     iterations = lane_iterations = 0
     kinds = np.asarray(params.kind)
     for k, agent in enumerate(params.kinds):
@@ -225,15 +245,13 @@ def run_chunk_lockstep(
             rows = members[lo:lo + max_batch]
             order.append(rows)
             first, count = int(rows[0]), rows.size
+            part: Callable[[Any], Any]
             if count == num_agents:
-                def part(tree: Any) -> Any:
-                    return tree
+                part = _whole
             elif int(rows[-1]) - first + 1 == count:  # contiguous: a slice (keeps sharding)
-                def part(tree: Any, first: int = first, count: int = count) -> Any:
-                    return jax.tree.map(lambda leaf: leaf[first:first + count], tree)
+                part = partial(_row_slice, first=first, count=count)
             else:
-                def part(tree: Any, rows: np.ndarray = rows) -> Any:
-                    return _gather_rows(tree, jnp.asarray(rows, jnp.int32))
+                part = partial(_row_gather, rows=rows)
             if compact:
                 *piece, group_iterations, group_lanes = _run_chunk_compacting(
                     mdp, part(agent), part(agents), chunk_start, chunk_end, chunk_length,
@@ -241,11 +259,11 @@ def run_chunk_lockstep(
                     programs=programs,
                 )
             else:
-                *piece, group_iterations = run_chunk(
+                *piece, run_iterations = run_chunk(
                     mdp, part(agent), part(agents), jnp.int32(chunk_start),
                     jnp.int32(chunk_end), chunk_length, unroll, programs,
                 )
-                group_iterations = int(group_iterations)
+                group_iterations = int(run_iterations)
                 group_lanes = group_iterations * count
             pieces.append(piece)
             iterations += group_iterations
@@ -254,8 +272,8 @@ def run_chunk_lockstep(
         agents, returns, lengths = pieces[0]
     else:
         agents, returns, lengths = jax.tree.map(lambda *leaves: jnp.concatenate(leaves), *pieces)
-        order = np.concatenate(order)
-        if not np.array_equal(order, np.arange(num_agents)):
-            inverse = jnp.asarray(np.argsort(order), jnp.int32)
+        rows_order = np.concatenate(order)
+        if not np.array_equal(rows_order, np.arange(num_agents)):
+            inverse = jnp.asarray(np.argsort(rows_order), jnp.int32)
             agents, returns, lengths = _gather_rows((agents, returns, lengths), inverse)
     return agents, returns, lengths, iterations, lane_iterations

@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import warnings
 import weakref
-from collections.abc import Iterator
+from collections.abc import Generator
 from concurrent.futures import Future, ThreadPoolExecutor
 from functools import partial
 from typing import Any
@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vdbejax import _xla_flags
+from vdbejax import _pytree, _xla_flags
 from vdbejax.engine.lockstep import _next_power_of_two
 from vdbejax.engine.programs import Call, Programs
 from vdbejax.engine.state import AgentState, init_agents, state_bytes
@@ -51,8 +51,9 @@ def lanes_for(rows: int) -> int:
     return min(LANES, rows)
 
 
-def _run_sequential(mdp, agent, agents, chunk_start, chunk_end, count, support, *,
-                    chunk_length, lanes):
+def _run_sequential(mdp: TabularMDP, agent: Any, agents: AgentState, chunk_start: Array,
+                    chunk_end: Array, count: Array, support: Any, *, chunk_length: int,
+                    lanes: int) -> tuple[AgentState, Array, Array, Array, Array]:
     """:func:`_chunk_loops` as one native call: its whole body inside a ``while`` loop of
     one trip, which XLA's CPU backend compiles into one function (the loop's contents are
     not dispatched operation by operation, and none waits for a thread of the pool that
@@ -64,16 +65,17 @@ def _run_sequential(mdp, agent, agents, chunk_start, chunk_end, count, support, 
 
     def once(carry: tuple) -> tuple:
         _, agents, returns, lengths, _, _ = carry
-        return (jnp.asarray(True),) + _chunk_loops(
+        return (jnp.asarray(True), *_chunk_loops(
             mdp, agent, agents, returns, lengths, chunk_start, chunk_end, count, support,
-            lanes=lanes)
+            lanes=lanes))
 
     return jax.lax.while_loop(lambda carry: ~carry[0], once,
-                              (jnp.asarray(False),) + outputs)[1:]
+                              (jnp.asarray(False), *outputs))[1:]
 
 
-def _chunk_loops(mdp, agent, agents, returns, lengths, chunk_start, chunk_end, count,
-                 support, *, lanes):
+def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array,
+                 lengths: Array, chunk_start: Array, chunk_end: Array, count: Array,
+                 support: Any, *, lanes: int) -> tuple[AgentState, Array, Array, Array, Array]:
     """Agents ``0 .. count-1`` of the batch run their own step loops to ``chunk_end``,
     ``lanes`` agents at a time side by side, writing their episodes into the zeroed
     ``[agents, chunk_length]`` buffers ``returns`` and ``lengths``.
@@ -98,7 +100,8 @@ def _chunk_loops(mdp, agent, agents, returns, lengths, chunk_start, chunk_end, c
     big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
 
     def scalars(state: AgentState) -> AgentState:
-        return dataclasses.replace(state, q=None, tables=None)
+        # The state without its tables (a tree of the scalar fields): None is no leaf.
+        return _pytree.replace(state, q=None, tables=None)
 
     # Each agent's scalars (and hyperparameters) as one row of 32-bit words: handing a
     # lane another agent then moves one row, not one value per field (a program a
@@ -331,7 +334,9 @@ class _SequentialRun:
             args = (self.mdp, self.params, self.keys)
             self.host = self.run_programs.get(init_agents, args)(*args)
         if not self.host_current:
+            assert self.items is not None  # the state moves on in the items once they run
             self._hold(self.items)
+        assert self.host is not None  # fresh agents are created above or held by _hold
         return self.host
 
     def _hold(self, items: list[tuple[np.ndarray, Any]]) -> None:
@@ -339,7 +344,7 @@ class _SequentialRun:
         # Fresh arrays: ones handed out before (checkpoints) must not change.
         host = jax.tree.map(lambda leaf: np.empty(leaf.shape, leaf.dtype), self.layout)
         for index, state in items:
-            for full, rows in zip(jax.tree.leaves(host), jax.tree.leaves(state)):
+            for full, rows in zip(jax.tree.leaves(host), jax.tree.leaves(state), strict=True):
                 full[index] = np.asarray(rows)[: index.size]
         self.host, self.host_current = host, True
 
@@ -348,6 +353,7 @@ class _SequentialRun:
         if self.host_current:
             return np.asarray(self.agents().nonfinite)
         flags = np.empty(self.keys.shape[0], bool)
+        assert self.items is not None  # not host_current: the items have run
         for index, state in self.items:
             flags[index] = np.asarray(state.nonfinite)[: index.size]
         return flags
@@ -388,7 +394,7 @@ class _SequentialRun:
         # Each item's program and hyperparameters, for every chunk (items keep their
         # agents, and a run's chunks have one length, a static argument of the program).
         self.programs = [(executable, call.args[1])
-                         for executable, call in zip(executables, calls)]
+                         for executable, call in zip(executables, calls, strict=True)]
         fresh = self.host is None  # large fresh agents: created in their item, on the device
         host = None if fresh else self.agents()
         items = []
@@ -419,11 +425,13 @@ class _SequentialRun:
         before its next chunk updates the state in place)."""
         if before is not None:
             before.result()  # started earlier (the pool is FIFO), so this does not deadlock
-        index, state = self.items[k]
+        items = self.items
+        assert items is not None  # formed by prepare()
+        index, state = items[k]
         executable, agent = self.programs[k]
         new_state, returns, lengths, iterations, lanes = executable(  # state donated
             *self._arguments(agent, state, index, chunk))
-        self.items[k] = (index, new_state)
+        items[k] = (index, new_state)
         copy = (jax.tree.map(lambda leaf: np.array(np.asarray(leaf)[: index.size]), new_state)
                 if snapshot else None)
         return (np.asarray(returns)[: index.size], np.asarray(lengths)[: index.size],
@@ -431,7 +439,7 @@ class _SequentialRun:
 
     def run_chunks(self, bounds: list[tuple[int, int]], chunk_length: int, ahead: int,
                    snapshots: bool = False
-                   ) -> Iterator[tuple[np.ndarray, np.ndarray, int, int]]:
+                   ) -> Generator[tuple[np.ndarray, np.ndarray, int, int], None, None]:
         """Advance every agent chunk by chunk (after :meth:`prepare`); yields each chunk's
         ``(returns, lengths, iterations, lane_iterations)``: numpy ``[agents,
         chunk_length]`` buffers, Σ agent iterations (steps, plus one per episode start
@@ -447,14 +455,16 @@ class _SequentialRun:
         they are queued (their order only affects the balance).
         """
         num_agents = int(self.keys.shape[0])
-        serial = self.threads == 1 or len(self.items) == 1
+        items = self.items  # formed by prepare(); the list itself is updated in place
+        assert items is not None
+        serial = self.threads == 1 or len(items) == 1
         pool = None if serial else ThreadPoolExecutor(max_workers=self.threads)
         pending: dict[tuple[int, int], Any] = {}  # (chunk, item) -> Future or output
         costs = None
 
         def queue(c: int) -> None:
-            order = sorted(range(len(self.items)), key=lambda k: -(
-                1.0 if costs is None else float(costs[self.items[k][0]].sum())))
+            order = sorted(range(len(items)), key=lambda k: -(
+                1.0 if costs is None else float(costs[items[k][0]].sum())))
             chunk = (*bounds[c], chunk_length)
             self.host_current = False  # the items move on
             for k in order:
@@ -474,7 +484,7 @@ class _SequentialRun:
                 lengths = np.zeros((num_agents, chunk_length), np.int32)
                 iterations = lane_iterations = 0
                 copies = []
-                for k, (index, _) in enumerate(self.items):
+                for k, (index, _) in enumerate(items):
                     output = pending.pop((c, k))
                     item_returns, item_lengths, item_iterations, item_lanes, copy = (
                         output if pool is None else output.result())

@@ -64,7 +64,7 @@ def init_agent(mdp: TabularMDP, params: AgentParams, key: Array) -> AgentState:
       the :class:`AgentState` (no leading batch axis).
     """
     layout = table_layout(params)
-    S, A = mdp.num_states, mdp.num_actions  # noqa: N806
+    S, A = mdp.num_states, mdp.num_actions
     q = jnp.zeros((S, A), jnp.float32)
     tables = {name: jnp.zeros(_table_shape(mdp, per), jnp.float32) for name, per in layout.items()}
     key = jnp.asarray(key, jnp.uint32)
@@ -169,5 +169,5 @@ def broadcast_agents(params: Any, repeats: int) -> Any:
 
 def state_bytes(mdp: TabularMDP, layout: dict[str, str]) -> int:
     """Bytes of one agent's Q and tables."""
-    S, A = mdp.num_states, mdp.num_actions  # noqa: N806
+    S, A = mdp.num_states, mdp.num_actions
     return 4 * S * A + sum(4 * (S if per == "state" else S * A) for per in layout.values())

@@ -58,10 +58,10 @@ def start_support(mdp: TabularMDP) -> tuple[Array, Array]:
     probability = mdp.start_probability
     if isinstance(probability, jax.core.Tracer):
         return jnp.arange(mdp.num_states, dtype=jnp.int32), probability
-    probability = np.asarray(probability)
-    support = np.flatnonzero(probability > 0).astype(np.int32)
+    host = np.asarray(probability)
+    support = np.flatnonzero(host > 0).astype(np.int32)
     # device_put, not jnp.asarray: that compiles a small program per shape (≈ 10 ms each)
-    return jax.device_put(support), jax.device_put(probability[support])
+    return jax.device_put(support), jax.device_put(host[support])
 
 
 # Per-lane buffer access. A batch of a few lanes (the CPU engine's loops) uses unrolled
@@ -248,7 +248,7 @@ def lockstep_iteration(
     """
     learner, explorer = agent.learner, agent.explorer
     num_agents = agents.episode.shape[0]
-    S, A = mdp.num_states, mdp.num_actions  # noqa: N806
+    S, A = mdp.num_states, mdp.num_actions
     lane = jnp.arange(num_agents, dtype=jnp.int32)
     table_lane = lane if table_rows is None else table_rows
     rows = num_agents if table_rows is None else agents.q.shape[0] // (S * A)
@@ -330,7 +330,8 @@ def lockstep_iteration(
         action=keep(next_action, a),
         pending_reset=keep(learn & truncated, resetting),
         episode=agents.episode + done.astype(jnp.int32),
-        episode_return=jnp.where(learn, jnp.where(done, 0.0, episode_return), agents.episode_return),
+        episode_return=jnp.where(learn, jnp.where(done, 0.0, episode_return),
+                                 agents.episode_return),
         episode_length=jnp.where(learn, jnp.where(done, 0, length), agents.episode_length),
         counter=agents.counter + active.astype(jnp.uint32),
         key=agents.key,
@@ -343,8 +344,20 @@ def lockstep_iteration(
     return agents, returns, lengths
 
 
-def run_loop(mdp, agent, agents, returns, lengths, chunk_start, chunk_end, max_iterations,
-             unroll, support, table_rows=None, stop_at_first_finish=None):
+def run_loop(
+    mdp: TabularMDP,
+    agent: Agent,
+    agents: AgentState,
+    returns: Array,
+    lengths: Array,
+    chunk_start: Array,
+    chunk_end: Array,
+    max_iterations: Array,
+    unroll: int,
+    support: tuple[Array, Array],
+    table_rows: Array | None = None,
+    stop_at_first_finish: Array | None = None,
+) -> tuple[AgentState, Array, Array, Array]:
     """``while`` any agent is active and fewer than ``max_iterations`` iterations ran.
 
     The body runs ``unroll`` iterations (fewer loop trips); iterations of an agent that

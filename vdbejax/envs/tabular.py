@@ -123,10 +123,9 @@ class TabularMDP:
         Returns:
           ``(next_state, reward, terminal)``.
         """
-        if self.num_outcomes == 1:  # static: deterministic MDPs skip the draw
-            k = 0
-        else:
-            k = sample_categorical(self.probability[state, action], u)
+        # static: deterministic MDPs skip the draw
+        k: int | Array = (0 if self.num_outcomes == 1
+                          else sample_categorical(self.probability[state, action], u))
         return (
             self.next_state[state, action, k],
             self.reward[state, action, k],
@@ -277,18 +276,18 @@ def make_tabular_mdp(
         raise ValueError(
             f"start_probability sums to {start.sum():.6g}: must sum to 1 (atol {atol:g})"
         )
-    codes = None
+    codes: Array | None = None
     if state_codes is not None:
-        codes = _as_array("state_codes", state_codes)
-        if codes.shape != (num_states,) or not np.issubdtype(codes.dtype, np.integer):
-            raise ValueError(f"state_codes has shape {codes.shape} and dtype {codes.dtype}:"
+        given = _as_array("state_codes", state_codes)
+        if given.shape != (num_states,) or not np.issubdtype(given.dtype, np.integer):
+            raise ValueError(f"state_codes has shape {given.shape} and dtype {given.dtype}:"
                              f" must be [{num_states}] integers")
-        if num_states > 1 and not np.all(np.diff(codes) > 0) or codes[0] < 0:
+        if (num_states > 1 and not np.all(np.diff(given) > 0)) or given[0] < 0:
             raise ValueError("state_codes is not strictly increasing and >= 0:"
                              " must list distinct non-negative codes in increasing order")
-        if codes[-1] > np.iinfo(np.int32).max:
-            raise ValueError(f"state_codes holds {codes[-1]}: must be < 2**31")
-        codes = _on_device(codes, np.int32)
+        if given[-1] > np.iinfo(np.int32).max:
+            raise ValueError(f"state_codes holds {given[-1]}: must be < 2**31")
+        codes = _on_device(given, np.int32)
     return TabularMDP(
         next_state=_on_device(next_state, np.int32),
         probability=_on_device(probability, np.float32),
@@ -309,7 +308,8 @@ class FunctionalEnv(Protocol):
     def num_codes(self, params: Any) -> int: ...
     def decode(self, code: Array, params: Any) -> Array: ...
     def encode(self, fields: Array, params: Any) -> Array: ...
-    def transition(self, fields: Array, action: Array, params: Any) -> tuple[Array, Array, Array]: ...
+    def transition(self, fields: Array, action: Array, params: Any
+                   ) -> tuple[Array, Array, Array]: ...
     def start_distribution(self, params: Any) -> tuple[np.ndarray, np.ndarray]: ...
 
 
@@ -354,7 +354,10 @@ def _step_codes(step: Any, actions: np.ndarray, codes: np.ndarray, batch_size: i
         next_codes, reward, terminal = step(padded, actions)
         outputs.append((np.asarray(next_codes)[: len(part)], np.asarray(reward)[: len(part)],
                         np.asarray(terminal)[: len(part)]))
-    return tuple(np.concatenate(arrays) for arrays in zip(*outputs))
+    # zip(*outputs): the batches' (next_codes, reward, terminal), three arrays each.
+    next_codes, reward, terminal = (np.concatenate(arrays)
+                                    for arrays in zip(*outputs, strict=True))
+    return next_codes, reward, terminal
 
 
 def _reachable_codes(step: Any, actions: np.ndarray, start_codes: np.ndarray, num_codes: int,
@@ -390,7 +393,8 @@ def _reachable_codes(step: Any, actions: np.ndarray, start_codes: np.ndarray, nu
             row[column] = None
         columns.append(table[order])
         del table
-    return tuple(columns)
+    codes, next_codes, reward, terminal = columns
+    return codes, next_codes, reward, terminal
 
 
 def compile_env(

@@ -9,6 +9,17 @@
 """
 from vdbejax._numerics import rounded
 from vdbejax._pytree import static_field
+from vdbejax.methods import explorers, learners
+from vdbejax.methods.agents import (
+    Agent,
+    AgentOptions,
+    AgentParams,
+    Setting,
+    make_agent,
+    paper_settings,
+    stack_agents,
+    sweep,
+)
 from vdbejax.methods.api import (
     EXPLORERS,
     LEARNERS,
@@ -22,18 +33,7 @@ from vdbejax.methods.api import (
     explorer,
     learner,
 )
-from vdbejax.methods import explorers, learners  # noqa: E402  (registers the built-ins)
-from vdbejax.methods.agents import (  # noqa: E402
-    Agent,
-    AgentOptions,
-    AgentParams,
-    Setting,
-    make_agent,
-    paper_settings,
-    stack_agents,
-    sweep,
-)
-from vdbejax.methods.explorers import greedy, sample_categorical, select_action, softmax_weights  # noqa: E402
+from vdbejax.methods.explorers import greedy, sample_categorical, select_action, softmax_weights
 
 __all__ = [
     "EXPLORERS", "LEARNERS", "Agent", "AgentOptions", "AgentParams", "Context", "Explorer",

@@ -198,8 +198,9 @@ def make_agent(setting: Setting, options: AgentOptions = AgentOptions()) -> Agen
     if not isinstance(setting, Setting):
         raise ValueError(f"setting={setting!r} is invalid: must be a Setting(learner, explorer,"
                          " param, hyperparameters)")
-    classes = {"learner": learner_class(setting.learner),
-               "explorer": explorer_class(setting.explorer)}
+    explorer_cls = explorer_class(setting.explorer)
+    classes: dict[str, type[Learner] | type[Explorer]] = {
+        "learner": learner_class(setting.learner), "explorer": explorer_cls}
     values: dict[str, dict[str, Any]] = {"learner": {}, "explorer": {}}
     for name, value in dataclasses.asdict(options).items():
         for role, cls in classes.items():
@@ -207,10 +208,10 @@ def make_agent(setting: Setting, options: AgentOptions = AgentOptions()) -> Agen
             if field in field_names(cls):
                 values[role][field] = value
     if setting.param is not None:
-        if classes["explorer"].parameter is None:
+        if explorer_cls.parameter is None:
             raise ValueError(f"param={setting.param!r} is invalid: explorer {setting.explorer!r}"
                              " has no swept parameter (give hyperparameters instead)")
-        values["explorer"][classes["explorer"].parameter] = setting.param
+        values["explorer"][explorer_cls.parameter] = setting.param
     for name, value in setting.hyperparameters:
         roles = owners(name, setting.learner, setting.explorer)
         if not roles:
@@ -278,7 +279,8 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
             raise ValueError(f"{name}={values!r} is invalid: must be a non-empty list of names")
     for name, values in axes.items():
         if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or not values:
-            raise ValueError(f"axis {name}={values!r} is invalid: must be a non-empty list of values")
+            raise ValueError(f"axis {name}={values!r} is invalid: must be a non-empty list"
+                             " of values")
     used: set[str] = set()
     settings = []
     for learner in learners:
@@ -289,9 +291,9 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
                      if owners(name, learner, explorer)}
             used.update(mine, fixed)
             for combination in itertools.product(*(axes[name] for name in mine)):
-                values = dict(fixed, **dict(zip(mine, combination)))
-                param = values.pop(cls.parameter, None) if cls.parameter else None
-                settings.append(Setting(learner, explorer, param, values))
+                chosen = dict(fixed, **dict(zip(mine, combination, strict=True)))
+                param = chosen.pop(cls.parameter, None) if cls.parameter else None
+                settings.append(Setting(learner, explorer, param, chosen))
     unused = [name for name in list(axes) + list(shared) if name not in used]
     if unused:
         raise ValueError(f"axis {unused[0]!r} is invalid: no learner in {list(learners)} or"
@@ -356,7 +358,18 @@ def table_layout(params: AgentParams) -> dict[str, str]:
 
 
 __all__ = [
-    "Agent", "AgentOptions", "AgentParams", "PAPER_PARAMETERS", "Setting", "Table",
-    "agent_hyperparameters", "make_agent", "owners", "paper_settings", "parameter_name", "stack_agents",
-    "sweep", "table_layout",
+    "PAPER_PARAMETERS",
+    "Agent",
+    "AgentOptions",
+    "AgentParams",
+    "Setting",
+    "Table",
+    "agent_hyperparameters",
+    "make_agent",
+    "owners",
+    "paper_settings",
+    "parameter_name",
+    "stack_agents",
+    "sweep",
+    "table_layout",
 ]

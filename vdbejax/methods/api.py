@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Mapping
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar, dataclass_transform
 
 import jax
 import jax.numpy as jnp
@@ -58,7 +58,8 @@ import numpy as np
 from vdbejax._pytree import pytree_dataclass, static_field
 
 Array = jax.Array
-T = TypeVar("T")
+ExplorerT = TypeVar("ExplorerT", bound="Explorer")
+LearnerT = TypeVar("LearnerT", bound="Learner")
 
 #: What a table holds one value of.
 TABLE_KINDS = ("state", "pair")
@@ -165,11 +166,16 @@ class Learner:
     num_uniforms: ClassVar[int] = 0
     uses_next_action: ClassVar[bool] = False
     uses_next_probabilities: ClassVar[bool] = False
-    #: With ``uses_next_action``: the action taken in s′ is drawn afresh after the update
-    #: (the a′ of the target only serves the target; the authors' SARSA). A property
-    #: where it is an option.
-    redraws_next_action: ClassVar[bool] = False
     option_aliases: ClassVar[dict[str, str]] = {}
+    #: The discount γ: every learner has this field (:func:`learner` checks it).
+    gamma: float | Array
+
+    @property
+    def redraws_next_action(self) -> bool:
+        """With ``uses_next_action``: the action taken in s′ is drawn afresh after the
+        update (the a′ of the target only serves the target; the authors' SARSA). A class
+        attribute, or a property where it is an option."""
+        return False
 
     def tables(self) -> dict[str, Table]:
         """Extra per-(state, action) tables (none by default)."""
@@ -195,7 +201,9 @@ EXPLORERS: dict[str, type[Explorer]] = {}
 LEARNERS: dict[str, type[Learner]] = {}
 
 
-def explorer(name: str, parameter: str | None = None) -> Callable[[type[T]], type[T]]:
+@dataclass_transform(frozen_default=True, field_specifiers=(dataclasses.field,))
+def explorer(name: str,
+             parameter: str | None = None) -> Callable[[type[ExplorerT]], type[ExplorerT]]:
     """Class decorator: make ``cls`` a pytree dataclass and register it as explorer ``name``.
 
     Args:
@@ -205,7 +213,7 @@ def explorer(name: str, parameter: str | None = None) -> Callable[[type[T]], typ
     Raises:
       ValueError: ``cls`` is not an :class:`Explorer` or lacks ``select``.
     """
-    def register(cls: type[T]) -> type[T]:
+    def register(cls: type[ExplorerT]) -> type[ExplorerT]:
         _check_class(cls, Explorer, "explorer", name, ("select",))
         cls = pytree_dataclass(cls)
         cls.name, cls.parameter = name, parameter
@@ -218,13 +226,14 @@ def explorer(name: str, parameter: str | None = None) -> Callable[[type[T]], typ
     return register
 
 
-def learner(name: str) -> Callable[[type[T]], type[T]]:
+@dataclass_transform(frozen_default=True, field_specifiers=(dataclasses.field,))
+def learner(name: str) -> Callable[[type[LearnerT]], type[LearnerT]]:
     """Class decorator: make ``cls`` a pytree dataclass and register it as learner ``name``.
 
     Raises:
       ValueError: ``cls`` is not a :class:`Learner`, lacks ``update`` or a ``gamma`` field.
     """
-    def register(cls: type[T]) -> type[T]:
+    def register(cls: type[LearnerT]) -> type[LearnerT]:
         _check_class(cls, Learner, "learner", name, ("update",))
         cls = pytree_dataclass(cls)
         cls.name = name
@@ -337,17 +346,17 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
       num_actions: actions of the task.
     """
     name = f"explorer {agent_explorer.name!r}"
-    A = num_actions  # noqa: N806
+    A = num_actions
     f32 = jnp.float32
-    row, scalar = jax.ShapeDtypeStruct((A,), f32), jax.ShapeDtypeStruct((), f32)
+    row, scalar = _abstract((A,), f32), _abstract((), f32)
     tables = _table_values(name, agent_explorer.tables(), row, scalar)
     ltables = _table_values(f"learner {agent_learner.name!r}", agent_learner.tables(), row, scalar)
     for lname, spec in agent_learner.tables().items():
         if spec.per != "pair":
             raise ValueError(f"learner {agent_learner.name!r} table {lname!r} is per {spec.per!r}:"
                              " a learner's extra tables must be per 'pair'")
-    context = Context(jax.ShapeDtypeStruct((), jnp.int32), jax.ShapeDtypeStruct((), jnp.int32),
-                      jax.ShapeDtypeStruct((), jnp.bool_))
+    context = Context(_abstract((), jnp.int32), _abstract((), jnp.int32),
+                      _abstract((), jnp.bool_))
     uniforms = tuple(scalar for _ in range(_count(name, agent_explorer.num_uniforms)))
 
     def traced(what: str, fn: Callable, *args: Any) -> Any:
@@ -355,8 +364,9 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
             closed = jax.make_jaxpr(fn)(*args)
         except ValueError:
             raise
-        except Exception as error:  # noqa: BLE001  (the user's function failed to trace)
-            message = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        except Exception as error:
+            message = (str(error).strip().splitlines()[0] if str(error).strip()
+                       else type(error).__name__)
             raise ValueError(f"{what} fails on one agent's inputs: {type(error).__name__}: "
                              f"{message}") from None
         if closed.effects:
@@ -368,19 +378,20 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
     if getattr(action, "shape", None) != () or not jnp.issubdtype(action.dtype, jnp.integer):
         raise ValueError(f"{name} select() returned {_describe(action)}: must be one integer"
                          " action (shape ())")
-    action = jax.ShapeDtypeStruct((), jnp.int32)
+    action = _abstract((), jnp.int32)
     new = traced(f"{name} update()", agent_explorer.update, tables, action, scalar, context)
     _check_same(f"{name} update()", new, tables)
     uses_probabilities = agent_learner.uses_next_probabilities
     if uses_probabilities:
-        probs = traced(f"{name} probabilities()", agent_explorer.probabilities, row, tables, context)
+        probs = traced(f"{name} probabilities()", agent_explorer.probabilities, row, tables,
+                       context)
         _check_same(f"{name} probabilities()", probs, row)
     lname = f"learner {agent_learner.name!r}"
     behaviour = traced(f"{lname} behaviour()", agent_learner.behaviour, row, ltables)
     _check_same(f"{lname} behaviour()", behaviour, row)
     luniforms = tuple(scalar for _ in range(_count(lname, agent_learner.num_uniforms)))
     transition = Transition(scalar, {k: scalar for k in ltables}, scalar, scalar, row, ltables,
-                            action, row, luniforms, jax.ShapeDtypeStruct((), jnp.bool_))
+                            action, row, luniforms, _abstract((), jnp.bool_))
     result = traced(f"{lname} update()", agent_learner.update, transition)
     if not isinstance(result, LearnerUpdate):
         raise ValueError(f"{lname} update() returned {type(result).__name__}: must return a"
@@ -388,6 +399,12 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
     _check_same(f"{lname} update() q", result.q, scalar)
     _check_same(f"{lname} update() delta_q", result.delta_q, scalar)
     _check_same(f"{lname} update() tables", result.tables, {k: scalar for k in ltables})
+
+
+def _abstract(shape: tuple[int, ...], dtype: Any) -> Any:
+    """A shape-and-dtype stand-in for an array (what ``jax.eval_shape`` traces with), in
+    the place of the ``Array`` fields of :class:`Context` and :class:`Transition`."""
+    return jax.ShapeDtypeStruct(shape, dtype)
 
 
 def _count(name: str, value: Any) -> int:
@@ -417,12 +434,26 @@ def _describe(value: Any) -> str:
 def _check_same(what: str, value: Any, expected: Any) -> None:
     got = jax.tree.map(lambda x: tuple(x.shape), value)
     want = jax.tree.map(lambda x: tuple(x.shape), expected)
-    if jax.tree.structure(got) != jax.tree.structure(want) or jax.tree.leaves(got) != jax.tree.leaves(want):
+    # jax.tree.structure's return type (PyTreeDef) does not resolve for mypy.
+    if (jax.tree.structure(got) != jax.tree.structure(want)  # type: ignore[operator]
+            or jax.tree.leaves(got) != jax.tree.leaves(want)):
         raise ValueError(f"{what} returned {_describe(value)}: expected {_describe(expected)}")
 
 
 __all__ = [
-    "Context", "EXPLORERS", "Explorer", "LEARNERS", "Learner", "LearnerUpdate", "Table",
-    "Transition", "build", "check_plugin", "explorer", "field_names", "hyperparameters",
-    "learner", "static_field",
+    "EXPLORERS",
+    "LEARNERS",
+    "Context",
+    "Explorer",
+    "Learner",
+    "LearnerUpdate",
+    "Table",
+    "Transition",
+    "build",
+    "check_plugin",
+    "explorer",
+    "field_names",
+    "hyperparameters",
+    "learner",
+    "static_field",
 ]

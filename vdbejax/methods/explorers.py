@@ -26,6 +26,8 @@ derives them from its per-agent stream); the ``key``-taking wrappers draw them w
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -102,7 +104,7 @@ def greedy(q: Array, u: Array, tie_break: str = "random") -> Array:
     return sample_categorical((q == jnp.max(q, axis=0)).astype(q.dtype), u)
 
 
-def softmax_weights(q: Array, tau: Array) -> Array:
+def softmax_weights(q: Array, tau: float | Array) -> Array:
     """Unnormalised Boltzmann weights ``exp((q − max q)/τ)`` along axis 0, stable for tiny τ.
 
     The maximal action has weight 1, so the sum is ≥ 1 and no overflow, NaN or inf can
@@ -118,7 +120,7 @@ def softmax_weights(q: Array, tau: Array) -> Array:
     return jnp.exp((q - jnp.max(q, axis=0)) / tau)
 
 
-def softmax_probabilities(q: Array, tau: Array) -> Array:
+def softmax_probabilities(q: Array, tau: float | Array) -> Array:
     """Normalised Boltzmann probabilities ``P(a) ∝ exp(Q(s,a)/τ)`` (axis 0 = actions).
 
     Args:
@@ -142,7 +144,7 @@ _FLOAT64_EXP_OVERFLOW = 709.782712893384
 _FLOAT64_EXP_ZERO = -745.1332191019412
 
 
-def float64_softmax_draw(q: Array, tau: Array, stable_draw: Array) -> Array:
+def float64_softmax_draw(q: Array, tau: float | Array, stable_draw: Array) -> Array:
     """The action the authors' float64 softmax draws, given the stable draw's action.
 
     Where the float64 weights are a distribution the two draws agree (up to rounding of
@@ -171,9 +173,9 @@ def float64_softmax_draw(q: Array, tau: Array, stable_draw: Array) -> Array:
 
 def select_action(
     q: Array,
-    explore_probability: Array,
-    tau: Array | None,
-    uniforms: Array,
+    explore_probability: float | Array,
+    tau: float | Array | None,
+    uniforms: Array | Sequence[Array],
     tie_break: str = "random",
     numerics: str = "stable",
 ) -> Array:
@@ -209,8 +211,8 @@ def greedy_probabilities(q: Array, tie_break: str = "random") -> Array:
     return maximal / jnp.sum(maximal, axis=0)
 
 
-def mixture_probabilities(q: Array, explore_probability: Array, tau: Array | None,
-                          tie_break: str = "random") -> Array:
+def mixture_probabilities(q: Array, explore_probability: float | Array,
+                          tau: float | Array | None, tie_break: str = "random") -> Array:
     """Exact probabilities of :func:`select_action`: ``p·softmax_τ(Q) + (1 − p)·greedy(Q)``."""
     exploratory = (jnp.ones_like(q) / q.shape[0] if tau is None
                    else softmax_probabilities(q, tau))
@@ -289,7 +291,7 @@ def vdbe_softmax(
 
 
 def vdbe_epsilon_update(
-    epsilon: Array, delta_q: Array, sigma: Array, delta: Array = VDBE_DELTA
+    epsilon: Array, delta_q: Array, sigma: float | Array, delta: float | Array = VDBE_DELTA
 ) -> Array:
     """VDBE update of ε(s) after a change ``ΔQ = α·TD-error`` of Q(s, a).
 
@@ -320,13 +322,14 @@ def _check_tie_break(tie_break: str) -> None:
 class EpsilonGreedy(Explorer):
     """ε-greedy: a uniformly random action with probability ε, else greedy."""
 
-    epsilon: Array = 0.1
+    epsilon: float | Array = 0.1
     tie_break: str = static_field("random")
 
-    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+    def select(self, q: Array, tables: Mapping[str, Array], context: Context,
+               uniforms: tuple[Array, ...]) -> Array:
         return select_action(q, self.epsilon, None, uniforms, self.tie_break)
 
-    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+    def probabilities(self, q: Array, tables: Mapping[str, Array], context: Context) -> Array:
         return mixture_probabilities(q, self.epsilon, None, self.tie_break)
 
     def validate(self) -> None:
@@ -338,16 +341,17 @@ class EpsilonGreedy(Explorer):
 class Softmax(Explorer):
     """Softmax (Boltzmann): sample ``P(a) ∝ exp(Q(s,a)/τ)``."""
 
-    tau: Array = 1.0
+    tau: float | Array = 1.0
     #: :data:`SOFTMAX_NUMERICS` (``"float64"``: the authors' unstabilised formula).
     softmax_numerics: str = static_field("stable")
 
-    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+    def select(self, q: Array, tables: Mapping[str, Array], context: Context,
+               uniforms: tuple[Array, ...]) -> Array:
         # The paper's rule with p = 1 (uniforms are < 1, so the draw is always
         # exploratory); XLA compiles this form faster than the draw alone (measured).
         return select_action(q, 1.0, self.tau, uniforms, numerics=self.softmax_numerics)
 
-    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+    def probabilities(self, q: Array, tables: Mapping[str, Array], context: Context) -> Array:
         return softmax_probabilities(q, self.tau)
 
     def validate(self) -> None:
@@ -360,9 +364,9 @@ class VDBE(Explorer):
     """VDBE (Tokic 2010): uniform exploration with the per-state probability ε(s), which
     follows the value changes (:func:`vdbe_epsilon_update`)."""
 
-    sigma: Array = 1.0
-    delta: Array = VDBE_DELTA
-    epsilon_init: Array = 1.0
+    sigma: float | Array = 1.0
+    delta: float | Array = VDBE_DELTA
+    epsilon_init: float | Array = 1.0
     tie_break: str = static_field("random")
     #: Update ε(s) on a step that ends the episode too (the authors' code does not).
     update_on_terminal: bool = static_field(True)
@@ -370,20 +374,22 @@ class VDBE(Explorer):
     def tables(self) -> dict[str, Table]:
         return {"epsilon": Table("state", self.epsilon_init)}
 
-    def _tau(self) -> Array | None:
+    def _tau(self) -> float | Array | None:
         return None  # uniform exploratory draws
 
-    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+    def select(self, q: Array, tables: Mapping[str, Array], context: Context,
+               uniforms: tuple[Array, ...]) -> Array:
         return select_action(q, tables["epsilon"], self._tau(), uniforms, self.tie_break,
                              self._numerics())
 
     def _numerics(self) -> str:
         return "stable"  # uniform exploratory draws: no softmax
 
-    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+    def probabilities(self, q: Array, tables: Mapping[str, Array], context: Context) -> Array:
         return mixture_probabilities(q, tables["epsilon"], self._tau(), self.tie_break)
 
-    def update(self, tables: dict, action: Array, delta_q: Array, context: Context) -> dict:
+    def update(self, tables: Mapping[str, Array], action: Array, delta_q: Array,
+               context: Context) -> dict[str, Array]:
         epsilon = vdbe_epsilon_update(tables["epsilon"], delta_q, self.sigma, self.delta)
         if not self.update_on_terminal:
             epsilon = jnp.where(context.terminal, tables["epsilon"], epsilon)
@@ -401,12 +407,12 @@ class VDBE(Explorer):
 class VDBESoftmax(VDBE):
     """VDBE-Softmax (Tokic & Palm 2011): with probability ε(s) a softmax(τ) draw, else greedy."""
 
-    tau: Array = VDBE_SOFTMAX_TAU
+    tau: float | Array = VDBE_SOFTMAX_TAU
     #: :data:`SOFTMAX_NUMERICS` of the exploratory draw.
     softmax_numerics: str = static_field("stable")
-    option_aliases = {"vdbe_softmax_tau": "tau"}
+    option_aliases: ClassVar[dict[str, str]] = {"vdbe_softmax_tau": "tau"}
 
-    def _tau(self) -> Array | None:
+    def _tau(self) -> float | Array | None:
         return self.tau
 
     def _numerics(self) -> str:
@@ -423,14 +429,15 @@ class MaxBoltzmann(Explorer):
     """Max-Boltzmann (ε-softmax, Wiering 1999): with probability ε a softmax(τ) draw,
     else greedy."""
 
-    epsilon: Array = 0.1
-    tau: Array = 0.1
+    epsilon: float | Array = 0.1
+    tau: float | Array = 0.1
     tie_break: str = static_field("random")
 
-    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+    def select(self, q: Array, tables: Mapping[str, Array], context: Context,
+               uniforms: tuple[Array, ...]) -> Array:
         return select_action(q, self.epsilon, self.tau, uniforms, self.tie_break)
 
-    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+    def probabilities(self, q: Array, tables: Mapping[str, Array], context: Context) -> Array:
         return mixture_probabilities(q, self.epsilon, self.tau, self.tie_break)
 
     def validate(self) -> None:
@@ -439,7 +446,8 @@ class MaxBoltzmann(Explorer):
         _check_tie_break(self.tie_break)
 
 
-def decayed(initial: Array, decay: Array, minimum: Array, episode: Array) -> Array:
+def decayed(initial: float | Array, decay: float | Array, minimum: float | Array,
+            episode: Array) -> Array:
     """Exponential schedule over episodes: ``max(minimum, initial · decay^episode)``."""
     return jnp.maximum(minimum, initial * jnp.power(decay, episode.astype(jnp.float32)))
 
@@ -448,18 +456,19 @@ def decayed(initial: Array, decay: Array, minimum: Array, episode: Array) -> Arr
 class DecayingEpsilonGreedy(Explorer):
     """ε-greedy with ε decaying over episodes: ε_k = max(ε_min, ε·decay^k) in episode k."""
 
-    epsilon: Array = 1.0
-    decay: Array = 0.99
-    epsilon_min: Array = 0.01
+    epsilon: float | Array = 1.0
+    decay: float | Array = 0.99
+    epsilon_min: float | Array = 0.01
     tie_break: str = static_field("random")
 
     def _epsilon(self, context: Context) -> Array:
         return decayed(self.epsilon, self.decay, self.epsilon_min, context.episode)
 
-    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+    def select(self, q: Array, tables: Mapping[str, Array], context: Context,
+               uniforms: tuple[Array, ...]) -> Array:
         return select_action(q, self._epsilon(context), None, uniforms, self.tie_break)
 
-    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+    def probabilities(self, q: Array, tables: Mapping[str, Array], context: Context) -> Array:
         return mixture_probabilities(q, self._epsilon(context), None, self.tie_break)
 
     def validate(self) -> None:
@@ -473,17 +482,18 @@ class DecayingEpsilonGreedy(Explorer):
 class DecayingSoftmax(Explorer):
     """Softmax with τ decaying over episodes: τ_k = max(τ_min, τ·decay^k) in episode k."""
 
-    tau: Array = 1.0
-    decay: Array = 0.99
-    tau_min: Array = 0.001
+    tau: float | Array = 1.0
+    decay: float | Array = 0.99
+    tau_min: float | Array = 0.001
 
     def _tau(self, context: Context) -> Array:
         return decayed(self.tau, self.decay, self.tau_min, context.episode)
 
-    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+    def select(self, q: Array, tables: Mapping[str, Array], context: Context,
+               uniforms: tuple[Array, ...]) -> Array:
         return sample_categorical(softmax_weights(q, self._tau(context)), uniforms[1])
 
-    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+    def probabilities(self, q: Array, tables: Mapping[str, Array], context: Context) -> Array:
         return softmax_probabilities(q, self._tau(context))
 
     def validate(self) -> None:
@@ -497,7 +507,7 @@ class UCB1(Explorer):
     """UCB-1 (Auer et al. 2002) per state: untried actions first, then
     ``argmax Q(s,a) + c·sqrt(ln N(s) / N(s,a))`` with N the visit counts."""
 
-    c: Array = 1.0
+    c: float | Array = 1.0
     tie_break: str = static_field("random")
     num_uniforms = 1
 
@@ -516,13 +526,15 @@ class UCB1(Explorer):
                                           / jnp.maximum(counts, 1.0)), self.c)
         return jnp.where(jnp.any(untried, axis=0), untried.astype(q.dtype), q + bonus)
 
-    def select(self, q: Array, tables: dict, context: Context, uniforms: tuple) -> Array:
+    def select(self, q: Array, tables: Mapping[str, Array], context: Context,
+               uniforms: tuple[Array, ...]) -> Array:
         return greedy(self.scores(q, tables["counts"]), uniforms[0], self.tie_break)
 
-    def probabilities(self, q: Array, tables: dict, context: Context) -> Array:
+    def probabilities(self, q: Array, tables: Mapping[str, Array], context: Context) -> Array:
         return greedy_probabilities(self.scores(q, tables["counts"]), self.tie_break)
 
-    def update(self, tables: dict, action: Array, delta_q: Array, context: Context) -> dict:
+    def update(self, tables: Mapping[str, Array], action: Array, delta_q: Array,
+               context: Context) -> dict[str, Array]:
         counts = tables["counts"]
         return {"counts": counts + (jnp.arange(counts.shape[0]) == action).astype(counts.dtype)}
 
@@ -549,6 +561,9 @@ def make_explorer(name: str, param: float | None = None, **values: object) -> Ex
     cls = explorer_class(name)
     values = dict(values)
     if param is not None:
+        if cls.parameter is None:
+            raise ValueError(f"param={param!r} is invalid: explorer {name!r} has no swept"
+                             " parameter (give its fields instead)")
         values[cls.parameter] = param
     return build(cls, values, "explorer")
 

@@ -9,6 +9,8 @@ actions on the leading axis: ``[num_actions]`` for one transition, or
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import jax
 import jax.numpy as jnp
 
@@ -58,7 +60,7 @@ def sarsa_target(reward: Array, discount: Array, q_next: Array, next_action: Arr
     return reward + rounded(discount * chosen, discount)
 
 
-def td_update(q_value: Array, target: Array, alpha: Array) -> tuple[Array, Array]:
+def td_update(q_value: Array, target: Array, alpha: float | Array) -> tuple[Array, Array]:
     """Move ``Q(s,a)`` toward ``target`` by step size α.
 
     Args:
@@ -121,11 +123,11 @@ class TDLearner(Learner):
     textbook program.
     """
 
-    alpha: Array = PAPER_ALPHA
-    gamma: Array = PAPER_GAMMA
-    q_init: Array = 0.0
-    failure_value: Array = -0.1
-    q_init_spread: Array = 0.01
+    alpha: float | Array = PAPER_ALPHA
+    gamma: float | Array = PAPER_GAMMA
+    q_init: float | Array = 0.0
+    failure_value: float | Array = -0.1
+    q_init_spread: float | Array = 0.01
     failure_update: str = static_field("td")
     goal_update: str = static_field("td")
     q_init_distribution: str = static_field("constant")
@@ -216,7 +218,7 @@ class DoubleQLearning(TDLearner):
     def tables(self) -> dict[str, Table]:
         return {"q2": Table("pair", self.q_init)}
 
-    def behaviour(self, q: Array, tables: dict) -> Array:
+    def behaviour(self, q: Array, tables: Mapping[str, Array]) -> Array:
         return q + tables["q2"]
 
     def update(self, t: Transition) -> LearnerUpdate:

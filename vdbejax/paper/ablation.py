@@ -25,12 +25,11 @@ from pathlib import Path
 from typing import Any
 
 from vdbejax import io
-from vdbejax.validation import check_writable_dir
-from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimResult, _Table
+from vdbejax.envs.cruz2018 import STEP_CAP
 from vdbejax.experiment import GridResult
 from vdbejax.methods.explorers import PAPER_EXPLORERS as EXPLORERS
 from vdbejax.methods.learners import PAPER_ALPHA
-from vdbejax.envs.cruz2018 import STEP_CAP
+from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimResult, _Table
 from vdbejax.paper.reproduce import (
     AUTHORS_DETAILS,
     FIGURE_FILE,
@@ -39,6 +38,7 @@ from vdbejax.paper.reproduce import (
     saved_best_return,
     write_outputs,
 )
+from vdbejax.validation import check_writable_dir
 
 DOCUMENT_FILE = "REPRODUCTION.md"
 FIGURES_DIR = "ablation"
@@ -70,15 +70,17 @@ class Variant:
 
 
 #: The authors' reading: their task table and every agent detail (:data:`AUTHORS_DETAILS`).
-AUTHORS_OPTIONS = {"reading": "authors", "max_steps": STEP_CAP, "tie_break": "first",
-                   "details": tuple(AUTHORS_DETAILS.items())}
+AUTHORS_OPTIONS: dict[str, Any] = {"reading": "authors", "max_steps": STEP_CAP,
+                                   "tie_break": "first",
+                                   "details": tuple(AUTHORS_DETAILS.items())}
 
 #: The two readings side by side, then one factor at a time away from the spec's defaults,
 #: plus one combination.
 VARIANTS: tuple[Variant, ...] = (
     Variant("spec", "the spec's defaults (the textbook reading)"),
     Variant("authors", "the authors' code: their task and every agent detail", **AUTHORS_OPTIONS),
-    Variant("invalid_fail", "invalid_action = fail (an action that changes nothing ends the episode, −1)",
+    Variant("invalid_fail",
+            "invalid_action = fail (an action that changes nothing ends the episode, −1)",
             invalid_action="fail"),
     Variant("tie_first", "tie_break = first (greedy takes the lowest-index maximal action)",
             tie_break="first"),
@@ -90,7 +92,8 @@ VARIANTS: tuple[Variant, ...] = (
             invalid_action="fail", q_init=0.5),
     # Not an open detail (the paper states α = 0.8), but the one change we found that
     # rescues SARSA: a diagnostic, reported as such.
-    Variant("alpha_0.1", "α = 0.1 (beyond the spec's options: the paper states α = 0.8)", alpha=0.1),
+    Variant("alpha_0.1", "α = 0.1 (beyond the spec's options: the paper states α = 0.8)",
+            alpha=0.1),
 )
 
 
@@ -114,7 +117,8 @@ def _attribution_variants() -> tuple[Variant, ...]:
     ]
     for name, value in details:
         variants.append(Variant(f"authors-{name}", f"authors, without {name} = {value!r}",
-                                **{**authors, "details": tuple(d for d in details if d[0] != name)}))
+                                **{**authors,
+                                   "details": tuple(d for d in details if d[0] != name)}))
     variants += [
         Variant("authors-tie_first", "authors, with random greedy ties",
                 **{**authors, "tie_break": "random"}),
@@ -131,7 +135,7 @@ def _attribution_variants() -> tuple[Variant, ...]:
 ATTRIBUTION_VARIANTS: tuple[Variant, ...] = _attribution_variants()
 
 #: The factorial mode's factors: the details that matter most, all combinations.
-FACTORIAL_FACTORS = {
+FACTORIAL_FACTORS: dict[str, tuple[Any, ...]] = {
     "failure_update": ("td", "overwrite"),
     "goal_update": ("td", "skip"),
     "alpha": (0.1, 0.3, PAPER_ALPHA),
@@ -147,8 +151,8 @@ def _factorial_variants() -> tuple[Variant, ...]:
         others = tuple((k, v) for k, v in dict(options.get("details", ())).items()
                        if k not in FACTORIAL_FACTORS)
         for failure, goal, alpha, q_init in itertools.product(*FACTORIAL_FACTORS.values()):
-            details = others + (("failure_update", failure), ("goal_update", goal),
-                                ("q_init_distribution", q_init))
+            details = (*others, ("failure_update", failure), ("goal_update", goal),
+                       ("q_init_distribution", q_init))
             name = f"{base}-{failure}-{goal}-alpha{alpha:g}-{q_init}"
             description = (f"{base} reading, failure {failure}, goal {goal}, α = {alpha:g},"
                            f" initial Q {q_init}")
@@ -208,7 +212,8 @@ def run_variant(
     """
     folder = Path(results_dir)
     meta_file = folder / io.META_FILE
-    if reuse and meta_file.exists() and _matches(io.load_json(meta_file), variant, seeds, episodes, seed):
+    if (reuse and meta_file.exists()
+            and _matches(io.load_json(meta_file), variant, seeds, episodes, seed)):
         result = GridResult.load(folder)
         best = saved_best_return(result)
         summary, claims = write_outputs(result, folder, best)
@@ -245,7 +250,8 @@ def render_document(
     lines = [
         f"# Reproducing Cruz et al. (2018): claim by claim, {title}",
         "",
-        "<!-- Generated by vdbejax.paper.ablation; edit docs/reproduction_notes.md for the discussion. -->",
+        "<!-- Generated by vdbejax.paper.ablation; edit docs/reproduction_notes.md for the"
+        " discussion. -->",
         "",
         f"Regenerate everything below (tables, figures) with `{command}` "
         "(raw results go to the `--results` folder; a rerun reuses results of the same variant "
@@ -254,7 +260,8 @@ def render_document(
         f"Run size: {meta_line}. Final return = mean of the last 100 episodes over agents; "
         f"\"near\" = within {NEAR} of the best possible return (exact solver, per variant); "
         "convergence episode = first episode at which the 20-episode moving average of the "
-        "agents' mean reaches 95% of its final level (bracketed: 95% bootstrap interval over agents).",
+        "agents' mean reaches 95% of its final level (bracketed: 95% bootstrap interval over"
+        " agents).",
         "",
         "## Variants",
         "",
@@ -306,7 +313,8 @@ def render_document(
               "Best final return of each learner × explorer [95% CI], and how many of its "
               "parameter values end near the best return; last column: fraction of the last 100 "
               "episodes cut off at max_steps, SARSA + VDBE (σ ≥ 0.1).", ""]
-    header = ["variant"] + [f"{LEARNER_NAMES[lr]} {e}" for lr in LEARNER_NAMES for e in EXPLORERS] + ["SARSA+VDBE truncated"]
+    header = (["variant"] + [f"{LEARNER_NAMES[lr]} {e}" for lr in LEARNER_NAMES for e in EXPLORERS]
+              + ["SARSA+VDBE truncated"])
     lines += ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
     for r in results:
         near = r.best_return - NEAR
@@ -316,12 +324,14 @@ def render_document(
             for explorer in EXPLORERS:
                 rows = table.get(learner, explorer)
                 b = table.best(learner, explorer)
+                assert b is not None  # every variant runs the paper's whole grid
                 near_count = sum(float(x["final_return"]) >= near for x in rows)
                 cells.append(f"{float(b['final_return']):.2f} [{float(b['final_ci_low']):.2f}, "
                              f"{float(b['final_ci_high']):.2f}] @{float(b['param']):g}; "
                              f"{near_count}/{len(rows)} near")
         stuck = [float(x["truncated_fraction"]) for x in r.summary
-                 if x["learner"] == "sarsa" and x["explorer"] == "vdbe" and float(x["param"]) >= 0.1]
+                 if x["learner"] == "sarsa" and x["explorer"] == "vdbe"
+                 and float(x["param"]) >= 0.1]
         cells.append(f"{sum(stuck) / len(stuck):.2f}" if stuck else "—")
         lines.append("| " + " | ".join(cells) + " |")
 
@@ -330,11 +340,13 @@ def render_document(
         lines += [f"### `{r.variant.name}`: {r.variant.description}", "",
                   "| claim | " + " | ".join(str(c.number) for c in r.claims) + " |",
                   "| --- | " + " | ".join("---" for _ in r.claims) + " |",
-                  "| verdict | " + " | ".join(VERDICT_MARKS[c.verdict] for c in r.claims) + " |", ""]
+                  "| verdict | " + " | ".join(VERDICT_MARKS[c.verdict] for c in r.claims) + " |",
+                  ""]
         if figures:
             lines += [
                 f"![Figure 3, {r.variant.name}]({figures_dir}/{r.variant.name}/{FIGURE_FILE})", "",
-                f"![Sensitivity, {r.variant.name}]({figures_dir}/{r.variant.name}/{SENSITIVITY_FILE})", ""]
+                f"![Sensitivity, {r.variant.name}]"
+                f"({figures_dir}/{r.variant.name}/{SENSITIVITY_FILE})", ""]
         lines += [f"Full claim report: [{figures_dir}/{r.variant.name}/report.md]"
                   f"({figures_dir}/{r.variant.name}/report.md).", ""]
     if notes:
@@ -344,7 +356,8 @@ def render_document(
 
 def _run_size(result: VariantResult) -> str:
     meta = io.load_json(result.folder / io.META_FILE)
-    return f"{meta.get('num_seeds')} agents × {meta.get('num_episodes')} episodes (root seed {meta.get('seed')})"
+    return (f"{meta.get('num_seeds')} agents × {meta.get('num_episodes')} episodes"
+            f" (root seed {meta.get('seed')})")
 
 
 #: Files of a variant's folder copied next to the document (small; no raw arrays).
@@ -453,7 +466,8 @@ def _run_reporting(variant: Variant, raw: Path, reports: Path, assets: Sequence[
                          reuse=reuse)
     if raw != reports:
         for name in assets:
-            io.atomic_write_bytes(reports / variant.name / name, (result.folder / name).read_bytes())
+            io.atomic_write_bytes(reports / variant.name / name,
+                                  (result.folder / name).read_bytes())
     if progress:
         verdicts = ", ".join(f"{c.number}:{c.verdict}" for c in result.claims)
         print(f"{variant.name}: {verdicts} ({time.perf_counter() - started:.1f} s)",
@@ -473,14 +487,16 @@ def _command(out: Path, raw: Path, figures: Path, variants: Sequence[Variant], s
         parts.append(f"--results {raw}")
     if [v.name for v in variants] != [v.name for v in _mode_variants(mode)]:
         parts.append("--variants " + ",".join(v.name for v in variants))
-    for flag, value, default in (("--seeds", seeds, 20), ("--episodes", episodes, 1000), ("--seed", seed, 0)):
+    for flag, value, default in (("--seeds", seeds, 20), ("--episodes", episodes, 1000),
+                                 ("--seed", seed, 0)):
         if value != default:
             parts.append(f"{flag} {value}")
     return " ".join(parts)
 
 
 def _mode_variants(mode: str) -> tuple[Variant, ...]:
-    return {"attribution": ATTRIBUTION_VARIANTS, "factorial": FACTORIAL_VARIANTS}.get(mode, VARIANTS)
+    return {"attribution": ATTRIBUTION_VARIANTS,
+            "factorial": FACTORIAL_VARIANTS}.get(mode, VARIANTS)
 
 
 def select_variants(names: str | Sequence[str] | None, mode: str = "options") -> list[Variant]:
@@ -523,5 +539,6 @@ def claims_table(results: Sequence[VariantResult]) -> list[dict[str, Any]]:
                             for r in results}} for n in numbers]
 
 
-__all__ = ["ATTRIBUTION_VARIANTS", "FACTORIAL_VARIANTS", "MODES", "VARIANTS", "Variant", "VariantResult", "ablate", "claims_table", "render_document",
-           "run_variant", "select_variants"]
+__all__ = ["ATTRIBUTION_VARIANTS", "FACTORIAL_VARIANTS", "MODES", "VARIANTS", "Variant",
+           "VariantResult", "ablate", "claims_table", "render_document", "run_variant",
+           "select_variants"]

@@ -44,7 +44,7 @@ class ClaimResult:
 class _Table:
     """Lookup over summary rows."""
 
-    def __init__(self, rows: Sequence[dict[str, Any]]):
+    def __init__(self, rows: Sequence[dict[str, Any]]) -> None:
         self.rows = list(rows)
 
     def get(self, learner: str, explorer: str) -> list[dict[str, Any]]:
@@ -97,10 +97,12 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
         name = LEARNER_NAMES[learner]
         top = t.top_params(learner, "egreedy", 2)
         best = t.best(learner, "egreedy")
+        assert best is not None  # rows_e is not empty
         measured.append(f"{name} ε→final: {_finals(rows_e)}")
         checks.append(Check(f"{name}: the two best ε are 0.05 and 0.1 (measured {sorted(top)})",
                             top == {0.05, 0.1}))
-        checks.append(Check(f"{name}: best final return {float(best['final_return']):.2f} < {bounds[learner]}",
+        checks.append(Check(f"{name}: best final return {float(best['final_return']):.2f}"
+                            f" < {bounds[learner]}",
                             float(best["final_return"]) < bounds[learner]))
     add(1, "ε-greedy: the best ε are 0.1 and 0.05 for both learners; its final average return "
            "stays below about 0.6 (SARSA) and 0.7 (Q-learning).",
@@ -121,9 +123,11 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
         others = [r for r in rows_s if float(r["param"]) not in (0.0001, 0.001)]
         worst_low = min(low, key=lambda r: float(r["final_return"])) if low else None
         tied = worst_low is not None and all(
-            float(r.get("final_ci_low", r["final_return"])) <= float(worst_low.get("final_ci_high", worst_low["final_return"]))
+            float(r.get("final_ci_low", r["final_return"]))
+            <= float(worst_low.get("final_ci_high", worst_low["final_return"]))
             for r in others)
-        checks.append(Check(f"{name}: the best τ are 0.0001 and 0.001 (measured top two {sorted(top)}"
+        checks.append(Check(f"{name}: the best τ are 0.0001 and 0.001"
+                            f" (measured top two {sorted(top)}"
                             + ("" if top == {0.0001, 0.001} else
                                f"; no other τ significantly better: {tied}") + ")",
                             top == {0.0001, 0.001} or tied))
@@ -144,20 +148,23 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
         high = [r for r in rows_v if float(r["param"]) >= good_from[learner]]
         low = [r for r in rows_v if float(r["param"]) < good_from[learner]]
         measured.append(f"{name} σ→final (convergence ep.): " + ", ".join(
-            f"{float(r['param']):g}→{float(r['final_return']):.2f} ({int(r['convergence_episode'])})"
+            f"{float(r['param']):g}→{float(r['final_return']):.2f}"
+            f" ({int(r['convergence_episode'])})"
             for r in rows_v))
-        checks.append(Check(f"{name}: every σ ≥ {good_from[learner]:g} ends within {NEAR} of {best_return:.2f}",
+        checks.append(Check(f"{name}: every σ ≥ {good_from[learner]:g} ends within {NEAR}"
+                            f" of {best_return:.2f}",
                             bool(high) and all(float(r["final_return"]) >= near for r in high)))
         if low and high:
             high_conv = max(int(r["convergence_episode"]) for r in high)
             slow = all(float(r["final_return"]) < near or int(r["convergence_episode"]) > high_conv
                        for r in low)
-            checks.append(Check(f"{name}: every σ < {good_from[learner]:g} ends lower or converges later "
-                                f"than the good σ", slow))
+            checks.append(Check(f"{name}: every σ < {good_from[learner]:g} ends lower or"
+                                " converges later than the good σ", slow))
         worst[learner] = min(float(r["final_return"]) for r in rows_v)
     if len(worst) == 2:
-        checks.append(Check(f"too-low σ is worst with SARSA (worst final SARSA {worst['sarsa']:.2f} "
-                            f"≤ Q-learning {worst['qlearning']:.2f})", worst["sarsa"] <= worst["qlearning"]))
+        checks.append(Check(f"too-low σ is worst with SARSA (worst final SARSA"
+                            f" {worst['sarsa']:.2f} ≤ Q-learning {worst['qlearning']:.2f})",
+                            worst["sarsa"] <= worst["qlearning"]))
     add(3, "VDBE: Q-learning does well for σ ≥ 0.1, SARSA for σ ≥ 1; a σ too low converges slowly "
            "or not at all, worst with SARSA.",
         "good: σ ≥ 0.1 (Q-learning), σ ≥ 1 (SARSA)", measured, checks)
@@ -171,7 +178,8 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
         name = LEARNER_NAMES[learner]
         measured.append(f"{name} σ→final: {_finals(rows_vs)}")
         for r in rows_vs:
-            checks.append(Check(f"{name} σ={float(r['param']):g} ends within {NEAR} of {best_return:.2f}",
+            checks.append(Check(f"{name} σ={float(r['param']):g} ends within {NEAR}"
+                                f" of {best_return:.2f}",
                                 float(r["final_return"]) >= near))
     add(4, "VDBE-Softmax: good for every σ tried, with either learner.",
         "every σ ends near 0.86", measured, checks)
@@ -182,38 +190,39 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
     paper_episode = {"qlearning": 280, "sarsa": 300}
     for learner in learners:
         name = LEARNER_NAMES[learner]
-        best = {e: t.best(learner, e) for e in ("egreedy", "softmax", "vdbe", "vdbe_softmax")}
-        if best["vdbe_softmax"] is None:
+        bests = {e: t.best(learner, e) for e in ("egreedy", "softmax", "vdbe", "vdbe_softmax")}
+        if bests["vdbe_softmax"] is None:
             continue
-        conv = {e: int(r["convergence_episode"]) for e, r in best.items() if r is not None}
-        good = {e: float(r["final_return"]) >= near for e, r in best.items() if r is not None}
+        found = {e: r for e, r in bests.items() if r is not None}
+        conv = {e: int(r["convergence_episode"]) for e, r in found.items()}
+        good = {e: float(r["final_return"]) >= near for e, r in found.items()}
         measured.append(f"{name} convergence episode of each explorer's best setting: " + ", ".join(
             f"{e} {conv[e]}" + ("" if good[e] else " (not near best)") for e in conv)
             + f" (paper: VDBE-Softmax ≈{paper_episode[learner]}, others ≈350)")
-        others = [e for e in ("softmax", "vdbe") if e in conv]
+        rivals = [e for e in ("softmax", "vdbe") if e in conv]
         # "No later" up to noise: the lower end of VDBE-Softmax's bootstrap interval (when
         # the summary has one) must not exceed the other's convergence episode.
-        vs_row = best["vdbe_softmax"]
+        vs_row = found["vdbe_softmax"]
         vs_low = float(vs_row.get("convergence_ci_low", conv["vdbe_softmax"]))
         checks.append(Check(f"{name}: VDBE-Softmax ends near the best return and converges "
                             f"({conv['vdbe_softmax']}, CI from {vs_low:g}) no later than "
                             + ", ".join(f"{e} ({conv[e]}{'' if good[e] else ', never near best'})"
-                                        for e in others),
+                                        for e in rivals),
                             good["vdbe_softmax"] and all(
-                                not good[e] or vs_low <= conv[e] for e in others)))
+                                not good[e] or vs_low <= conv[e] for e in rivals)))
         # Every figure the paper states: VDBE-Softmax ≈ 280 / 300 episodes, the others ≈ 350.
         stated = {"vdbe_softmax": paper_episode[learner], "softmax": 350, "vdbe": 350}
         for explorer, episode in stated.items():
             if explorer in conv:
-                low, high = (1 - ABOUT) * episode, (1 + ABOUT) * episode
+                lo, hi = (1 - ABOUT) * episode, (1 + ABOUT) * episode
                 checks.append(Check(
                     f"{name}: best {explorer} converges after about {episode} episodes"
-                    f" ({conv[explorer]}; ±{ABOUT:.0%}: {low:g}–{high:g})",
-                    low <= conv[explorer] <= high))
+                    f" ({conv[explorer]}; ±{ABOUT:.0%}: {lo:g}–{hi:g})",
+                    lo <= conv[explorer] <= hi))
         if learner == "qlearning" and "egreedy" in conv:
             # "About as fast": within 25% of VDBE-Softmax (the paper's others are ~25% slower).
-            egreedy_final = float(best["egreedy"]["final_return"])
-            vs_final = float(best["vdbe_softmax"]["final_return"])
+            egreedy_final = float(found["egreedy"]["final_return"])
+            vs_final = float(found["vdbe_softmax"]["final_return"])
             checks.append(Check(
                 f"{name}: ε-greedy converges about as fast (episode {conv['egreedy']} ≤ 1.25 × "
                 f"{conv['vdbe_softmax']}) to a worse return ({egreedy_final:.2f} < {vs_final:.2f})",
@@ -235,9 +244,11 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
             value = float(best["final_return"])
             measured.append(f"{name} best {explorer} {value:.2f}")
             if explorer == "egreedy":
-                checks.append(Check(f"{name}: ε-greedy's best ({value:.2f}) stays below {near:.2f}", value < near))
+                checks.append(Check(f"{name}: ε-greedy's best ({value:.2f}) stays below {near:.2f}",
+                                    value < near))
             else:
-                checks.append(Check(f"{name}: best {explorer} ({value:.2f}) ends within {NEAR} of {best_return:.2f}",
+                checks.append(Check(f"{name}: best {explorer} ({value:.2f}) ends within {NEAR}"
+                                    f" of {best_return:.2f}",
                                     value >= near))
     add(6, "All methods but ε-greedy end at or near the best return, 0.86.",
         "softmax, VDBE, VDBE-Softmax ≈ 0.86; ε-greedy lower", measured, checks)
@@ -249,7 +260,8 @@ def cap_message(meta: dict[str, Any]) -> str:
     cut, agents = meta.get("truncated_episodes", 0), meta.get("agents_truncated", 0)
     return (f"{cut:,} episodes of {agents} agents ran into the safety cap of"
             f" {meta.get('max_steps', '?'):,} steps and were cut there (the published code would"
-            f" never have finished them); longest episode {meta.get('longest_episode', '?'):,} steps")
+            f" never have finished them); longest episode"
+            f" {meta.get('longest_episode', '?'):,} steps")
 
 
 def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_return: float) -> str:
@@ -289,7 +301,8 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
         "| --- | --- | --- |",
     ]
     for c in claims:
-        lines.append(f"| {c.number} | **{c.verdict}** | {sum(k.passed for k in c.checks)}/{len(c.checks)} |")
+        passed = sum(k.passed for k in c.checks)
+        lines.append(f"| {c.number} | **{c.verdict}** | {passed}/{len(c.checks)} |")
     for c in claims:
         lines += [
             "",

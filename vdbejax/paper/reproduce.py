@@ -11,22 +11,28 @@ import zipfile
 from pathlib import Path
 
 from vdbejax import io, sweeps
-from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
-from vdbejax.methods.agents import AgentOptions, Setting, make_agent, owners, paper_settings
-from vdbejax.paper.claims import ClaimResult, cap_message, evaluate_claims, render_report
-from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.batching import check_run_size
 from vdbejax.checkpoint import log_path, remove_checkpoint
 from vdbejax.distributed import process_checkpoint_path, select_devices
+from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
+from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import GridResult, check_run_options, run_grid
-from vdbejax.result_folder import (FolderLock, check_output_paths, describe_os_error, save_run,
-                                   unmark)
+from vdbejax.methods.agents import AgentOptions, Setting, make_agent, owners, paper_settings
+from vdbejax.methods.learners import PAPER_ALPHA
+from vdbejax.paper.claims import ClaimResult, cap_message, evaluate_claims, render_report
+from vdbejax.result_folder import (
+    FolderLock,
+    check_output_paths,
+    describe_os_error,
+    save_run,
+    unmark,
+)
 from vdbejax.solvers import best_return
 from vdbejax.stats import CurveStatistics
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, check_writable_dir
 
-SUMMARY_FILE, FIGURE_FILE, SENSITIVITY_FILE = sweeps.SUMMARY_FILE, sweeps.FIGURE_FILE, sweeps.SENSITIVITY_FILE
+SUMMARY_FILE, FIGURE_FILE, SENSITIVITY_FILE = (sweeps.SUMMARY_FILE, sweeps.FIGURE_FILE,
+                                               sweeps.SENSITIVITY_FILE)
 REPORT_FILE = "report.md"
 #: Figure 3 smoothed and cut as the authors plot it (the authors' reading only).
 AUTHORS_FIGURE_FILE = "fig3_authors.png"
@@ -234,7 +240,8 @@ def reproduce(
         # The authors' task has no step limit: its max_steps is a safety cap, and episodes cut
         # there are episodes the published code would never have finished (summary, report).
         result.meta["step_cap"] = capped
-        result.meta["config_labels"] = [f"{s.learner}/{s.explorer}/{s.param:g}" for s in result.settings]
+        result.meta["config_labels"] = [f"{s.learner}/{s.explorer}/{s.param:g}"
+                                        for s in result.settings]
         summary, claims = save_run(
             result, out, lambda stats: write_outputs(result, out, best, figures=figures,
                                                      statistics=stats),
@@ -306,7 +313,8 @@ def replot(
                 write_outputs(result, out, saved_best_return(result), bands=bands)
             else:
                 best = result.meta.get("best_return")
-                sweeps.write_outputs(result, out, None if best is None else float(best), bands=bands)
+                sweeps.write_outputs(result, out, None if best is None else float(best),
+                                     bands=bands)
         except OSError as error:
             raise ValueError(f"cannot write the outputs in {str(out)!r}:"
                              f" {describe_os_error(error)}") from None

@@ -49,7 +49,7 @@ class EnvParams:
         (they end the episode as a failure; moves to where the hand already is excepted).
     """
 
-    max_steps: Array = 100
+    max_steps: int | Array = 100
     invalid_action: str = static_field("noop")
 
 
@@ -147,6 +147,11 @@ class TimeLimitedStep:
     Adds the step count and the ``max_steps`` truncation to ``self.transition``; shared
     by the paper's task and its generated variants.
     """
+
+    if TYPE_CHECKING:  # what a subclass defines
+        def transition(
+            self, fields: Array, action: Array, params: EnvParams
+        ) -> tuple[Array, Array, Array]: ...
 
     def default_params(self) -> EnvParams:
         """The spec's default options."""

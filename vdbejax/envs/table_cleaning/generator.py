@@ -40,7 +40,7 @@ clean. Failure: -1, terminal. Otherwise -0.01. ``max_steps`` truncates (not term
 dirty, each goblet placed independently and uniformly at random on one of the ``n``
 sections (so a multiset of positions has multinomial probability; ``n = 2, k = 1``: left
 or right with probability 1/2, as in the paper).
-"""
+"""  # noqa: E501  (the action table's rows: Markdown table rows cannot be wrapped)
 from __future__ import annotations
 
 import dataclasses
@@ -136,8 +136,8 @@ class TableCleaningGenerator:
         xp = jnp if isinstance(goblet_positions, jax.Array) else np
         goblets = xp.sort(goblet_positions, axis=-1)
         batch = goblets.shape[:-1]
-        hand = xp.broadcast_to(xp.asarray([FREE, self.home]), batch + (2,))
-        dirty = xp.zeros(batch + (self.num_sections,), goblets.dtype)
+        hand = xp.broadcast_to(xp.asarray([FREE, self.home]), (*batch, 2))
+        dirty = xp.zeros((*batch, self.num_sections), goblets.dtype)
         return xp.concatenate([hand.astype(goblets.dtype), goblets, dirty], axis=-1)
 
     def __call__(self, key: Array) -> EnvState:
@@ -178,14 +178,12 @@ class TableCleaningVariant(TimeLimitedStep):
         self.clean_action = n + 3
         self.abort_action = n + 4
         self.action_names = (
-            ("get", "drop")
-            + tuple(f"go_{i}" for i in range(n))
-            + ("go_home", "clean", "abort")
+            "get", "drop", *(f"go_{i}" for i in range(n)), "go_home", "clean", "abort",
         )
         self.field_names = (
-            ("hand_obj", "hand_pos")
-            + tuple(f"goblet_{j}" for j in range(self.num_goblets))
-            + tuple(f"clean_{i}" for i in range(n))
+            "hand_obj", "hand_pos",
+            *(f"goblet_{j}" for j in range(self.num_goblets)),
+            *(f"clean_{i}" for i in range(n)),
         )
 
     # --- encoding (FunctionalEnv protocol) ---------------------------------------------
