@@ -2,8 +2,8 @@
 
     python examples/custom_explorer.py --seeds 20 --episodes 1000 [--out DIR]
 
-* ``count_bonus`` (explorer): greedy on ``Q(s,a) + β / sqrt(N(s,a) + 1)`` — an optimism
-  bonus that fades as the pair is tried; it keeps its own visit table N(s,a).
+* ``visit_epsilon`` (explorer): ε-greedy whose ε decays with the state's own visits,
+  ``ε(s) = ε₀ / sqrt(N(s) + 1)``; it keeps its own per-state visit table N(s).
 * ``mellow_q`` (learner): Q-learning whose target replaces the max by Asadi & Littman's
   mellowmax, ``mm_ω(Q(s',·)) = log(mean(exp(ω·Q(s',·)))) / ω`` (→ max as ω → ∞).
 
@@ -19,30 +19,27 @@ import argparse
 import jax
 import jax.numpy as jnp
 
-from vdbejax.methods import (Explorer, Learner, LearnerUpdate, Table, explorer, greedy, learner,
-                             rounded)
+from vdbejax.methods import (Explorer, Learner, LearnerUpdate, Table, explorer, learner,
+                             select_action)
 from vdbejax.methods.learners import td_update
 
 
-@explorer("count_bonus", parameter="beta")
-class CountBonus(Explorer):
-    """Greedy on Q plus a visit-count bonus β / sqrt(N(s,a) + 1)."""
+@explorer("visit_epsilon", parameter="epsilon0", title="visit-decayed ε-greedy")
+class VisitEpsilon(Explorer):
+    """ε-greedy with ε(s) = ε₀ / sqrt(N(s) + 1), N(s) the visits to the state."""
 
-    beta: float = 0.1
-    num_uniforms = 1  # one uniform: the greedy tie break
+    epsilon0: float = 0.5
+    num_uniforms = 3  # explore or not, the random action, the greedy tie break
 
     def tables(self) -> dict[str, Table]:
-        return {"visits": Table("pair", 0.0)}
+        return {"visits": Table("state", 0.0)}
 
     def select(self, q, tables, context, uniforms):
-        # `rounded` keeps the bonus out of an FMA with the addition, so every compiled
-        # program adds the same bits and greedy's max always matches an action.
-        bonus = rounded(self.beta / jnp.sqrt(tables["visits"] + 1.0), self.beta)
-        return greedy(q + bonus, uniforms[0])
+        epsilon = self.epsilon0 / jnp.sqrt(tables["visits"] + 1.0)
+        return select_action(q, epsilon, None, uniforms)
 
     def update(self, tables, action, delta_q, context):
-        visits = tables["visits"]
-        return {"visits": visits + (jnp.arange(visits.shape[0]) == action)}
+        return {"visits": tables["visits"] + 1.0}
 
 
 @learner("mellow_q")
@@ -73,10 +70,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=None, help="save the result folder here")
     args = parser.parse_args(argv)
     settings = [
-        Setting("qlearning", "count_bonus", 0.05),
-        Setting("qlearning", "count_bonus", 0.5),
+        Setting("qlearning", "visit_epsilon", 0.5),
+        Setting("qlearning", "visit_epsilon", 1.0),
         Setting("mellow_q", "egreedy", 0.1, {"omega": 20.0}),
-        Setting("mellow_q", "count_bonus", 0.05),
+        Setting("mellow_q", "visit_epsilon", 0.5),
         Setting("qlearning", "vdbe_softmax", 1.0),
     ]
     grid = vdbejax.run_grid(make_mdp(), settings, num_seeds=args.seeds,

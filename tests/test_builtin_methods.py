@@ -46,7 +46,7 @@ from vdbejax.methods.learners import (
 NUM_DRAWS = 20_000
 Q = jnp.array([0.1, 0.5, -0.2, 0.3, 0.0, -1.0, 0.45])  # unique maximum: action 1
 BUILTIN_EXPLORERS = ("egreedy", "softmax", "vdbe", "vdbe_softmax", "max_boltzmann",
-                     "egreedy_decay", "softmax_decay", "ucb1")
+                     "egreedy_decay", "softmax_decay", "ucb1", "count_bonus")
 BUILTIN_LEARNERS = ("qlearning", "sarsa", "expected_sarsa", "double_qlearning")
 
 
@@ -164,6 +164,32 @@ def test_ucb1_ties_are_uniform_or_first():
     freq = frequencies(lambda u: rand.select(jnp.asarray(q), tables, context(), u), 1, 3)
     assert_matches(freq, [0.5, 0, 0.5])
     assert {ucb_select(first, q, counts, u) for u in (0.0, 0.6, 0.999)} == {0}
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.05, 0.5])
+def test_count_bonus_is_greedy_on_q_plus_its_bonus(beta):
+    rng = np.random.default_rng(7)
+    bonus = make_explorer("count_bonus", beta, tie_break="first")
+    for _ in range(20):
+        q = rng.normal(size=5).astype(np.float32) * 0.1
+        visits = rng.integers(0, 6, 5).astype(np.float32)
+        scores = q + np.float32(beta) / np.sqrt(visits + np.float32(1.0))
+        context = Context(jnp.int32(0), jnp.int32(0), jnp.asarray(False))
+        action = bonus.select(jnp.asarray(q), {"visits": jnp.asarray(visits)}, context,
+                              (jnp.float32(0.5),))
+        assert int(action) == int(np.argmax(scores))
+        probs = bonus.probabilities(jnp.asarray(q), {"visits": jnp.asarray(visits)}, context)
+        np.testing.assert_array_equal(np.asarray(probs), np.eye(5)[np.argmax(scores)])
+
+
+def test_count_bonus_update_counts_the_chosen_action_only():
+    bonus = make_explorer("count_bonus", 0.1)
+    context = Context(jnp.int32(0), jnp.int32(0), jnp.asarray(False))
+    new = bonus.update({"visits": jnp.asarray([1.0, 0.0, 2.0])}, jnp.int32(2), jnp.float32(0.3),
+                       context)
+    np.testing.assert_array_equal(np.asarray(new["visits"]), [1.0, 0.0, 3.0])
+    with pytest.raises(ValueError, match="beta"):
+        make_explorer("count_bonus", -1.0)
 
 
 def test_ucb1_update_counts_the_chosen_action_only():
@@ -349,7 +375,8 @@ def explorer_batch(name):
     params = {"egreedy": rng.uniform(0, 1, BATCH), "softmax": rng.uniform(0.05, 2, BATCH),
               "vdbe": rng.uniform(0.05, 5, BATCH), "vdbe_softmax": rng.uniform(0.05, 5, BATCH),
               "max_boltzmann": rng.uniform(0, 1, BATCH), "egreedy_decay": rng.uniform(0.2, 1, BATCH),
-              "softmax_decay": rng.uniform(0.2, 3, BATCH), "ucb1": rng.uniform(0, 3, BATCH)}[name]
+              "softmax_decay": rng.uniform(0.2, 3, BATCH), "ucb1": rng.uniform(0, 3, BATCH),
+              "count_bonus": rng.uniform(0, 1, BATCH)}[name]
     extra = {"vdbe_softmax": lambda: {"tau": float(rng.uniform(0.05, 1))},
              "max_boltzmann": lambda: {"tau": float(rng.uniform(0.05, 1))},
              "egreedy_decay": lambda: {"decay": float(rng.uniform(0.8, 1))},
@@ -554,9 +581,9 @@ def test_double_q_learning_keeps_its_second_table():
 def test_all_builtin_kinds_in_one_grid_equal_each_alone():
     mdp = make_mdp(max_steps=30)
     settings = [Setting(l, e) for l in BUILTIN_LEARNERS for e in BUILTIN_EXPLORERS]
-    assert len(settings) == 32
+    assert len(settings) == 36
     grid = run_grid(mdp, settings, num_seeds=2, num_episodes=5, seed=1)
-    assert grid.returns.shape == (32, 2, 5)
+    assert grid.returns.shape == (36, 2, 5)
     assert np.isfinite(grid.returns).all() and not grid.nonfinite.any()
     for c, setting in enumerate(settings):
         alone = run_grid(mdp, [setting], num_seeds=2, num_episodes=5, seed=1)

@@ -117,24 +117,24 @@ def test_the_custom_explorer_example_runs_and_its_results_plot(tmp_path):
                           cwd=ROOT)
     assert done.returncode == 0, done.stderr
     lines = [line for line in done.stdout.splitlines() if "final return" in line]
-    assert len(lines) == 5 and lines[0].startswith("qlearning/count_bonus/beta=0.05")
+    assert len(lines) == 5 and lines[0].startswith("qlearning/visit_epsilon/epsilon0=0.5")
     # `vdbejax plot` redraws a grid of plug-ins it has never imported, without a claims report.
     plotted = run_cli("plot", "--results", str(tmp_path))
     assert plotted.returncode == 0, plotted.stderr
     assert (tmp_path / "fig3.png").exists() and (tmp_path / "sensitivity.png").exists()
     assert not (tmp_path / "report.md").exists()
     meta = json.loads((tmp_path / "meta.json").read_text())
-    assert meta["parameter_names"]["count_bonus"] == "beta"
-    assert any("explorer.beta" in values for values in meta["hyperparameters"])
+    assert meta["parameter_names"]["visit_epsilon"] == "epsilon0"
+    assert any("explorer.epsilon0" in values for values in meta["hyperparameters"])
 
 
 def test_vdbejax_run_takes_user_plugins(tmp_path):
     done = run_cli("run", "--out", str(tmp_path), "--plugin", str(EXAMPLE), "--learners",
-                   "mellow_q", "--explorers", "count_bonus,vdbe_softmax", "--axis",
+                   "mellow_q", "--explorers", "visit_epsilon,vdbe_softmax", "--axis",
                    "omega=5,50", "--seeds", "2", "--episodes", "15", "--quiet", "--no-figures")
     assert done.returncode == 0, done.stderr
     grid = GridResult.load(tmp_path)
     assert [s.label for s in grid.settings] == [
-        "mellow_q/count_bonus/omega=5", "mellow_q/count_bonus/omega=50",
+        "mellow_q/visit_epsilon/omega=5", "mellow_q/visit_epsilon/omega=50",
         "mellow_q/vdbe_softmax/omega=5", "mellow_q/vdbe_softmax/omega=50"]
     assert np.all(np.isfinite(grid.returns))

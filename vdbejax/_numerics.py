@@ -1,4 +1,5 @@
-"""Float arithmetic that gives the same bits in every compiled program.
+"""Float arithmetic that gives the same bits in every compiled program, and the one
+categorical draw that tasks, the engine and explorers share.
 
 XLA's CPU compiler always lets LLVM fuse a multiply and a following add into one FMA
 (one rounding instead of two), and whether LLVM does depends on the code around them:
@@ -11,6 +12,7 @@ in every program, so each agent's results depend only on its key and hyperparame
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 
 Array = jax.Array
 
@@ -31,3 +33,43 @@ def rounded(product: Array, factor: float | Array) -> Array:
       ``product`` (bit for bit, up to the sign of a zero).
     """
     return product + factor * 0.0
+
+
+#: sample_categorical unrolls its prefix sums up to this many categories.
+_UNROLLED_CDF_MAX = 32
+
+
+def sample_categorical(weights: Array, u: Array) -> Array:
+    """Inverse-CDF sample from unnormalised non-negative ``weights`` with one uniform.
+
+    Args:
+      weights: ``[n, batch...]`` non-negative weights, positive sum along axis 0.
+      u: uniforms in [0, 1), shape ``[batch...]``.
+
+    Returns:
+      int32 ``[batch...]`` index ``i`` with probability ``weights[i] / sum(weights)``; an
+      index of zero weight is never returned. Weights that are no distribution (a NaN,
+      all zero, one infinite) give ``n``, an invalid index, which the engine flags as
+      non-finite (``nonfinite_agents``) instead of silently taking some action.
+    """
+    n = weights.shape[0]
+    # u has a 23-bit mantissa, so u * total < total and the count stays < n.
+    if n > _UNROLLED_CDF_MAX:
+        cdf = jnp.cumsum(weights, axis=0)
+        threshold = u * cdf[-1]
+        # Weights shared by a batch of uniforms ([n] against [batch]): compare per column.
+        batch_dims = threshold.ndim - (cdf.ndim - 1)
+        cdf = cdf.reshape(cdf.shape[:1] + (1,) * batch_dims + cdf.shape[1:])
+        return n - jnp.sum(cdf > threshold, axis=0, dtype=jnp.int32)
+    # Left-to-right prefix sums, unrolled: for the few actions of a tabular task this is
+    # much cheaper on CPU than XLA's reduce-window cumsum.
+    partial = [weights[0]]
+    for i in range(1, n):
+        partial.append(partial[-1] + weights[i])
+    threshold = u * partial[-1]
+    # n minus the prefix sums above the threshold: the same index for real weights, and n
+    # (invalid, flagged by the engine) when a NaN makes every comparison false.
+    above = (partial[0] > threshold).astype(jnp.int32)
+    for value in partial[1:]:
+        above = above + (value > threshold).astype(jnp.int32)
+    return n - above

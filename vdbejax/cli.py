@@ -216,8 +216,8 @@ def _add_ablate(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated variant names"
                         " (default: all; see vdbejax.paper.ablation.VARIANTS)")
     p.add_argument("--notes", default=None,
-                   help="hand-written discussion appended to the document"
-                        " (default: docs/reproduction_notes.md if it exists)")
+                   help="a file of hand-written discussion appended to the document (this"
+                        " repository's: docs/reproduction_notes.md)")
     p.add_argument("--rerun", action="store_true",
                    help="ignore saved results of the same variant and size")
     p.add_argument("--mode", default="options",
@@ -233,15 +233,12 @@ def _add_ablate(sub: argparse._SubParsersAction) -> None:
 
 
 def _ablate(args: argparse.Namespace) -> None:
-    from vdbejax.paper.ablation import DEFAULT_NOTES, ablate, select_variants
+    from vdbejax.paper.ablation import ablate, select_variants
 
-    default_notes = (DEFAULT_NOTES if args.mode == "options" and Path(DEFAULT_NOTES).is_file()
-                     else None)
-    notes = args.notes if args.notes is not None else default_notes
     results = ablate(args.out, results_dir=args.results,
                      variants=select_variants(args.variants, args.mode), mode=args.mode,
                      sections=args.sections,
-                     seeds=args.seeds, episodes=args.episodes, seed=args.seed, notes=notes,
+                     seeds=args.seeds, episodes=args.episodes, seed=args.seed, notes=args.notes,
                      reuse=not args.rerun, progress=not args.quiet)
     for result in results:
         print(f"{result.variant.name}: "

@@ -19,24 +19,12 @@ import numpy as np
 
 from vdbejax.experiment import GridResult
 from vdbejax.methods.agents import parameter_name
-from vdbejax.paper.claims import LEARNER_NAMES
+from vdbejax.methods.api import EXPLORERS, explorer_title, learner_title
 from vdbejax.stats import WINDOW, CurveStatistics, convolve_full, curve_statistics
 from vdbejax.validation import check_choice
 
-EXPLORER_TITLES = {
-    "egreedy": "ε-greedy",
-    "softmax": "softmax",
-    "vdbe": "VDBE",
-    "vdbe_softmax": "VDBE-Softmax",
-    "max_boltzmann": "Max-Boltzmann",
-    "egreedy_decay": "decaying ε-greedy",
-    "softmax_decay": "decaying softmax",
-    "ucb1": "UCB-1",
-}
 #: Figure 3's smoothing conventions (:func:`figure3`).
 SMOOTHINGS = ("trailing", "authors")
-#: Display names of the learners (the claims report's).
-LEARNER_TITLES = LEARNER_NAMES
 PARAMETER_SYMBOLS = {"epsilon": "ε", "tau": "τ", "sigma": "σ", "alpha": "α", "gamma": "γ",
                      "delta": "δ"}
 
@@ -123,8 +111,8 @@ def figure3(
             if best_return is not None:
                 ax.axhline(best_return, color="crimson", ls="--", lw=1,
                            label=f"best {best_return:.2f}")
-            ax.set_title(f"{LEARNER_TITLES.get(learner, learner)}"
-                         f" — {EXPLORER_TITLES.get(explorer, explorer)}")
+            ax.set_title(f"{learner_title(learner)}"
+                         f" — {explorer_title(explorer)}")
             ax.grid(alpha=0.3)
             if not indices:
                 ax.text(0.5, 0.5, "not in this grid", ha="center", va="center",
@@ -192,7 +180,7 @@ def sensitivity(
       the matplotlib figure.
     """
     rows = [r for r in rows if str(r.get("param", "")) not in ("", "None")]
-    known = [e for e in EXPLORER_TITLES if any(r["explorer"] == e for r in rows)]
+    known = [e for e in EXPLORERS if any(r["explorer"] == e for r in rows)]  # built-ins first
     explorers = known + list(dict.fromkeys(r["explorer"] for r in rows
                                            if r["explorer"] not in known))
     # One line per learner and per combination of the other hyperparameters.
@@ -222,7 +210,7 @@ def sensitivity(
                 # The values beside the parameter show only where they tell lines apart.
                 several = len({(r.get("hyperparameters") or "") for r in rows
                                if r["learner"] == learner and r["explorer"] == explorer}) > 1
-                name = LEARNER_TITLES.get(learner, learner) + (f" {extra}" if several else "")
+                name = learner_title(learner) + (f" {extra}" if several else "")
                 ax.errorbar(x, y, yerr=yerr, color=None if several else color,
                             marker=marker, ms=4, capsize=3, lw=1.2, label=name)
             ax.set_xscale("log")
@@ -230,7 +218,7 @@ def sensitivity(
                 ax.axhline(best_return, color="crimson", ls="--", lw=1,
                            label=f"best {best_return:.2f}")
             if row == 0:
-                ax.set_title(EXPLORER_TITLES.get(explorer, explorer))
+                ax.set_title(explorer_title(explorer))
             if row == len(SENSITIVITY_METRICS) - 1:
                 ax.set_xlabel(_symbol(parameter_name(explorer)) + " (log scale)")
             if col == 0:

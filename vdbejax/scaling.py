@@ -91,7 +91,7 @@ METHODS: tuple[Method, ...] = (
            why="paper grid: best σ of {0.001, …, 100} (τ = 0.001, the spec's)"),
     Method("ucb1", 0.001, why="paper task: best c of {0.001, 0.01, 0.1}"),
     Method("count_bonus", 0.005,
-           why="paper task: best β of {0.005, 0.05, 0.5} (plug-in examples/custom_explorer.py)"),
+           why="paper task: best β of {0.005, 0.05, 0.5}"),
     Method("max_boltzmann", 0.01, why="paper task: best ε of {0.01, 0.1, 0.3} (τ = 0.1)"),
     Method("egreedy_decay", 1.0, (("decay", 0.99),),
            why="paper task, 5-agent pilot: best decay of {0.99, 0.995, 0.999} (ε from 1 to"
@@ -108,8 +108,6 @@ QUICK: dict[str, Any] = {"sizes": ("2x1", "3x1"), "seeds": 3, "episodes": 1000,
 #: Default budget: ``max(EPISODES, EPISODES_PER_STATE × reachable states)`` per variant.
 EPISODES = 2000
 EPISODES_PER_STATE = 3.0
-#: Where the count-bonus plug-in lives (a source checkout's examples folder).
-COUNT_BONUS_PLUGIN = Path(__file__).resolve().parents[1] / "examples" / "custom_explorer.py"
 
 CSV_FILE = "scaling.csv"
 MARKDOWN_FILE = "scaling.md"
@@ -179,22 +177,6 @@ def select_methods(names: Sequence[str] | None) -> list[Method]:
     if len(set(names)) != len(names):
         raise ValueError(f"methods={list(names)!r} is invalid: a method is named twice")
     return [known[n] for n in names]
-
-
-def ensure_plugins(methods: Sequence[Method]) -> None:
-    """Register the count-bonus plug-in (``examples/custom_explorer.py``) when needed.
-
-    Raises:
-      ValueError: it is needed, not registered and its file is not there.
-    """
-    from vdbejax.methods.api import EXPLORERS
-    from vdbejax.sweeps import load_plugins
-
-    if any(m.explorer == "count_bonus" for m in methods) and "count_bonus" not in EXPLORERS:
-        if not COUNT_BONUS_PLUGIN.is_file():
-            raise ValueError(f"methods has 'count_bonus': its plug-in {str(COUNT_BONUS_PLUGIN)!r}"
-                             " is missing (run from a source checkout, or leave the method out)")
-        load_plugins([str(COUNT_BONUS_PLUGIN)])
 
 
 def study_settings(methods: Sequence[Method] = METHODS,
@@ -467,15 +449,11 @@ VARIANT_COLUMNS = [
 
 
 def method_label(setting: Setting) -> str:
-    """``Q-learning VDBE-Softmax`` style names (figure legends, tables)."""
-    from vdbejax.paper.claims import LEARNER_NAMES
+    """``Q-learning VDBE-Softmax`` style names (figure legends, tables): the plug-ins'
+    titles."""
+    from vdbejax.methods.api import explorer_title, learner_title
 
-    titles = {"egreedy": "ε-greedy", "softmax": "softmax", "vdbe": "VDBE",
-              "vdbe_softmax": "VDBE-Softmax", "max_boltzmann": "Max-Boltzmann",
-              "egreedy_decay": "decaying ε-greedy", "softmax_decay": "decaying softmax",
-              "ucb1": "UCB-1", "count_bonus": "count bonus"}
-    learner = LEARNER_NAMES.get(setting.learner, setting.learner)
-    return f"{learner} {titles.get(setting.explorer, setting.explorer)}"
+    return f"{learner_title(setting.learner)} {explorer_title(setting.explorer)}"
 
 
 def run_scaling(
@@ -565,7 +543,6 @@ def run_scaling(
     if isinstance(learners, str) or not learners:
         raise ValueError(f"learners={learners!r} is invalid: must be a non-empty list of names")
     chosen = select_methods(methods)
-    ensure_plugins(chosen)
     settings = study_settings(chosen, learners)
     for setting in settings:  # unknown learners: one line before anything runs
         make_agent(setting)
@@ -847,7 +824,7 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
         matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from vdbejax.paper.claims import LEARNER_NAMES
+    from vdbejax.methods.api import learner_title
 
     learners = list(dict.fromkeys(r["learner"] for r in rows))
     explorers = list(dict.fromkeys(r["explorer"] for r in rows))
@@ -901,7 +878,7 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
             bx, by = zip(*budgets, strict=True)
             (budget_line,) = ax_median.plot(bx, by, color="0.6", linestyle=":")
             handles.setdefault("budget (open ▲: median > budget)", budget_line)
-        title = LEARNER_NAMES.get(learner, learner)
+        title = learner_title(learner)
         ax_median.set(xscale="log", yscale="log", xlabel="reachable states",
                       ylabel="median episodes to solve", title=f"{title}: episodes to solve")
         ax_relative.set(xscale="log", xlabel="reachable states",

@@ -115,7 +115,7 @@ def uniforms(key: Array, counter: Array, count: int) -> tuple[Array, ...]:
     resume, and asking for more draws (a plug-in that needs more) leaves the first ones
     unchanged. Much cheaper than threefry ``fold_in`` + ``bits``. Returns a tuple of
     arrays shaped like ``counter``; values in [0, 1 − 2⁻²³] (23-bit mantissa), which
-    :func:`~vdbejax.methods.explorers.sample_categorical` relies on.
+    :func:`~vdbejax._numerics.sample_categorical` relies on.
     """
     key = key.astype(jnp.uint32)
     counter = counter.astype(jnp.uint32)

@@ -27,11 +27,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vdbejax._numerics import sample_categorical
 from vdbejax.engine.state import AgentState, uniforms
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Agent
 from vdbejax.methods.api import Context, Transition
-from vdbejax.methods.explorers import sample_categorical
 
 Array = jax.Array
 

@@ -18,8 +18,8 @@ from typing import Any, Protocol
 import jax
 import numpy as np
 
+from vdbejax._numerics import sample_categorical
 from vdbejax._pytree import pytree_dataclass, static_field
-from vdbejax.methods.explorers import sample_categorical
 
 Array = jax.Array
 

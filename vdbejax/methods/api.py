@@ -130,6 +130,8 @@ class Explorer:
     """Base class of action-selection methods (see the module docstring)."""
 
     name: ClassVar[str] = ""
+    #: The name figures and tables show (``"VDBE-Softmax"``; default: :attr:`name`).
+    title: ClassVar[str] = ""
     #: The hyperparameter a :class:`~vdbejax.methods.agents.Setting`'s ``param`` sets.
     parameter: ClassVar[str | None] = None
     #: Uniforms ``select`` receives.
@@ -163,6 +165,8 @@ class Learner:
     """Base class of learning rules (see the module docstring)."""
 
     name: ClassVar[str] = ""
+    #: The name figures and tables show (``"Q-learning"``; default: :attr:`name`).
+    title: ClassVar[str] = ""
     num_uniforms: ClassVar[int] = 0
     uses_next_action: ClassVar[bool] = False
     uses_next_probabilities: ClassVar[bool] = False
@@ -202,13 +206,14 @@ LEARNERS: dict[str, type[Learner]] = {}
 
 
 @dataclass_transform(frozen_default=True, field_specifiers=(dataclasses.field,))
-def explorer(name: str,
-             parameter: str | None = None) -> Callable[[type[ExplorerT]], type[ExplorerT]]:
+def explorer(name: str, parameter: str | None = None,
+             title: str | None = None) -> Callable[[type[ExplorerT]], type[ExplorerT]]:
     """Class decorator: make ``cls`` a pytree dataclass and register it as explorer ``name``.
 
     Args:
       name: the name settings use (``Setting(learner, name, param)``).
       parameter: the field a setting's ``param`` sets (its swept parameter).
+      title: the name figures and tables show (default: ``name``).
 
     Raises:
       ValueError: ``cls`` is not an :class:`Explorer` or lacks ``select``.
@@ -216,7 +221,7 @@ def explorer(name: str,
     def register(cls: type[ExplorerT]) -> type[ExplorerT]:
         _check_class(cls, Explorer, "explorer", name, ("select",))
         cls = pytree_dataclass(cls)
-        cls.name, cls.parameter = name, parameter
+        cls.name, cls.parameter, cls.title = name, parameter, title or name
         if parameter is not None and parameter not in field_names(cls):
             raise ValueError(f"explorer {name!r}: parameter={parameter!r} is not one of its fields"
                              f" {field_names(cls)}")
@@ -227,8 +232,10 @@ def explorer(name: str,
 
 
 @dataclass_transform(frozen_default=True, field_specifiers=(dataclasses.field,))
-def learner(name: str) -> Callable[[type[LearnerT]], type[LearnerT]]:
-    """Class decorator: make ``cls`` a pytree dataclass and register it as learner ``name``.
+def learner(name: str,
+            title: str | None = None) -> Callable[[type[LearnerT]], type[LearnerT]]:
+    """Class decorator: make ``cls`` a pytree dataclass and register it as learner ``name``
+    (``title``: the name figures and tables show; default ``name``).
 
     Raises:
       ValueError: ``cls`` is not a :class:`Learner`, lacks ``update`` or a ``gamma`` field.
@@ -236,13 +243,25 @@ def learner(name: str) -> Callable[[type[LearnerT]], type[LearnerT]]:
     def register(cls: type[LearnerT]) -> type[LearnerT]:
         _check_class(cls, Learner, "learner", name, ("update",))
         cls = pytree_dataclass(cls)
-        cls.name = name
+        cls.name, cls.title = name, title or name
         if "gamma" not in field_names(cls):
             raise ValueError(f"learner {name!r} has no gamma field: the engine needs the discount")
         LEARNERS[name] = cls
         return cls
 
     return register
+
+
+def explorer_title(name: str) -> str:
+    """The display name of registered explorer ``name`` (``name`` itself if unknown)."""
+    cls = EXPLORERS.get(name)
+    return cls.title if cls is not None and cls.title else name
+
+
+def learner_title(name: str) -> str:
+    """The display name of registered learner ``name`` (``name`` itself if unknown)."""
+    cls = LEARNERS.get(name)
+    return cls.title if cls is not None and cls.title else name
 
 
 def _check_class(cls: Any, base: type, role: str, name: str, required: tuple[str, ...]) -> None:

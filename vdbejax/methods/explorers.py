@@ -32,7 +32,7 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
-from vdbejax._numerics import rounded
+from vdbejax._numerics import rounded, sample_categorical
 from vdbejax._pytree import static_field
 from vdbejax.methods.api import EXPLORERS, Context, Explorer, Table, build, explorer
 from vdbejax.validation import check_bool, check_choice, check_in_range, check_positive
@@ -48,46 +48,6 @@ VDBE_SOFTMAX_TAU = 0.001
 VDBE_DELTA = 0.1
 #: Number of uniforms :func:`select_action` consumes.
 NUM_ACTION_UNIFORMS = 3
-#: sample_categorical unrolls its prefix sums up to this many categories.
-_UNROLLED_CDF_MAX = 32
-
-
-def sample_categorical(weights: Array, u: Array) -> Array:
-    """Inverse-CDF sample from unnormalised non-negative ``weights`` with one uniform.
-
-    Args:
-      weights: ``[n, batch...]`` non-negative weights, positive sum along axis 0.
-      u: uniforms in [0, 1), shape ``[batch...]``.
-
-    Returns:
-      int32 ``[batch...]`` index ``i`` with probability ``weights[i] / sum(weights)``; an
-      index of zero weight is never returned. Weights that are no distribution (a NaN,
-      all zero, one infinite) give ``n``, an invalid index, which the engine flags as
-      non-finite (``nonfinite_agents``) instead of silently taking some action.
-    """
-    n = weights.shape[0]
-    # u has a 23-bit mantissa, so u * total < total and the count stays < n.
-    if n > _UNROLLED_CDF_MAX:
-        cdf = jnp.cumsum(weights, axis=0)
-        threshold = u * cdf[-1]
-        # Weights shared by a batch of uniforms ([n] against [batch]): compare per column.
-        batch_dims = threshold.ndim - (cdf.ndim - 1)
-        cdf = cdf.reshape(cdf.shape[:1] + (1,) * batch_dims + cdf.shape[1:])
-        return n - jnp.sum(cdf > threshold, axis=0, dtype=jnp.int32)
-    # Left-to-right prefix sums, unrolled: for the few actions of a tabular task this is
-    # much cheaper on CPU than XLA's reduce-window cumsum.
-    partial = [weights[0]]
-    for i in range(1, n):
-        partial.append(partial[-1] + weights[i])
-    threshold = u * partial[-1]
-    # n minus the prefix sums above the threshold: the same index for real weights, and n
-    # (invalid, flagged by the engine) when a NaN makes every comparison false.
-    above = (partial[0] > threshold).astype(jnp.int32)
-    for value in partial[1:]:
-        above = above + (value > threshold).astype(jnp.int32)
-    return n - above
-
-
 def greedy(q: Array, u: Array, tie_break: str = "random") -> Array:
     """Greedy action of Q rows.
 
@@ -318,7 +278,7 @@ def _check_tie_break(tie_break: str) -> None:
     check_choice("tie_break", tie_break, TIE_BREAKS)
 
 
-@explorer("egreedy", parameter="epsilon")
+@explorer("egreedy", parameter="epsilon", title="ε-greedy")
 class EpsilonGreedy(Explorer):
     """ε-greedy: a uniformly random action with probability ε, else greedy."""
 
@@ -337,7 +297,7 @@ class EpsilonGreedy(Explorer):
         _check_tie_break(self.tie_break)
 
 
-@explorer("softmax", parameter="tau")
+@explorer("softmax", parameter="tau", title="softmax")
 class Softmax(Explorer):
     """Softmax (Boltzmann): sample ``P(a) ∝ exp(Q(s,a)/τ)``."""
 
@@ -359,7 +319,7 @@ class Softmax(Explorer):
         check_choice("softmax_numerics", self.softmax_numerics, SOFTMAX_NUMERICS)
 
 
-@explorer("vdbe", parameter="sigma")
+@explorer("vdbe", parameter="sigma", title="VDBE")
 class VDBE(Explorer):
     """VDBE (Tokic 2010): uniform exploration with the per-state probability ε(s), which
     follows the value changes (:func:`vdbe_epsilon_update`)."""
@@ -403,7 +363,7 @@ class VDBE(Explorer):
         check_bool("update_on_terminal", self.update_on_terminal)
 
 
-@explorer("vdbe_softmax", parameter="sigma")
+@explorer("vdbe_softmax", parameter="sigma", title="VDBE-Softmax")
 class VDBESoftmax(VDBE):
     """VDBE-Softmax (Tokic & Palm 2011): with probability ε(s) a softmax(τ) draw, else greedy."""
 
@@ -424,7 +384,7 @@ class VDBESoftmax(VDBE):
         check_choice("softmax_numerics", self.softmax_numerics, SOFTMAX_NUMERICS)
 
 
-@explorer("max_boltzmann", parameter="epsilon")
+@explorer("max_boltzmann", parameter="epsilon", title="Max-Boltzmann")
 class MaxBoltzmann(Explorer):
     """Max-Boltzmann (ε-softmax, Wiering 1999): with probability ε a softmax(τ) draw,
     else greedy."""
@@ -452,7 +412,7 @@ def decayed(initial: float | Array, decay: float | Array, minimum: float | Array
     return jnp.maximum(minimum, initial * jnp.power(decay, episode.astype(jnp.float32)))
 
 
-@explorer("egreedy_decay", parameter="epsilon")
+@explorer("egreedy_decay", parameter="epsilon", title="decaying ε-greedy")
 class DecayingEpsilonGreedy(Explorer):
     """ε-greedy with ε decaying over episodes: ε_k = max(ε_min, ε·decay^k) in episode k."""
 
@@ -478,7 +438,7 @@ class DecayingEpsilonGreedy(Explorer):
         _check_tie_break(self.tie_break)
 
 
-@explorer("softmax_decay", parameter="tau")
+@explorer("softmax_decay", parameter="tau", title="decaying softmax")
 class DecayingSoftmax(Explorer):
     """Softmax with τ decaying over episodes: τ_k = max(τ_min, τ·decay^k) in episode k."""
 
@@ -502,7 +462,7 @@ class DecayingSoftmax(Explorer):
         check_positive("tau_min", self.tau_min)
 
 
-@explorer("ucb1", parameter="c")
+@explorer("ucb1", parameter="c", title="UCB-1")
 class UCB1(Explorer):
     """UCB-1 (Auer et al. 2002) per state: untried actions first, then
     ``argmax Q(s,a) + c·sqrt(ln N(s) / N(s,a))`` with N the visit counts."""
@@ -540,6 +500,41 @@ class UCB1(Explorer):
 
     def validate(self) -> None:
         check_in_range("c", self.c, 0.0, math.inf, high_open=True)
+        _check_tie_break(self.tie_break)
+
+
+@explorer("count_bonus", parameter="beta", title="count bonus")
+class CountBonus(Explorer):
+    """Greedy on ``Q(s,a) + β / sqrt(N(s,a) + 1)``, N the visit counts: a count-based
+    optimism bonus that fades as a pair is tried (the bonus shape of MBIE-EB, Strehl &
+    Littman 2008, added to Q itself rather than to a model's values)."""
+
+    beta: float | Array = 0.1
+    tie_break: str = static_field("random")
+    num_uniforms = 1  # the greedy tie break
+
+    def tables(self) -> dict[str, Table]:
+        return {"visits": Table("pair", 0.0)}
+
+    def scores(self, q: Array, visits: Array) -> Array:
+        """Q plus the bonus (rounded on its own: every program adds the same bits, so
+        greedy's max always matches an action; vdbejax._numerics)."""
+        return q + rounded(self.beta / jnp.sqrt(visits + 1.0), self.beta)
+
+    def select(self, q: Array, tables: Mapping[str, Array], context: Context,
+               uniforms: tuple[Array, ...]) -> Array:
+        return greedy(self.scores(q, tables["visits"]), uniforms[0], self.tie_break)
+
+    def probabilities(self, q: Array, tables: Mapping[str, Array], context: Context) -> Array:
+        return greedy_probabilities(self.scores(q, tables["visits"]), self.tie_break)
+
+    def update(self, tables: Mapping[str, Array], action: Array, delta_q: Array,
+               context: Context) -> dict[str, Array]:
+        visits = tables["visits"]
+        return {"visits": visits + (jnp.arange(visits.shape[0]) == action).astype(visits.dtype)}
+
+    def validate(self) -> None:
+        check_in_range("beta", self.beta, 0.0, math.inf, high_open=True)
         _check_tie_break(self.tie_break)
 
 

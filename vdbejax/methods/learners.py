@@ -165,7 +165,7 @@ class TDLearner(Learner):
         check_choice("q_init_distribution", self.q_init_distribution, Q_INIT_DISTRIBUTIONS)
 
 
-@learner("qlearning")
+@learner("qlearning", title="Q-learning")
 class QLearning(TDLearner):
     """Q-learning (Watkins 1989): ``Q(s,a) += α(r + γ max_b Q(s',b) − Q(s,a))``; a′ is
     chosen after the update."""
@@ -174,7 +174,7 @@ class QLearning(TDLearner):
         return q_learning_target(t.reward, t.discount, t.q_next)
 
 
-@learner("sarsa")
+@learner("sarsa", title="SARSA")
 class SARSA(TDLearner):
     """SARSA (Rummery & Niranjan 1994): target ``r + γ Q(s',a')`` with the a′ the agent
     takes next, chosen before the update."""
@@ -196,7 +196,7 @@ class SARSA(TDLearner):
         check_choice("next_action", self.next_action, ("executed", "redrawn"))
 
 
-@learner("expected_sarsa")
+@learner("expected_sarsa", title="Expected SARSA")
 class ExpectedSARSA(TDLearner):
     """Expected SARSA (van Seijen et al. 2009): target ``r + γ Σ_b π(b|s') Q(s',b)`` with
     the explorer's own probabilities (before the update); a′ is chosen after it."""
@@ -207,7 +207,7 @@ class ExpectedSARSA(TDLearner):
         return expected_sarsa_target(t.reward, t.discount, t.q_next, t.next_probabilities)
 
 
-@learner("double_qlearning")
+@learner("double_qlearning", title="Double Q-learning")
 class DoubleQLearning(TDLearner):
     """Double Q-learning (van Hasselt 2010): two tables; each step one of them, chosen
     with probability ½, moves toward the other's value of its own greedy action. The

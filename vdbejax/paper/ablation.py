@@ -43,8 +43,6 @@ from vdbejax.validation import check_writable_dir
 DOCUMENT_FILE = "REPRODUCTION.md"
 FIGURES_DIR = "ablation"
 VERDICT_MARKS = {"reproduced": "✅ reproduced", "partly": "◐ partly", "not reproduced": "❌ not"}
-#: The hand-written discussion the CLI appends by default (relative to the working folder).
-DEFAULT_NOTES = "docs/reproduction_notes.md"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -437,7 +435,8 @@ def ablate(
                 _run_reporting(v, section_raw, out / section_dir, REPORT_ASSETS, seeds, episodes,
                                seed, reuse, progress) for v in _mode_variants(section_mode)]))
     text = Path(notes).read_text() if notes is not None else None
-    command = _command(out, raw, figures, variants, seeds, episodes, seed, mode, sections)
+    command = _command(out, raw, figures, variants, seeds, episodes, seed, mode, sections,
+                       notes)
     io.atomic_write_text(out / document, render_document(results, figures_dir, command, text,
                                                          figures=mode == "options",
                                                          sections=extra))
@@ -476,7 +475,8 @@ def _run_reporting(variant: Variant, raw: Path, reports: Path, assets: Sequence[
 
 
 def _command(out: Path, raw: Path, figures: Path, variants: Sequence[Variant], seeds: int,
-             episodes: int, seed: int, mode: str = "options", sections: bool = False) -> str:
+             episodes: int, seed: int, mode: str = "options", sections: bool = False,
+             notes: str | os.PathLike[str] | None = None) -> str:
     """The ``vdbejax ablate`` command line that reproduces this call."""
     parts = ["vdbejax ablate", f"--out {out}"]
     if mode != "options":
@@ -491,6 +491,8 @@ def _command(out: Path, raw: Path, figures: Path, variants: Sequence[Variant], s
                                  ("--seed", seed, 0)):
         if value != default:
             parts.append(f"{flag} {value}")
+    if notes is not None:
+        parts.append(f"--notes {notes}")
     return " ".join(parts)
 
 

@@ -13,10 +13,13 @@ import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
+from vdbejax.methods import learner_title
+
 NEAR = 0.05
 #: Relative tolerance of a figure the paper gives as "about" a value.
 ABOUT = 0.25
-LEARNER_NAMES = {"qlearning": "Q-learning", "sarsa": "SARSA"}
+#: The paper's learners, with their display names (the plug-ins' titles).
+LEARNER_NAMES = {name: learner_title(name) for name in ("qlearning", "sarsa")}
 
 
 @dataclasses.dataclass

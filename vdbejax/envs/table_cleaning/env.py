@@ -15,8 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vdbejax._numerics import sample_categorical
 from vdbejax._pytree import pytree_dataclass, static_field
-from vdbejax.methods.explorers import sample_categorical
 
 if TYPE_CHECKING:
     from vdbejax.envs.tabular import TabularMDP
