@@ -24,7 +24,7 @@ from vdbejax.engine.programs import compile_seconds as _compile_seconds
 from vdbejax.engine.sequential import _SequentialRun, created_in_items
 from vdbejax.engine.state import AgentState, init_agents
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.methods.agents import AgentParams, kind_key
+from vdbejax.methods.agents import AgentParams
 from vdbejax.methods.api import check_plugin
 from vdbejax.progress import ProgressCallback, text_progress  # noqa: F401  (re-exported: engine API)
 from vdbejax.validation import check_choice, check_int
@@ -258,15 +258,11 @@ def check_params(params: Any, num_actions: int) -> None:
         raise ValueError(f"params={type(params).__name__} is invalid: must be an AgentParams"
                          " (see vdbejax.methods.stack_agents)")
     for agent in params.kinds:
-        key = (kind_key(agent), num_actions)
         builtin = all(type(p).__module__.startswith("vdbejax.")
                       for p in (agent.learner, agent.explorer))
-        if builtin or key in _CHECKED:
+        if builtin:
             continue
+        # Checked at every call, not remembered: a plug-in edited or patched since its
+        # last check is checked as it is now (a trace on one agent: milliseconds).
         one = jax.tree.map(lambda leaf: np.asarray(leaf)[0], agent)
         check_plugin(one.learner, one.explorer, num_actions)
-        _CHECKED.add(key)
-
-
-#: Kinds of user plug-ins already checked by :func:`check_params` (per task width).
-_CHECKED: set = set()
