@@ -1,4 +1,7 @@
-"""Generated table-cleaning variants: the paper's task as n=2, k=1, rules, state counts, starts."""
+"""Generated table-cleaning variants: the paper's task as n=2, k=1, rules, state counts, starts.
+
+``oracle`` is the reference: the generalised rules (the generator's docstring) written out in
+plain Python; ``tests/test_table_cleaning.py`` checks the paper's task against the spec."""
 import itertools
 from collections import Counter, deque
 
@@ -10,6 +13,7 @@ import pytest
 from vdbejax import solvers
 from vdbejax.envs import compile_env
 from vdbejax.envs.table_cleaning import (
+    TableCleaning,
     TableCleaningGenerator,
     TableCleaningVariant,
     make_mdp,
@@ -17,6 +21,7 @@ from vdbejax.envs.table_cleaning import (
     make_variant,
     make_variant_mdp,
 )
+from vdbejax.envs.table_cleaning import env as table_env
 
 
 def oracle(state, action, n, k, invalid_action="noop"):
@@ -93,10 +98,23 @@ def test_n2_k1_is_exactly_the_papers_task(invalid_action, max_steps):
     for field in ("next_state", "probability", "reward", "terminal", "start_probability",
                   "max_steps"):
         np.testing.assert_array_equal(getattr(variant, field), getattr(paper, field), field)
-    # Same action names and state encoding as the paper's environment.
-    env = make_variant(2, 1)
+    assert (paper.name, variant.name) == ("table_cleaning", "table_cleaning_n2_k1")
+    # Same state encoding as the paper's environment; the moves have the variant's names.
+    env, papers = make_variant(2, 1), TableCleaning()
     assert env.action_names == ("get", "drop", "go_0", "go_1", "go_home", "clean", "abort")
-    assert env.num_codes() == 108
+    assert env.num_codes() == papers.num_codes() == 108
+    assert env.generator == papers.generator
+    codes = jnp.arange(108)
+    np.testing.assert_array_equal(jax.vmap(env.decode)(codes), jax.vmap(papers.decode)(codes))
+
+
+def test_a_patched_reward_constant_is_seen_by_every_variant(monkeypatch):
+    """The rewards are the paper's module's constants, read when a variant is traced."""
+    monkeypatch.setattr(table_env, "GOAL_REWARD", 2.0)
+    for mdp in (make_mdp(), make_variant_mdp(3, 2)):
+        reward, terminal = np.asarray(mdp.reward), np.asarray(mdp.terminal)
+        assert (reward == 2.0).any() and not (reward == 1.0).any()
+        assert np.all(reward[~terminal] == np.float32(-0.01))
 
 
 def test_reachable_compilation_is_the_dense_table_restricted():
@@ -117,8 +135,8 @@ def test_reachable_compilation_is_the_dense_table_restricted():
 
 
 @pytest.mark.parametrize("invalid_action", ["noop", "fail"])
-def test_n3_k2_matches_the_plain_python_rules_on_every_reachable_state(invalid_action):
-    n, k = 3, 2
+@pytest.mark.parametrize("n,k", [(2, 1), (3, 2)])
+def test_the_plain_python_rules_hold_on_every_reachable_state(n, k, invalid_action):
     table = oracle_closure(n, k, invalid_action)
     mdp = make_variant_mdp(n, k, invalid_action=invalid_action)
     env = make_variant(n, k)

@@ -1,4 +1,5 @@
-"""The paper's table-cleaning task and its generated variants (n sections, k goblets)."""
+"""The table-cleaning task: generated variants (n sections, k goblets; rules in
+:mod:`.generator`) and the paper's task, the variant n = 2, k = 1 (:mod:`.env`)."""
 from vdbejax.envs.table_cleaning.env import (
     ACTION_NAMES,
     FIELD_NAMES,

@@ -1,120 +1,71 @@
-"""The table-cleaning task of Cruz et al. (2018), exactly as `docs/task.md`.
+"""The table-cleaning task of Cruz et al. (2018), as ``docs/task.md`` states it.
 
-State: integer vector ``<hand_obj, hand_pos, goblet_pos, left_clean, right_clean>``
-encoded mixed-radix (radices 3, 3, 3, 2, 2; ``hand_obj`` most significant) into 108 codes.
-The environment is gymnax-style: ``reset(key, params)`` and
-``step(key, state, action, params)``, with the pure transition rule in
+The paper's task is the generated variant with 2 sections and 1 goblet: :class:`TableCleaning`
+is :class:`~vdbejax.envs.table_cleaning.generator.TableCleaningVariant` for ``n = 2, k = 1``,
+so its state codes, action indices and transitions are that variant's, and the rules are
+stated once, in :mod:`vdbejax.envs.table_cleaning.generator`. Under the paper's names:
+
+state ``<hand_obj, hand_pos, goblet_pos, left_clean, right_clean>`` (the variant's
+``hand_obj, hand_pos, goblet_0, clean_0, clean_1``), encoded mixed-radix (radices 3, 3, 3,
+2, 2; ``hand_obj`` most significant) into 108 codes; actions ``get, drop, go_left,
+go_right, go_home, clean, abort``. The environment is gymnax-style: ``reset(key, params)``
+and ``step(key, state, action, params)``, with the pure transition rule in
 :meth:`TableCleaning.transition` so it can be compiled into tables
-(:func:`vdbejax.envs.compile_env`).
+(:func:`vdbejax.envs.compile_env`, :func:`make_mdp`).
+
+This module holds the task's rewards (:data:`STEP_REWARD`, :data:`GOAL_REWARD`,
+:data:`FAILURE_REWARD`), which every variant reads from here when it is traced.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from vdbejax._numerics import sample_categorical
-from vdbejax._pytree import pytree_dataclass, static_field
+from vdbejax.envs.table_cleaning.core import (
+    FREE,
+    GOBLET,
+    INVALID_ACTIONS,
+    SPONGE,
+    EnvParams,
+    EnvState,
+    TimeLimitedStep,
+    make_params,
+    mixed_radix_decode,
+    mixed_radix_encode,
+)
+from vdbejax.envs.table_cleaning.generator import TableCleaningGenerator, TableCleaningVariant
 
 if TYPE_CHECKING:
     from vdbejax.envs.tabular import TabularMDP
 
+__all__ = [
+    "ABORT", "ACTION_NAMES", "CLEAN", "DROP", "FAILURE_REWARD", "FIELD_NAMES", "FREE", "GET",
+    "GOAL_REWARD", "GOBLET", "GO_HOME", "GO_LEFT", "GO_RIGHT", "HOME", "INVALID_ACTIONS",
+    "IN_HAND", "LEFT", "RADICES", "RIGHT", "SPONGE", "STEP_REWARD", "EnvParams", "EnvState",
+    "TableCleaning", "TimeLimitedStep", "decode", "encode", "make_mdp", "make_params",
+    "mixed_radix_decode", "mixed_radix_encode",
+]
+
 Array = jax.Array
 
-# Field values.
-FREE, SPONGE, GOBLET = 0, 1, 2  # hand_obj
+# Field values (hand_obj: FREE, SPONGE, GOBLET from core).
 LEFT, RIGHT, HOME = 0, 1, 2  # hand_pos; goblet_pos uses LEFT, RIGHT and IN_HAND
 IN_HAND = 2
 # Actions.
 GET, DROP, GO_LEFT, GO_RIGHT, GO_HOME, CLEAN, ABORT = range(7)
 ACTION_NAMES = ("get", "drop", "go_left", "go_right", "go_home", "clean", "abort")
 FIELD_NAMES = ("hand_obj", "hand_pos", "goblet_pos", "left_clean", "right_clean")
-RADICES = (3, 3, 3, 2, 2)
+#: The paper's generator: 2 sections, 1 goblet.
+_PAPER = TableCleaningGenerator(num_sections=2, num_goblets=1)
+RADICES = _PAPER.radices  # (3, 3, 3, 2, 2)
 
+# The rewards of the task and of every variant (read at trace time: patching one is seen).
 STEP_REWARD = -0.01
 GOAL_REWARD = 1.0
 FAILURE_REWARD = -1.0
-INVALID_ACTIONS = ("noop", "fail")
-
-
-@pytree_dataclass
-class EnvParams:
-    """Options of the task (spec defaults).
-
-    Attributes:
-      max_steps: episode length at which an episode is truncated (not terminal).
-      invalid_action: ``"noop"`` (actions that change nothing do nothing) or ``"fail"``
-        (they end the episode as a failure; moves to where the hand already is excepted).
-    """
-
-    max_steps: int | Array = 100
-    invalid_action: str = static_field("noop")
-
-
-@pytree_dataclass
-class EnvState:
-    """Environment state: the integer field vector and the step count."""
-
-    fields: Array
-    time: Array
-
-
-def make_params(max_steps: int = 100, invalid_action: str = "noop") -> EnvParams:
-    """Validated :class:`EnvParams`.
-
-    Args:
-      max_steps: truncation length (integer >= 1).
-      invalid_action: ``"noop"`` or ``"fail"``.
-
-    Returns:
-      the :class:`EnvParams`.
-
-    Raises:
-      ValueError: ``max_steps < 1`` or unknown ``invalid_action``.
-    """
-    from vdbejax.validation import check_choice, check_int
-
-    check_int("max_steps", max_steps, 1)
-    check_choice("invalid_action", invalid_action, INVALID_ACTIONS)
-    return EnvParams(max_steps=max_steps, invalid_action=invalid_action)
-
-
-def mixed_radix_encode(fields: Any, radices: tuple[int, ...]) -> Any:
-    """Mixed-radix code of the last axis of ``fields`` (first field most significant).
-
-    Shared by the paper's task and its generated variants.
-
-    Args:
-      fields: ``[..., len(radices)]`` integer fields (jnp or numpy).
-      radices: the radix of each field.
-
-    Returns:
-      ``[...]`` codes, in the array type and dtype of ``fields``.
-    """
-    code = fields[..., 0] * 0
-    for i, radix in enumerate(radices):
-        code = code * radix + fields[..., i]
-    return code
-
-
-def mixed_radix_decode(code: Array, radices: tuple[int, ...]) -> Array:
-    """Field vector of a mixed-radix code (inverse of :func:`mixed_radix_encode`).
-
-    Args:
-      code: int32 code.
-      radices: the radix of each field.
-
-    Returns:
-      int32 ``[len(radices)]`` fields.
-    """
-    code = jnp.asarray(code, jnp.int32)
-    out = []
-    for radix in reversed(radices):
-        out.append(code % radix)
-        code = code // radix
-    return jnp.stack(out[::-1]).astype(jnp.int32)
 
 
 def encode(fields: Array) -> Array:
@@ -141,131 +92,24 @@ def decode(code: Array) -> Array:
     return mixed_radix_decode(code, RADICES)
 
 
-class TimeLimitedStep:
-    """gymnax-style ``step`` for environments with a pure ``transition`` rule.
-
-    Adds the step count and the ``max_steps`` truncation to ``self.transition``; shared
-    by the paper's task and its generated variants.
-    """
-
-    if TYPE_CHECKING:  # what a subclass defines
-        def transition(
-            self, fields: Array, action: Array, params: EnvParams
-        ) -> tuple[Array, Array, Array]: ...
-
-    def default_params(self) -> EnvParams:
-        """The spec's default options."""
-        return EnvParams()
-
-    def step(
-        self, key: Array, state: EnvState, action: Array, params: EnvParams | None = None
-    ) -> tuple[Array, EnvState, Array, Array, dict[str, Array]]:
-        """One environment step (no auto-reset).
-
-        Args:
-          key: PRNG key (unused: the dynamics are deterministic).
-          state: current state.
-          action: int32 action index.
-          params: options (default :meth:`default_params`).
-
-        Returns:
-          ``(observation, state, reward, done, info)`` where ``done`` is terminal or
-          truncated and ``info`` holds ``terminal`` and ``truncated`` separately.
-        """
-        params = self.default_params() if params is None else params
-        next_fields, reward, terminal = self.transition(state.fields, action, params)
-        time = state.time + 1
-        truncated = ~terminal & (time >= params.max_steps)
-        new_state = EnvState(fields=next_fields, time=time)
-        info = {"terminal": terminal, "truncated": truncated}
-        return next_fields, new_state, reward, terminal | truncated, info
-
-
-class TableCleaning(TimeLimitedStep):
-    """The paper's table-cleaning MDP (7 actions, 108 state codes)."""
+class TableCleaning(TableCleaningVariant):
+    """The paper's table-cleaning MDP (7 actions, 108 state codes): the variant ``n = 2,
+    k = 1`` under the paper's action and field names (:data:`ACTION_NAMES`,
+    :data:`FIELD_NAMES`), whose :meth:`reset` draws the start as it always has."""
 
     num_actions = len(ACTION_NAMES)
     action_names = ACTION_NAMES
     field_names = FIELD_NAMES
 
-    # --- encoding (FunctionalEnv protocol) ---------------------------------------------
-    def num_codes(self, params: EnvParams | None = None) -> int:
-        return int(np.prod(RADICES))
+    def __init__(self) -> None:
+        super().__init__(_PAPER)
+        self.action_names, self.field_names = ACTION_NAMES, FIELD_NAMES
 
-    def encode(self, fields: Array, params: Any = None) -> Array:
-        return encode(fields)
-
-    def decode(self, code: Array, params: Any = None) -> Array:
-        return decode(code)
-
-    def start_distribution(self, params: Any = None) -> tuple[np.ndarray, np.ndarray]:
-        """Hand free at home, both sides dirty, goblet left or right with probability 1/2."""
-        starts = np.array([(FREE, HOME, side, 0, 0) for side in (LEFT, RIGHT)], np.int32)
-        return mixed_radix_encode(starts, RADICES), np.full(2, 0.5)
-
-    # --- dynamics ------------------------------------------------------------------------
-    def transition(
-        self, fields: Array, action: Array, params: EnvParams
-    ) -> tuple[Array, Array, Array]:
-        """The spec's transition rule, without time.
-
-        Args:
-          fields: int32 ``[5]`` state vector.
-          action: int32 action index.
-          params: options (``invalid_action`` is used).
-
-        Returns:
-          ``(next_fields, reward, terminal)``.
-        """
-        hand_obj, hand_pos, goblet_pos, left_clean, right_clean = (fields[i] for i in range(5))
-        at_side = hand_pos != HOME
-        free, sponge, goblet = hand_obj == FREE, hand_obj == SPONGE, hand_obj == GOBLET
-
-        # get: sponge at home, goblet where it stands.
-        get_sponge = free & (hand_pos == HOME)
-        get_goblet = free & at_side & (hand_pos == goblet_pos)
-        # drop: sponge back at home, goblet on a side.
-        drop_sponge = sponge & (hand_pos == HOME)
-        drop_goblet = goblet & at_side
-        # clean: failure while holding the goblet or at the goblet's side.
-        clean_fails = goblet | (at_side & (hand_pos == goblet_pos))
-        cleans = sponge & at_side & ~clean_fails
-
-        is_get, is_drop, is_clean = action == GET, action == DROP, action == CLEAN
-        is_move = (action >= GO_LEFT) & (action <= GO_HOME)
-
-        new_hand_obj = jnp.select(
-            [is_get & get_sponge, is_get & get_goblet, is_drop & (drop_sponge | drop_goblet)],
-            [SPONGE, GOBLET, FREE],
-            hand_obj,
-        )
-        new_hand_pos = jnp.where(is_move, action - GO_LEFT, hand_pos)
-        new_goblet_pos = jnp.select(
-            [is_get & get_goblet, is_drop & drop_goblet], [IN_HAND, hand_pos], goblet_pos
-        )
-        new_left = jnp.where(is_clean & cleans & (hand_pos == LEFT), 1, left_clean)
-        new_right = jnp.where(is_clean & cleans & (hand_pos == RIGHT), 1, right_clean)
-        next_fields = jnp.stack(
-            [new_hand_obj, new_hand_pos, new_goblet_pos, new_left, new_right]
-        ).astype(jnp.int32)
-
-        failure = (action == ABORT) | (is_clean & clean_fails)
-        if params.invalid_action == "fail":
-            unchanged = jnp.all(next_fields == fields)
-            failure = failure | (unchanged & ~is_move)
-        goal = (
-            ~failure
-            & (new_hand_obj == FREE)
-            & (new_hand_pos == HOME)
-            & (new_left == 1)
-            & (new_right == 1)
-        )
-        reward = jnp.select([failure, goal], [FAILURE_REWARD, GOAL_REWARD], STEP_REWARD)
-        return next_fields, reward.astype(jnp.float32), failure | goal
-
-    # --- gymnax-style API ----------------------------------------------------------------
     def reset(self, key: Array, params: EnvParams | None = None) -> tuple[Array, EnvState]:
-        """Sample an initial state.
+        """Sample an initial state: the goblet left or right with probability 1/2.
+
+        One uniform picks from :meth:`start_distribution` (not the generator's draw, so that
+        a key gives the start it gave before the task became the 2×1 variant).
 
         Returns:
           ``(observation, state)``; the observation is the field vector.
@@ -293,3 +137,4 @@ def make_mdp(max_steps: int = 100, invalid_action: str = "noop") -> TabularMDP:
     return compile_env(
         TableCleaning(), make_params(max_steps, invalid_action), name="table_cleaning"
     )
+

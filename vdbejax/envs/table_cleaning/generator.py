@@ -1,10 +1,14 @@
-"""Generated variants of the table-cleaning task: ``n`` sections, ``k`` goblets, one sponge.
+"""The table-cleaning task's rules, for ``n`` sections, ``k`` goblets and one sponge.
 
-The paper's task (:mod:`vdbejax.envs.table_cleaning.env`) is the variant ``n = 2, k = 1``,
-with the same state codes, the same action indices and the same transitions.
+This module is the one implementation of the rules, and this docstring their statement in
+the code (``docs/task.md`` states the paper's task in words). The paper's task,
+:class:`~vdbejax.envs.table_cleaning.env.TableCleaning`, is the variant ``n = 2, k = 1``:
+sections 0 and 1 are its left and right sides, ``goblet_0`` is its ``goblet_pos``,
+``clean_0`` and ``clean_1`` are ``left_clean`` and ``right_clean``, and its seven actions are
+``get, drop, go_left, go_right, go_home, clean, abort`` (108 codes).
 
 **State.** The integer vector
-``<hand_obj, hand_pos, goblet_1, …, goblet_k, clean_1, …, clean_n>``:
+``<hand_obj, hand_pos, goblet_0, …, goblet_{k-1}, clean_0, …, clean_{n-1}>``:
 
 | field | values |
 | --- | --- |
@@ -33,8 +37,12 @@ n+3 clean, n+4 abort`` — for ``n = 2`` exactly the paper's seven.
 | abort | failure. |
 
 ``invalid_action="fail"`` makes any action that changes nothing (moves excepted) a failure.
-Goal (+1, terminal): after the transition the hand is free at home and every section is
-clean. Failure: -1, terminal. Otherwise -0.01. ``max_steps`` truncates (not terminal).
+
+**Rewards.** Goal (``GOAL_REWARD`` = +1, terminal): after a transition that is no failure,
+the hand is free at home and every section is clean. Failure (``FAILURE_REWARD`` = -1,
+terminal). Otherwise ``STEP_REWARD`` = -0.01. ``max_steps`` truncates (not terminal). The
+three rewards are constants of :mod:`vdbejax.envs.table_cleaning.env`, read when a
+transition is traced: a patched constant is seen by the paper's task and every variant.
 
 **Initial state** (:class:`TableCleaningGenerator`): hand free at home, every section
 dirty, each goblet placed independently and uniformly at random on one of the ``n``
@@ -51,13 +59,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vdbejax.envs.table_cleaning.env import (
-    FAILURE_REWARD,
+from vdbejax.envs.table_cleaning.core import (
     FREE,
-    GOAL_REWARD,
     GOBLET,
     SPONGE,
-    STEP_REWARD,
     EnvParams,
     EnvState,
     TimeLimitedStep,
@@ -90,9 +95,9 @@ def _sort_small(values: Array) -> Array:
 
 
 def _first(mask: Array) -> Array:
-    """One-hot of the first true entry of a boolean vector (entry 0 when none is true:
-    then, on codes no episode reaches, the variant ``k = 1`` still acts like the paper's
-    single goblet field)."""
+    """One-hot of the first true entry of a boolean vector (entry 0 when none is true: on
+    codes no episode reaches, where the hand holds a goblet but no goblet field is "in the
+    hand", drop puts goblet 0 down, as the paper's tables over all 108 codes have it)."""
     return jnp.arange(mask.shape[0]) == jnp.argmax(mask)
 
 
@@ -163,7 +168,7 @@ class TableCleaningGenerator:
 
 
 class TableCleaningVariant(TimeLimitedStep):
-    """A generated table-cleaning task (FunctionalEnv protocol, gymnax-style API).
+    """A table-cleaning task (FunctionalEnv protocol, gymnax-style API; rules: module doc).
 
     Args:
       generator: the variant's generator, or ``None`` for the paper's ``n = 2, k = 1``.
@@ -217,7 +222,13 @@ class TableCleaningVariant(TimeLimitedStep):
         Returns:
           ``(next_fields, reward, terminal)``.
         """
+        # The rewards are the paper's module's constants, looked up now (at trace time) so
+        # that a patched constant is seen (env imports this module: no import at the top).
+        from vdbejax.envs.table_cleaning import env as paper
+
         n, k, home = self.num_sections, self.num_goblets, self.generator.home
+        # A Python int action would make the masks below Python bools, whose ``~`` is an int.
+        action = jnp.asarray(action, jnp.int32)
         hand_obj, hand_pos = fields[0], fields[1]
         goblets = _sort_small(fields[2: 2 + k])  # canonical multiset, also for unsorted codes
         clean = fields[2 + k:]
@@ -266,7 +277,8 @@ class TableCleaningVariant(TimeLimitedStep):
             & (new_hand_pos == home)
             & jnp.all(new_clean == 1)
         )
-        reward = jnp.select([failure, goal], [FAILURE_REWARD, GOAL_REWARD], STEP_REWARD)
+        reward = jnp.select([failure, goal], [paper.FAILURE_REWARD, paper.GOAL_REWARD],
+                            paper.STEP_REWARD)
         return next_fields, reward.astype(jnp.float32), failure | goal
 
     # --- gymnax-style API ----------------------------------------------------------------
@@ -312,7 +324,7 @@ def make_variant_mdp(
       invalid_action: ``"noop"`` or ``"fail"``.
       reachable_only: keep only the states reachable from the start distribution (state
         index ↔ code in ``mdp.state_codes``); ``False`` gives one state per code, which for
-        ``n = 2, k = 1`` is exactly :func:`~vdbejax.envs.table_cleaning.make_mdp`.
+        ``n = 2, k = 1`` gives the tables of :func:`~vdbejax.envs.table_cleaning.make_mdp`.
 
     Returns:
       the deterministic MDP, named ``table_cleaning_n{n}_k{k}``.
