@@ -111,14 +111,14 @@ def run_agents(
         sharded over several devices, lockstep otherwise.
       threads: worker threads of the sequential strategy (default: the CPUs this
         process may use).
-
-      None of ``compact`` … ``threads`` change the results, only the speed, as long as
-      ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
       keep_final_state: ``False`` leaves :attr:`RunResult.final_state` ``None``, which
         spares gathering every agent's tables on the host at the end (large tasks).
       programs: the compiled programs to share with other calls of one study
         (:class:`~vdbejax.engine.programs.Programs`; default: this call's own, traced
         from the code as it is now).
+
+    None of ``compact`` … ``threads`` change the results, only the speed, as long as
+    ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
 
     Returns:
       :class:`RunResult`.

@@ -1,0 +1,158 @@
+"""The documentation: a short README front page, its two commands, its generated benchmark
+table, and links that resolve (on GitHub and in the mkdocs site, which .ci/run builds with
+``mkdocs build --strict``; no build here, so these checks take well under a second)."""
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+import unicodedata
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+README = ROOT / "README.md"
+DOCS = ROOT / "docs"
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+from benchmarks import readme_table  # noqa: E402
+
+REPRODUCE = ("python3 -m venv .venv && .venv/bin/pip install -e . && "
+             ".venv/bin/vdbejax reproduce --out out/paper")
+TESTS = "bash .ci/run"
+BENCHMARK = "bash .ci/run -m benchmark"
+
+LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
+FENCE = re.compile(r"^(```|~~~).*?^\1[^\n]*$", re.S | re.M)
+CODE_SPAN = re.compile(r"(`+)(?!`).*?(?<!`)\1(?!`)", re.S)
+HEADING = re.compile(r"^#{1,6}\s+(.+?)\s*#*\s*$", re.M)
+
+
+def _pages() -> list[Path]:
+    return [README, *sorted(DOCS.rglob("*.md"))]
+
+
+def _prose(text: str) -> str:
+    """The text without fenced code blocks and code spans (no links live there)."""
+    return CODE_SPAN.sub("", FENCE.sub("", text))
+
+
+def _links(page: Path) -> list[str]:
+    return [t for t in LINK.findall(_prose(page.read_text(encoding="utf-8")))
+            if not re.match(r"^[a-z][a-z0-9+.-]*:", t)]
+
+
+def _slug(heading: str) -> str:
+    """A heading's anchor as GitHub and mkdocs (Python-Markdown's toc) both make it, for
+    ASCII headings: lower case, punctuation dropped, spaces to hyphens."""
+    text = re.sub(r"!?\[([^\]]*)\]\([^)]*\)", r"\1", heading).replace("`", "")
+    text = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode()
+    return re.sub(r"[\s]+", "-", re.sub(r"[^\w\s-]", "", text).strip().lower())
+
+
+def _anchors(page: Path) -> set[str]:
+    return {_slug(h) for h in HEADING.findall(FENCE.sub("", page.read_text(encoding="utf-8")))}
+
+
+# ------------------------------------------------------------------ the front page
+def test_readme_is_a_front_page_of_at_most_200_lines():
+    lines = README.read_text(encoding="utf-8").splitlines()
+    assert len(lines) <= 200, f"README.md has {len(lines)} lines (at most 200)"
+
+
+def test_readme_shows_the_two_commands_verbatim():
+    text = README.read_text(encoding="utf-8")
+    assert f"```bash\n{REPRODUCE}\n```" in text
+    assert f"```bash\n{TESTS}\n```" in text
+    assert f"`{BENCHMARK}` runs that one alone" in text
+    # ... and the documentation site's home page says the same.
+    home = (DOCS / "index.md").read_text(encoding="utf-8")
+    assert REPRODUCE in home and TESTS in home and BENCHMARK in home
+
+
+def test_readme_benchmark_table_is_generated_from_results():
+    text = README.read_text(encoding="utf-8")
+    assert text.count(readme_table.START) == 1 and text.count(readme_table.END) == 1
+    assert readme_table.current_block(text) == readme_table.block(), (
+        "README.md's benchmark table differs from benchmarks/RESULTS.md: "
+        "run `python -m benchmarks.readme_table`")
+
+
+def test_readme_table_generator_takes_the_headline_rows(tmp_path):
+    text = readme_table.headline(readme_table.RESULTS.read_text(encoding="utf-8"))
+    rows = [line.split("|")[1].strip() for line in text.splitlines()
+            if line.startswith("| ") and not line.startswith("| ---")]
+    assert rows[0] == "peer" and rows[1].startswith("vdbejax ") and "warm" in rows[1]
+    assert any(r.startswith("numba-1t (warm") for r in rows)
+    assert all("cold" not in r and "lockstep" not in r for r in rows[1:])
+    assert "Ratios (" in text and "numba-1t / vdbejax" in text
+    # main() rewrites only the block of the file it is given, and --check agrees.
+    readme = tmp_path / "README.md"
+    readme.write_text(f"before\n{readme_table.START}\nstale\n{readme_table.END}\nafter\n")
+    assert readme_table.main(["--readme", str(readme), "--check"]) == 1
+    assert readme_table.main(["--readme", str(readme)]) == 0
+    new = readme.read_text()
+    assert new.startswith("before\n") and new.endswith("\nafter\n")
+    assert readme_table.current_block(new) == readme_table.block()
+    assert readme_table.main(["--readme", str(readme), "--check"]) == 0
+    with pytest.raises(ValueError, match="no '## Full paper grid' section"):
+        readme_table.headline("# Benchmarks\n- Date: today.\n")
+
+
+def test_readme_examples_are_in_the_documentation_site():
+    """The README's Python examples also appear, verbatim, on the site's pages."""
+    site = "\n".join(p.read_text(encoding="utf-8") for p in DOCS.glob("*.md"))
+    blocks = re.findall(r"^```python\n(.*?)^```", README.read_text(encoding="utf-8"),
+                        re.S | re.M)
+    assert len(blocks) >= 2
+    for block in blocks:
+        assert block in site, block.splitlines()[0]
+
+
+def test_every_docs_page_is_in_the_site_navigation():
+    nav = set(re.findall(r":\s*(\S+\.md)\s*$", (ROOT / "mkdocs.yml").read_text(), re.M))
+    pages = {p.relative_to(DOCS).as_posix() for p in DOCS.glob("*.md")}
+    pages |= {p.relative_to(DOCS).as_posix() for p in (DOCS / "api").glob("*.md")}
+    assert pages <= nav, f"not in mkdocs.yml's nav: {sorted(pages - nav)}"
+    assert all((DOCS / page).exists() for page in nav), sorted(nav)
+
+
+# ------------------------------------------------------------------------- links
+def test_every_relative_link_and_image_resolves_to_a_kept_file():
+    """Every relative link or image of README.md and docs/**/*.md names a file of the
+    working tree that .gitignore does not ignore (so it is, or can be, tracked); a page
+    of docs/ links only inside docs/ (the site's pages and files); a link to a heading of
+    another page names one of its headings."""
+    targets: dict[Path, list[str]] = {}
+    problems = []
+    for page in _pages():
+        for link in _links(page):
+            path, _, anchor = link.partition("#")
+            target = (page.parent / path).resolve() if path else page
+            where = f"{page.relative_to(ROOT)}: {link}"
+            if not target.is_relative_to(ROOT):
+                problems.append(f"{where} points outside the repository")
+                continue
+            if not target.exists():
+                problems.append(f"{where} does not exist")
+                continue
+            if page != README and not target.is_relative_to(DOCS):
+                problems.append(f"{where} leaves docs/ (not part of the site)")
+            if anchor and target.suffix == ".md" and not target.is_relative_to(DOCS / "api") \
+                    and anchor not in _anchors(target):
+                problems.append(f"{where}: no heading '#{anchor}' there")
+            if target.is_file():
+                targets.setdefault(target, []).append(where)
+    assert not problems, "\n".join(problems)
+    git = shutil.which("git")
+    if git is None or not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout: the .gitignore check needs git")
+    names = "\n".join(t.relative_to(ROOT).as_posix() for t in targets)
+    done = subprocess.run([git, "check-ignore", "--no-index", "--stdin"], cwd=ROOT,
+                          input=names, capture_output=True, text=True, timeout=60)
+    assert done.returncode in (0, 1), done.stderr
+    ignored = done.stdout.split()
+    assert not ignored, "linked but ignored by .gitignore:\n" + "\n".join(
+        where for name in ignored for where in targets[ROOT / name])
