@@ -7,7 +7,7 @@ episode, bootstrap intervals, IQM, probability of improvement) live in
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -36,6 +36,7 @@ from vdbejax.stats import (  # noqa: F401  (re-exported: the historical home of 
     moving_average,
     probability_of_improvement_ci,
 )
+from vdbejax.summary import SUMMARY_COLUMNS, SummaryRow
 
 
 def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = LAST) -> np.ndarray:
@@ -61,9 +62,9 @@ def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = L
 def summarize(
     result: GridResult, last: int = LAST, window: int = WINDOW,
     statistics: CurveStatistics | None = None,
-) -> list[dict]:
+) -> list[SummaryRow]:
     """One row per config: final return and convergence episode, each with its 95%
-    bootstrap CI over seeds, and diagnostics.
+    bootstrap CI over seeds, and diagnostics (:class:`~vdbejax.summary.SummaryRow`).
 
     Args:
       result: the grid.
@@ -73,10 +74,11 @@ def summarize(
         this ``last`` and ``window``), e.g. to share them with Figure 3.
 
     Returns:
-      rows with the columns of :data:`SUMMARY_COLUMNS`: ``config, learner, explorer,
-      param, final_return, final_ci_low, final_ci_high, final_iqm, convergence_episode,
-      convergence_ci_low, convergence_ci_high, truncated_fraction, mean_length,
-      nonfinite_agents``.
+      one :class:`~vdbejax.summary.SummaryRow` per setting, in config order (the columns
+      of :data:`SUMMARY_COLUMNS`: ``config, learner, explorer, param, final_return,
+      final_ci_low, final_ci_high, final_iqm, convergence_episode, convergence_ci_low,
+      convergence_ci_high, truncated_fraction, mean_length, nonfinite_agents``; with
+      ``episodes_cut`` and ``agents_cut`` for a task whose step limit is only a safety cap).
     """
     last = min(last, result.num_episodes)
     if statistics is None:
@@ -89,49 +91,32 @@ def summarize(
     max_steps = result.meta.get("max_steps")
     rows = []
     for c, setting in enumerate(result.settings):
-        rows.append(
-            {
-                "config": c,
-                "learner": setting.learner,
-                "explorer": setting.explorer,
-                "param": "" if setting.param is None else setting.param,
-                "hyperparameters": setting.hyperparameters_json(),
-                "final_return": float(statistics.final[c]),
-                "final_ci_low": float(statistics.final_low[c]),
-                "final_ci_high": float(statistics.final_high[c]),
-                "final_iqm": float(statistics.final_iqm[c]),
-                "convergence_episode": int(statistics.convergence[c]),
-                "convergence_ci_low": float(statistics.convergence_low[c]),
-                "convergence_ci_high": float(statistics.convergence_high[c]),
-                # Fraction over all seeds of the last episodes cut off at max_steps.
-                "truncated_fraction": float(
-                    truncated_fraction(result.lengths[c], max_steps, last).mean()),
-                "mean_length": float(result.lengths[c].mean()),
-                "nonfinite_agents": int(result.nonfinite[c].sum()),
-            }
-        )
+        episodes_cut = agents_cut = None
         if result.meta.get("step_cap"):  # a task without step limit: cuts at its cap
             cut = result.lengths[c] >= max_steps
-            rows[-1].update(episodes_cut=int(cut.sum()), agents_cut=int(cut.any(-1).sum()))
+            episodes_cut, agents_cut = int(cut.sum()), int(cut.any(-1).sum())
+        rows.append(SummaryRow(
+            config=c,
+            learner=setting.learner,
+            explorer=setting.explorer,
+            param=setting.param,
+            hyperparameters=setting.hyperparameters_json(),
+            final_return=float(statistics.final[c]),
+            final_ci_low=float(statistics.final_low[c]),
+            final_ci_high=float(statistics.final_high[c]),
+            final_iqm=float(statistics.final_iqm[c]),
+            convergence_episode=int(statistics.convergence[c]),
+            convergence_ci_low=float(statistics.convergence_low[c]),
+            convergence_ci_high=float(statistics.convergence_high[c]),
+            # Fraction over all seeds of the last episodes cut off at max_steps.
+            truncated_fraction=float(
+                truncated_fraction(result.lengths[c], max_steps, last).mean()),
+            mean_length=float(result.lengths[c].mean()),
+            nonfinite_agents=int(result.nonfinite[c].sum()),
+            episodes_cut=episodes_cut,
+            agents_cut=agents_cut,
+        ))
     return rows
-
-
-SUMMARY_COLUMNS = [
-    "config",
-    "learner",
-    "explorer",
-    "param",
-    "final_return",
-    "final_ci_low",
-    "final_ci_high",
-    "final_iqm",
-    "convergence_episode",
-    "convergence_ci_low",
-    "convergence_ci_high",
-    "truncated_fraction",
-    "mean_length",
-    "nonfinite_agents",
-]
 
 
 def summary_columns(result: GridResult) -> list[str]:
@@ -259,11 +244,13 @@ def action_probabilities(
     return np.asarray(chosen.probabilities(q_row, defaults, context), np.float64)
 
 
-def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[str], digits: int = 3) -> str:
+def markdown_table(rows: Sequence[Mapping[str, Any]], columns: Sequence[str],
+                   digits: int = 3) -> str:
     """Rows as a markdown table (floats rounded to ``digits``), e.g. for notebooks.
 
     Args:
-      rows: dictionaries holding at least ``columns``.
+      rows: mappings holding at least ``columns`` (dicts, or
+        :class:`~vdbejax.summary.SummaryRow`).
       columns: the columns, in order.
       digits: decimals of float cells.
 

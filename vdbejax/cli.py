@@ -151,14 +151,14 @@ def _run(args: argparse.Namespace) -> None:
         if key not in spec:
             raise ValueError(f"{key} is missing: give --{key} or a sweep file with {key} = [...]")
     result = run_sweep(args.out, progress=not args.quiet, figures=not args.no_figures, **spec)
-    from vdbejax import io
+    from vdbejax.summary import read_summary
     from vdbejax.sweeps import SUMMARY_FILE
 
     # summary.csv: one row per setting of this result, written by run_sweep above.
-    rows = io.read_csv(Path(args.out) / SUMMARY_FILE)
+    rows = read_summary(Path(args.out) / SUMMARY_FILE)
     for row, setting in zip(rows, result.settings, strict=True):
-        print(f"{setting.label}: final return {float(row['final_return']):.3f}"
-              f" [{float(row['final_ci_low']):.3f}, {float(row['final_ci_high']):.3f}]")
+        print(f"{setting.label}: final return {row.final_return:.3f}"
+              f" [{row.final_ci_low:.3f}, {row.final_ci_high:.3f}]")
     print(f"training {result.meta['elapsed_seconds']:.1f} s → {args.out}")
     if args.long_csv:
         print(_write_long_csv(result, args.out))

@@ -166,7 +166,7 @@ def load_settings(path: str | os.PathLike) -> list[Setting]:
         raise ValueError(f"results file {str(path)!r} is damaged: config indices must be"
                          f" 0…{len(rows) - 1} once each"
                          + (f"; repeated: {repeated[:5]}" if repeated else ""))
-    rows = sorted(rows, key=lambda r: int(r["config"]))
+    rows = [row for _, row in sorted(zip(indices, rows, strict=True), key=lambda pair: pair[0])]
     try:
         return [Setting(r["learner"], r["explorer"],
                         float(r["param"]) if r["param"] not in ("", None) else None,

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import matplotlib
@@ -21,6 +21,7 @@ from vdbejax.experiment import GridResult
 from vdbejax.methods.agents import parameter_name
 from vdbejax.methods.api import EXPLORERS, explorer_title, learner_title
 from vdbejax.stats import WINDOW, CurveStatistics, convolve_full, curve_statistics
+from vdbejax.summary import SummaryRow, summary_rows
 from vdbejax.validation import check_choice
 
 #: Figure 3's smoothing conventions (:func:`figure3`).
@@ -150,15 +151,25 @@ def _finish(fig: plt.Figure, path: str | os.PathLike | None) -> plt.Figure:
     return fig
 
 
-SENSITIVITY_METRICS = (
-    ("final_return", "final_ci_low", "final_ci_high", "final return (last 100 ep.)"),
-    ("convergence_episode", "convergence_ci_low", "convergence_ci_high", "convergence episode"),
+def _final_return(row: SummaryRow) -> tuple[float, float | None, float | None]:
+    return row.final_return, row.final_ci_low, row.final_ci_high
+
+
+def _convergence_episode(row: SummaryRow) -> tuple[float, float | None, float | None]:
+    return row.convergence_episode, row.convergence_ci_low, row.convergence_ci_high
+
+
+#: The sensitivity plot's rows: ``(name, axis label, (value, CI low, CI high) of a row)``.
+SENSITIVITY_METRICS: tuple[tuple[str, str, Callable[[SummaryRow], tuple[float, float | None,
+                                                                        float | None]]], ...] = (
+    ("final_return", "final return (last 100 ep.)", _final_return),
+    ("convergence_episode", "convergence episode", _convergence_episode),
 )
 LEARNER_STYLES = {"qlearning": ("tab:blue", "o"), "sarsa": ("tab:orange", "s")}
 
 
 def sensitivity(
-    rows: Sequence[dict[str, Any]],
+    rows: Sequence[SummaryRow | Mapping[str, Any]],
     best_return: float | None = None,
     path: str | os.PathLike | None = None,
     title: str | None = None,
@@ -170,8 +181,8 @@ def sensitivity(
     best return means "robust to parametrization".
 
     Args:
-      rows: summary rows (:func:`vdbejax.analysis.summarize` or ``summary.csv``; values
-        may be strings).
+      rows: summary rows (:func:`vdbejax.analysis.summarize`, or mappings of their columns
+        to strings or numbers as read from ``summary.csv``: :func:`vdbejax.summary.summary_rows`).
       best_return: reference line on the final-return row, if given.
       path: save the figure there (PNG) if given.
       title: figure title.
@@ -179,37 +190,37 @@ def sensitivity(
     Returns:
       the matplotlib figure.
     """
-    rows = [r for r in rows if str(r.get("param", "")) not in ("", "None")]
-    known = [e for e in EXPLORERS if any(r["explorer"] == e for r in rows)]  # built-ins first
-    explorers = known + list(dict.fromkeys(r["explorer"] for r in rows
-                                           if r["explorer"] not in known))
+    swept = [r for r in summary_rows(rows) if r.param is not None]
+    known = [e for e in EXPLORERS if any(r.explorer == e for r in swept)]  # built-ins first
+    explorers = known + list(dict.fromkeys(r.explorer for r in swept if r.explorer not in known))
     # One line per learner and per combination of the other hyperparameters.
-    lines = list(dict.fromkeys((r["learner"], r.get("hyperparameters") or "") for r in rows))
+    lines = list(dict.fromkeys((r.learner, r.hyperparameters) for r in swept))
     fig, axes = plt.subplots(len(SENSITIVITY_METRICS), max(len(explorers), 1), squeeze=False,
                              figsize=(3.6 * max(len(explorers), 1), 6.0), sharey="row")
     if not explorers:
         axes[0, 0].text(0.5, 0.5, "no swept parameter in these settings", ha="center")
     for col, explorer in enumerate(explorers):
-        for row, (key, low_key, high_key, label) in enumerate(SENSITIVITY_METRICS):
+        for row, (key, label, metric) in enumerate(SENSITIVITY_METRICS):
             ax = axes[row, col]
             for learner, extra in lines:
-                points = sorted((r for r in rows
-                                 if r["learner"] == learner and r["explorer"] == explorer
-                                 and (r.get("hyperparameters") or "") == extra),
-                                key=lambda r: float(r["param"]))
+                points = sorted((r for r in swept
+                                 if r.learner == learner and r.explorer == explorer
+                                 and r.hyperparameters == extra),
+                                key=SummaryRow.swept_param)
                 if not points:
                     continue
-                x = np.array([float(r["param"]) for r in points])
-                y = np.array([float(r[key]) for r in points])
+                x = np.array([r.swept_param() for r in points])
+                values = [metric(r) for r in points]
+                y = np.array([value for value, _, _ in values], np.float64)
                 # Intervals may be missing from older summaries: plot without error bars then.
-                has_ci = all(low_key in r and high_key in r for r in points)
-                yerr = (np.abs(np.array([[float(r[low_key]) for r in points],
-                                         [float(r[high_key]) for r in points]]) - y)
-                        if has_ci else None)
+                lows = [low for _, low, _ in values]
+                highs = [high for _, _, high in values]
+                has_ci = all(v is not None for v in lows + highs)
+                yerr = (np.abs(np.array([lows, highs], np.float64) - y) if has_ci else None)
                 color, marker = LEARNER_STYLES.get(learner, (None, "o"))
                 # The values beside the parameter show only where they tell lines apart.
-                several = len({(r.get("hyperparameters") or "") for r in rows
-                               if r["learner"] == learner and r["explorer"] == explorer}) > 1
+                several = len({r.hyperparameters for r in swept
+                               if r.learner == learner and r.explorer == explorer}) > 1
                 name = learner_title(learner) + (f" {extra}" if several else "")
                 ax.errorbar(x, y, yerr=yerr, color=None if several else color,
                             marker=marker, ms=4, capsize=3, lw=1.2, label=name)

@@ -22,7 +22,7 @@ import dataclasses
 import math
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +45,7 @@ from vdbejax.solving import (
     solve_threshold,
     summarize_solving,
 )
+from vdbejax.summary import SummaryRow, summary_rows
 from vdbejax.validation import (
     INT32_MAX,
     UINT32_MAX,
@@ -116,21 +117,25 @@ META_FILE = "meta.json"
 RUNS_FOLDER = "runs"
 
 
-def best_parameters(rows: Sequence[dict[str, Any]]) -> dict[str, float]:
+def best_parameters(rows: Sequence[SummaryRow | Mapping[str, Any]]) -> dict[str, float]:
     """Per explorer, the parameter whose final return averaged over the learners is highest
     (the first in ``rows`` on an exact tie).
 
     Args:
-      rows: ``summary.csv`` rows (``learner, explorer, param, final_return``; strings or
-        numbers).
+      rows: summary rows (:class:`~vdbejax.summary.SummaryRow`, or ``summary.csv``'s rows
+        as strings or numbers: :func:`~vdbejax.summary.summary_rows`).
 
     Returns:
       ``{explorer: param}``.
+
+    Raises:
+      ValueError: a row that is no summary row, or one of an explorer's default (no
+        parameter).
     """
     table: dict[str, dict[float, list[float]]] = {}
-    for row in rows:
-        table.setdefault(row["explorer"], {}).setdefault(float(row["param"]), []).append(
-            float(row["final_return"]))
+    for row in summary_rows(rows):
+        table.setdefault(row.explorer, {}).setdefault(row.swept_param(), []).append(
+            row.final_return)
     return {explorer: max(by_param, key=lambda p: float(np.mean(by_param[p])))
             for explorer, by_param in table.items()}
 

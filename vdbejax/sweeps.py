@@ -39,6 +39,7 @@ from vdbejax.experiment import GridResult, check_run_options, run_grid
 from vdbejax.methods.agents import AgentOptions, make_agent, sweep
 from vdbejax.result_folder import FolderLock, check_output_paths, save_run
 from vdbejax.stats import CurveStatistics
+from vdbejax.summary import SummaryRow, write_summary
 from vdbejax.validation import INT32_MAX, check_bool, check_int, check_writable_dir
 
 SUMMARY_FILE = "summary.csv"
@@ -135,7 +136,7 @@ RUN_FILES = [io.RETURNS_FILE, io.CONFIGS_FILE, io.META_FILE, SUMMARY_FILE, FIGUR
 
 def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | None,
                   bands: bool = True, figures: bool = True,
-                  statistics: CurveStatistics | None = None) -> list[dict]:
+                  statistics: CurveStatistics | None = None) -> list[SummaryRow]:
     """Write ``summary.csv`` and (unless ``figures=False``) ``fig3.png`` and
     ``sensitivity.png`` for a grid of any kinds.
 
@@ -149,7 +150,7 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
         computed (with bands when ``figures and bands``).
 
     Returns:
-      the summary rows.
+      the summary rows (:class:`~vdbejax.summary.SummaryRow`).
     """
     from vdbejax.analysis import summarize, summary_columns
     from vdbejax.stats import curve_statistics
@@ -159,7 +160,7 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
     if statistics is None:
         statistics = curve_statistics(result.returns, bands=figures and bands)
     summary = summarize(result, statistics=statistics)
-    io.write_csv(out / SUMMARY_FILE, summary, summary_columns(result))
+    write_summary(out / SUMMARY_FILE, summary, summary_columns(result))
     if figures:
         from vdbejax.plotting import figure3, sensitivity  # matplotlib only when plotting
 

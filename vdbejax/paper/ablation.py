@@ -29,7 +29,7 @@ from vdbejax.envs.cruz2018 import STEP_CAP
 from vdbejax.experiment import GridResult
 from vdbejax.methods.explorers import PAPER_EXPLORERS as EXPLORERS
 from vdbejax.methods.learners import PAPER_ALPHA
-from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimResult, _Table
+from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimResult, ClaimTable
 from vdbejax.paper.reproduce import (
     AUTHORS_DETAILS,
     FIGURE_FILE,
@@ -38,6 +38,7 @@ from vdbejax.paper.reproduce import (
     saved_best_return,
     write_outputs,
 )
+from vdbejax.summary import SummaryRow
 from vdbejax.validation import check_writable_dir
 
 DOCUMENT_FILE = "REPRODUCTION.md"
@@ -173,7 +174,7 @@ class VariantResult:
     """Scored outcome of one variant."""
 
     variant: Variant
-    summary: list[dict[str, Any]]
+    summary: list[SummaryRow]
     claims: list[ClaimResult]
     best_return: float
     folder: Path
@@ -316,20 +317,20 @@ def render_document(
     lines += ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
     for r in results:
         near = r.best_return - NEAR
-        table = _Table(r.summary)
+        table = ClaimTable(r.summary)
         cells = [f"`{r.variant.name}`"]
         for learner in LEARNER_NAMES:
             for explorer in EXPLORERS:
                 rows = table.get(learner, explorer)
                 b = table.best(learner, explorer)
                 assert b is not None  # every variant runs the paper's whole grid
-                near_count = sum(float(x["final_return"]) >= near for x in rows)
-                cells.append(f"{float(b['final_return']):.2f} [{float(b['final_ci_low']):.2f}, "
-                             f"{float(b['final_ci_high']):.2f}] @{float(b['param']):g}; "
+                near_count = sum(x.final_return >= near for x in rows)
+                cells.append(f"{b.final_return:.2f} [{b.final_ci_low:.2f}, "
+                             f"{b.final_ci_high:.2f}] @{b.swept_param():g}; "
                              f"{near_count}/{len(rows)} near")
-        stuck = [float(x["truncated_fraction"]) for x in r.summary
-                 if x["learner"] == "sarsa" and x["explorer"] == "vdbe"
-                 and float(x["param"]) >= 0.1]
+        stuck = [x.truncated_fraction for x in table.rows
+                 if x.learner == "sarsa" and x.explorer == "vdbe" and x.swept_param() >= 0.1
+                 and x.truncated_fraction is not None]
         cells.append(f"{sum(stuck) / len(stuck):.2f}" if stuck else "—")
         lines.append("| " + " | ".join(cells) + " |")
 

@@ -6,14 +6,18 @@ is *reproduced* when every check holds, *not reproduced* when none does, *partly
 otherwise. "At or near the best return" means within ``NEAR`` of it. A figure the paper
 states as "about" a value (claim 5's episodes) must lie within ``ABOUT`` (±25 %) of it;
 bounds ("below about 0.6") are checked as stated.
+
+Each claim is one function of a :class:`ClaimTable` (``claim_1`` … ``claim_6``, listed in
+:data:`CLAIMS`); :func:`evaluate_claims` maps them over the summary rows.
 """
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 from vdbejax.methods import learner_title
+from vdbejax.summary import SummaryRow, summary_rows
 
 NEAR = 0.05
 #: Relative tolerance of a figure the paper gives as "about" a value.
@@ -44,56 +48,50 @@ class ClaimResult:
         return "not reproduced" if passed == 0 else "partly"
 
 
-class _Table:
-    """Lookup over summary rows."""
+class ClaimTable:
+    """The summary rows the claims are scored on, with lookups by learner and explorer.
 
-    def __init__(self, rows: Sequence[dict[str, Any]]) -> None:
-        self.rows = list(rows)
+    Attributes:
+      rows: the rows (:class:`~vdbejax.summary.SummaryRow`).
+      best_return: the task's best possible return.
+      near: the lowest final return "at or near" it (``best_return − NEAR``).
+      learners: the paper's learners that have rows, in :data:`LEARNER_NAMES` order.
+    """
 
-    def get(self, learner: str, explorer: str) -> list[dict[str, Any]]:
-        return sorted(
-            (r for r in self.rows if r["learner"] == learner and r["explorer"] == explorer),
-            key=lambda r: float(r["param"]),
-        )
+    def __init__(self, rows: Iterable[SummaryRow | Mapping[str, Any]],
+                 best_return: float = 0.86) -> None:
+        self.rows = summary_rows(rows)
+        self.best_return = best_return
+        self.near = best_return - NEAR
+        self.learners = [name for name in LEARNER_NAMES
+                         if any(r.learner == name for r in self.rows)]
 
-    def best(self, learner: str, explorer: str) -> dict[str, Any] | None:
+    def get(self, learner: str, explorer: str) -> list[SummaryRow]:
+        """The rows of one learner × explorer, by increasing parameter."""
+        return sorted((r for r in self.rows if r.learner == learner and r.explorer == explorer),
+                      key=SummaryRow.swept_param)
+
+    def best(self, learner: str, explorer: str) -> SummaryRow | None:
+        """The row of one learner × explorer with the highest final return."""
         rows = self.get(learner, explorer)
-        return max(rows, key=lambda r: float(r["final_return"])) if rows else None
+        return max(rows, key=lambda r: r.final_return) if rows else None
 
     def top_params(self, learner: str, explorer: str, k: int) -> set[float]:
-        rows = sorted(self.get(learner, explorer), key=lambda r: -float(r["final_return"]))
-        return {float(r["param"]) for r in rows[:k]}
+        """The parameters of the ``k`` rows of one learner × explorer that end highest."""
+        rows = sorted(self.get(learner, explorer), key=lambda r: -r.final_return)
+        return {r.swept_param() for r in rows[:k]}
 
 
-def _finals(rows: list[dict[str, Any]]) -> str:
-    return ", ".join(f"{float(r['param']):g}→{float(r['final_return']):.2f}" for r in rows)
+def _finals(rows: list[SummaryRow]) -> str:
+    return ", ".join(f"{r.swept_param():g}→{r.final_return:.2f}" for r in rows)
 
 
-def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -> list[ClaimResult]:
-    """Score the six claims on summary rows (see :func:`vdbejax.analysis.summarize`).
-
-    Claims whose settings are absent from ``rows`` get no checks and are skipped.
-
-    Args:
-      rows: summary rows (values may be strings, as read from ``summary.csv``).
-      best_return: the task's best possible return ("near" = within :data:`NEAR` of it).
-
-    Returns:
-      one :class:`ClaimResult` per claim that has checks, in claim order.
-    """
-    t = _Table(rows)
-    learners = [name for name in LEARNER_NAMES if any(r["learner"] == name for r in rows)]
-    near = best_return - NEAR
-    claims: list[ClaimResult] = []
-
-    def add(number: int, claim: str, paper: str, measured: list[str], checks: list[Check]) -> None:
-        if checks:
-            claims.append(ClaimResult(number, claim, paper, "; ".join(measured), checks))
-
-    # 1. ε-greedy.
+def claim_1(t: ClaimTable) -> ClaimResult:
+    """ε-greedy: the best ε are 0.05 and 0.1; its best final return stays below the
+    paper's bounds."""
     measured, checks = [], []
     bounds = {"qlearning": 0.7, "sarsa": 0.6}
-    for learner in learners:
+    for learner in t.learners:
         rows_e = t.get(learner, "egreedy")
         if not rows_e:
             continue
@@ -104,109 +102,123 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
         measured.append(f"{name} ε→final: {_finals(rows_e)}")
         checks.append(Check(f"{name}: the two best ε are 0.05 and 0.1 (measured {sorted(top)})",
                             top == {0.05, 0.1}))
-        checks.append(Check(f"{name}: best final return {float(best['final_return']):.2f}"
+        checks.append(Check(f"{name}: best final return {best.final_return:.2f}"
                             f" < {bounds[learner]}",
-                            float(best["final_return"]) < bounds[learner]))
-    add(1, "ε-greedy: the best ε are 0.1 and 0.05 for both learners; its final average return "
+                            best.final_return < bounds[learner]))
+    return ClaimResult(
+        1, "ε-greedy: the best ε are 0.1 and 0.05 for both learners; its final average return "
            "stays below about 0.6 (SARSA) and 0.7 (Q-learning).",
-        "best ε ∈ {0.05, 0.1}; final < 0.6 (SARSA), < 0.7 (Q-learning)", measured, checks)
+        "best ε ∈ {0.05, 0.1}; final < 0.6 (SARSA), < 0.7 (Q-learning)", "; ".join(measured),
+        checks)
 
-    # 2. Softmax.
+
+def claim_2(t: ClaimTable) -> ClaimResult:
+    """Softmax: the low τ are best (up to noise) and end near the best return."""
     measured, checks = [], []
-    for learner in learners:
+    lows = (0.0001, 0.001)
+    for learner in t.learners:
         rows_s = t.get(learner, "softmax")
         if not rows_s:
             continue
         name = LEARNER_NAMES[learner]
         top = t.top_params(learner, "softmax", 2)
-        low = [r for r in rows_s if float(r["param"]) in (0.0001, 0.001)]
+        low = [r for r in rows_s if r.swept_param() in lows]
         measured.append(f"{name} τ→final: {_finals(rows_s)}")
         # "Best" up to noise: the two low τ are the top two, or no other τ ends above
         # the worse of them beyond the bootstrap intervals (τ = 0.01 often ties at 0.86).
-        others = [r for r in rows_s if float(r["param"]) not in (0.0001, 0.001)]
-        worst_low = min(low, key=lambda r: float(r["final_return"])) if low else None
+        others = [r for r in rows_s if r.swept_param() not in lows]
+        worst_low = min(low, key=lambda r: r.final_return) if low else None
         tied = worst_low is not None and all(
-            float(r.get("final_ci_low", r["final_return"]))
-            <= float(worst_low.get("final_ci_high", worst_low["final_return"]))
-            for r in others)
+            r.final_ci_low <= worst_low.final_ci_high for r in others)
         checks.append(Check(f"{name}: the best τ are 0.0001 and 0.001"
                             f" (measured top two {sorted(top)}"
                             + ("" if top == {0.0001, 0.001} else
                                f"; no other τ significantly better: {tied}") + ")",
                             top == {0.0001, 0.001} or tied))
-        checks.append(Check(f"{name}: τ ∈ {{0.0001, 0.001}} end within {NEAR} of {best_return:.2f}",
-                            bool(low) and all(float(r["final_return"]) >= near for r in low)))
-    add(2, "Softmax: low τ (0.001, 0.0001) are best, ending at or near 0.86.",
-        "best τ ∈ {0.0001, 0.001}, final ≈ 0.86", measured, checks)
+        checks.append(Check(f"{name}: τ ∈ {{0.0001, 0.001}} end within {NEAR} of"
+                            f" {t.best_return:.2f}",
+                            bool(low) and all(r.final_return >= t.near for r in low)))
+    return ClaimResult(2, "Softmax: low τ (0.001, 0.0001) are best, ending at or near 0.86.",
+                       "best τ ∈ {0.0001, 0.001}, final ≈ 0.86", "; ".join(measured), checks)
 
-    # 3. VDBE.
+
+def claim_3(t: ClaimTable) -> ClaimResult:
+    """VDBE: good from σ = 0.1 (Q-learning) and σ = 1 (SARSA); a σ too low converges
+    slowly or not at all, worst with SARSA."""
     measured, checks = [], []
     good_from = {"qlearning": 0.1, "sarsa": 1.0}
     worst = {}
-    for learner in learners:
+    for learner in t.learners:
         rows_v = t.get(learner, "vdbe")
         if not rows_v:
             continue
         name = LEARNER_NAMES[learner]
-        high = [r for r in rows_v if float(r["param"]) >= good_from[learner]]
-        low = [r for r in rows_v if float(r["param"]) < good_from[learner]]
+        high = [r for r in rows_v if r.swept_param() >= good_from[learner]]
+        low = [r for r in rows_v if r.swept_param() < good_from[learner]]
         measured.append(f"{name} σ→final (convergence ep.): " + ", ".join(
-            f"{float(r['param']):g}→{float(r['final_return']):.2f}"
-            f" ({int(r['convergence_episode'])})"
+            f"{r.swept_param():g}→{r.final_return:.2f} ({r.convergence_episode})"
             for r in rows_v))
         checks.append(Check(f"{name}: every σ ≥ {good_from[learner]:g} ends within {NEAR}"
-                            f" of {best_return:.2f}",
-                            bool(high) and all(float(r["final_return"]) >= near for r in high)))
+                            f" of {t.best_return:.2f}",
+                            bool(high) and all(r.final_return >= t.near for r in high)))
         if low and high:
-            high_conv = max(int(r["convergence_episode"]) for r in high)
-            slow = all(float(r["final_return"]) < near or int(r["convergence_episode"]) > high_conv
+            high_conv = max(r.convergence_episode for r in high)
+            slow = all(r.final_return < t.near or r.convergence_episode > high_conv
                        for r in low)
             checks.append(Check(f"{name}: every σ < {good_from[learner]:g} ends lower or"
                                 " converges later than the good σ", slow))
-        worst[learner] = min(float(r["final_return"]) for r in rows_v)
+        worst[learner] = min(r.final_return for r in rows_v)
     if len(worst) == 2:
         checks.append(Check(f"too-low σ is worst with SARSA (worst final SARSA"
                             f" {worst['sarsa']:.2f} ≤ Q-learning {worst['qlearning']:.2f})",
                             worst["sarsa"] <= worst["qlearning"]))
-    add(3, "VDBE: Q-learning does well for σ ≥ 0.1, SARSA for σ ≥ 1; a σ too low converges slowly "
-           "or not at all, worst with SARSA.",
-        "good: σ ≥ 0.1 (Q-learning), σ ≥ 1 (SARSA)", measured, checks)
+    return ClaimResult(
+        3, "VDBE: Q-learning does well for σ ≥ 0.1, SARSA for σ ≥ 1; a σ too low converges "
+           "slowly or not at all, worst with SARSA.",
+        "good: σ ≥ 0.1 (Q-learning), σ ≥ 1 (SARSA)", "; ".join(measured), checks)
 
-    # 4. VDBE-Softmax.
+
+def claim_4(t: ClaimTable) -> ClaimResult:
+    """VDBE-Softmax: every σ ends near the best return, with either learner."""
     measured, checks = [], []
-    for learner in learners:
+    for learner in t.learners:
         rows_vs = t.get(learner, "vdbe_softmax")
         if not rows_vs:
             continue
         name = LEARNER_NAMES[learner]
         measured.append(f"{name} σ→final: {_finals(rows_vs)}")
-        for r in rows_vs:
-            checks.append(Check(f"{name} σ={float(r['param']):g} ends within {NEAR}"
-                                f" of {best_return:.2f}",
-                                float(r["final_return"]) >= near))
-    add(4, "VDBE-Softmax: good for every σ tried, with either learner.",
-        "every σ ends near 0.86", measured, checks)
+        checks += [Check(f"{name} σ={r.swept_param():g} ends within {NEAR}"
+                         f" of {t.best_return:.2f}", r.final_return >= t.near)
+                   for r in rows_vs]
+    return ClaimResult(4, "VDBE-Softmax: good for every σ tried, with either learner.",
+                       "every σ ends near 0.86", "; ".join(measured), checks)
 
-    # 5. Convergence speed. A setting that never gets near the best return has not
-    # "converged" in the paper's sense, however early its flat curve hits its own level.
+
+def claim_5(t: ClaimTable) -> ClaimResult:
+    """Convergence speed: VDBE-Softmax's best setting converges first, after about the
+    episodes the paper states.
+
+    A setting that never gets near the best return has not "converged" in the paper's
+    sense, however early its flat curve hits its own level.
+    """
     measured, checks = [], []
     paper_episode = {"qlearning": 280, "sarsa": 300}
-    for learner in learners:
+    for learner in t.learners:
         name = LEARNER_NAMES[learner]
         bests = {e: t.best(learner, e) for e in ("egreedy", "softmax", "vdbe", "vdbe_softmax")}
         if bests["vdbe_softmax"] is None:
             continue
         found = {e: r for e, r in bests.items() if r is not None}
-        conv = {e: int(r["convergence_episode"]) for e, r in found.items()}
-        good = {e: float(r["final_return"]) >= near for e, r in found.items()}
+        conv = {e: r.convergence_episode for e, r in found.items()}
+        good = {e: r.final_return >= t.near for e, r in found.items()}
         measured.append(f"{name} convergence episode of each explorer's best setting: " + ", ".join(
             f"{e} {conv[e]}" + ("" if good[e] else " (not near best)") for e in conv)
             + f" (paper: VDBE-Softmax ≈{paper_episode[learner]}, others ≈350)")
         rivals = [e for e in ("softmax", "vdbe") if e in conv]
         # "No later" up to noise: the lower end of VDBE-Softmax's bootstrap interval (when
         # the summary has one) must not exceed the other's convergence episode.
-        vs_row = found["vdbe_softmax"]
-        vs_low = float(vs_row.get("convergence_ci_low", conv["vdbe_softmax"]))
+        vs_ci_low = found["vdbe_softmax"].convergence_ci_low
+        vs_low = float(conv["vdbe_softmax"]) if vs_ci_low is None else vs_ci_low
         checks.append(Check(f"{name}: VDBE-Softmax ends near the best return and converges "
                             f"({conv['vdbe_softmax']}, CI from {vs_low:g}) no later than "
                             + ", ".join(f"{e} ({conv[e]}{'' if good[e] else ', never near best'})"
@@ -224,38 +236,66 @@ def evaluate_claims(rows: Sequence[dict[str, Any]], best_return: float = 0.86) -
                     lo <= conv[explorer] <= hi))
         if learner == "qlearning" and "egreedy" in conv:
             # "About as fast": within 25% of VDBE-Softmax (the paper's others are ~25% slower).
-            egreedy_final = float(found["egreedy"]["final_return"])
-            vs_final = float(found["vdbe_softmax"]["final_return"])
+            egreedy_final = found["egreedy"].final_return
+            vs_final = found["vdbe_softmax"].final_return
             checks.append(Check(
                 f"{name}: ε-greedy converges about as fast (episode {conv['egreedy']} ≤ 1.25 × "
                 f"{conv['vdbe_softmax']}) to a worse return ({egreedy_final:.2f} < {vs_final:.2f})",
                 good["vdbe_softmax"] and conv["egreedy"] <= 1.25 * conv["vdbe_softmax"]
                 and egreedy_final < vs_final))
-    add(5, "VDBE-Softmax converges fastest: its best average return after about 280 episodes "
-           "(Q-learning) and 300 (SARSA); the others near 350; ε-greedy with Q-learning converges "
-           "about as fast but to a worse return.",
-        "VDBE-Softmax ≈280 (Q-learning) / ≈300 (SARSA); others ≈350", measured, checks)
+    return ClaimResult(
+        5, "VDBE-Softmax converges fastest: its best average return after about 280 episodes "
+           "(Q-learning) and 300 (SARSA); the others near 350; ε-greedy with Q-learning "
+           "converges about as fast but to a worse return.",
+        "VDBE-Softmax ≈280 (Q-learning) / ≈300 (SARSA); others ≈350", "; ".join(measured),
+        checks)
 
-    # 6. Final returns.
+
+def claim_6(t: ClaimTable) -> ClaimResult:
+    """Final returns: every explorer but ε-greedy ends near the best return."""
     measured, checks = [], []
-    for learner in learners:
+    for learner in t.learners:
         name = LEARNER_NAMES[learner]
         for explorer in ("softmax", "vdbe", "vdbe_softmax", "egreedy"):
             best = t.best(learner, explorer)
             if best is None:
                 continue
-            value = float(best["final_return"])
+            value = best.final_return
             measured.append(f"{name} best {explorer} {value:.2f}")
             if explorer == "egreedy":
-                checks.append(Check(f"{name}: ε-greedy's best ({value:.2f}) stays below {near:.2f}",
-                                    value < near))
+                checks.append(Check(f"{name}: ε-greedy's best ({value:.2f}) stays below"
+                                    f" {t.near:.2f}", value < t.near))
             else:
                 checks.append(Check(f"{name}: best {explorer} ({value:.2f}) ends within {NEAR}"
-                                    f" of {best_return:.2f}",
-                                    value >= near))
-    add(6, "All methods but ε-greedy end at or near the best return, 0.86.",
-        "softmax, VDBE, VDBE-Softmax ≈ 0.86; ε-greedy lower", measured, checks)
-    return claims
+                                    f" of {t.best_return:.2f}",
+                                    value >= t.near))
+    return ClaimResult(6, "All methods but ε-greedy end at or near the best return, 0.86.",
+                       "softmax, VDBE, VDBE-Softmax ≈ 0.86; ε-greedy lower", "; ".join(measured),
+                       checks)
+
+
+#: The paper's six claims, in order: each scores one claim on a :class:`ClaimTable`.
+CLAIMS: list[Callable[[ClaimTable], ClaimResult]] = [
+    claim_1, claim_2, claim_3, claim_4, claim_5, claim_6]
+
+
+def evaluate_claims(rows: Iterable[SummaryRow | Mapping[str, Any]],
+                    best_return: float = 0.86) -> list[ClaimResult]:
+    """Score the six claims (:data:`CLAIMS`) on summary rows (see
+    :func:`vdbejax.analysis.summarize`).
+
+    Claims whose settings are absent from ``rows`` get no checks and are skipped.
+
+    Args:
+      rows: summary rows (:class:`~vdbejax.summary.SummaryRow`, or mappings of their
+        columns to strings or numbers, as read from ``summary.csv``).
+      best_return: the task's best possible return ("near" = within :data:`NEAR` of it).
+
+    Returns:
+      one :class:`ClaimResult` per claim that has checks, in claim order.
+    """
+    table = ClaimTable(rows, best_return)
+    return [result for result in (claim(table) for claim in CLAIMS) if result.checks]
 
 
 def cap_message(meta: dict[str, Any]) -> str:

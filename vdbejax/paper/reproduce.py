@@ -29,6 +29,7 @@ from vdbejax.result_folder import (
 )
 from vdbejax.solvers import best_return
 from vdbejax.stats import CurveStatistics
+from vdbejax.summary import SummaryRow
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, check_writable_dir
 
 SUMMARY_FILE, FIGURE_FILE, SENSITIVITY_FILE = (sweeps.SUMMARY_FILE, sweeps.FIGURE_FILE,
@@ -44,7 +45,7 @@ class Reproduction:
     """What :func:`reproduce` computed and where it wrote it."""
 
     result: GridResult
-    summary: list[dict]
+    summary: list[SummaryRow]
     claims: list[ClaimResult]
     best_return: float
     out_dir: Path
@@ -54,7 +55,7 @@ class Reproduction:
 def write_outputs(
     result: GridResult, out_dir: str | os.PathLike, best: float, bands: bool = True,
     figures: bool = True, statistics: CurveStatistics | None = None,
-) -> tuple[list[dict], list[ClaimResult]]:
+) -> tuple[list[SummaryRow], list[ClaimResult]]:
     """Write ``summary.csv``, ``fig3.png``, ``sensitivity.png`` and ``report.md`` for a
     (saved) result of the paper's grid.
 
@@ -68,7 +69,7 @@ def write_outputs(
         :func:`vdbejax.sweeps.write_outputs`).
 
     Returns:
-      the summary rows and the scored claims.
+      the summary rows (:class:`~vdbejax.summary.SummaryRow`) and the scored claims.
     """
     out = Path(out_dir)
     summary = sweeps.write_outputs(result, out, best, bands=bands, figures=figures,
