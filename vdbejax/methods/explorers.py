@@ -273,6 +273,11 @@ def vdbe_epsilon_update(
 
 
 
+def count_visit(counts: Array, action: Array) -> Array:
+    """A state's per-action visit counts ``[A]`` after taking ``action`` once more."""
+    return counts + (jnp.arange(counts.shape[0]) == action).astype(counts.dtype)
+
+
 # --------------------------------------------------------------------------- explorers
 def _check_tie_break(tie_break: str) -> None:
     check_choice("tie_break", tie_break, TIE_BREAKS)
@@ -495,8 +500,7 @@ class UCB1(Explorer):
 
     def update(self, tables: Mapping[str, Array], action: Array, delta_q: Array,
                context: Context) -> dict[str, Array]:
-        counts = tables["counts"]
-        return {"counts": counts + (jnp.arange(counts.shape[0]) == action).astype(counts.dtype)}
+        return {"counts": count_visit(tables["counts"], action)}
 
     def validate(self) -> None:
         check_in_range("c", self.c, 0.0, math.inf, high_open=True)
@@ -530,8 +534,7 @@ class CountBonus(Explorer):
 
     def update(self, tables: Mapping[str, Array], action: Array, delta_q: Array,
                context: Context) -> dict[str, Array]:
-        visits = tables["visits"]
-        return {"visits": visits + (jnp.arange(visits.shape[0]) == action).astype(visits.dtype)}
+        return {"visits": count_visit(tables["visits"], action)}
 
     def validate(self) -> None:
         check_in_range("beta", self.beta, 0.0, math.inf, high_open=True)
