@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from synthetic_grid import synthetic_grid
-from vdbejax import analysis
+from vdbejax import analysis, snapshots
 from vdbejax.methods.agents import Setting
 from vdbejax.envs.table_cleaning import make_mdp
 
@@ -60,7 +60,7 @@ def test_summarize_columns_and_intervals():
 
 def test_epsilon_snapshots_follow_vdbe():
     mdp = make_mdp(max_steps=20)
-    episodes, epsilon, returns = analysis.epsilon_snapshots(
+    episodes, epsilon, returns = snapshots.epsilon_snapshots(
         mdp, Setting("qlearning", "vdbe", 1.0), num_seeds=2, num_episodes=6, every=2)
     assert episodes.tolist() == [2, 4, 6]
     assert epsilon.shape == (3, 2, mdp.num_states) and returns.shape == (2, 6)
@@ -68,9 +68,9 @@ def test_epsilon_snapshots_follow_vdbe():
     assert epsilon.min() < 1.0  # visited states have moved away from ε = 1
     # ε-greedy keeps no ε(s) table; UCB-1's counts can be watched the same way.
     with pytest.raises(ValueError, match="keeps no tables"):
-        analysis.epsilon_snapshots(mdp, Setting("qlearning", "egreedy", 0.1),
+        snapshots.epsilon_snapshots(mdp, Setting("qlearning", "egreedy", 0.1),
                                    num_seeds=1, num_episodes=2, every=1)
-    _, counts, _ = analysis.epsilon_snapshots(mdp, Setting("qlearning", "ucb1", 1.0), num_seeds=1,
+    _, counts, _ = snapshots.epsilon_snapshots(mdp, Setting("qlearning", "ucb1", 1.0), num_seeds=1,
                                               num_episodes=4, every=2, table="counts")
     assert counts.shape == (2, 1, mdp.num_states, mdp.num_actions)
     assert counts[1].sum() > counts[0].sum() > 0

@@ -9,6 +9,7 @@ what is checked is the wheel's own content, and the test stays offline and fast.
 from __future__ import annotations
 
 import os
+import shutil
 import site
 import subprocess
 import sys
@@ -24,7 +25,13 @@ ROOT = Path(__file__).resolve().parents[1]
 def installed(tmp_path_factory) -> Path:
     """``bin/`` of a fresh virtual environment holding only the wheel."""
     work = tmp_path_factory.mktemp("wheel")
-    built = subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps",
+    # Built from a copy: setuptools leaves build/ in the source tree, whose stale modules
+    # (deleted since) would otherwise go into the wheel; the checkout stays untouched.
+    source = work / "source"
+    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(
+        ".git", ".ci-venv", ".venv", "build", "dist", "*.egg-info", "out", "site",
+        "__pycache__", ".pytest_cache"))
+    built = subprocess.run([sys.executable, "-m", "pip", "wheel", str(source), "--no-deps",
                             "--quiet", "-w", str(work / "dist")],
                            capture_output=True, text=True, timeout=600)
     assert built.returncode == 0, built.stderr
