@@ -1,7 +1,10 @@
 """Adaptive budgets equal a fixed budget for every agent they let finish; the scaling
-study end to end from the command line; bad inputs fail in one line before training."""
+study end to end from the command line; bad inputs fail in one line before training; the
+study's modules: the report apart from the runner, every name importable from
+``vdbejax.scaling``."""
 from __future__ import annotations
 
+import ast
 import csv
 import json
 from pathlib import Path
@@ -9,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vdbejax import cli, scaling, solvers
+from vdbejax import cli, scaling, scaling_adaptive, scaling_report, scaling_study, solvers
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import run_grid
 from vdbejax.methods.agents import Setting
@@ -175,3 +178,43 @@ def test_scale_cli_bad_input_is_one_line_before_training(tmp_path, capsys, monke
     assert code == 2 and len(err) == 1 and err[0].startswith("error: "), err
     assert match in err[0]
     assert not (tmp_path / "bad" / "scaling.csv").exists()
+
+
+# ---------------------------------------------------------------- the modules
+MODULES = (scaling, scaling_study, scaling_adaptive, scaling_report)
+
+
+def _imported_modules(module) -> set[str]:
+    """Every module ``module``'s source imports, at the top or inside a function."""
+    tree = ast.parse(Path(module.__file__).read_text(encoding="utf-8"))
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names |= {node.module} | {f"{node.module}.{alias.name}" for alias in node.names}
+    return names
+
+
+def test_the_report_imports_nothing_of_the_runner():
+    # The data flow one way: runner -> results -> report; the study's definition needs no
+    # training either.
+    runner = {"vdbejax.scaling", "vdbejax.scaling_adaptive", "vdbejax.scaling_study"}
+    assert not _imported_modules(scaling_report) & runner
+    assert not _imported_modules(scaling_study) & (runner | {"vdbejax.scaling_report"})
+    assert not _imported_modules(scaling_adaptive) & (runner | {"vdbejax.scaling_report"})
+
+
+def test_every_name_of_the_parts_is_importable_from_vdbejax_scaling():
+    for module in MODULES[1:]:
+        for name in module.__all__:
+            assert getattr(scaling, name) is getattr(module, name), (module.__name__, name)
+    assert set(scaling.__all__) <= {n for m in MODULES for n in m.__all__} | {"ScalingResult",
+                                                                              "run_scaling"}
+    assert scaling._param_text is scaling_report._param_text  # notebook 03 uses it
+
+
+def test_no_module_of_the_study_is_past_400_lines():
+    for module in MODULES:
+        lines = Path(module.__file__).read_text(encoding="utf-8").count("\n")
+        assert lines <= 400, f"{module.__name__}: {lines} lines"
