@@ -13,7 +13,7 @@ from vdbejax.engine import programs, run_agents
 from vdbejax.envs.table_cleaning import env as table_env
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import grid_agents
-from vdbejax.methods import explorers, learners
+from vdbejax.methods import explorers, learners, selection
 from vdbejax.methods.agents import Setting
 
 SETTINGS = [Setting("qlearning", "egreedy", 0.1), Setting("sarsa", "vdbe", 1.0)]
@@ -59,7 +59,7 @@ def test_a_patched_explorer_method_gets_a_new_program(monkeypatch, strategy):
 def test_a_patched_helper_function_is_seen(monkeypatch):
     """A module-level function the built-ins call (here the greedy choice)."""
     before = _run()
-    monkeypatch.setattr(explorers, "greedy", lambda q, *_: jnp.int32(q.shape[0] - 1))
+    monkeypatch.setattr(selection, "greedy", lambda q, *_: jnp.int32(q.shape[0] - 1))
     assert not np.array_equal(before, _run())
 
 

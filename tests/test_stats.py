@@ -111,7 +111,7 @@ def test_probability_of_improvement_ci():
 
 
 def test_percentile_interval_equals_numpy_quantile_bit_for_bit():
-    from vdbejax.stats import _interval
+    from vdbejax.bootstrap import _interval
 
     rng = np.random.default_rng(7)
     for trial in range(120):

@@ -1,7 +1,12 @@
 """The plug-in surface: explorers, learners and the agents built from them.
 
-* :mod:`vdbejax.methods.api` — the contract (:class:`Explorer`, :class:`Learner`,
-  :class:`Table`, :class:`Context`, :class:`Transition`) and the registering decorators.
+* :mod:`vdbejax.methods.api` — the plug-in surface in one import: the contract
+  (:mod:`~vdbejax.methods.contract`: :class:`Explorer`, :class:`Learner`, :class:`Table`,
+  :class:`Context`, :class:`Transition`), the registry and its decorators
+  (:mod:`~vdbejax.methods.registry`) and the plug-in check
+  (:mod:`~vdbejax.methods.plugin_check`).
+* :mod:`vdbejax.methods.selection` — the action-selection rules as pure functions
+  (greedy, softmax, the paper's one rule, the VDBE ε(s) update).
 * :mod:`vdbejax.methods.explorers` — ε-greedy, softmax, VDBE, VDBE-Softmax, Max-Boltzmann,
   decaying ε-greedy and softmax, UCB-1, count bonus.
 * :mod:`vdbejax.methods.learners` — Q-learning, SARSA, Expected SARSA, Double Q-learning.
@@ -35,7 +40,7 @@ from vdbejax.methods.api import (
     learner,
     learner_title,
 )
-from vdbejax.methods.explorers import greedy, select_action, softmax_weights
+from vdbejax.methods.selection import greedy, select_action, softmax_weights
 
 __all__ = [
     "EXPLORERS", "LEARNERS", "Agent", "AgentOptions", "AgentParams", "Context", "Explorer",

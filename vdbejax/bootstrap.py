@@ -1,0 +1,179 @@
+"""Statistics of one value per seed (numpy only): bootstrap resamples of the seeds, the
+percentile interval, and the bootstrap interval of the mean, of the interquartile mean and
+of the probability of improvement, with the conventions of :mod:`vdbejax.stats`.
+"""
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+LEVEL = 0.95
+NUM_RESAMPLES = 2000
+IQM_TRIM = 0.25
+
+
+def bootstrap_indices(num_seeds: int, num_resamples: int = NUM_RESAMPLES,
+                      seed: int = 0) -> np.ndarray:
+    """Seed indices of bootstrap resamples, drawn with replacement.
+
+    Args:
+      num_seeds: number of seeds (the sample size).
+      num_resamples: number of resamples.
+      seed: seed of the resampling generator.
+
+    Returns:
+      int ``[num_resamples, num_seeds]`` indices.
+    """
+    rng = np.random.default_rng(seed)
+    return rng.integers(0, num_seeds, size=(num_resamples, num_seeds))
+
+
+def bootstrap_weights(num_seeds: int, num_resamples: int = NUM_RESAMPLES,
+                      seed: int = 0) -> np.ndarray:
+    """``[num_resamples, num_seeds]`` weights (multiplicity / n) of the same resamples as
+    :func:`bootstrap_indices`, so that ``weights @ x`` is the resampled mean of ``x``.
+
+    A matrix product instead of fancy indexing keeps memory at ``resamples × episodes``
+    rather than ``resamples × seeds × episodes`` for whole curves. Every setting of a grid
+    shares them, so they are made once per size (a read-only array).
+
+    Args:
+      num_seeds, num_resamples, seed: as for :func:`bootstrap_indices`.
+
+    Returns:
+      float64 ``[num_resamples, num_seeds]`` weights, each row summing to 1.
+    """
+    return _weights(int(num_seeds), int(num_resamples), int(seed))
+
+
+@functools.lru_cache(maxsize=16)
+def _weights(num_seeds: int, num_resamples: int, seed: int) -> np.ndarray:
+    indices = bootstrap_indices(num_seeds, num_resamples, seed)
+    counts = np.zeros((num_resamples, num_seeds))
+    np.add.at(counts, (np.arange(num_resamples)[:, None], indices), 1.0)
+    weights = counts / num_seeds
+    weights.flags.writeable = False
+    return weights
+
+
+def _interval(values: np.ndarray, level: float, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Percentile interval along ``axis``: equal, bit for bit, to ``np.quantile(values,
+    [α, 1 − α], axis)`` (its default "linear" method), but from one sort of a contiguous
+    copy: ≈ 2.5× faster for a band of 2000 resamples × 1000 episodes (numpy's vectorised
+    sort beats a partial sort for the four order statistics needed here)."""
+    alpha = (1.0 - level) / 2.0
+    values = np.asarray(values)
+    if not np.issubdtype(values.dtype, np.floating) or np.isnan(values).any():
+        low, high = np.quantile(values, [alpha, 1.0 - alpha], axis=axis)
+        return low, high
+    count = values.shape[axis]
+    positions = []
+    for quantile in (alpha, 1.0 - alpha):
+        # numpy's "linear" method: virtual index (n − 1)·q, interpolated as in its _lerp.
+        virtual = (count - 1) * np.float64(quantile)
+        below = min(int(np.floor(virtual)), count - 1)
+        above = min(below + 1, count - 1)
+        gamma = virtual - np.floor(virtual) if virtual < count - 1 else 0.0
+        positions.append((below, above, gamma))
+    ordered = np.array(np.moveaxis(values, axis, -1), order="C")  # a copy: sorted in place
+    ordered.sort(axis=-1)
+    bounds = []
+    for below, above, gamma in positions:
+        a, b = ordered[..., below], ordered[..., above]
+        difference = b - a
+        bounds.append(b - difference * (1 - gamma) if gamma >= 0.5 else a + difference * gamma)
+    return bounds[0], bounds[1]
+
+
+def bootstrap_ci(
+    samples: np.ndarray, level: float = LEVEL, num_resamples: int = NUM_RESAMPLES, seed: int = 0
+) -> tuple[float, float]:
+    """Percentile bootstrap interval of the mean of ``samples`` (one value per seed).
+
+    Args:
+      samples: ``[seeds]`` values.
+      level, num_resamples, seed: bootstrap settings.
+
+    Returns:
+      ``(low, high)``.
+    """
+    samples = np.asarray(samples, np.float64)
+    means = samples[bootstrap_indices(len(samples), num_resamples, seed)].mean(-1)
+    low, high = _interval(means, level)
+    return float(low), float(high)
+
+
+def interquartile_mean(values: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Mean of the middle half: ``⌊n/4⌋`` values trimmed from each end along ``axis``.
+
+    Args:
+      values: the samples (e.g. one final return per seed).
+      axis: the sample axis.
+
+    Returns:
+      the IQM (float64, ``axis`` removed).
+    """
+    values = np.sort(np.asarray(values, np.float64), axis=axis)
+    n = values.shape[axis]
+    cut = int(IQM_TRIM * n)
+    return np.take(values, np.arange(cut, n - cut), axis=axis).mean(axis)
+
+
+def interquartile_mean_ci(
+    values: np.ndarray, level: float = LEVEL, num_resamples: int = NUM_RESAMPLES, seed: int = 0
+) -> tuple[float, float, float]:
+    """IQM of ``values`` (one per seed) with a percentile bootstrap interval.
+
+    Args:
+      values: ``[seeds]`` values.
+      level, num_resamples, seed: bootstrap settings.
+
+    Returns:
+      ``(iqm, low, high)``.
+    """
+    values = np.asarray(values, np.float64)
+    resampled = interquartile_mean(values[bootstrap_indices(len(values), num_resamples, seed)])
+    low, high = _interval(resampled, level)
+    return float(interquartile_mean(values)), float(low), float(high)
+
+
+def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``P(X > Y) + ½ P(X = Y)`` over all pairs of one value of ``x`` and one of ``y``.
+
+    Args:
+      x: ``[..., n]`` values of setting X (one per seed; leading axes batch resamples).
+      y: ``[..., m]`` values of setting Y.
+
+    Returns:
+      float64 ``[...]`` probabilities in [0, 1].
+    """
+    x = np.asarray(x, np.float64)[..., :, None]
+    y = np.asarray(y, np.float64)[..., None, :]
+    return ((x > y) + 0.5 * (x == y)).mean((-2, -1))
+
+
+def probability_of_improvement_ci(
+    x: np.ndarray, y: np.ndarray, level: float = LEVEL,
+    num_resamples: int = NUM_RESAMPLES, seed: int = 0,
+) -> tuple[float, float, float]:
+    """Probability that X beats Y with a bootstrap interval.
+
+    The seeds of X and of Y are resampled independently (stratified bootstrap, as rliable
+    does), since the two settings' runs are separate samples.
+
+    Args:
+      x: ``[n]`` values of setting X (one per seed).
+      y: ``[m]`` values of setting Y.
+      level, num_resamples, seed: bootstrap settings (Y's resamples use ``seed + 1``).
+
+    Returns:
+      ``(probability, low, high)``.
+    """
+    x = np.asarray(x, np.float64)
+    y = np.asarray(y, np.float64)
+    rx = x[bootstrap_indices(len(x), num_resamples, seed)]
+    ry = y[bootstrap_indices(len(y), num_resamples, seed + 1)]
+    low, high = _interval(probability_of_improvement(rx, ry), level)
+    return float(probability_of_improvement(x, y)), float(low), float(high)
+

@@ -1,0 +1,159 @@
+"""The plug-in contract's types: the :class:`Explorer` and :class:`Learner` base classes,
+the :class:`Table` an agent keeps, and what the engine hands a plug-in (:class:`Context`,
+:class:`Transition`) and takes back (:class:`LearnerUpdate`).
+
+The contract in prose (what each method receives and returns) is :mod:`vdbejax.methods.api`'s
+docstring; :mod:`vdbejax.methods.registry` registers and builds plug-ins and
+:mod:`vdbejax.methods.plugin_check` checks one before training.
+"""
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import jax
+import jax.numpy as jnp
+
+from vdbejax._pytree import pytree_dataclass
+
+Array = jax.Array
+
+#: What a table holds one value of.
+TABLE_KINDS = ("state", "pair")
+
+
+@dataclasses.dataclass(frozen=True)
+class Table:
+    """A table an agent keeps per state (``"state"``: ``[S]``) or per (state, action)
+    (``"pair"``: ``[S, A]``), every entry starting at ``init``."""
+
+    per: str
+    init: Any = 0.0
+
+
+@pytree_dataclass
+class Context:
+    """Where the agent is: ``episode`` (0-based index of the episode the action belongs
+    to), ``step`` (steps already taken in it) and ``terminal`` (the transition just made
+    ended its episode; ``False`` when selecting)."""
+
+    episode: Array
+    step: Array
+    terminal: Array
+
+
+@pytree_dataclass
+class Transition:
+    """What a learner's update sees (one agent).
+
+    Attributes:
+      q: Q(s, a) before the update.
+      tables: the learner's own tables at (s, a) (scalars).
+      reward: the transition's reward.
+      discount: γ, or 0 when ``s'`` is terminal.
+      q_next: ``[A]`` Q row of ``s'`` (of the next episode's start state after a
+        terminal step; multiplied by discount 0 then).
+      tables_next: the learner's tables at ``s'`` (``[A]`` rows).
+      next_action: a′ (only with ``uses_next_action``; else 0).
+      next_probabilities: ``[A]`` π(·|s′) (only with ``uses_next_probabilities``; else
+        zeros).
+      uniforms: the learner's ``num_uniforms`` uniforms in [0, 1).
+      terminal: the transition ended its episode (a failure has a negative reward, a goal
+        a positive one, on the tasks of vdbejax).
+    """
+
+    q: Array
+    tables: dict
+    reward: Array
+    discount: Array
+    q_next: Array
+    tables_next: dict
+    next_action: Array
+    next_probabilities: Array
+    uniforms: tuple
+    terminal: Array
+
+
+@pytree_dataclass
+class LearnerUpdate:
+    """A learner's result: new Q(s,a), new values of its tables at (s,a), and ΔQ."""
+
+    q: Array
+    tables: dict
+    delta_q: Array
+
+
+class Explorer:
+    """Base class of action-selection methods (see :mod:`vdbejax.methods.api`)."""
+
+    name: ClassVar[str] = ""
+    #: The name figures and tables show (``"VDBE-Softmax"``; default: :attr:`name`).
+    title: ClassVar[str] = ""
+    #: The hyperparameter a :class:`~vdbejax.methods.agents.Setting`'s ``param`` sets.
+    parameter: ClassVar[str | None] = None
+    #: Uniforms ``select`` receives.
+    num_uniforms: ClassVar[int] = 3
+    #: Grid-wide option names this explorer takes under another field name.
+    option_aliases: ClassVar[dict[str, str]] = {}
+
+    def tables(self) -> dict[str, Table]:
+        """The tables this explorer keeps (none by default)."""
+        return {}
+
+    def select(self, q: Array, tables: Mapping[str, Array], context: Context,
+               uniforms: tuple[Array, ...]) -> Array:
+        """The action to take (int32 scalar) given the state's Q row and tables."""
+        raise NotImplementedError
+
+    def probabilities(self, q: Array, tables: Mapping[str, Array], context: Context) -> Array:
+        """``[A]`` probability of each action under :meth:`select`."""
+        raise NotImplementedError(f"explorer {self.name!r} does not define probabilities()")
+
+    def update(self, tables: Mapping[str, Array], action: Array, delta_q: Array,
+               context: Context) -> dict[str, Array]:
+        """The state's tables after a learning step in it (unchanged by default)."""
+        return dict(tables)
+
+    def validate(self) -> None:
+        """Raise a one-line ``ValueError`` for out-of-range hyperparameters."""
+
+
+class Learner:
+    """Base class of learning rules (see :mod:`vdbejax.methods.api`)."""
+
+    name: ClassVar[str] = ""
+    #: The name figures and tables show (``"Q-learning"``; default: :attr:`name`).
+    title: ClassVar[str] = ""
+    num_uniforms: ClassVar[int] = 0
+    uses_next_action: ClassVar[bool] = False
+    uses_next_probabilities: ClassVar[bool] = False
+    option_aliases: ClassVar[dict[str, str]] = {}
+    #: The discount γ: every learner has this field (:func:`learner` checks it).
+    gamma: float | Array
+
+    @property
+    def redraws_next_action(self) -> bool:
+        """With ``uses_next_action``: the action taken in s′ is drawn afresh after the
+        update (the a′ of the target only serves the target; the authors' SARSA). A class
+        attribute, or a property where it is an option."""
+        return False
+
+    def tables(self) -> dict[str, Table]:
+        """Extra per-(state, action) tables (none by default)."""
+        return {}
+
+    def behaviour(self, q: Array, tables: Mapping[str, Array]) -> Array:
+        """The ``[A]`` values the explorer acts on (Q itself by default)."""
+        return q
+
+    def initial_q(self, key: Array, num_states: int, num_actions: int) -> Array:
+        """The agent's initial Q table (``q_init`` everywhere by default)."""
+        return jnp.full((num_states, num_actions), getattr(self, "q_init", 0.0), jnp.float32)
+
+    def update(self, transition: Transition) -> LearnerUpdate:
+        raise NotImplementedError
+
+    def validate(self) -> None:
+        """Raise a one-line ``ValueError`` for out-of-range hyperparameters."""
+

@@ -1,0 +1,127 @@
+"""The plug-in check: :func:`check_plugin` traces one agent's plug-in functions on abstract
+inputs before any training, so that a wrong shape or dtype, a failing function or a side
+effect is a one-line ``ValueError`` rather than an error deep inside the engine's program.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from vdbejax.methods.contract import (
+    TABLE_KINDS,
+    Context,
+    Explorer,
+    Learner,
+    LearnerUpdate,
+    Table,
+    Transition,
+)
+
+
+def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: int = 3) -> None:
+    """Trace one agent's plug-in functions on abstract inputs; a one-line ``ValueError``
+    for wrong shapes or dtypes, a failing function, or side effects.
+
+    Args:
+      agent_learner: one learner instance (scalar leaves).
+      agent_explorer: one explorer instance.
+      num_actions: actions of the task.
+    """
+    name = f"explorer {agent_explorer.name!r}"
+    A = num_actions
+    f32 = jnp.float32
+    row, scalar = _abstract((A,), f32), _abstract((), f32)
+    tables = _table_values(name, agent_explorer.tables(), row, scalar)
+    ltables = _table_values(f"learner {agent_learner.name!r}", agent_learner.tables(), row, scalar)
+    for lname, spec in agent_learner.tables().items():
+        if spec.per != "pair":
+            raise ValueError(f"learner {agent_learner.name!r} table {lname!r} is per {spec.per!r}:"
+                             " a learner's extra tables must be per 'pair'")
+    context = Context(_abstract((), jnp.int32), _abstract((), jnp.int32),
+                      _abstract((), jnp.bool_))
+    uniforms = tuple(scalar for _ in range(_count(name, agent_explorer.num_uniforms)))
+
+    def traced(what: str, fn: Callable, *args: Any) -> Any:
+        try:
+            closed = jax.make_jaxpr(fn)(*args)
+        except ValueError:
+            raise
+        except Exception as error:
+            message = (str(error).strip().splitlines()[0] if str(error).strip()
+                       else type(error).__name__)
+            raise ValueError(f"{what} fails on one agent's inputs: {type(error).__name__}: "
+                             f"{message}") from None
+        if closed.effects:
+            raise ValueError(f"{what} has side effects ({sorted(map(str, closed.effects))}):"
+                             " plug-in functions must be pure")
+        return jax.eval_shape(fn, *args)
+
+    action = traced(f"{name} select()", agent_explorer.select, row, tables, context, uniforms)
+    if getattr(action, "shape", None) != () or not jnp.issubdtype(action.dtype, jnp.integer):
+        raise ValueError(f"{name} select() returned {_describe(action)}: must be one integer"
+                         " action (shape ())")
+    action = _abstract((), jnp.int32)
+    new = traced(f"{name} update()", agent_explorer.update, tables, action, scalar, context)
+    _check_same(f"{name} update()", new, tables)
+    uses_probabilities = agent_learner.uses_next_probabilities
+    if uses_probabilities:
+        probs = traced(f"{name} probabilities()", agent_explorer.probabilities, row, tables,
+                       context)
+        _check_same(f"{name} probabilities()", probs, row)
+    lname = f"learner {agent_learner.name!r}"
+    behaviour = traced(f"{lname} behaviour()", agent_learner.behaviour, row, ltables)
+    _check_same(f"{lname} behaviour()", behaviour, row)
+    luniforms = tuple(scalar for _ in range(_count(lname, agent_learner.num_uniforms)))
+    transition = Transition(scalar, {k: scalar for k in ltables}, scalar, scalar, row, ltables,
+                            action, row, luniforms, _abstract((), jnp.bool_))
+    result = traced(f"{lname} update()", agent_learner.update, transition)
+    if not isinstance(result, LearnerUpdate):
+        raise ValueError(f"{lname} update() returned {type(result).__name__}: must return a"
+                         " LearnerUpdate(q, tables, delta_q)")
+    _check_same(f"{lname} update() q", result.q, scalar)
+    _check_same(f"{lname} update() delta_q", result.delta_q, scalar)
+    _check_same(f"{lname} update() tables", result.tables, {k: scalar for k in ltables})
+
+
+def _abstract(shape: tuple[int, ...], dtype: Any) -> Any:
+    """A shape-and-dtype stand-in for an array (what ``jax.eval_shape`` traces with), in
+    the place of the ``Array`` fields of :class:`Context` and :class:`Transition`."""
+    return jax.ShapeDtypeStruct(shape, dtype)
+
+
+def _count(name: str, value: Any) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise ValueError(f"{name} num_uniforms={value!r} is invalid: must be an integer >= 0")
+    return int(value)
+
+
+def _table_values(name: str, specs: Any, row: Any, scalar: Any) -> dict[str, Any]:
+    if not isinstance(specs, Mapping):
+        raise ValueError(f"{name} tables() returned {type(specs).__name__}: must return"
+                         " a dict {name: Table(per, init)}")
+    values = {}
+    for key, spec in specs.items():
+        if not isinstance(spec, Table) or spec.per not in TABLE_KINDS:
+            raise ValueError(f"{name} table {key!r}={spec!r} is invalid: must be"
+                             " Table('state' or 'pair', init)")
+        values[key] = scalar if spec.per == "state" else row
+    return values
+
+
+def _describe(value: Any) -> str:
+    shapes = jax.tree.map(lambda x: f"{x.dtype}{list(x.shape)}", value)
+    return str(shapes)
+
+
+def _check_same(what: str, value: Any, expected: Any) -> None:
+    got = jax.tree.map(lambda x: tuple(x.shape), value)
+    want = jax.tree.map(lambda x: tuple(x.shape), expected)
+    # jax.tree.structure's return type (PyTreeDef) does not resolve for mypy.
+    if (jax.tree.structure(got) != jax.tree.structure(want)  # type: ignore[operator]
+            or jax.tree.leaves(got) != jax.tree.leaves(want)):
+        raise ValueError(f"{what} returned {_describe(value)}: expected {_describe(expected)}")
+
