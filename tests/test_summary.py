@@ -53,6 +53,7 @@ def test_a_row_reads_as_the_former_dict(rows):
     assert view == r.as_dict()
     assert r["final_return"] == r.final_return and r.get("episodes_cut") is None
     assert "episodes_cut" not in r and len(r) == len(view)
+    assert "no_such_column" not in r and r.get("no_such_column") is None
     default = dataclasses.replace(r, param=None)
     assert default["param"] == "" and default.param is None
 

@@ -110,7 +110,15 @@ class SummaryRow(Mapping[str, Any]):
         return values
 
     def __getitem__(self, column: str) -> Any:
-        return self.as_dict()[column]
+        # One column, as as_dict() would give it (without building the whole dict).
+        if column not in _FIELDS:
+            raise KeyError(column)
+        value = getattr(self, column)
+        if column == "param":
+            return "" if value is None else value
+        if value is None:
+            raise KeyError(column)
+        return value
 
     def __iter__(self) -> Iterator[str]:
         return iter(self.as_dict())

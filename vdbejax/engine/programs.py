@@ -62,17 +62,17 @@ class Call:
         options, and the arguments' tree (node types included), shapes, dtypes and
         placement."""
         leaves, treedef = jax.tree.flatten(self.args)
+        default = {jax.devices()[0]}
         return (self.function, tuple(sorted(self.static.items())), self.donate,
                 tuple(self.options.items()), treedef, _node_types(treedef),
-                tuple(_leaf_signature(leaf) for leaf in leaves))
+                tuple(_leaf_signature(leaf, default) for leaf in leaves))
 
 
-def _leaf_signature(x: Any) -> tuple:
+def _leaf_signature(x: Any, default: set[Any]) -> tuple:
     dtype = getattr(x, "dtype", None)
     sharding = getattr(x, "sharding", None)
     # arrays on the default device alone run the program compiled from shapes alone
-    placement = (None if sharding is None or sharding.device_set == {jax.devices()[0]}
-                 else sharding)
+    placement = None if sharding is None or sharding.device_set == default else sharding
     return (np.shape(x), np.dtype(dtype if dtype is not None else np.result_type(x)).str,
             bool(getattr(x, "weak_type", False)), placement)
 

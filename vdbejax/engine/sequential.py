@@ -320,7 +320,7 @@ class _SequentialRun:
         self.host = agents  # the full state while host_current (numpy or device arrays)
         self.host_current = True
         self.items: list[tuple[np.ndarray, Any]] | None = None
-        self.programs: list[tuple[Any, Any]] = []  # per item: executable, hyperparameters
+        self.item_programs: list[tuple[Any, Any]] = []  # per item: executable, hyperparameters
         self.kinds = np.asarray(self.params.kind)
         self.support = start_support(mdp)
         self.layout = (jax.eval_shape(partial(init_agents), mdp, self.params, self.keys)
@@ -393,7 +393,7 @@ class _SequentialRun:
             return False
         # Each item's program and hyperparameters, for every chunk (items keep their
         # agents, and a run's chunks have one length, a static argument of the program).
-        self.programs = [(executable, call.args[1])
+        self.item_programs = [(executable, call.args[1])
                          for executable, call in zip(executables, calls, strict=True)]
         fresh = self.host is None  # large fresh agents: created in their item, on the device
         host = None if fresh else self.agents()
@@ -428,7 +428,7 @@ class _SequentialRun:
         items = self.items
         assert items is not None  # formed by prepare()
         index, state = items[k]
-        executable, agent = self.programs[k]
+        executable, agent = self.item_programs[k]
         new_state, returns, lengths, iterations, lanes = executable(  # state donated
             *self._arguments(agent, state, index, chunk))
         items[k] = (index, new_state)
