@@ -14,13 +14,12 @@ from small_grid import (
 )
 
 from vdbejax.batching import (
-    SweepProgress,
     agents_per_batch,
     bytes_per_agent,
     default_memory_budget,
     mdp_bytes,
-    next_batch,
 )
+from vdbejax.runs import RunState
 from vdbejax.validation import parse_bytes
 
 
@@ -69,15 +68,25 @@ def test_budget_too_small_for_one_agent_is_a_clear_error():
 
 
 def test_next_batch_finishes_started_agents_first():
-    progress = SweepProgress.fresh(6, 10)
-    np.testing.assert_array_equal(next_batch(progress, 4), [0, 1, 2, 3])
+    progress = RunState.fresh(6, 10)
+    np.testing.assert_array_equal(progress.next_batch(4), [0, 1, 2, 3])
     progress.episodes_done[[2, 3]] = 5
     progress.episodes_done[[0, 1]] = 10
-    np.testing.assert_array_equal(next_batch(progress, 4), [2, 3])
+    np.testing.assert_array_equal(progress.next_batch(4), [2, 3])
     progress.episodes_done[:4] = 10
-    np.testing.assert_array_equal(next_batch(progress, 4), [4, 5])
+    np.testing.assert_array_equal(progress.next_batch(4), [4, 5])
     progress.episodes_done[:] = 10
-    assert next_batch(progress, 4).size == 0
+    assert progress.next_batch(4).size == 0
+
+
+def test_stopped_agents_leave_the_batches():
+    progress = RunState.fresh(6, 10)
+    progress.episodes_done[:] = 4
+    progress.stop(np.array([0, 2]))
+    np.testing.assert_array_equal(progress.next_batch(8), [1, 3, 4, 5])
+    assert progress.episodes_credited() == 2 * 10 + 4 * 4  # a stopped agent counts as done
+    progress.stop(np.array([1, 3, 4, 5]))
+    assert progress.next_batch(8).size == 0 and progress.finished.all()
 
 
 @pytest.mark.parametrize("text, expected", [

@@ -197,7 +197,9 @@ def test_git_commit_is_none_outside_a_clone_and_for_an_untracked_copy(tmp_path, 
     monkeypatch.setenv("GIT_CEILING_DIRECTORIES", str(tmp_path))
     package = tmp_path / "plain" / "vdbejax"
     package.mkdir(parents=True)
-    monkeypatch.setattr(experiment, "__file__", str(package / "experiment.py"))
+    from vdbejax.runs import grid as grid_module  # where git_commit lives
+
+    monkeypatch.setattr(grid_module, "__file__", str(package / "runs" / "grid.py"))
     assert experiment.git_commit.__wrapped__() is None  # not a git clone
     # A copy inside some other repository (a virtualenv in a clone) that does not track it.
     repo = tmp_path / "other"
@@ -207,7 +209,7 @@ def test_git_commit_is_none_outside_a_clone_and_for_an_untracked_copy(tmp_path, 
     git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-c", "commit.gpgsign=false"]
     for args in (["init", "-q"], ["add", "README"], ["commit", "-q", "-m", "x"]):
         subprocess.run(git + args, cwd=repo, check=True, capture_output=True)
-    monkeypatch.setattr(experiment, "__file__", str(package / "experiment.py"))
+    monkeypatch.setattr(grid_module, "__file__", str(package / "runs" / "grid.py"))
     assert experiment.git_commit.__wrapped__() is None
 
 
@@ -231,11 +233,16 @@ def test_check_int_maximum():
     ("chunk_episodes", 2**31), ("seed", np.uint64(2**32)),
 ])
 def test_run_options_beyond_32_bits_are_rejected(name, value):
-    # check_run_options is run_grid's (and reproduce's, run_sweep's) first check; called
-    # alone here, so a missing bound cannot start allocating 2**31 agents.
-    kwargs = {"num_seeds": 1, "num_episodes": 1, "seed": 0, "chunk_episodes": 1, name: value}
+    # Checked when the run options are made and by prepare_grid (run_grid's, reproduce's,
+    # run_sweep's first step), so a missing bound cannot start allocating 2**31 agents.
+    from vdbejax.runs import RunOptions, prepare_grid
+
     with pytest.raises(ValueError) as error:
-        experiment.check_run_options(**kwargs, resume=False, memory_budget_bytes=None)
+        if name == "chunk_episodes":
+            RunOptions(chunk_episodes=value)
+        else:
+            work = {"num_seeds": 1, "num_episodes": 1, "seed": 0, name: value}
+            prepare_grid(make_mdp(), [Setting("qlearning", "egreedy", 0.1)], **work)
     message = str(error.value)
     assert "\n" not in message and message.startswith(f"{name}=") and "is invalid" in message
 

@@ -19,6 +19,7 @@ from damaged_results import damaged_copy
 from vdbejax import cli, io, result_folder, sweeps
 from vdbejax.experiment import GridResult
 from vdbejax.result_folder import FolderLock
+from vdbejax.studies import folder as studies_folder
 
 SWEEP = dict(learners=["qlearning"], explorers=["egreedy"], seeds=2, episodes=12, progress=False)
 
@@ -39,7 +40,7 @@ def one_error_line(capsys) -> str:
 # ------------------------------------------------------------------ defect 2: one run per folder
 def test_a_second_writer_is_refused_before_training(tmp_path, monkeypatch):
     trained = []
-    monkeypatch.setattr(sweeps, "run_grid", lambda *a, **k: trained.append(1))
+    monkeypatch.setattr(studies_folder, "run_prepared", lambda *a, **k: trained.append(1))
     with FolderLock(tmp_path):
         with pytest.raises(ValueError, match="is being written by another vdbejax run"):
             sweeps.run_sweep(tmp_path, **SWEEP)
@@ -102,7 +103,7 @@ def test_a_whole_run_leaves_no_marker(saved):
 def test_an_output_path_that_is_a_folder_is_refused_before_training(tmp_path, capsys, monkeypatch):
     (tmp_path / "summary.csv").mkdir()
     trained = []
-    monkeypatch.setattr(sweeps, "run_grid", lambda *a, **k: trained.append(1))
+    monkeypatch.setattr(studies_folder, "run_prepared", lambda *a, **k: trained.append(1))
     assert cli.main(["run", "--out", str(tmp_path), "--learners", "qlearning", "--explorers",
                      "egreedy", "--seeds", "2", "--episodes", "5", "--quiet"]) == 2
     assert "summary.csv" in one_error_line(capsys) and not trained
@@ -123,7 +124,8 @@ def test_disk_full_while_saving_keeps_the_results_elsewhere(tmp_path, monkeypatc
         real(path, data)
 
     monkeypatch.setattr(io, "atomic_write_bytes", full)
-    with pytest.raises(ValueError) as caught:
+    with pytest.raises(ValueError) as caught, pytest.warns(RuntimeWarning, match=(
+            "checkpoint .* cannot be written .*No space left on device.*: the run goes on")):
         sweeps.run_sweep(tmp_path, **SWEEP)
     message = str(caught.value)
     assert "No space left on device" in message and "\n" not in message

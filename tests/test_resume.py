@@ -27,7 +27,8 @@ class Interrupted(Exception):
 
 def interrupt_after(calls: int):
     """A progress callback that raises on its ``calls``-th call (after the checkpoint of
-    that chunk was written: the engine calls on_chunk before progress)."""
+    that chunk was written: the driver checkpoints before it reports progress). The run
+    reports once at its start, then after every chunk."""
     seen = []
 
     def progress(done: int, total: int, elapsed: float) -> None:
@@ -64,7 +65,7 @@ def test_resume_with_batches_and_another_budget(tmp_path, reference):
     mdp = small_mdp()
     with pytest.raises(Interrupted):  # stop inside the second batch of 4 agents
         run_small(checkpoint=checkpoint, memory_budget_bytes=budget_for(mdp, 4),
-                  progress=interrupt_after(6))
+                  progress=interrupt_after(5))  # start, 3 chunks of batch 1, 1 of batch 2
     done = checkpoint_progress(checkpoint)
     assert sorted(set(done.tolist())) == [0, 8, EPISODES], done
     resumed = run_small(checkpoint=checkpoint, resume=True,

@@ -132,7 +132,7 @@ def test_scale_cli_end_to_end(tmp_path, capsys):
     code = cli.main(["scale", "--out", str(out), "--sizes", "2x1", "--seeds", "2",
                      "--episodes", "300", "--chunk-episodes", "60", "--quiet"])
     assert code == 0, capsys.readouterr().err
-    for name in ("scaling.csv", "scaling.md", "scaling.png", "meta.json", "runs/2x1.npz"):
+    for name in ("scaling.csv", "scaling.md", "scaling.png", "meta.json", "runs/2x1/returns.npz"):
         assert (out / name).is_file(), name
     rows = list(csv.DictReader(open(out / "scaling.csv")))
     # Every method of the study with both learners, the count-bonus plug-in included.
@@ -166,18 +166,51 @@ def test_scale_cli_end_to_end(tmp_path, capsys):
     (["--fraction", "1.5"], "fraction=1.5 is invalid"),
     (["--methods", "egreedy,telepathy"], "methods has 'telepathy'"),
     (["--learners", "qlearning,oracle"], "learner='oracle' is invalid"),
+    (["--memory-budget", "lots"], "memory_budget_bytes='lots' is invalid"),
+    (["--devices", "0"], "devices=0 is invalid"),
 ])
 def test_scale_cli_bad_input_is_one_line_before_training(tmp_path, capsys, monkeypatch,
                                                         args, match):
     def no_training(*_args, **_kwargs):
         raise AssertionError("training started")
 
-    monkeypatch.setattr(scaling, "run_until_solved", no_training)
+    monkeypatch.setattr(scaling, "_run_variant", no_training)
     code = cli.main(["scale", "--out", str(tmp_path / "bad"), "--quiet", *args])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].startswith("error: "), err
     assert match in err[0]
     assert not (tmp_path / "bad" / "scaling.csv").exists()
+
+
+def test_scale_resumes_an_interrupted_study(tmp_path, monkeypatch, capsys):
+    from vdbejax.runs import grid
+
+    small = ["--sizes", "2x1,3x1", "--seeds", "2", "--episodes", "200", "--chunk-episodes",
+             "20", "--methods", "egreedy,vdbe_softmax", "--learners", "qlearning", "--quiet"]
+    whole, out = tmp_path / "whole", tmp_path / "resumed"
+    assert cli.main(["scale", "--out", str(whole), *small]) == 0
+    real, calls = grid.drive, []
+
+    def drive_then_stop(*args, **kwargs):  # the second variant stops after its 3rd chunk
+        calls.append(1)
+        if len(calls) == 2:
+            def stop(done, total, elapsed, seen=[]):
+                seen.append(done)
+                if len(seen) == 4:
+                    raise KeyboardInterrupt
+            kwargs["progress"] = stop
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(grid, "drive", drive_then_stop)
+    assert cli.main(["scale", "--out", str(out), *small]) == 130
+    assert (out / "runs" / "2x1" / "returns.npz").is_file()
+    assert (out / "runs" / "3x1" / "checkpoint.npz").is_file()
+    monkeypatch.setattr(grid, "drive", real)
+    assert cli.main(["scale", "--out", str(out), *small, "--resume"]) == 0
+    assert (out / "scaling.csv").read_text() == (whole / "scaling.csv").read_text()
+    resumed = json.loads((out / "runs" / "3x1" / "meta.json").read_text())
+    assert resumed["resumed_from_agent_episodes"] > 0
+    assert not (out / "runs" / "3x1" / "checkpoint.npz").exists()
 
 
 # ---------------------------------------------------------------- the modules

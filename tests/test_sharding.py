@@ -54,6 +54,16 @@ FOUR_DEVICE_SCRIPT = textwrap.dedent(
     batched.save(out + "/batched")
     info["batched"] = [batched.meta["devices"], batched.meta["batches"],
                        batched.meta["agents_per_batch"]]
+    info["plan"] = batched.meta["plan"]
+    try:  # the plan refuses what sharded agents cannot do, rather than rewrite it
+        run_small(strategy="sequential")
+    except ValueError as error:
+        info["sequential"] = str(error)
+    from vdbejax.runs import UntilSolved
+    from vdbejax.envs.table_cleaning import make_mdp
+    run_small(mdp=make_mdp(), num_episodes=160, chunk_episodes=16, stop=UntilSolved(fraction=0.5),
+              memory_budget_bytes=budget_for(make_mdp(), 2, chunk_episodes=16)
+              ).save(out + "/until_solved")
 
     # Sharded batches of 16 then 8 agents, chunks long enough for the engine to compact
     # the first batch down to 8 lanes: the two 8-lane programs must not be confused.
@@ -133,6 +143,30 @@ def test_grid_larger_than_one_device_budget_runs_in_sharded_batches(four_devices
     out, info = four_devices
     assert info["batched"] == [4, 3, 4]  # 4 devices, 3 batches of 4 agents
     assert_same_curves(reference, GridResult.load(out / "batched"))
+
+
+def test_the_plan_states_the_sharding_and_refuses_what_it_cannot_do(four_devices):
+    _, info = four_devices
+    assert info["plan"] == {"devices": 4, "processes": 1, "sharded": True,
+                            "strategy": "lockstep", "compact": False, "agents_per_batch": 4,
+                            "memory_budget_bytes": info["plan"]["memory_budget_bytes"]}
+    assert info["sequential"].startswith("strategy='sequential' is invalid with devices=4")
+
+
+def test_until_solved_sharded_in_batches_equals_one_device(four_devices):
+    from vdbejax.runs import UntilSolved
+
+    out, _ = four_devices
+    from vdbejax.envs.table_cleaning import make_mdp
+
+    sharded = GridResult.load(out / "until_solved")
+    one = run_small(mdp=make_mdp(), num_episodes=160, chunk_episodes=16,
+                    stop=UntilSolved(fraction=0.5))
+    assert sharded.meta["plan"]["sharded"] and not one.meta["plan"]["sharded"]
+    assert sharded.meta["batches"] > 1
+    assert one.episodes_run is not None and (one.episodes_run < 160).any()
+    np.testing.assert_array_equal(sharded.episodes_run, one.episodes_run)
+    assert_same_curves(sharded, one)
 
 
 def test_sharded_batched_run_resumes_bit_identically(four_devices, reference):

@@ -31,8 +31,11 @@ _PUBLIC = {
     "TabularMDP": "vdbejax.envs",
     "compile_env": "vdbejax.envs",
     "make_tabular_mdp": "vdbejax.envs",
-    "GridResult": "vdbejax.experiment",
-    "run_grid": "vdbejax.experiment",
+    "GridResult": "vdbejax.grid_result",
+    "run_grid": "vdbejax.runs",
+    "RunOptions": "vdbejax.runs",
+    "FixedBudget": "vdbejax.runs",
+    "UntilSolved": "vdbejax.runs",
     "reproduce": "vdbejax.paper.reproduce",
 }
 
@@ -55,9 +58,12 @@ def __dir__() -> list[str]:
 __all__ = [
     "AgentOptions",
     "AgentParams",
+    "FixedBudget",
     "GridResult",
+    "RunOptions",
     "Setting",
     "TabularMDP",
+    "UntilSolved",
     "compile_env",
     "make_agent",
     "make_tabular_mdp",

@@ -1,30 +1,24 @@
-"""Memory-aware batching: run a sweep in sequential batches that fit a memory budget.
+"""Memory estimates of a run: how many agents fit a device, and whether the results fit.
 
-A sweep's agents are independent, so they can run in any grouping with the same results.
+A run's agents are independent, so they can run in any grouping with the same results.
 When the per-device memory of all agents (Q tables, VDBE ε tables, chunk buffers) exceeds
-the budget, :func:`run_batched` runs them in sequential batches of at most
-:func:`agents_per_batch` agents, each batch sharded over all devices
-(:mod:`vdbejax.distributed`). Progress is kept in a :class:`SweepProgress`, which is what
-a checkpoint stores: any run can be resumed whatever the batch size or device count.
+the budget, the run's plan (:mod:`vdbejax.runs.plan`) runs them in sequential batches of
+at most :func:`agents_per_batch` agents; :func:`check_run_size` refuses, before anything
+is allocated, a run whose results cannot fit the host.
 """
 from __future__ import annotations
 
-import dataclasses
 import os
 import shutil
-import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
 
-from vdbejax.distributed import run_sharded, take_agents
-from vdbejax.engine import AgentState, ProgressCallback
 from vdbejax.engine.state import state_bytes
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.validation import check_int
 
 #: Fraction of a device's free memory used when no budget is given.
 DEFAULT_MEMORY_FRACTION = 0.5
@@ -178,169 +172,3 @@ def agents_per_batch(
             f" {per_agent_bytes + fixed_bytes} bytes per device"
         )
     return int(min(num_agents, per_device * num_devices))
-
-
-@dataclasses.dataclass
-class SweepProgress:
-    """Where a (possibly batched) sweep stands: what a checkpoint stores.
-
-    Attributes:
-      returns: float32 ``[agents, episodes]`` (zeros past each agent's ``episodes_done``).
-      lengths: int32 ``[agents, episodes]``.
-      episodes_done: int64 ``[agents]`` completed episodes per agent.
-      nonfinite: bool ``[agents]``: NaN/inf appeared (final for finished agents).
-      state_rows: int64 ``[m]`` agents that are started but unfinished.
-      state: their :class:`~vdbejax.engine.AgentState` (numpy leaves, leading axis m),
-        or None when m = 0.
-    """
-
-    returns: np.ndarray
-    lengths: np.ndarray
-    episodes_done: np.ndarray
-    nonfinite: np.ndarray
-    state_rows: np.ndarray
-    state: AgentState | None
-
-    @classmethod
-    def fresh(cls, num_agents: int, num_episodes: int) -> SweepProgress:
-        """Nothing done yet."""
-        return cls(
-            returns=np.zeros((num_agents, num_episodes), np.float32),
-            lengths=np.zeros((num_agents, num_episodes), np.int32),
-            episodes_done=np.zeros(num_agents, np.int64),
-            nonfinite=np.zeros(num_agents, bool),
-            state_rows=np.zeros(0, np.int64),
-            state=None,
-        )
-
-    @property
-    def num_episodes(self) -> int:
-        return int(self.returns.shape[1])
-
-    def record(self, rows: np.ndarray, done: int, agents: AgentState | None,
-               returns: np.ndarray, lengths: np.ndarray,
-               nonfinite: np.ndarray | None = None) -> None:
-        """Store a batch's progress after a chunk (agents ``rows`` have ``done`` episodes).
-
-        ``agents`` may hold device arrays: only what is kept is copied to numpy (the
-        states of finished agents are not, and may be ``None`` given ``nonfinite``).
-        """
-        self.returns[rows, :done] = returns
-        self.lengths[rows, :done] = lengths
-        self.episodes_done[rows] = done
-        if nonfinite is None:
-            assert agents is not None  # the states may be None only given nonfinite
-            nonfinite = np.asarray(agents.nonfinite)
-        self.nonfinite[rows] = np.asarray(nonfinite)
-        keep = ~np.isin(self.state_rows, rows)
-        row_parts, state_parts = [], []
-        if keep.any():
-            row_parts.append(self.state_rows[keep])
-            state_parts.append(take_agents(self.state, keep))
-        if done < self.num_episodes:  # finished agents need no state
-            row_parts.append(np.asarray(rows, np.int64))
-            state_parts.append(jax.tree.map(np.asarray, agents))
-        self.state_rows = np.concatenate(row_parts) if row_parts else np.zeros(0, np.int64)
-        self.state = (jax.tree.map(lambda *leaves: np.concatenate(leaves), *state_parts)
-                      if state_parts else None)
-
-    def states_of(self, rows: np.ndarray) -> AgentState:
-        """The stored states of agents ``rows`` (each must be started and unfinished)."""
-        position = {int(r): i for i, r in enumerate(self.state_rows)}
-        try:
-            index = np.asarray([position[int(r)] for r in rows])
-        except KeyError as missing:
-            raise ValueError(f"checkpoint lacks the state of agent {missing}") from None
-        assert self.state is not None  # agents in progress: their states are stored
-        return take_agents(self.state, index)
-
-
-def next_batch(progress: SweepProgress, batch_size: int) -> np.ndarray:
-    """Agents of the next batch: up to ``batch_size`` unfinished agents that have all
-    done the same number of episodes (in-progress agents first, then fresh ones).
-
-    Args:
-      progress: the sweep so far.
-      batch_size: most agents per batch.
-
-    Returns:
-      int64 agent rows (empty when every agent is finished).
-    """
-    pending = np.flatnonzero(progress.episodes_done < progress.num_episodes)
-    if pending.size == 0:
-        return pending
-    done = progress.episodes_done[pending]
-    group = pending[done == done.max()]
-    return group[:batch_size]
-
-
-def run_batched(
-    mdp: TabularMDP,
-    params: Any,
-    keys: np.ndarray,
-    num_episodes: int,
-    *,
-    batch_size: int,
-    devices: Sequence[jax.Device] | None = None,
-    chunk_episodes: int = 100,
-    progress: ProgressCallback | None = None,
-    sweep: SweepProgress | None = None,
-    on_checkpoint: Callable[[SweepProgress], None] | None = None,
-) -> tuple[SweepProgress, int]:
-    """Train all agents in sequential batches of at most ``batch_size`` agents.
-
-    Args:
-      mdp: the task.
-      params: batched hyperparameters (leading axis = agents).
-      keys: uint32 ``[agents, 2]``.
-      num_episodes: episodes per agent.
-      batch_size: agents per batch (:func:`agents_per_batch`); results do not depend on it.
-      devices: devices each batch is sharded over (default: all).
-      chunk_episodes: episodes per engine chunk (checkpoint granularity).
-      progress: ``progress(done_agent_episodes, total, elapsed)`` over the whole sweep.
-      sweep: resume from this progress (default: fresh).
-      on_checkpoint: called with the progress after every chunk of every batch.
-
-    Returns:
-      ``(final progress, number of batches run)``.
-    """
-    check_int("batch_size", batch_size, 1)
-    keys = np.asarray(keys, np.uint32)
-    num_agents = int(keys.shape[0])
-    sweep = SweepProgress.fresh(num_agents, num_episodes) if sweep is None else sweep
-    total = num_agents * num_episodes
-    started = time.perf_counter()
-    batches = 0
-    while (rows := next_batch(sweep, batch_size)).size:
-        done = int(sweep.episodes_done[rows[0]])
-        initial = None
-        if done:
-            initial = (done, sweep.states_of(rows), sweep.returns[rows, :done],
-                       sweep.lengths[rows, :done])
-        others_done = int(sweep.episodes_done.sum() - sweep.episodes_done[rows].sum())
-
-        def on_chunk(chunk_done: int, agents: AgentState, returns: np.ndarray,
-                     lengths: np.ndarray, rows: np.ndarray = rows) -> None:
-            sweep.record(rows, chunk_done, agents, returns, lengths)
-            if on_checkpoint is not None:
-                on_checkpoint(sweep)
-
-        batch_progress = None
-        if progress is not None:
-            def batch_progress(done_here: int, _total: int, _elapsed: float,
-                               base: int = others_done) -> None:
-                progress(base + done_here, total, time.perf_counter() - started)
-
-        # Without checkpoints nothing needs the agents between chunks: record the batch
-        # once at its end (no per-chunk copy of every agent's tables to the host).
-        checkpointing = on_checkpoint is not None
-        result = run_sharded(mdp, take_agents(params, rows), keys[rows], num_episodes,
-                             devices=devices, initial=initial,
-                             on_chunk=on_chunk if checkpointing else None,
-                             chunk_episodes=chunk_episodes, progress=batch_progress,
-                             keep_final_state=False)  # finished agents keep no state
-        if not checkpointing:
-            sweep.record(rows, num_episodes, None, result.returns, result.lengths,
-                         nonfinite=result.nonfinite)
-        batches += 1
-    return sweep, batches

@@ -11,7 +11,7 @@ import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from vdbejax import __version__
 from vdbejax.validation import parse_cli_number
@@ -45,18 +45,28 @@ def _add_reproduce(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--q-init", type=number, default=0.0, help="initial Q value (default 0)")
     p.add_argument("--chunk-episodes", type=number, default=100,
                    help="episodes per jitted chunk (default 100)")
-    p.add_argument("--memory-budget", default=None,
-                   help="device memory per device for the agents, e.g. 512M, 2G (default: half"
-                        " the free memory); agents that do not fit run in sequential batches")
-    p.add_argument("--devices", type=number, default=None,
-                   help="devices to shard the agents over (default: all)")
-    p.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.npz")
+    _add_run_flags(p, "continue from OUT/checkpoint.npz (or reuse OUT's whole result)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-figures", action="store_true",
                    help="no fig3.png / sensitivity.png ('vdbejax plot' draws them later)")
     p.add_argument("--long-csv", action="store_true",
                    help="also write returns_long.csv: one row per agent-episode (setting,"
                         " hyperparameters, seed, episode, return, length)")
+
+
+def _add_run_flags(p: argparse.ArgumentParser, resume: str) -> None:
+    """The flags of every command that trains: --resume, --devices, --memory-budget."""
+    p.add_argument("--resume", action="store_true", help=resume)
+    p.add_argument("--devices", type=parse_cli_number, default=None,
+                   help="devices to shard the agents over (default: all)")
+    p.add_argument("--memory-budget", default=None,
+                   help="device memory per device for the agents, e.g. 512M, 2G (default: half"
+                        " the free memory); agents that do not fit run in sequential batches")
+
+
+def _run_flags(args: argparse.Namespace) -> dict[str, Any]:
+    return {"resume": args.resume, "devices": args.devices,
+            "memory_budget_bytes": args.memory_budget}
 
 
 def _reproduce(args: argparse.Namespace) -> None:
@@ -67,9 +77,8 @@ def _reproduce(args: argparse.Namespace) -> None:
     rep = reproduce(
         args.out, reading=args.reading, seeds=args.seeds, episodes=args.episodes, seed=args.seed,
         max_steps=args.max_steps, invalid_action=args.invalid_action, tie_break=args.tie_break,
-        q_init=args.q_init, chunk_episodes=args.chunk_episodes, resume=args.resume,
-        progress=not args.quiet, memory_budget_bytes=args.memory_budget, devices=args.devices,
-        figures=not args.no_figures,
+        q_init=args.q_init, chunk_episodes=args.chunk_episodes, progress=not args.quiet,
+        figures=not args.no_figures, **_run_flags(args),
     )
     for claim in rep.claims:
         print(f"claim {claim.number}: {claim.verdict}")
@@ -106,6 +115,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
                    help="episode truncation (default 100)")
     p.add_argument("--invalid-action", default=None, help="noop (default) or fail")
     p.add_argument("--chunk-episodes", type=number, default=None, help="episodes per jitted chunk")
+    _add_run_flags(p, "continue from OUT/checkpoint.npz (or reuse OUT's whole result)")
     p.add_argument("--no-figures", action="store_true", help="no fig3.png / sensitivity.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--long-csv", action="store_true",
@@ -150,7 +160,8 @@ def _run(args: argparse.Namespace) -> None:
     for key in ("learners", "explorers"):
         if key not in spec:
             raise ValueError(f"{key} is missing: give --{key} or a sweep file with {key} = [...]")
-    result = run_sweep(args.out, progress=not args.quiet, figures=not args.no_figures, **spec)
+    result = run_sweep(args.out, progress=not args.quiet, figures=not args.no_figures,
+                       **_run_flags(args), **spec)
     from vdbejax.summary import read_summary
     from vdbejax.sweeps import SUMMARY_FILE
 
@@ -229,6 +240,7 @@ def _add_ablate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sections", action="store_true",
                    help="(options) also run the attribution and factorial variants and add"
                         " their claims tables to REPRODUCTION.md")
+    _add_run_flags(p, "continue an interrupted variant from its checkpoint")
     p.add_argument("--quiet", action="store_true", help="no status lines")
 
 
@@ -239,7 +251,7 @@ def _ablate(args: argparse.Namespace) -> None:
                      variants=select_variants(args.variants, args.mode), mode=args.mode,
                      sections=args.sections,
                      seeds=args.seeds, episodes=args.episodes, seed=args.seed, notes=args.notes,
-                     reuse=not args.rerun, progress=not args.quiet)
+                     reuse=not args.rerun, progress=not args.quiet, **_run_flags(args))
     for result in results:
         print(f"{result.variant.name}: "
               + ", ".join(f"{c.number} {c.verdict}" for c in result.claims))
@@ -283,7 +295,10 @@ def _add_scale(sub: argparse._SubParsersAction) -> None:
                    help="skip a setting on larger variants once none of its agents solved one")
     p.add_argument("--quick", action="store_true", help="2x1 and 3x1, 3 seeds, 1000 episodes")
     p.add_argument("--no-figure", action="store_true", help="no scaling.png")
-    p.add_argument("--no-runs", action="store_true", help="do not save the curves (runs/NxK.npz)")
+    p.add_argument("--no-runs", action="store_true",
+                   help="do not keep the variants' result folders (runs/NxK/)")
+    _add_run_flags(p, "continue an interrupted study: whole variants are loaded, the"
+                      " interrupted one continues from runs/NxK/checkpoint.npz")
     p.add_argument("--quiet", action="store_true", help="no status lines")
 
 
@@ -309,7 +324,7 @@ def _scale(args: argparse.Namespace) -> None:
         chunk_episodes=args.chunk_episodes, max_steps=args.max_steps,
         drop_unsolved=args.drop_unsolved, quick=args.quick, progress=not args.quiet,
         figure=not args.no_figure, save_runs=not args.no_runs, command=command,
-        learners=learners, methods=methods)
+        learners=learners, methods=methods, **_run_flags(args))
     for row in result.rows:
         print(f"{row['size']} {row['method']}: {row['median_text']}"
               f" ({row['solved']}/{row['agents']} solved)")
@@ -372,7 +387,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except (KeyboardInterrupt, _Terminated) as stop:
         hint = (": rerun with --resume to continue from the last checkpoint"
-                if args.command == "reproduce" else "")
+                if args.command in ("reproduce", "run", "scale", "ablate") else "")
         print(f"interrupted{hint}", file=sys.stderr)
         return 143 if isinstance(stop, _Terminated) else 130
     finally:

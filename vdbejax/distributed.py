@@ -1,12 +1,13 @@
 """Scale-out: the agent axis sharded over every device (one host or many).
 
 Agents never interact, so a sweep is embarrassingly parallel along its leading *agent*
-axis. :func:`run_sharded` pads the agent count to a multiple of the device count (with
-copies of the last agent, dropped afterwards), places hyperparameters, keys and agent
-states with ``NamedSharding(mesh, P("agents"))`` and calls the ordinary engine
-(:func:`vdbejax.engine.run_agents`): jit follows the input sharding, so every device
-advances its own slice of agents. Each agent's computation depends only on its own
-lane, hence the results are bit-identical to a single-device run.
+axis. A run's plan (:meth:`vdbejax.runs.plan.RunPlan.run_engine`) pads the agent count to
+a multiple of the device count (:func:`pad_agents`, copies of the last agent, dropped
+afterwards), places hyperparameters, keys and agent states with
+``NamedSharding(mesh, P("agents"))`` (:func:`shard_agents`) and calls the ordinary engine:
+jit follows the input sharding, so every device advances its own slice of agents. Each
+agent's computation depends only on its own lane, hence the results are bit-identical to
+a single-device run.
 
 Multi-host: call ``jax.distributed.initialize()`` in every process before anything
 else (see the README). Each process then runs its contiguous share of the agents
@@ -24,7 +25,6 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from vdbejax.engine import AgentState, RunResult, run_agents
 from vdbejax.validation import check_int
 
 #: Name of the mesh axis that agents are split along.
@@ -155,75 +155,3 @@ def shard_agents(tree: Tree, mesh: Mesh) -> Tree:
     """Place every leaf with its leading axis split over the mesh's ``"agents"`` axis."""
     sharding = NamedSharding(mesh, PartitionSpec(AGENT_AXIS))
     return jax.tree.map(lambda leaf: jax.device_put(leaf, sharding), tree)
-
-
-def run_sharded(
-    mdp: Any,
-    params: Any,
-    keys: Any,
-    num_episodes: int,
-    *,
-    devices: Sequence[jax.Device] | None = None,
-    initial: tuple[int, AgentState, np.ndarray, np.ndarray] | None = None,
-    on_chunk: Any = None,
-    **engine_options: Any,
-) -> RunResult:
-    """:func:`~vdbejax.engine.run_agents` with the agent axis sharded over ``devices``.
-
-    Args:
-      mdp: the task (replicated on every device).
-      params: batched agent hyperparameters (leading axis = agents).
-      keys: uint32 ``[agents, 2]`` PRNG keys.
-      num_episodes: episodes per agent.
-      devices: devices to use (default: all of ``jax.devices()``). With one device this
-        is exactly ``run_agents``.
-      initial: resume state ``(episodes_done, agents, returns, lengths)`` without padding.
-      on_chunk: as in ``run_agents``; it receives unpadded numpy arrays.
-      **engine_options: passed on to ``run_agents`` (``chunk_episodes``, ``progress``, …).
-
-    Returns:
-      the :class:`~vdbejax.engine.RunResult` of the real (unpadded) agents.
-    """
-    devices = list(jax.devices() if devices is None else devices)
-    if len(devices) == 1:
-        return run_agents(mdp, params, keys, num_episodes, initial=initial, on_chunk=on_chunk,
-                          **engine_options)
-    # The engine's compaction gathers the active agents across shards into one batch;
-    # the plain jitted chunk keeps every agent on its device.
-    engine_options.setdefault("compact", False)
-    engine_options.setdefault("strategy", "lockstep")  # one program over all shards
-    mesh = agent_mesh(devices)
-    keys = np.asarray(keys, np.uint32)
-    (params, keys), count = pad_agents((params, keys), len(devices))
-    params, keys = shard_agents((params, keys), mesh)
-    if initial is not None:
-        done, agents, returns, lengths = initial
-        (agents, returns, lengths), _ = pad_agents((agents, returns, lengths), len(devices))
-        initial = (done, shard_agents(agents, mesh), returns, lengths)
-
-    chunk_callback = None
-    if on_chunk is not None:
-        def chunk_callback(done: int, agents: AgentState, returns: np.ndarray,
-                           lengths: np.ndarray) -> None:
-            on_chunk(done, unpad_agents(agents, count), returns[:count], lengths[:count])
-
-    progress = engine_options.pop("progress", None)
-    if progress is not None:
-        padded = keys.shape[0]
-
-        def scaled_progress(done: int, total: int, elapsed: float) -> None:
-            # The engine counts padding lanes; report real agent-episodes only.
-            progress(done * count // padded, total * count // padded, elapsed)
-
-        engine_options["progress"] = scaled_progress
-    result = run_agents(mdp, params, keys, num_episodes, initial=initial,
-                        on_chunk=chunk_callback, **engine_options)
-    return RunResult(
-        returns=result.returns[:count],
-        lengths=result.lengths[:count],
-        nonfinite=result.nonfinite[:count],
-        iterations=result.iterations,
-        final_state=None if result.final_state is None else unpad_agents(result.final_state, count),
-        lane_iterations=result.lane_iterations,
-        strategy=result.strategy,
-    )

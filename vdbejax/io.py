@@ -20,6 +20,8 @@ from vdbejax.methods.agents import Setting
 RETURNS_FILE = "returns.npz"
 CONFIGS_FILE = "configs.csv"
 META_FILE = "meta.json"
+#: The raw result files of a run (GridResult.save).
+RESULT_FILES = (RETURNS_FILE, CONFIGS_FILE, META_FILE)
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:

@@ -176,6 +176,7 @@ def save_run(
     *,
     bands: bool,
     on_saved: Callable[[], None] | None = None,
+    statistics: bool = True,
 ) -> T:
     """Save a trained grid into ``out`` and write its outputs, marking the folder.
 
@@ -191,6 +192,7 @@ def save_run(
       write: writes the outputs from the :class:`~vdbejax.stats.CurveStatistics`.
       bands: compute Figure 3's bootstrap bands too.
       on_saved: called after the save.
+      statistics: compute the statistics (``False``: ``write(None)``).
 
     Returns:
       what ``write`` returns.
@@ -208,7 +210,8 @@ def save_run(
         with ThreadPoolExecutor(1) as pool:
             saved = pool.submit(result.save, out)
             try:
-                statistics = curve_statistics(result.returns, bands=bands)
+                computed = (curve_statistics(result.returns, bands=bands) if statistics
+                            else None)
             finally:
                 failure = saved.exception()
             if failure is not None:
@@ -220,7 +223,7 @@ def save_run(
         on_saved()
     try:
         mark(out, "outputs")
-        value = write(statistics)
+        value = write(computed)
         unmark(out)
     except OSError as error:
         raise ValueError(f"cannot write the outputs in {str(out)!r}:"

@@ -3,10 +3,12 @@
 :func:`run_scaling` runs every method of :data:`METHODS` with both learners on a family of
 generated table-cleaning variants of growing size (``variant:NxK``,
 :func:`vdbejax.sweeps.make_task`), each agent until it has solved the variant or its budget
-is spent (:func:`run_until_solved`: up to its stop, an agent's returns equal bit for bit
-those of a fixed-budget :func:`~vdbejax.run_grid`), and writes ``scaling.csv``,
-``scaling.md``, ``scaling.png`` (median episodes to solve and fraction solved against
-reachable states), ``meta.json`` and the raw curves (``runs/NxK.npz``) into a folder.
+is spent (:func:`~vdbejax.run_grid` with the stop policy :class:`~vdbejax.runs.UntilSolved`,
+as :func:`run_until_solved`: up to its stop, an agent's returns equal bit for bit those of a
+fixed budget), and writes ``scaling.csv``, ``scaling.md``, ``scaling.png`` (median episodes
+to solve and fraction solved against reachable states), ``meta.json`` and each variant's
+result folder ``runs/NxK/`` (the curves, written through the pipeline of every training
+command, :mod:`vdbejax.studies`: checkpointed, so ``--resume`` continues a study).
 
 This module is the study's runner. Its other parts live apart, and every name of theirs
 below is importable from here too:
@@ -25,22 +27,18 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import shutil
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from vdbejax import io
 from vdbejax.methods.agents import Setting, make_agent, parameter_name
-from vdbejax.scaling_adaptive import AdaptiveProgress as AdaptiveProgress
-from vdbejax.scaling_adaptive import (
-    AdaptiveRun,
-    run_until_solved,
-    text_progress,
-)
+from vdbejax.result_folder import FolderLock
+from vdbejax.runs import RunOptions, UntilSolved, prepare_grid
+from vdbejax.scaling_adaptive import AdaptiveRun, adaptive_run, run_until_solved
 from vdbejax.scaling_report import (
     CSV_FILE,
     META_FILE,
@@ -75,6 +73,7 @@ from vdbejax.scaling_study import (
 )
 from vdbejax.scaling_study import PAPER_METHODS as PAPER_METHODS
 from vdbejax.solving import FRACTION, WINDOW, solve_threshold, summarize_solving
+from vdbejax.studies import train_in_folder
 from vdbejax.validation import (
     INT32_MAX,
     UINT32_MAX,
@@ -117,6 +116,9 @@ def run_scaling(
     figure: bool = True,
     save_runs: bool = True,
     command: str | None = None,
+    resume: bool = False,
+    memory_budget_bytes: int | str | None = None,
+    devices: int | None = None,
 ) -> ScalingResult:
     """Episodes to solve of every method on growing table-cleaning variants.
 
@@ -146,8 +148,17 @@ def run_scaling(
       quick: :data:`QUICK` sizes, seeds and episodes (overrides those arguments).
       progress: a status line per variant on stderr.
       figure: write ``scaling.png``.
-      save_runs: write the curves to ``runs/NxK.npz``.
+      save_runs: keep each variant's result folder ``runs/NxK/`` (its curves:
+        ``returns.npz`` with every agent's returns, NaN past its stop, and
+        ``episodes_run``; ``configs.csv``; ``meta.json``). ``False`` removes them once the
+        study's files are written.
       command: the command line, recorded in ``scaling.md`` and ``meta.json``.
+      resume: continue an interrupted study: variants whose result folder is whole are
+        loaded, the interrupted one continues from its checkpoint
+        (``runs/NxK/checkpoint.npz``), the others run.
+      memory_budget_bytes: per-device memory budget (sequential batches when the agents
+        do not fit); changes only the speed.
+      devices: devices to shard the agents over (default all); changes only the speed.
 
     Returns:
       the :class:`ScalingResult` (also written to ``out_dir``).
@@ -155,10 +166,6 @@ def run_scaling(
     Raises:
       ValueError: any invalid input, before training.
     """
-    from vdbejax.experiment import version_info
-    from vdbejax.solvers import best_return, start_states, steps_to_goal
-    from vdbejax.sweeps import make_task
-
     for name, flag in (("quick", quick), ("progress", progress), ("figure", figure),
                        ("drop_unsolved", drop_unsolved), ("save_runs", save_runs)):
         check_bool(name, flag)
@@ -186,7 +193,28 @@ def run_scaling(
     settings = study_settings(chosen, learners)
     for setting in settings:  # unknown learners: one line before anything runs
         make_agent(setting)
+    knobs = RunOptions(resume=resume, memory_budget_bytes=memory_budget_bytes, devices=devices)
     out = check_writable_dir("out", out_dir)
+    with FolderLock(out):  # the study's folder, held to its last file
+        return _study(out, parsed, settings, chosen, knobs, seeds=seeds, episodes=episodes,
+                      episodes_per_state=episodes_per_state, seconds=seconds, seed=seed,
+                      learners=learners, fraction=fraction, window=window,
+                      chunk_episodes=chunk_episodes, max_steps=max_steps,
+                      drop_unsolved=drop_unsolved, quick=quick, progress=progress,
+                      figure=figure, save_runs=save_runs, command=command)
+
+
+def _study(out: Path, parsed: list[tuple[int, int]], settings: list[Setting],
+           chosen: list[Method], knobs: RunOptions, *, seeds: int, episodes: int,
+           episodes_per_state: float | None, seconds: float | None, seed: int,
+           learners: Sequence[str], fraction: float, window: int, chunk_episodes: int | None,
+           max_steps: int | None, drop_unsolved: bool, quick: bool, progress: bool,
+           figure: bool, save_runs: bool, command: str | None) -> ScalingResult:
+    """:func:`run_scaling` once its inputs are checked and its folder is locked."""
+    from vdbejax.experiment import version_info
+    from vdbejax.solvers import best_return, start_states, steps_to_goal
+    from vdbejax.sweeps import make_task
+
 
     tasks = []
     for sections, goblets in parsed:  # every task built and solved before any training
@@ -223,22 +251,20 @@ def run_scaling(
                                  training_seconds=0.0, compile_seconds=0.0,
                                  steps_per_second=math.nan))
             continue
-        run = run_until_solved(
-            mdp, remaining, num_seeds=seeds, max_episodes=budget, max_seconds=seconds,
-            best=best, fraction=fraction, window=window, seed=seed, chunk_episodes=chunk,
-            progress=text_progress(f"{size} ({mdp.num_states} states)") if progress else None,
-        )
+        if progress:
+            sys.stderr.write(f"{size} ({mdp.num_states} states): {len(remaining)} settings ×"
+                             f" {seeds} agents, up to {budget} episodes\n")
+        run = _run_variant(out / RUNS_FOLDER / size, mdp, remaining, seeds=seeds, budget=budget,
+                           stop=UntilSolved(best=best, fraction=fraction, window=window,
+                                            max_seconds=seconds),
+                           seed=seed, options=knobs.replace(chunk_episodes=chunk,
+                                                            progress=progress),
+                           size=size)
         runs[size] = run
         if progress:
-            sys.stderr.write(f"\r{size} ({mdp.num_states} states): {int(run.solve.solved.sum())}/"
+            sys.stderr.write(f"{size} ({mdp.num_states} states): {int(run.solve.solved.sum())}/"
                              f"{run.solve.solved.size} agents solved, {run.elapsed_seconds:.1f} s"
-                             f" ({run.steps_per_second / 1e6:.2f} M steps/s)          \n")
-        if save_runs:
-            (out / RUNS_FOLDER).mkdir(exist_ok=True)
-            io.atomic_savez(out / RUNS_FOLDER / f"{size}.npz", returns=run.returns,
-                            episodes_run=run.episodes_run, solve_episode=run.solve.episodes,
-                            solved=run.solve.solved,
-                            labels=np.asarray([s.label for s in run.settings]))
+                             f" ({run.steps_per_second / 1e6:.2f} M steps/s)\n")
         reached = int(run.episodes_run.max())
         for c, setting in enumerate(run.settings):
             summary = summarize_solving(run.solve.episodes[c], run.solve.solved[c])
@@ -282,7 +308,26 @@ def run_scaling(
     io.write_csv(out / CSV_FILE, rows, ROW_COLUMNS)
     io.save_json(out / META_FILE, meta)
     write_reports(out, rows, variants, meta, figure=figure)
+    if not save_runs:
+        for size in runs:
+            shutil.rmtree(out / RUNS_FOLDER / size, ignore_errors=True)
     return ScalingResult(rows, variants, meta, runs)
+
+
+def _run_variant(folder: Path, mdp: Any, settings: list[Setting], *, seeds: int, budget: int,
+                 stop: UntilSolved, seed: int, options: RunOptions, size: str) -> AdaptiveRun:
+    """One variant of the study, trained until solved into its own result folder
+    (``runs/NxK/``, :func:`~vdbejax.studies.train_in_folder`: checkpointed, resumable)."""
+    from vdbejax.engine import compile_seconds
+
+    prepared = prepare_grid(mdp, settings, num_seeds=seeds, num_episodes=budget, seed=seed,
+                            run=options.replace(stop=stop))
+    compiled_before = compile_seconds()
+    result, _ = train_in_folder(
+        folder, prepared, lambda result, stats: None, files=[], statistics=False,
+        annotate=lambda result: result.meta.update(
+            task=f"variant:{size}", compile_seconds=compile_seconds() - compiled_before))
+    return adaptive_run(result, float(result.meta.get("compile_seconds", 0.0)))
 
 
 def _setting_columns(setting: Setting, config: int) -> dict[str, Any]:

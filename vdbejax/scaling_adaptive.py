@@ -1,37 +1,28 @@
 """Training until solved, the adaptive budget of ``vdbejax scale``.
 
-:func:`run_until_solved` trains a grid chunk by chunk until every agent has solved the task
+:func:`run_until_solved` is :func:`~vdbejax.run_grid` with the stop policy
+:class:`~vdbejax.runs.UntilSolved`: chunk by chunk until every agent has solved the task
 (:mod:`vdbejax.solving`: its 20-episode moving average reaches 0.9 × the exact best return)
 or a budget of episodes or wall-clock seconds is spent. After each chunk the solved agents
-leave the batch — they cost no more compute — and the others continue from their state:
-each chunk is one :func:`~vdbejax.engine.run_agents` call resumed from ``initial=`` (the
-engine is untouched; its resume is bit-identical by design). Every agent draws from its
-own random stream, so an agent's returns do not depend on when the others stop: up to its
-stop episode they equal, bit for bit, those of a fixed-budget :func:`~vdbejax.run_grid`
-with the same settings, seeds and root seed (``tests/test_scaling.py``). Every name here is
-also importable from :mod:`vdbejax.scaling`.
+leave the batch — they cost no more compute — and the others continue from their state.
+Every agent draws from its own random stream, so an agent's returns do not depend on when
+the others stop: up to its stop episode they equal, bit for bit, those of a fixed-budget
+:func:`~vdbejax.run_grid` with the same settings, seeds and root seed
+(``tests/test_scaling.py``). Every name here is also importable from :mod:`vdbejax.scaling`.
 """
 from __future__ import annotations
 
 import dataclasses
-import math
-import sys
-import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from vdbejax.methods.agents import AgentOptions, Setting, make_agent
-from vdbejax.solving import (
-    FRACTION,
-    TOLERANCE,
-    WINDOW,
-    SolveTimes,
-    episodes_to_solve,
-    solve_threshold,
-)
-from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int, check_positive
+from vdbejax.grid_result import GridResult
+from vdbejax.methods.agents import AgentOptions, Setting
+from vdbejax.progress import ProgressCallback
+from vdbejax.runs.options import RunOptions
+from vdbejax.solving import FRACTION, WINDOW, SolveTimes, episodes_to_solve
 
 
 @dataclasses.dataclass
@@ -80,10 +71,6 @@ class AdaptiveRun:
         return self.agent_steps / max(self.elapsed_seconds - self.compile_seconds, 1e-9)
 
 
-#: ``progress(episodes_done, active_agents, total_agents, elapsed_seconds)`` after a chunk.
-AdaptiveProgress = Callable[[int, int, int, float], None]
-
-
 def run_until_solved(
     mdp: Any,
     settings: Sequence[Setting],
@@ -98,20 +85,22 @@ def run_until_solved(
     options: AgentOptions = AgentOptions(),
     chunk_episodes: int = 100,
     threads: int | None = None,
-    progress: AdaptiveProgress | None = None,
+    progress: bool | ProgressCallback = False,
+    run: RunOptions | None = None,
 ) -> AdaptiveRun:
     """Train ``settings × num_seeds`` agents until each has solved ``mdp`` or the budget ends.
 
-    After each chunk of ``chunk_episodes`` episodes, an agent whose moving average has
-    reached ``fraction × best`` (:func:`~vdbejax.solving.episodes_to_solve`) stops: it leaves
-    the batch at the end of that chunk (its stop episode, :attr:`AdaptiveRun.episodes_run`).
-    The run ends when no agent is left, after ``max_episodes`` episodes, or after the first
-    chunk that ends past ``max_seconds`` of wall clock (then every remaining agent is
-    censored at the same episode; which episode depends on the machine's speed, so the
-    episode budget is the reproducible one).
+    :func:`~vdbejax.run_grid` with the stop policy :class:`~vdbejax.runs.UntilSolved`:
+    after each chunk of ``chunk_episodes`` episodes, an agent whose moving average has
+    reached ``fraction × best`` (:func:`~vdbejax.solving.episodes_to_solve`) stops at the
+    end of that chunk (its stop episode, :attr:`AdaptiveRun.episodes_run`). The run ends
+    when no agent is left, after ``max_episodes`` episodes, or after the first chunk that
+    ends past ``max_seconds`` of wall clock (then every remaining agent is censored there;
+    which episode depends on the machine's speed, so the episode budget is the
+    reproducible one). Checkpoints, resume, batching and sharding come with ``run``.
 
-    Agents ``(config c, seed i)`` have the keys and hyperparameters of :func:`~vdbejax.run_grid`
-    (``grid_agents``), so an agent's returns up to its stop are bit-identical to that run's.
+    Agents ``(config c, seed i)`` have the keys and hyperparameters of :func:`~vdbejax.run_grid`,
+    so an agent's returns up to its stop are bit-identical to a fixed budget's.
 
     Args:
       mdp: the task.
@@ -126,7 +115,9 @@ def run_until_solved(
       chunk_episodes: episodes between stop checks (the results do not depend on it; the
         stop episodes do).
       threads: the engine's worker threads (default: the CPUs this process may use).
-      progress: called after every chunk.
+      progress: True for a progress bar on stderr, or ``progress(done, total, elapsed)``.
+      run: further run options (checkpoint, resume, devices, memory budget); the
+        arguments above override its fields.
 
     Returns:
       the :class:`AdaptiveRun`.
@@ -134,141 +125,40 @@ def run_until_solved(
     Raises:
       ValueError: any invalid input, before training.
     """
-    import jax
+    from vdbejax.engine import compile_seconds
+    from vdbejax.runs import UntilSolved, run_grid
+    from vdbejax.validation import INT32_MAX, check_int
 
-    from vdbejax.distributed import take_agents
-    from vdbejax.engine import AgentState, check_params, compile_seconds, run_agents
-    from vdbejax.engine.programs import Programs
-    from vdbejax.envs.tabular import TabularMDP
-    from vdbejax.experiment import grid_agents
-
-    if not isinstance(mdp, TabularMDP):
-        raise ValueError(f"mdp={type(mdp).__name__} is invalid: must be a TabularMDP")
-    settings = list(settings)
-    if not settings or not all(isinstance(s, Setting) for s in settings):
-        raise ValueError("settings is invalid: must be a non-empty list of Setting")
-    num_seeds = check_int("num_seeds", num_seeds, 1, INT32_MAX)
-    max_episodes = check_int("max_episodes", max_episodes, 1, INT32_MAX)
-    if max_seconds is not None:
-        max_seconds = check_positive("max_seconds", max_seconds)
-    window = check_int("window", window, 1)
-    seed = check_int("seed", seed, 0, UINT32_MAX)
-    chunk_episodes = check_int("chunk_episodes", chunk_episodes, 1, INT32_MAX)
-    if best is None:
-        from vdbejax.solvers import best_return
-
-        best = best_return(mdp)
-    solve_threshold(best, fraction)  # one line before training: best > 0, 0 < fraction ≤ 1
-    for setting in settings:
-        make_agent(setting, options)
-    params, keys = grid_agents(settings, num_seeds, seed, options)
-    check_params(params, mdp.num_actions)
-
-    num_agents = len(settings) * num_seeds
-    returns = np.full((num_agents, max_episodes), np.nan, np.float32)
-    lengths = np.zeros((num_agents, max_episodes), np.int32)
-    episodes_run = np.zeros(num_agents, np.int64)
-    nonfinite = np.zeros(num_agents, bool)
-    active = np.arange(num_agents)
-    state: AgentState | None = None  # the active agents' state after `done` episodes
-    done, chunks, stopped = 0, 0, "solved"
-    chunk = min(chunk_episodes, max_episodes)
+    check_int("num_seeds", num_seeds, 1, INT32_MAX)
+    check_int("max_episodes", max_episodes, 1, INT32_MAX)  # named as the caller knows it
+    stop = UntilSolved(best=best, fraction=fraction, window=window, max_seconds=max_seconds)
+    run = (RunOptions() if run is None else run).replace(
+        stop=stop, chunk_episodes=chunk_episodes, threads=threads, progress=progress)
     compiled_before = compile_seconds()
-    programs = Programs()  # the study's: each program traced once, not once per chunk
-    started = time.perf_counter()
-    while active.size:
-        end = min(done + chunk, max_episodes)
-        initial = None
-        if done != 0:
-            assert state is not None  # kept after every chunk
-            initial = (done, state, returns[active, :done], lengths[active, :done])
-        result = run_agents(mdp, take_agents(params, active), keys[active], end,
-                            chunk_episodes=chunk, initial=initial, threads=threads,
-                            programs=programs)
-        chunks += 1
-        returns[active, done:end] = result.returns[:, done:end]
-        lengths[active, done:end] = result.lengths[:, done:end]
-        episodes_run[active] = end
-        nonfinite[active] = result.nonfinite
-        keep = ~_newly_solved(returns, active, start=done, end=end, best=best,
-                              fraction=fraction, window=window)
-        done = end
-        elapsed = time.perf_counter() - started
-        if done >= max_episodes and keep.any():
-            stopped = "episodes"
-        elif max_seconds is not None and elapsed >= max_seconds and keep.any():
-            stopped = "seconds"
-        active = active[keep]
-        if progress is not None:
-            progress(done, int(active.size), num_agents, elapsed)
-        if stopped != "solved":
-            break
-        state = jax.tree.map(lambda leaf: np.asarray(leaf)[keep], result.final_state)  # noqa: B023  (run at once)
-        del result, initial  # the previous states are not needed during the next chunk
-    elapsed = time.perf_counter() - started
-    shape = (len(settings), num_seeds)
-    solve = episodes_to_solve(returns, best, fraction=fraction, window=window,
-                              episodes_run=episodes_run)
+    result = run_grid(mdp, settings, num_seeds=num_seeds, num_episodes=max_episodes, seed=seed,
+                      options=options, run=run)
+    return adaptive_run(result, compile_seconds() - compiled_before)
+
+
+def adaptive_run(result: GridResult, compile_seconds: float = 0.0) -> AdaptiveRun:
+    """The :class:`AdaptiveRun` view of a result trained :class:`~vdbejax.runs.UntilSolved`."""
+    stop = result.meta["stop"]
+    max_episodes = result.num_episodes
+    episodes_run = (np.full(result.returns.shape[:2], max_episodes, np.int64)
+                    if result.episodes_run is None else result.episodes_run)
+    solve = episodes_to_solve(result.returns, stop["best"], fraction=stop["fraction"],
+                              window=stop["window"], episodes_run=episodes_run)
     return AdaptiveRun(
-        settings=settings, returns=returns.reshape(*shape, max_episodes),
-        lengths=lengths.reshape(*shape, max_episodes), episodes_run=episodes_run.reshape(shape),
-        solve=SolveTimes(solve.episodes.reshape(shape), solve.solved.reshape(shape)),
-        nonfinite=nonfinite.reshape(shape), best=float(best), fraction=float(fraction),
-        window=window, max_episodes=max_episodes, max_seconds=max_seconds, stopped=stopped,
-        elapsed_seconds=elapsed, compile_seconds=compile_seconds() - compiled_before,
-        chunks=chunks,
+        settings=list(result.settings), returns=result.returns, lengths=result.lengths,
+        episodes_run=episodes_run, solve=solve, nonfinite=result.nonfinite,
+        best=float(stop["best"]), fraction=float(stop["fraction"]), window=int(stop["window"]),
+        max_episodes=max_episodes, max_seconds=stop["max_seconds"], stopped=result.meta["stopped"],
+        elapsed_seconds=float(result.meta["elapsed_seconds"]), compile_seconds=compile_seconds,
+        chunks=int(result.meta["batches"]),
     )
 
 
-#: Margin below the threshold under which a cheap check of a chunk's new windows rules an
-#: agent out before the exact check (float64 rounding is ~1e-11 on 10^6 episodes).
-_SCREEN_MARGIN = 1e-7
-
-
-def _newly_solved(returns: np.ndarray, active: np.ndarray, *, start: int, end: int,
-                  best: float, fraction: float, window: int) -> np.ndarray:
-    """Which ``active`` agents (unsolved after ``start`` episodes) have solved by ``end``.
-
-    The decision is :func:`~vdbejax.solving.episodes_to_solve` on each agent's whole
-    prefix — the very computation the final result makes — but only for the agents whose
-    windows ending in ``[start, end)`` come within :data:`_SCREEN_MARGIN` of the threshold
-    (a direct mean per window): the rest cannot have solved, and the per-chunk cost stays
-    that of the new episodes rather than of the whole prefix.
-    """
-    solved = np.zeros(active.size, bool)
-    first = max(start, window - 1)  # 0-based columns of full windows to check
-    if first >= end:
-        return solved
-    tail = np.asarray(returns[active, first - window + 1: end], np.float64)
-    means = np.lib.stride_tricks.sliding_window_view(tail, window, axis=-1).mean(-1)
-    threshold = solve_threshold(best, fraction)
-    candidates = np.flatnonzero((means >= threshold - TOLERANCE - _SCREEN_MARGIN).any(-1))
-    if candidates.size:
-        exact = episodes_to_solve(returns[active[candidates], :end], best, fraction=fraction,
-                                  window=window)
-        solved[candidates] = exact.solved
-    return solved
-
-
-def text_progress(label: str, stream: Any = None) -> AdaptiveProgress:
-    """A one-line status on ``stream`` (stderr), redrawn after every chunk."""
-    stream = sys.stderr if stream is None else stream
-    shown = [-math.inf]
-
-    def show(done: int, active: int, total: int, elapsed: float) -> None:
-        if elapsed - shown[0] < 1.0 and active:
-            return  # at most one redraw a second
-        shown[0] = elapsed
-        stream.write(f"\r{label}: episode {done}, {active}/{total} agents unsolved,"
-                     f" {elapsed:6.1f} s   ")
-        stream.flush()
-
-    return show
-
-
 __all__ = [
-    "AdaptiveProgress",
     "AdaptiveRun",
     "run_until_solved",
-    "text_progress",
 ]

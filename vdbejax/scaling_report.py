@@ -2,7 +2,7 @@
 
 A study folder (:func:`~vdbejax.scaling.run_scaling`) holds ``scaling.csv`` (one row per
 variant × setting, :data:`ROW_COLUMNS`), ``meta.json`` (the options, one record per variant
-(:data:`VARIANT_COLUMNS`), the versions), ``runs/NxK.npz`` (the curves)
+(:data:`VARIANT_COLUMNS`), the versions), ``runs/NxK/`` (each variant's result folder: its curves)
 and what this module draws from the rows: ``scaling.md`` (:func:`scaling_markdown`) and
 ``scaling.png`` (:func:`scaling_figure`), both written by :func:`write_reports`.
 :func:`load_scaling` reads a folder back, so the report redraws without training.
@@ -23,7 +23,7 @@ import numpy as np
 from vdbejax import io
 from vdbejax.methods.agents import Setting, remember_parameter_names
 
-#: The files of a study folder (``runs/`` holds one ``NxK.npz`` of curves per variant).
+#: The files of a study folder (``runs/`` holds one result folder ``NxK/`` per variant).
 CSV_FILE = "scaling.csv"
 MARKDOWN_FILE = "scaling.md"
 FIGURE_FILE = "scaling.png"

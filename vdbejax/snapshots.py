@@ -55,7 +55,9 @@ def epsilon_snapshots(
                          f" {', '.join(kept) or 'no tables'}")
     episodes, snapshots = [], []
 
-    def record(done: int, agents: AgentState, returns: np.ndarray, lengths: np.ndarray) -> None:
+    def record(done: int, agents: AgentState | None, returns: np.ndarray,
+               lengths: np.ndarray) -> None:
+        assert agents is not None  # chunk states are on by default
         episodes.append(done)
         snapshots.append(np.array(agents.tables[table]))
 

@@ -33,14 +33,14 @@ from pathlib import Path
 from typing import Any
 
 from vdbejax import io
-from vdbejax.batching import check_run_size
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.experiment import GridResult, check_run_options, run_grid
-from vdbejax.methods.agents import AgentOptions, make_agent, sweep
-from vdbejax.result_folder import FolderLock, check_output_paths, save_run
+from vdbejax.grid_result import GridResult
+from vdbejax.methods.agents import sweep
+from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.stats import CurveStatistics
+from vdbejax.studies import train_in_folder
 from vdbejax.summary import SummaryRow, write_summary
-from vdbejax.validation import INT32_MAX, check_bool, check_int, check_writable_dir
+from vdbejax.validation import INT32_MAX, check_bool, check_int
 
 SUMMARY_FILE = "summary.csv"
 FIGURE_FILE = "fig3.png"
@@ -187,6 +187,9 @@ def run_sweep(
     plugins: Sequence[str] = (),
     progress: bool = True,
     figures: bool = True,
+    resume: bool = False,
+    memory_budget_bytes: int | str | None = None,
+    devices: int | None = None,
 ) -> GridResult:
     """Train ``learners × explorers × axes`` on a task and write the result folder.
 
@@ -206,6 +209,11 @@ def run_sweep(
       plugins: files or modules to import first (:func:`load_plugins`).
       progress: a progress bar on stderr.
       figures: write ``fig3.png`` and ``sensitivity.png``.
+      resume: continue an interrupted run from ``out_dir/checkpoint.npz`` (written after
+        every chunk, removed once the results are saved).
+      memory_budget_bytes: per-device memory budget (sequential batches when the agents
+        do not fit); changes only the speed.
+      devices: devices to shard the agents over (default all); changes only the speed.
 
     Returns:
       the :class:`~vdbejax.experiment.GridResult` (also saved in ``out_dir``).
@@ -218,26 +226,26 @@ def run_sweep(
     load_plugins(list(plugins))
     mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)
     settings = sweep(learners, explorers, axes, shared)
-    for setting in settings:  # every setting checked before anything is trained
-        make_agent(setting, AgentOptions())
+    # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
     check_int("seeds", seeds, 1, INT32_MAX)
     check_int("episodes", episodes, 1, INT32_MAX)
-    check_run_options(num_seeds=seeds, num_episodes=episodes, seed=seed,
-                      chunk_episodes=chunk_episodes, resume=False, memory_budget_bytes=None)
     check_bool("progress", progress)
     check_bool("figures", figures)
-    check_run_size(len(settings) * seeds, episodes)  # before the folder is even created
-    out = check_writable_dir("out", out_dir)
-    check_output_paths(out, RUN_FILES)
-    with FolderLock(out):
-        result = run_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes, seed=seed,
-                          chunk_episodes=chunk_episodes, progress=progress)
-        best = best_return(mdp)
+    run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
+                     memory_budget_bytes=memory_budget_bytes, devices=devices)
+    prepared = prepare_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes, seed=seed,
+                            run=run)
+    best = best_return(mdp)
+
+    def annotate(result: GridResult) -> None:
         result.meta.update(best_return=best, invalid_action=invalid_action, task=task,
                            sweep={"learners": list(learners), "explorers": list(explorers),
                                   "axes": {k: list(v) for k, v in (axes or {}).items()},
                                   "shared": dict(shared or {}), "plugins": list(plugins)})
-        save_run(result, out, lambda stats: write_outputs(result, out, best, figures=figures,
-                                                          statistics=stats),
-                 bands=figures)
+
+    result, _ = train_in_folder(
+        out_dir, prepared,
+        lambda result, stats: write_outputs(result, out_dir, best, figures=figures,
+                                            statistics=stats),
+        files=RUN_FILES, annotate=annotate, bands=figures)
     return result

@@ -67,7 +67,7 @@ def run_agents(
     *,
     chunk_episodes: int = 100,
     progress: ProgressCallback | None = None,
-    on_chunk: Callable[[int, AgentState, np.ndarray, np.ndarray], None] | None = None,
+    on_chunk: Callable[[int, AgentState | None, np.ndarray, np.ndarray], None] | None = None,
     initial: tuple[int, AgentState, np.ndarray, np.ndarray] | None = None,
     compact: bool = True,
     block_iterations: int = 256,
@@ -78,6 +78,7 @@ def run_agents(
     threads: int | None = None,
     keep_final_state: bool = True,
     programs: Programs | None = None,
+    chunk_states: bool = True,
 ) -> RunResult:
     """Train a batch of agents for ``num_episodes`` episodes each.
 
@@ -116,6 +117,8 @@ def run_agents(
       programs: the compiled programs to share with other calls of one study
         (:class:`~vdbejax.engine.programs.Programs`; default: this call's own, traced
         from the code as it is now).
+      chunk_states: ``False`` hands ``on_chunk`` ``None`` for the agents (no copy of
+        every agent's tables after each chunk, when only the episodes are wanted).
 
     None of ``compact`` … ``threads`` change the results, only the speed, as long as
     ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
@@ -188,10 +191,11 @@ def run_agents(
     # The sequential strategy runs the next chunk while this loop stores one; a checkpoint
     # then gets the copies each work item takes at the chunk's end, unless the agents are
     # large (a second copy of every table): those wait at each chunk's end instead.
-    wait = on_chunk is not None and created_in_items(mdp, params)
+    states = on_chunk is not None and chunk_states
+    wait = states and created_in_items(mdp, params)
     chunks = (lockstep_chunks() if sequential is None else
               sequential.run_chunks(bounds, chunk, ahead=0 if wait else 1,
-                                    snapshots=on_chunk is not None and not wait))
+                                    snapshots=states and not wait))
     try:
         # strict=False: zip stops at the last bound without asking ``chunks`` for more (a
         # strict zip would resume the generator once past its last chunk).
@@ -203,7 +207,8 @@ def run_agents(
             lane_iterations += chunk_lanes
             done = end
             if on_chunk:
-                on_chunk(done, current_agents(), returns[:, :done], lengths[:, :done])
+                on_chunk(done, current_agents() if states else None, returns[:, :done],
+                         lengths[:, :done])
             if progress:
                 progress(done * num_agents, num_episodes * num_agents,
                          time.perf_counter() - started)

@@ -53,6 +53,7 @@ from vdbejax.paper.reproduce import (  # noqa: F401  (AUTHORS_DETAILS: re-export
     saved_best_return,
     write_outputs,
 )
+from vdbejax.runs import RunOptions
 from vdbejax.validation import check_writable_dir
 
 DOCUMENT_FILE = "REPRODUCTION.md"
@@ -74,7 +75,7 @@ def _matches(meta: dict[str, Any], variant: Variant, seeds: int, episodes: int, 
 
 def run_variant(
     variant: Variant, results_dir: str | os.PathLike, *, seeds: int = 20, episodes: int = 1000,
-    seed: int = 0, reuse: bool = True, progress: bool = False,
+    seed: int = 0, reuse: bool = True, progress: bool = False, run: RunOptions | None = None,
 ) -> VariantResult:
     """Run (or reuse) the full grid of one variant and score the claims.
 
@@ -84,10 +85,13 @@ def run_variant(
       seeds, episodes, seed: run size.
       reuse: load a saved result of the same variant and size instead of rerunning.
       progress: progress bar on stderr.
+      run: ``resume``, ``devices`` and ``memory_budget_bytes`` for the variant's run
+        (:class:`~vdbejax.runs.RunOptions`; its other fields are the variant's own).
 
     Returns:
       :class:`VariantResult`.
     """
+    run = RunOptions() if run is None else run
     folder = Path(results_dir)
     meta_file = folder / io.META_FILE
     if (reuse and meta_file.exists()
@@ -97,7 +101,8 @@ def run_variant(
         summary, claims = write_outputs(result, folder, best)
     else:
         rep = reproduce(folder, seeds=seeds, episodes=episodes, seed=seed, progress=progress,
-                        **variant.options())
+                        resume=run.resume, devices=run.devices,
+                        memory_budget_bytes=run.memory_budget_bytes, **variant.options())
         summary, claims, best = rep.summary, rep.claims, rep.best_return
     return VariantResult(variant, summary, claims, best, folder)
 
@@ -121,6 +126,9 @@ def ablate(
     progress: bool = True,
     mode: str = "options",
     sections: bool = False,
+    resume: bool = False,
+    devices: int | None = None,
+    memory_budget_bytes: int | str | None = None,
 ) -> list[VariantResult]:
     """Run every variant, score the claims, write ``REPRODUCTION.md`` (mode ``options``),
     ``ATTRIBUTION.md`` (mode ``attribution``) or ``FACTORIAL.md`` (mode ``factorial``)
@@ -144,6 +152,9 @@ def ablate(
         add their claims tables to the document, so that ``REPRODUCTION.md`` shows which
         detail of which reading decides each claim (results in ``results_dir``'s
         ``attribution/`` and ``factorial/`` subfolders, reports beside the document).
+      resume: an interrupted variant continues from its checkpoint.
+      devices, memory_budget_bytes: devices to shard over and per-device memory budget
+        of every variant's run (speed only).
 
     Returns:
       the scored variants.
@@ -161,13 +172,15 @@ def ablate(
     if mode not in MODES:
         raise ValueError(f"mode={mode!r} is invalid: must be one of {', '.join(MODES)}")
     document, figures_dir = MODES[mode]
+    knobs = RunOptions(resume=resume, devices=devices, memory_budget_bytes=memory_budget_bytes)
     # Every folder written must be writable before the first variant trains.
     out = check_writable_dir("out", out_dir)
     figures = check_writable_dir("out", out / figures_dir)
     raw = check_writable_dir("results_dir", results_dir) if results_dir is not None else figures
     # The options document shows figures; the others link reports only (size).
     assets = DOCUMENT_ASSETS if mode == "options" else REPORT_ASSETS
-    results = [_run_reporting(v, raw, figures, assets, seeds, episodes, seed, reuse, progress)
+    size = (seeds, episodes, seed)
+    results = [_run_reporting(v, raw, figures, assets, size, reuse, progress, knobs)
                for v in variants]
     extra = []
     if sections and mode == "options":
@@ -176,8 +189,8 @@ def ablate(
             section_raw = (Path(results_dir) / section_dir if results_dir is not None
                            else out / section_dir)
             extra.append((title, SECTION_INTROS[section_mode], section_dir, [
-                _run_reporting(v, section_raw, out / section_dir, REPORT_ASSETS, seeds, episodes,
-                               seed, reuse, progress) for v in mode_variants(section_mode)]))
+                _run_reporting(v, section_raw, out / section_dir, REPORT_ASSETS, size, reuse,
+                               progress, knobs) for v in mode_variants(section_mode)]))
     text = Path(notes).read_text() if notes is not None else None
     command = _command(out, raw, figures, variants, seeds, episodes, seed, mode, sections,
                        notes)
@@ -200,13 +213,15 @@ SECTION_INTROS = {
 }
 
 
-def _run_reporting(variant: Variant, raw: Path, reports: Path, assets: Sequence[str], seeds: int,
-                   episodes: int, seed: int, reuse: bool, progress: bool) -> VariantResult:
+def _run_reporting(variant: Variant, raw: Path, reports: Path, assets: Sequence[str],
+                   size: tuple[int, int, int], reuse: bool, progress: bool,
+                   run: RunOptions) -> VariantResult:
     """Run (or reuse) a variant in ``raw``; copy its ``assets`` beside the document (into
     ``reports``) when the raw results live elsewhere; one status line if ``progress``."""
     started = time.perf_counter()
+    seeds, episodes, seed = size
     result = run_variant(variant, raw / variant.name, seeds=seeds, episodes=episodes, seed=seed,
-                         reuse=reuse)
+                         reuse=reuse, run=run)
     if raw != reports:
         for name in assets:
             io.atomic_write_bytes(reports / variant.name / name,

@@ -11,24 +11,18 @@ import zipfile
 from pathlib import Path
 
 from vdbejax import io, sweeps
-from vdbejax.batching import check_run_size
-from vdbejax.checkpoint import log_path, remove_checkpoint
-from vdbejax.distributed import process_checkpoint_path, select_devices
 from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import GridResult, check_run_options, run_grid
-from vdbejax.methods.agents import AgentOptions, Setting, make_agent, owners, paper_settings
+from vdbejax.grid_result import GridResult
+from vdbejax.methods.agents import AgentOptions, Setting, owners, paper_settings
 from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.paper.claims import ClaimResult, cap_message, evaluate_claims, render_report
-from vdbejax.result_folder import (
-    FolderLock,
-    check_output_paths,
-    describe_os_error,
-    save_run,
-    unmark,
-)
+from vdbejax.result_folder import FolderLock, check_output_paths, describe_os_error, unmark
+from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.solvers import best_return
 from vdbejax.stats import CurveStatistics
+from vdbejax.studies import CHECKPOINT_FILE as CHECKPOINT_FILE
+from vdbejax.studies import train_in_folder
 from vdbejax.summary import SummaryRow
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, check_writable_dir
 
@@ -37,7 +31,6 @@ SUMMARY_FILE, FIGURE_FILE, SENSITIVITY_FILE = (sweeps.SUMMARY_FILE, sweeps.FIGUR
 REPORT_FILE = "report.md"
 #: Figure 3 smoothed and cut as the authors plot it (the authors' reading only).
 AUTHORS_FIGURE_FILE = "fig3_authors.png"
-CHECKPOINT_FILE = "checkpoint.npz"
 
 
 @dataclasses.dataclass
@@ -204,35 +197,22 @@ def reproduce(
         tie_break = "first" if reading == "authors" else "random"
     options = AgentOptions(alpha=alpha, q_init=q_init, tie_break=tie_break)
     settings = reading_settings(reading, details)
-    # Check every option before creating anything, so bad input leaves no trace.
-    for setting in settings:
-        make_agent(setting, options)
+    # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
     check_int("seeds", seeds, 1, INT32_MAX)  # named as the caller knows them
     check_int("episodes", episodes, 1, INT32_MAX)
-    check_run_options(num_seeds=seeds, num_episodes=episodes, seed=seed,
-                      chunk_episodes=chunk_episodes, resume=resume,
-                      memory_budget_bytes=memory_budget_bytes)
-    select_devices(devices)
     check_bool("progress", progress)
     check_bool("figures", figures)
-    check_run_size(len(settings) * seeds, episodes)  # before the folder is even created
-    out = check_writable_dir("out", out_dir)
-    check_output_paths(out, [*sweeps.RUN_FILES, REPORT_FILE, AUTHORS_FIGURE_FILE, CHECKPOINT_FILE,
-                             log_path(CHECKPOINT_FILE).name])
-    with FolderLock(out):  # held from before training to the last file
-        checkpoint = out / CHECKPOINT_FILE
-        started = time.perf_counter()
-        result = run_grid(
-            mdp, settings, num_seeds=seeds, num_episodes=episodes, seed=seed,
-            options=options, chunk_episodes=chunk_episodes, progress=progress,
-            checkpoint=checkpoint, resume=resume, memory_budget_bytes=memory_budget_bytes,
-            devices=devices,
-        )
+    run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
+                     memory_budget_bytes=memory_budget_bytes, devices=devices)
+    prepared = prepare_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes, seed=seed,
+                            options=options, run=run)
+    best = best_return(mdp)
+
+    def annotate(result: GridResult) -> None:
         if result.meta.get("nonfinite_message"):
             print(f"warning: {result.meta['nonfinite_message']}", file=sys.stderr)
         if capped and result.meta["truncated_episodes"]:
             print(f"warning: {cap_message(result.meta)}", file=sys.stderr)
-        best = best_return(mdp)
         result.meta["invalid_action"] = invalid_action
         result.meta["reading"] = reading
         result.meta["details"] = dict(AUTHORS_DETAILS if details is None and reading == "authors"
@@ -243,16 +223,21 @@ def reproduce(
         result.meta["step_cap"] = capped
         result.meta["config_labels"] = [f"{s.learner}/{s.explorer}/{s.param:g}"
                                         for s in result.settings]
-        summary, claims = save_run(
-            result, out, lambda stats: write_outputs(result, out, best, figures=figures,
-                                                     statistics=stats),
-            bands=figures, on_saved=lambda: remove_checkpoint(process_checkpoint_path(checkpoint)))
-        elapsed = time.perf_counter() - started
-        if progress:
-            print(f"{len(result.settings)} settings × {seeds} agents × {episodes} episodes: "
-                  f"training {result.meta['elapsed_seconds']:.1f} s, total {elapsed:.1f} s "
-                  f"→ {out}", file=sys.stderr)
-        return Reproduction(result, summary, claims, best, out, elapsed)
+
+    started = time.perf_counter()
+    result, (summary, claims) = train_in_folder(
+        out_dir, prepared,
+        lambda result, stats: write_outputs(result, out_dir, best, figures=figures,
+                                            statistics=stats),
+        files=[*sweeps.RUN_FILES, REPORT_FILE, AUTHORS_FIGURE_FILE], annotate=annotate,
+        bands=figures)
+    elapsed = time.perf_counter() - started
+    out = Path(out_dir)
+    if progress:
+        print(f"{len(result.settings)} settings × {seeds} agents × {episodes} episodes: "
+              f"training {result.meta['elapsed_seconds']:.1f} s, total {elapsed:.1f} s "
+              f"→ {out}", file=sys.stderr)
+    return Reproduction(result, summary, claims, best, out, elapsed)
 
 
 def saved_best_return(result: GridResult) -> float:

@@ -1,0 +1,234 @@
+"""The result of a grid run: :class:`GridResult`, its files, and their checks on loading."""
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vdbejax import io
+from vdbejax.methods.agents import (
+    Setting,
+    agent_hyperparameters,
+    make_agent,
+    remember_parameter_names,
+)
+
+
+@dataclasses.dataclass
+class GridResult:
+    """Learning curves of a grid.
+
+    Attributes:
+      settings: the configurations, in config-index order.
+      returns: float32 ``[configs, seeds, episodes]`` episode returns.
+      lengths: int32 ``[configs, seeds, episodes]`` episode lengths.
+      nonfinite: bool ``[configs, seeds]``: NaN/inf appeared in that agent's Q or ε.
+      meta: run description (seed, options, MDP name, elapsed seconds, …).
+      episodes_run: int64 ``[configs, seeds]``, the episodes each agent ran, when a stop
+        policy stopped agents early (:class:`~vdbejax.runs.UntilSolved`): their returns
+        are NaN and lengths 0 past it. ``None``: every agent ran every episode.
+    """
+
+    settings: list[Setting]
+    returns: np.ndarray
+    lengths: np.ndarray
+    nonfinite: np.ndarray
+    meta: dict[str, Any]
+    episodes_run: np.ndarray | None = None
+
+    @property
+    def num_seeds(self) -> int:
+        return int(self.returns.shape[1])
+
+    @property
+    def num_episodes(self) -> int:
+        return int(self.returns.shape[2])
+
+    def hyperparameters(self, config: int) -> dict[str, Any]:
+        """Every hyperparameter of a config's agents (``learner.alpha``, ``explorer.sigma``,
+        …), as recorded by :func:`run_grid` in ``meta["hyperparameters"]`` (or resolved
+        from the setting with spec defaults for results without it)."""
+        recorded = self.meta.get("hyperparameters")
+        if isinstance(recorded, list) and len(recorded) == len(self.settings):
+            return dict(recorded[config])
+        return agent_hyperparameters(make_agent(self.settings[config]))
+
+    def to_records(self, all_hyperparameters: bool = False) -> dict[str, np.ndarray]:
+        """The curves in long format, one row per agent-episode, as columns: ``config``,
+        ``setting`` (its label), ``learner``, ``explorer``, ``param``, the hyperparameters
+        (:meth:`hyperparameters`; blank where a config has no such field), ``seed``,
+        ``episode`` (1-based), ``return`` and ``length``.
+
+        Args:
+          all_hyperparameters: a column for every hyperparameter; by default only for
+            those whose values differ between configs (the others are in ``meta.json``).
+
+        Returns:
+          ``{column: array}``, all of length configs × seeds × episodes, in the order
+          config, seed, episode.
+        """
+        configs, seeds, episodes = self.returns.shape
+        per_config = [self.hyperparameters(c) for c in range(configs)]
+        names = sorted({name for values in per_config for name in values})
+        if not all_hyperparameters:
+            names = [n for n in names if len({repr(v.get(n, "")) for v in per_config}) > 1]
+        rows = seeds * episodes
+
+        def repeat(values: list[Any]) -> np.ndarray:
+            return np.repeat(np.asarray(values, dtype=object), rows)
+
+        records = {
+            "config": np.repeat(np.arange(configs), rows),
+            "setting": repeat([s.label for s in self.settings]),
+            "learner": repeat([s.learner for s in self.settings]),
+            "explorer": repeat([s.explorer for s in self.settings]),
+            "param": repeat(["" if s.param is None else s.param for s in self.settings]),
+        }
+        for name in names:
+            records[name] = repeat([values.get(name, "") for values in per_config])
+        records["seed"] = np.tile(np.repeat(np.arange(seeds), episodes), configs)
+        records["episode"] = np.tile(np.arange(1, episodes + 1), configs * seeds)
+        records["return"] = self.returns.reshape(-1)
+        records["length"] = self.lengths.reshape(-1)
+        return records
+
+    def to_dataframe(self, all_hyperparameters: bool = False) -> Any:
+        """:meth:`to_records` as a ``pandas.DataFrame`` (long format: one row per
+        agent-episode; ``pip install pandas``).
+
+        Raises:
+          ValueError: pandas is not installed.
+        """
+        try:
+            import pandas
+        except ImportError:
+            raise ValueError("GridResult.to_dataframe needs pandas: pip install pandas (or"
+                             " use to_records(), plain numpy columns)") from None
+        return pandas.DataFrame(self.to_records(all_hyperparameters))
+
+    def select(self, learner: str | None = None, explorer: str | None = None,
+               **values: Any) -> list[int]:
+        """Config indices matching a learner, an explorer and any hyperparameter values.
+
+        Args:
+          learner: learner name, or None for any.
+          explorer: explorer name, or None for any.
+          **values: hyperparameters that must have these values: ``alpha=0.3``,
+            ``sigma=1.0`` (matched against the learner's and the explorer's fields) or
+            the full names of :meth:`hyperparameters` passed as ``**{"learner.alpha": 0.3}``.
+
+        Returns:
+          the matching config indices, in order.
+        """
+        def matches(i: int) -> bool:
+            s = self.settings[i]
+            if (learner is not None and s.learner != learner) or (
+                    explorer is not None and s.explorer != explorer):
+                return False
+            if not values:
+                return True
+            have = self.hyperparameters(i)
+            for name, wanted in values.items():
+                candidates = [v for k, v in have.items() if k == name or k.split(".", 1)[1] == name]
+                if not any(_same(v, wanted) for v in candidates):
+                    return False
+            return True
+
+        return [i for i in range(len(self.settings)) if matches(i)]
+
+    def save(self, out_dir: str | os.PathLike) -> None:
+        """Write ``returns.npz``, ``configs.csv`` and ``meta.json`` into ``out_dir``."""
+        out = Path(out_dir)
+        arrays: dict[str, Any] = {"returns": self.returns, "lengths": self.lengths,
+                                  "nonfinite": self.nonfinite}
+        if self.episodes_run is not None:
+            arrays["episodes_run"] = self.episodes_run
+        io.atomic_savez(out / io.RETURNS_FILE, **arrays)
+        io.save_settings(out / io.CONFIGS_FILE, self.settings)
+        io.save_json(out / io.META_FILE, self.meta)
+
+    @classmethod
+    def load(cls, out_dir: str | os.PathLike) -> GridResult:
+        """Read a result saved by :meth:`save` (no recomputation), checked for damage.
+
+        Raises:
+          ValueError: the folder lacks the result files, holds a run stopped while writing
+            them (:mod:`vdbejax.result_folder`), or a file is unreadable or inconsistent
+            (array shapes and types, config indices, non-finite returns): one line naming
+            the file.
+        """
+        from vdbejax.result_folder import MARKER_FILE, marked_stage
+
+        out = Path(out_dir)
+        missing = [f for f in (io.RETURNS_FILE, io.CONFIGS_FILE) if not (out / f).exists()]
+        if missing:
+            raise ValueError(f"results folder {str(out)!r} lacks {', '.join(missing)}")
+        if marked_stage(out) == "results":
+            raise ValueError(f"results folder {str(out)!r} is half-written: a run was stopped"
+                             f" while writing its result files ({MARKER_FILE} is still there);"
+                             " run it again")
+        returns_path = out / io.RETURNS_FILE
+        try:
+            with np.load(returns_path) as data:
+                returns, lengths = data["returns"], data["lengths"]
+                nonfinite = (data["nonfinite"] if "nonfinite" in data
+                             else np.zeros(returns.shape[:2], bool))
+                episodes_run = data.get("episodes_run")
+        except Exception as error:
+            raise ValueError(f"results file {str(returns_path)!r} is unreadable:"
+                             f" {type(error).__name__}: {error}") from None
+        meta = io.load_json(out / io.META_FILE) if (out / io.META_FILE).exists() else {}
+        if not isinstance(meta, dict):
+            raise ValueError(f"results file {str(out / io.META_FILE)!r} is invalid: must hold a"
+                             f" JSON object, not {type(meta).__name__}")
+        settings = io.load_settings(out / io.CONFIGS_FILE)
+        _check_saved_arrays(returns_path, len(settings), returns, lengths, nonfinite,
+                            episodes_run)
+        remember_parameter_names(meta.get("parameter_names", {}))
+        return cls(settings, returns, lengths, nonfinite, meta, episodes_run)
+
+
+def _check_saved_arrays(path: Path, num_settings: int, returns: np.ndarray, lengths: np.ndarray,
+                        nonfinite: np.ndarray, episodes_run: np.ndarray | None = None) -> None:
+    """One-line errors for arrays of ``returns.npz`` that cannot belong to one saved run."""
+    def fail(what: str) -> None:
+        raise ValueError(f"results file {str(path)!r} is damaged: {what}")
+
+    if returns.ndim != 3 or not np.issubdtype(returns.dtype, np.floating):
+        fail(f"returns must be float [configs, seeds, episodes], not {returns.dtype}"
+             f" {list(returns.shape)}")
+    if returns.shape[0] != num_settings:
+        fail(f"its returns cover {returns.shape[0]} configs, which does not match the"
+             f" {num_settings} of configs.csv")
+    if lengths.shape != returns.shape or not np.issubdtype(lengths.dtype, np.integer):
+        fail(f"lengths must be integer {list(returns.shape)} like returns, not {lengths.dtype}"
+             f" {list(lengths.shape)}")
+    if nonfinite.shape != returns.shape[:2] or nonfinite.dtype != bool:
+        fail(f"nonfinite must be bool {list(returns.shape[:2])}, not {nonfinite.dtype}"
+             f" {list(nonfinite.shape)}")
+    ran = np.ones(returns.shape, bool)
+    if episodes_run is not None:
+        if (episodes_run.shape != returns.shape[:2]
+                or not np.issubdtype(episodes_run.dtype, np.integer)
+                or (episodes_run.size and (episodes_run.min() < 0
+                                           or episodes_run.max() > returns.shape[2]))):
+            fail(f"episodes_run must be integer {list(returns.shape[:2])} within"
+                 f" [0, {returns.shape[2]}]")
+        ran = np.arange(returns.shape[2]) < episodes_run[..., None]
+    # NaN or inf returns come only from agents whose values overflowed, which the run flags
+    # (or from episodes past an agent's stop, which it did not run).
+    unexplained = ~(np.isfinite(returns) | ~ran).all(-1) & ~nonfinite
+    if unexplained.any():
+        fail(f"{int(unexplained.sum())} agents have NaN or infinite returns that their"
+             " nonfinite flags do not account for")
+    if lengths.size and lengths[ran].size and lengths[ran].min() < 1:
+        fail("episode lengths must be at least 1")
+
+
+def _same(value: Any, wanted: Any) -> bool:
+    if isinstance(value, (int, float)) and isinstance(wanted, (int, float)):
+        return bool(np.float32(value) == np.float32(wanted))
+    return value == wanted

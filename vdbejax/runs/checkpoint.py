@@ -1,0 +1,287 @@
+"""Checkpoints of a run: what :func:`~vdbejax.runs.run_grid` writes after every
+chunk so that ``resume=True`` continues bit-identically after any interruption.
+
+A checkpoint is two files:
+
+* ``<name>`` (e.g. ``checkpoint.npz``): the small part, rewritten atomically after every
+  chunk — the run's fingerprint, every agent's episode count and NaN flag, and the full
+  state (Q, tables, position, random-stream counter) of the agents started but
+  unfinished. Its size depends on the batch, not on how long the run is.
+* ``<name>.episodes``: an append-only log of episode returns and lengths. Each chunk
+  appends only the episodes it ran (one record per group of agents: their rows, the
+  episode range, the returns and the lengths), so writing a checkpoint costs time
+  proportional to the chunk, however many episodes came before. The small file records
+  how many bytes of the log it covers: bytes a killed run appended after that are
+  ignored (and cut off) on resume.
+
+On resume both are checked before anything trains: the fingerprint, the layout version,
+array shapes, ranges (episode counts, states, actions), that the log covers exactly the
+episodes each agent has done, and that the log belongs to the small file (a random id).
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import secrets
+import struct
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from vdbejax import io
+from vdbejax.engine import AgentState
+from vdbejax.envs.tabular import TabularMDP
+from vdbejax.runs.state import RunState
+
+#: Version of the checkpoint layout (a checkpoint of another version is refused).
+CHECKPOINT_VERSION = 5
+LOG_SUFFIX = ".episodes"
+_LOG_MAGIC = b"vdbejax-episode-log-5\n"
+_HEADER = struct.Struct("<16s16s")  # fingerprint, log id (ASCII)
+_RECORD = struct.Struct("<qqq")  # agents in the record, first episode, end episode
+HINT = "delete it or use a new output folder"
+
+
+def log_path(path: str | os.PathLike) -> Path:
+    """The episode log beside checkpoint ``path``."""
+    path = Path(path)
+    return path.with_name(path.name + LOG_SUFFIX)
+
+
+def remove_checkpoint(path: str | os.PathLike) -> None:
+    """Delete a checkpoint (both files), e.g. once the run's results are saved."""
+    Path(path).unlink(missing_ok=True)
+    log_path(path).unlink(missing_ok=True)
+
+
+class CheckpointWriter:
+    """Writes the checkpoint after every chunk (call it with the sweep's progress).
+
+    Args:
+      path: the small file; the log goes beside it (:func:`log_path`).
+      fingerprint: the run's fingerprint (16 characters).
+      resumed: the progress a resumed run starts from (its episodes are in the log
+        already), or ``None`` for a fresh run (the log is started anew).
+      log_bytes: for a resumed run, the log length its small file covers.
+      log_id: for a resumed run, the log's id.
+    """
+
+    def __init__(self, path: Path, fingerprint: str, resumed: RunState | None = None,
+                 log_bytes: int = 0, log_id: str | None = None) -> None:
+        self.path = Path(path)
+        self.fingerprint = fingerprint
+        self._log: BinaryIO | None = None
+        if resumed is None:
+            self.log_id = secrets.token_hex(8)
+            self.written = None
+            self._open_fresh()
+        else:
+            assert log_id is not None  # a resumed run continues its own log
+            self.log_id = log_id
+            self.written = np.array(resumed.episodes_done, np.int64)
+            log = open(log_path(self.path), "r+b")  # noqa: SIM115  (kept open for the run)
+            self._log = log
+            log.truncate(log_bytes)  # what a killed run appended past its last checkpoint
+            log.seek(log_bytes)
+
+    def _open_fresh(self) -> None:
+        log = open(log_path(self.path), "wb")  # noqa: SIM115  (kept open for the run)
+        self._log = log
+        log.write(_LOG_MAGIC + _HEADER.pack(self.fingerprint.encode().ljust(16)[:16],
+                                            self.log_id.encode()))
+
+    def __call__(self, sweep: RunState) -> None:
+        log = self._log
+        assert log is not None  # open until close()
+        done = np.asarray(sweep.episodes_done, np.int64)
+        written = np.zeros_like(done) if self.written is None else self.written
+        changed = np.flatnonzero(done != written)
+        # One record per group of agents that ran the same episodes in this chunk.
+        spans = (np.stack([written[changed], done[changed]], axis=1) if changed.size
+                 else np.zeros((0, 2), np.int64))
+        for start, stop in np.unique(spans, axis=0):
+            rows = changed[(spans[:, 0] == start) & (spans[:, 1] == stop)]
+            log.write(_RECORD.pack(len(rows), int(start), int(stop)))
+            log.write(rows.astype("<i8").tobytes())
+            log.write(np.ascontiguousarray(sweep.returns[rows, start:stop], "<f4").tobytes())
+            log.write(np.ascontiguousarray(sweep.lengths[rows, start:stop], "<i4").tobytes())
+        log.flush()
+        os.fsync(log.fileno())  # the log before the small file that vouches for it
+        leaves = {}
+        if sweep.state is not None:
+            leaves = {f"agent_{f.name}": np.asarray(getattr(sweep.state, f.name))
+                      for f in dataclasses.fields(AgentState) if f.name != "tables"}
+            leaves.update({f"agent_table_{name}": np.asarray(table)
+                           for name, table in sweep.state.tables.items()})
+        io.atomic_savez(
+            self.path, compressed=False, fingerprint=np.asarray(self.fingerprint),
+            version=np.asarray(CHECKPOINT_VERSION), log_id=np.asarray(self.log_id),
+            log_bytes=np.asarray(log.tell(), np.int64), num_episodes=np.asarray(
+                sweep.num_episodes, np.int64),
+            episodes_done=done, stopped=sweep.stopped, nonfinite=sweep.nonfinite,
+            state_rows=sweep.state_rows, **leaves,
+        )
+        self.written = done.copy()
+
+    def close(self) -> None:
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+
+def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
+                    mdp: TabularMDP | None = None, layout: dict[str, str] | None = None
+                    ) -> tuple[RunState, int, str]:
+    """Read a checkpoint of this run and check it (module docstring).
+
+    Args:
+      path: the small file.
+      fingerprint: the run's.
+      shape: ``(agents, episodes)`` of the run.
+      mdp: the task (checks Q, table, state and action ranges), if known.
+      layout: the agents' table layout (:func:`~vdbejax.methods.agents.table_layout`).
+
+    Returns:
+      ``(progress, log_bytes, log_id)``.
+
+    Raises:
+      ValueError: unreadable, of another run or layout, or contents out of shape or range.
+    """
+    try:
+        with np.load(path) as data:
+            found = str(data["fingerprint"])
+            if found != fingerprint:
+                raise ValueError(
+                    f"checkpoint {str(path)!r} belongs to a different run (fingerprint {found},"
+                    f" expected {fingerprint}): use the same settings, seeds and options, or {HINT}"
+                )
+            version = int(data["version"]) if "version" in data else 1
+            if version != CHECKPOINT_VERSION:
+                raise ValueError(f"checkpoint {str(path)!r} has layout version {version},"
+                                 f" expected {CHECKPOINT_VERSION}: {HINT}")
+            state = None
+            if "agent_q" in data:
+                tables = {key.removeprefix("agent_table_"): data[key] for key in data.files
+                          if key.startswith("agent_table_")}
+                state = AgentState(tables=tables, **{
+                    f.name: data[f"agent_{f.name}"] for f in dataclasses.fields(AgentState)
+                    if f.name != "tables"})
+            episodes_done = np.asarray(data["episodes_done"], np.int64)
+            nonfinite, state_rows = data["nonfinite"], np.asarray(data["state_rows"])
+            stopped = np.asarray(data["stopped"])
+            log_bytes, log_id = int(data["log_bytes"]), str(data["log_id"])
+            num_episodes = int(data["num_episodes"])
+    except Exception as error:  # a damaged file: zip, pickle, EOF or key errors
+        if isinstance(error, ValueError) and str(error).startswith(f"checkpoint {str(path)!r}"):
+            raise  # ours: another run's or another layout's checkpoint
+        raise ValueError(f"checkpoint {str(path)!r} is unreadable ({type(error).__name__}:"
+                         f" {error}): {HINT}") from None
+    if (len(episodes_done), num_episodes) != tuple(shape):
+        raise ValueError(f"checkpoint {str(path)!r} is of {len(episodes_done)} agents ×"
+                         f" {num_episodes} episodes, expected {shape[0]} × {shape[1]}: {HINT}")
+    problem = _check_progress(episodes_done, stopped, nonfinite, state_rows, state, shape, mdp,
+                              layout)
+    if problem:
+        raise ValueError(f"checkpoint {str(path)!r} is damaged: {problem}; {HINT}")
+    returns, lengths = _read_log(path, fingerprint, log_id, log_bytes, episodes_done, shape)
+    progress = RunState(returns=returns, lengths=lengths, episodes_done=episodes_done,
+                        stopped=stopped, nonfinite=nonfinite, state_rows=state_rows,
+                        state=state)
+    return progress, log_bytes, log_id
+
+
+def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
+              episodes_done: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Replay the episode log into ``[agents, episodes]`` returns and lengths."""
+    log = log_path(path)
+
+    def damaged(what: str) -> ValueError:
+        return ValueError(f"checkpoint log {str(log)!r} is damaged: {what}; {HINT}")
+
+    try:
+        with open(log, "rb") as f:
+            data = f.read(log_bytes)
+    except OSError as error:
+        raise ValueError(f"checkpoint log {str(log)!r} is unreadable ({error.strerror or error}):"
+                         f" {HINT}") from None
+    head = len(_LOG_MAGIC) + _HEADER.size
+    if len(data) != log_bytes or data[:len(_LOG_MAGIC)] != _LOG_MAGIC:
+        raise damaged(f"it holds {len(data)} of the {log_bytes} bytes its checkpoint covers"
+                      if len(data) != log_bytes else "not an episode log")
+    found, found_id = (x.decode(errors="replace").strip() for x in
+                       _HEADER.unpack_from(data, len(_LOG_MAGIC)))
+    if found != fingerprint[:16] or found_id != log_id:
+        raise damaged("it belongs to another checkpoint")
+    agents, episodes = shape
+    returns = np.zeros(shape, np.float32)
+    lengths = np.zeros(shape, np.int32)
+    covered = np.zeros(agents, np.int64)  # episodes written so far, per agent
+    offset = head
+    while offset < log_bytes:
+        if offset + _RECORD.size > log_bytes:
+            raise damaged("a record is cut short")
+        count, start, stop = _RECORD.unpack_from(data, offset)
+        offset += _RECORD.size
+        width = stop - start
+        size = count * 8 + 2 * count * max(width, 0) * 4
+        if count < 1 or not 0 <= start < stop <= episodes or offset + size > log_bytes:
+            raise damaged(f"a record of {count} agents × episodes [{start}, {stop})"
+                          " is out of range")
+        rows = np.frombuffer(data, "<i8", count, offset)
+        offset += count * 8
+        if rows.min() < 0 or rows.max() >= agents or (covered[rows] != start).any():
+            raise damaged("a record names agents out of range or out of order")
+        block = count * width
+        returns[rows, start:stop] = np.frombuffer(data, "<f4", block, offset).reshape(count, width)
+        offset += block * 4
+        lengths[rows, start:stop] = np.frombuffer(data, "<i4", block, offset).reshape(count, width)
+        offset += block * 4
+        covered[rows] = stop
+    if not np.array_equal(covered, episodes_done):
+        raise damaged("it does not cover exactly the episodes its checkpoint says were done")
+    return returns, lengths
+
+
+def _check_progress(done: np.ndarray, stopped: np.ndarray, nonfinite: Any, rows: np.ndarray,
+                    state: AgentState | None,
+                    shape: tuple[int, int], mdp: TabularMDP | None,
+                    layout: dict[str, str] | None) -> str | None:
+    """What in a checkpoint's arrays cannot come from this run (``None``: nothing)."""
+    agents, episodes = shape
+    if np.shape(nonfinite) != (agents,):
+        return "its nonfinite flags do not match its agents"
+    if np.shape(stopped) != (agents,) or stopped.dtype != bool:
+        return "its stopped flags do not match its agents"
+    if done.size and (done.min() < 0 or done.max() > episodes):
+        return f"episodes_done must lie in [0, {episodes}]"
+    if rows.ndim != 1 or len(np.unique(rows)) != len(rows) or (
+            rows.size and (rows.min() < 0 or rows.max() >= agents
+                           or (done[rows] >= episodes).any() or stopped[rows].any())):
+        return "state_rows must name distinct unfinished agents"
+    if state is None:
+        return None if rows.size == 0 else "state_rows name agents but no agent state is stored"
+    m = len(rows)
+    if any(np.shape(getattr(state, f.name))[:1] != (m,) for f in dataclasses.fields(AgentState)
+           if f.name != "tables"):
+        return f"every agent-state array must have {m} rows (one per state_rows entry)"
+    if not np.array_equal(np.asarray(state.episode), done[rows]):
+        return "the agents' episode counters disagree with episodes_done"
+    if mdp is None:
+        return None
+    S, A = mdp.num_states, mdp.num_actions
+    if np.shape(state.q) != (m, S, A):
+        return f"Q must be [{m}, {S}, {A}], not {list(np.shape(state.q))}"
+    if (np.asarray(state.state) < 0).any() or (np.asarray(state.state) >= S).any():
+        return f"agent states must lie in [0, {S})"
+    if (np.asarray(state.action) < 0).any() or (np.asarray(state.action) >= A).any():
+        return f"agent actions must lie in [0, {A})"
+    if layout is not None:
+        if set(state.tables) != set(layout):
+            return f"tables must be {sorted(layout)}, not {sorted(state.tables)}"
+        for name, per in layout.items():
+            wanted = (m, S) if per == "state" else (m, S, A)
+            if np.shape(state.tables[name]) != wanted:
+                return (f"table {name!r} must be {list(wanted)},"
+                        f" not {list(np.shape(state.tables[name]))}")
+    return None

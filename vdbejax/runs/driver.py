@@ -1,0 +1,132 @@
+"""The run driver: every run's one loop over batches and chunks.
+
+:func:`drive` takes the next batch of unfinished agents (:meth:`RunState.next_batch`),
+runs it through the engine (:meth:`RunPlan.run_engine`: sharded when the plan says so),
+and after every chunk applies the run's stages, in this order:
+
+1. **record** the chunk's episodes (and, when a checkpoint needs them, the agents'
+   states) in the one :class:`~vdbejax.runs.state.RunState`;
+2. **stop**: the stop policy retires agents (:mod:`vdbejax.runs.stop`; a fixed budget
+   retires none, so its batches run to the end in one engine call);
+3. **checkpoint** the state (:class:`~vdbejax.checkpoint.CheckpointWriter`);
+4. **progress**: ``progress(done, total, elapsed)`` in agent-episodes.
+
+Resuming is starting from a state loaded from the checkpoint: the loop is the same.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from vdbejax.engine import AgentState
+from vdbejax.engine.programs import Programs
+from vdbejax.envs.tabular import TabularMDP
+from vdbejax.methods.agents import AgentParams
+from vdbejax.progress import ProgressCallback
+from vdbejax.runs.plan import RunPlan
+from vdbejax.runs.state import RunState
+from vdbejax.runs.stop import StopPolicy
+
+
+@dataclasses.dataclass
+class Drive:
+    """What :func:`drive` did.
+
+    Attributes:
+      batches: engine calls made.
+      elapsed_seconds: wall clock of the loop.
+      stopped: ``"solved"`` (the stop policy retired every agent), ``"seconds"`` (its
+        wall-clock budget ran out) or ``"episodes"`` (some agent ran the whole budget).
+      strategy: the engine strategy that ran last (the sequential one falls back to
+        lockstep where its loop would not compile natively).
+    """
+
+    batches: int
+    elapsed_seconds: float
+    stopped: str
+    strategy: str
+
+
+def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
+          state: RunState, stop: StopPolicy, *,
+          checkpoint: Callable[[RunState], None] | None = None,
+          progress: ProgressCallback | None = None,
+          programs: Programs | None = None) -> Drive:
+    """Train the unfinished agents of ``state`` (rows of ``params`` and ``keys``).
+
+    Args:
+      mdp: the task.
+      params, keys: every agent's hyperparameters and key (this process's rows).
+      plan: devices, batch size and engine strategy (:func:`~vdbejax.runs.plan.make_plan`).
+      state: the run so far (fresh, or loaded from a checkpoint); updated in place.
+      stop: the stop policy (resolved for ``mdp``).
+      checkpoint: called with the state after every chunk.
+      progress: called after every chunk.
+      programs: the compiled programs shared by every engine call (default: the run's own).
+
+    Returns:
+      :class:`Drive`.
+    """
+    from vdbejax.distributed import take_agents
+
+    programs = Programs() if programs is None else programs
+    num_episodes = state.num_episodes
+    total = state.returns.shape[0] * num_episodes
+    started = time.perf_counter()
+    batches, timed_out, strategy = 0, False, plan.strategy
+
+    def report() -> None:
+        if progress is not None:
+            progress(state.episodes_credited(), total, time.perf_counter() - started)
+
+    report()
+    while (batch := state.next_batch(plan.batch_size)).size:
+        start = int(state.episodes_done[batch[0]])
+        end = (min(start + plan.chunk_episodes, num_episodes) if stop.checks_chunks
+               else num_episodes)
+        recorded = [start]
+
+        def after_chunk(done: int, agents: AgentState | None, returns: np.ndarray,
+                        lengths: np.ndarray, batch: np.ndarray = batch,
+                        recorded: list[int] = recorded) -> None:
+            first = recorded[0]
+            state.add_episodes(batch, first, done, returns[:, first:done],
+                               lengths[:, first:done])
+            recorded[0] = done
+            if agents is not None:
+                state.set_agents(batch, agents)
+            if checkpoint is not None:
+                checkpoint(state)
+            report()
+
+        # A fixed budget runs the batch to its end in one call, stages after every chunk;
+        # a policy that checks chunks gets one call per chunk and the stages after it.
+        per_chunk = not stop.checks_chunks
+        result = plan.run_engine(
+            mdp, take_agents(params, batch), keys[batch], end,
+            initial=state.resume_point(batch), on_chunk=after_chunk if per_chunk else None,
+            chunk_states=checkpoint is not None, keep_final_state=end < num_episodes,
+            programs=programs)
+        batches += 1
+        strategy = result.strategy
+        if not per_chunk:
+            state.add_episodes(batch, start, end, result.returns[:, start:end],
+                               result.lengths[:, start:end])
+        state.set_agents(batch, result.final_state, nonfinite=result.nonfinite)
+        if stop.checks_chunks:
+            solved = stop.newly_stopped(state.returns, batch, start, end)
+            state.stop(batch[solved])
+            if stop.out_of_time(time.perf_counter() - started) and not state.finished.all():
+                state.stop(np.flatnonzero(~state.finished))
+                timed_out = True
+            if checkpoint is not None:
+                checkpoint(state)
+            report()
+        del result  # the batch's states are in ``state``: free the engine's copies
+    reached = bool(((state.episodes_done >= num_episodes) & ~state.stopped).any())
+    stopped = "seconds" if timed_out else ("episodes" if reached or not stop.checks_chunks
+                                           else "solved")
+    return Drive(batches, time.perf_counter() - started, stopped, strategy)

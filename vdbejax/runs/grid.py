@@ -1,0 +1,376 @@
+"""Grid runs: many settings × seeds through the one run path, with checkpoints and resume.
+
+:func:`run_grid` is :func:`prepare_grid` (every check, the agents, the plan; nothing is
+created or trained) followed by :func:`run_prepared` (the checkpoint, the driver, the
+result). A result-folder command prepares first and creates its folder only once the
+work is known to be valid (:mod:`vdbejax.studies`).
+
+Agent ``(config c, seed i)`` uses key ``fold_in(PRNGKey(seed), i)``: the same seed index
+shares its random stream across configs (common random numbers), and an agent gives
+bit-identical results whether run alone or inside any grid, in any batch, on any number
+of devices, resumed or not.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import os
+import platform
+import subprocess
+import warnings
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from vdbejax.batching import check_run_size
+from vdbejax.distributed import gather_agents, process_checkpoint_path, take_agents
+from vdbejax.engine import agent_keys, broadcast_agents, check_params, text_progress
+from vdbejax.engine.programs import Programs
+from vdbejax.envs.tabular import TabularMDP
+from vdbejax.grid_result import GridResult
+from vdbejax.methods.agents import (
+    AgentOptions,
+    AgentParams,
+    Setting,
+    agent_hyperparameters,
+    make_agent,
+    parameter_name,
+    stack_agents,
+    table_layout,
+)
+from vdbejax.result_folder import describe_os_error, remove_stale_temporaries
+from vdbejax.runs.checkpoint import CheckpointWriter, load_checkpoint, remove_checkpoint
+from vdbejax.runs.driver import drive
+from vdbejax.runs.options import RunOptions
+from vdbejax.runs.plan import RunPlan, make_plan
+from vdbejax.runs.state import RunState
+from vdbejax.runs.stop import StopPolicy
+from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int, check_writable_dir
+
+
+def grid_agents(settings: Sequence[Setting], num_seeds: int, seed: int = 0,
+                options: AgentOptions = AgentOptions()) -> tuple[AgentParams, np.ndarray]:
+    """Hyperparameters and keys of a grid's agents, config-major (c0s0, c0s1, …).
+
+    Seed ``i`` of every setting gets the same key (common random numbers).
+
+    Args:
+      settings: the grid's settings.
+      num_seeds: agents per setting.
+      seed: root seed of the keys.
+      options: options shared by every agent.
+
+    Returns:
+      ``(params, keys)``: batched :class:`AgentParams` and uint32 ``[agents, 2]`` keys.
+    """
+    params = broadcast_agents(stack_agents([make_agent(s, options) for s in settings]), num_seeds)
+    return params, np.tile(agent_keys(seed, num_seeds), (len(settings), 1))
+
+
+@dataclasses.dataclass(frozen=True)
+class PreparedGrid:
+    """A grid run checked and planned, not started (:func:`prepare_grid`).
+
+    Attributes:
+      mdp, settings, num_seeds, num_episodes, seed, options: the work.
+      run: the run options.
+      stop: the stop policy, resolved for the task.
+      params, keys: every agent's hyperparameters and key.
+      plan: devices, batches and engine strategy (:class:`~vdbejax.runs.plan.RunPlan`).
+      description: what decides the results (the fingerprint's input, in ``meta.json``).
+    """
+
+    mdp: TabularMDP
+    settings: tuple[Setting, ...]
+    num_seeds: int
+    num_episodes: int
+    seed: int
+    options: AgentOptions
+    run: RunOptions
+    stop: StopPolicy
+    params: AgentParams
+    keys: np.ndarray
+    plan: RunPlan
+    description: dict[str, Any]
+
+    @property
+    def num_agents(self) -> int:
+        return len(self.settings) * self.num_seeds
+
+    @property
+    def fingerprint(self) -> str:
+        return _fingerprint(self.description)
+
+    def with_checkpoint(self, path: str | os.PathLike) -> PreparedGrid:
+        """The same run, checkpointed to ``path`` (its folder must exist or be creatable)."""
+        run = self.run.replace(checkpoint=path)
+        check_writable_dir("checkpoint folder", Path(path).parent)
+        return dataclasses.replace(self, run=run)
+
+
+def prepare_grid(
+    mdp: TabularMDP,
+    settings: Sequence[Setting],
+    *,
+    num_seeds: int = 20,
+    num_episodes: int = 1000,
+    seed: int = 0,
+    options: AgentOptions = AgentOptions(),
+    run: RunOptions | None = None,
+) -> PreparedGrid:
+    """Check a grid run and plan it, creating nothing (one-line ``ValueError`` on bad input).
+
+    Args: as in :func:`run_grid`.
+
+    Returns:
+      the :class:`PreparedGrid` that :func:`run_prepared` trains.
+    """
+    run = RunOptions() if run is None else run
+    if not isinstance(run, RunOptions):
+        raise ValueError(f"run={run!r} is invalid: must be a RunOptions")
+    # Counts and sizes end up in int32 arrays; the seed is a 32-bit key.
+    num_seeds = check_int("num_seeds", num_seeds, 1, INT32_MAX)
+    num_episodes = check_int("num_episodes", num_episodes, 1, INT32_MAX)
+    seed = check_int("seed", seed, 0, UINT32_MAX)
+    if not isinstance(mdp, TabularMDP):
+        raise ValueError(f"mdp={type(mdp).__name__} is invalid: must be a TabularMDP"
+                         " (see make_tabular_mdp, compile_env)")
+    settings = tuple(settings)
+    if not settings:
+        raise ValueError("settings is empty: need at least one setting")
+    for s in settings:
+        if not isinstance(s, Setting):
+            raise ValueError(f"settings holds {s!r}: must hold Setting(learner, explorer, param)")
+    if run.checkpoint is not None:  # fail before training
+        check_writable_dir("checkpoint folder", Path(run.checkpoint).parent)
+    check_run_size(len(settings) * num_seeds, num_episodes, run.checkpoint)  # before allocating
+    stop = run.stop.resolve(mdp)
+    params, keys = grid_agents(settings, num_seeds, seed, options)
+    check_params(params, mdp.num_actions)  # a bad plug-in: one line before anything runs
+    plan = make_plan(mdp, params, len(settings) * num_seeds, num_episodes, run)
+    description = {
+        "mdp": mdp.name,
+        "mdp_tables": _fingerprint_arrays(mdp),
+        "settings": [dataclasses.astuple(s) for s in settings],
+        "num_seeds": num_seeds,
+        "num_episodes": num_episodes,
+        "seed": seed,
+        "options": dataclasses.asdict(options),
+    }
+    if stop.checks_chunks:  # a fixed budget leaves the fingerprint of earlier runs as it was
+        description["stop"] = stop.describe()
+    return PreparedGrid(mdp, settings, num_seeds, num_episodes, seed, options, run, stop,
+                        params, keys, plan, description)
+
+
+def run_grid(
+    mdp: TabularMDP,
+    settings: Sequence[Setting],
+    *,
+    num_seeds: int = 20,
+    num_episodes: int = 1000,
+    seed: int = 0,
+    options: AgentOptions = AgentOptions(),
+    run: RunOptions | None = None,
+    **run_options: Any,
+) -> GridResult:
+    """Train ``num_seeds`` agents for every setting, all in one vectorized program.
+
+    Args:
+      mdp: the task.
+      settings: the configurations (e.g. :func:`~vdbejax.methods.agents.paper_settings`).
+      num_seeds: agents per setting.
+      num_episodes: episodes per agent (the budget, under a stop policy).
+      seed: root seed.
+      options: α, γ, q_init, tie-break, δ shared by all agents.
+      run: how the run runs (:class:`~vdbejax.runs.RunOptions`: chunk size, progress,
+        checkpoint and resume, memory budget, devices, stop policy, strategy).
+      **run_options: fields of :class:`~vdbejax.runs.RunOptions` given one by one
+        (``chunk_episodes=50, checkpoint="run.npz", resume=True``), applied over ``run``.
+
+    Returns:
+      :class:`~vdbejax.grid_result.GridResult`.
+
+    Raises:
+      ValueError: invalid settings, counts or options, or a checkpoint from a different
+        run; before anything trains.
+    """
+    run = (RunOptions() if run is None else run).replace(**run_options)
+    prepared = prepare_grid(mdp, settings, num_seeds=num_seeds, num_episodes=num_episodes,
+                            seed=seed, options=options, run=run)
+    return run_prepared(prepared)
+
+
+def _resume_state(prepared: PreparedGrid, fingerprint: str
+                  ) -> tuple[RunState | None, CheckpointWriter | None]:
+    """The state to resume from (None: fresh) and the after-chunk checkpoint writer."""
+    run = prepared.run
+    if run.checkpoint is None:
+        return None, None
+    path = process_checkpoint_path(run.checkpoint)
+    remove_stale_temporaries(path.parent)  # what killed writers left (vdbejax.result_folder)
+    shape = (len(prepared.plan.rows), prepared.num_episodes)
+    if run.resume and path.exists():
+        state, log_bytes, log_id = load_checkpoint(path, fingerprint, shape, prepared.mdp,
+                                                   table_layout(prepared.params))
+        return state, CheckpointWriter(path, fingerprint, state, log_bytes, log_id)
+    remove_checkpoint(path)  # a fresh run: an older checkpoint must not outlive its log
+    return None, CheckpointWriter(path, fingerprint)
+
+
+def run_prepared(prepared: PreparedGrid, programs: Programs | None = None) -> GridResult:
+    """Train a :class:`PreparedGrid` and collect its :class:`GridResult`.
+
+    Args:
+      prepared: the run (:func:`prepare_grid`).
+      programs: compiled programs shared with other runs of one study (default: the
+        run's own).
+    """
+    plan, run = prepared.plan, prepared.run
+    fingerprint = prepared.fingerprint
+    # A process's checkpoint holds its share only: tie it to the process layout.
+    checkpoint_fingerprint = fingerprint if jax.process_count() == 1 else _fingerprint(
+        dict(prepared.description, process=[jax.process_index(), jax.process_count()]))
+    if run.checkpoint is not None:
+        check_run_size(prepared.num_agents, prepared.num_episodes, run.checkpoint)
+    state, writer = _resume_state(prepared, checkpoint_fingerprint)
+    state = RunState.fresh(len(plan.rows), prepared.num_episodes) if state is None else state
+    resumed_from = int(state.episodes_done.sum())
+    progress = text_progress() if run.progress is True else (run.progress or None)
+    try:
+        done = drive(prepared.mdp, take_agents(prepared.params, plan.rows),
+                     prepared.keys[plan.rows], plan, state, prepared.stop,
+                     checkpoint=None if writer is None else _failing_quietly(writer),
+                     progress=progress, programs=programs)
+    finally:
+        if writer is not None:
+            writer.close()
+    return _collect(prepared, state, fingerprint, resumed_from, done)
+
+
+def _failing_quietly(writer: CheckpointWriter) -> Callable[[RunState], None]:
+    """The checkpoint stage: a checkpoint that cannot be written (disk full) stops the
+    checkpoints, not the run — what the run computes is still saved at its end (or kept
+    elsewhere, :func:`~vdbejax.result_folder.save_run`)."""
+    failed: list[OSError] = []
+
+    def write(state: RunState) -> None:
+        if failed:
+            return
+        try:
+            writer(state)
+        except OSError as error:
+            failed.append(error)
+            warnings.warn(f"checkpoint {str(writer.path)!r} cannot be written"
+                          f" ({describe_os_error(error)}): the run goes on without checkpoints",
+                          RuntimeWarning, stacklevel=2)
+
+    return write
+
+
+def _collect(prepared: PreparedGrid, state: RunState, fingerprint: str, resumed_from: int,
+             done: Any) -> GridResult:
+    """The :class:`GridResult` of a finished run (every process's agents gathered)."""
+    settings, options, mdp = list(prepared.settings), prepared.options, prepared.mdp
+    num_agents = prepared.num_agents
+    shape = (len(settings), prepared.num_seeds, prepared.num_episodes)
+    # [agents, episodes] → [configs, seeds, episodes]; per agent → [configs, seeds].
+    returns, lengths, nonfinite, episodes_run = (
+        gather_agents(array, num_agents).reshape(shape[: array.ndim + 1])
+        for array in (state.returns, state.lengths, state.nonfinite, state.episodes_done))
+    stopped_early = bool((episodes_run < prepared.num_episodes).any())
+    if stopped_early:
+        past = np.arange(prepared.num_episodes) >= episodes_run[..., None]
+        returns = np.where(past, np.float32(np.nan), returns)
+    message = nonfinite_message(settings, nonfinite, options)
+    if message:
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
+    meta = dict(prepared.description, fingerprint=fingerprint,
+                elapsed_seconds=done.elapsed_seconds, resumed_from_agent_episodes=resumed_from,
+                max_steps=int(mdp.max_steps), nonfinite_agents=int(nonfinite.sum()),
+                nonfinite_message=message, plan=prepared.plan.describe(),
+                devices=len(prepared.plan.devices), processes=jax.process_count(),
+                batches=done.batches, agents_per_batch=prepared.plan.batch_size,
+                memory_budget_bytes=int(prepared.plan.memory_budget_bytes),
+                strategy=done.strategy, stop=prepared.stop.describe(), stopped=done.stopped,
+                jax_version=jax.__version__, backend=jax.default_backend(), **version_info())
+    meta.pop("mdp_tables")
+    ran = lengths[lengths > 0]
+    meta["longest_episode"] = int(ran.max()) if ran.size else 0
+    # Episodes cut off at max_steps (on a task without a step limit, e.g. cruz2018, the
+    # safety cap: agents that would have looped forever).
+    cut = lengths >= mdp.max_steps
+    meta["truncated_episodes"] = int(cut.sum())
+    meta["agents_truncated"] = int(cut.any(axis=2).sum())
+    meta["truncated_episodes_by_config"] = cut.sum(axis=(1, 2)).tolist()
+    meta["hyperparameters"] = [agent_hyperparameters(make_agent(s, options)) for s in settings]
+    meta["parameter_names"] = {s.explorer: parameter_name(s.explorer) for s in settings}
+    return GridResult(settings, returns, lengths, nonfinite, meta,
+                      episodes_run.astype(np.int64) if stopped_early else None)
+
+
+def nonfinite_message(settings: Sequence[Setting], nonfinite: np.ndarray,
+                      options: AgentOptions) -> str | None:
+    """One line naming every config whose agents saw NaN/inf in Q or ε, or None.
+
+    Args:
+      settings: the grid's configurations.
+      nonfinite: bool ``[configs, seeds]``.
+      options: the options shared by all agents (part of the config that produced it).
+    """
+    counts = np.asarray(nonfinite).sum(axis=1)
+    bad = [f"{settings[int(c)].label} ({counts[c]}/{nonfinite.shape[1]} agents)"
+           for c in np.flatnonzero(counts)]
+    if not bad:
+        return None
+    return (f"NaN or inf appeared in Q or ε, or an invalid action was drawn, for: {'; '.join(bad)}"
+            f" [options {dataclasses.asdict(options)}]")
+
+
+def _fingerprint(description: dict[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _fingerprint_arrays(mdp: TabularMDP) -> str:
+    digest = hashlib.sha256()
+    for leaf in jax.tree.leaves(mdp):
+        digest.update(np.asarray(leaf).tobytes())
+    return digest.hexdigest()[:16]
+
+
+@functools.lru_cache(maxsize=1)
+def git_commit() -> str | None:
+    """The commit vdbejax is imported from when it runs from a git clone, else None.
+
+    Runs ``git rev-parse HEAD`` in the package's parent folder (once per process, 2 s
+    timeout) and checks the package is tracked there, so an installed copy inside some
+    other repository (a virtualenv in a clone) is not credited with that commit.
+    """
+    package = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=package.parent,
+                              capture_output=True, text=True, timeout=2)
+        tracked = subprocess.run(
+            ["git", "ls-files", "--error-unmatch", "--", f"{package.name}/__init__.py"],
+            cwd=package.parent, capture_output=True, text=True, timeout=2)
+    except (OSError, subprocess.SubprocessError, ValueError):
+        return None
+    commit = head.stdout.strip()
+    if head.returncode != 0 or tracked.returncode != 0 or not commit:
+        return None
+    return commit
+
+
+def version_info() -> dict[str, Any]:
+    """Versions recorded in ``meta.json`` besides JAX's: vdbejax, numpy, Python, the
+    platform and the git commit (None outside a git clone)."""
+    from vdbejax import __version__
+
+    return {"vdbejax_version": __version__, "numpy_version": np.__version__,
+            "python_version": platform.python_version(), "platform": platform.platform(),
+            "git_commit": git_commit()}

@@ -1,0 +1,94 @@
+"""The engine's knobs of a run, in one frozen object: :class:`RunOptions`.
+
+The work of a run (task, settings, seeds, episodes, root seed, agent options) decides its
+results; these knobs decide how it runs — chunking, progress, checkpoint and resume,
+memory budget and devices, the engine strategy — and, through :attr:`RunOptions.stop`,
+when agents stop. Every field is checked when the object is made, so a bad value fails in
+one line before anything is created or trained.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import Any
+
+from vdbejax.progress import ProgressCallback
+from vdbejax.runs.stop import FixedBudget, StopPolicy, check_stop
+from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, parse_bytes
+
+#: Engine strategies a run may ask for (``"auto"``: the plan decides, :mod:`vdbejax.runs.plan`).
+STRATEGIES = ("auto", "sequential", "lockstep")
+
+
+@dataclasses.dataclass(frozen=True)
+class RunOptions:
+    """How a run runs (none of it changes an agent's results, except ``stop``).
+
+    Attributes:
+      chunk_episodes: episodes per jitted chunk (progress, checkpoint and stop-check
+        granularity).
+      progress: True for a progress bar on stderr, or ``progress(done, total, elapsed)``
+        in agent-episodes.
+      checkpoint: file written after every chunk (atomically), with its episode log
+        beside it (:mod:`vdbejax.checkpoint`).
+      resume: continue from ``checkpoint`` if it exists.
+      memory_budget_bytes: device memory the agents may use, per device (an int or a
+        size such as ``"512M"``; default: half the free memory of the smallest device).
+        Agents that do not fit run in sequential batches.
+      devices: devices to shard the agents over (default: all of ``jax.devices()``).
+      stop: the stop policy (:class:`~vdbejax.runs.stop.FixedBudget` or
+        :class:`~vdbejax.runs.stop.UntilSolved`).
+      strategy: the engine strategy, ``"auto"`` (sequential on a CPU, lockstep on
+        accelerators and for sharded agents), ``"sequential"`` or ``"lockstep"``.
+      threads: worker threads of the sequential strategy (default: the CPUs this process
+        may use).
+    """
+
+    chunk_episodes: int = 100
+    progress: bool | ProgressCallback = False
+    checkpoint: str | os.PathLike | None = None
+    resume: bool = False
+    memory_budget_bytes: int | str | None = None
+    devices: int | None = None
+    stop: StopPolicy = dataclasses.field(default_factory=FixedBudget)
+    strategy: str = "auto"
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        def fix(name: str, value: Any) -> None:
+            object.__setattr__(self, name, value)
+
+        fix("chunk_episodes", check_int("chunk_episodes", self.chunk_episodes, 1, INT32_MAX))
+        if not (isinstance(self.progress, bool) or callable(self.progress)):
+            raise ValueError(f"progress={self.progress!r} is invalid: must be True, False or a"
+                             " callable progress(done, total, elapsed)")
+        if self.checkpoint is not None:
+            if not isinstance(self.checkpoint, (str, os.PathLike)):
+                raise ValueError(f"checkpoint={self.checkpoint!r} is invalid: must be a file"
+                                 " path or None")
+            if Path(self.checkpoint).exists() and not Path(self.checkpoint).is_file():
+                raise ValueError(f"checkpoint={str(self.checkpoint)!r} is invalid: it exists"
+                                 " and is not a file")
+        check_bool("resume", self.resume)
+        if self.memory_budget_bytes is not None:
+            fix("memory_budget_bytes", parse_bytes("memory_budget_bytes",
+                                                   self.memory_budget_bytes))
+        if self.devices is not None:
+            fix("devices", check_int("devices", self.devices, 1))
+        check_stop(self.stop)
+        check_choice("strategy", self.strategy, STRATEGIES)
+        if self.threads is not None:
+            fix("threads", check_int("threads", self.threads, 1))
+
+    def replace(self, **changes: Any) -> RunOptions:
+        """A copy with ``changes`` (checked like the original).
+
+        Raises:
+          ValueError: a name that is not a field of :class:`RunOptions`.
+        """
+        unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(self)})
+        if unknown:
+            raise ValueError(f"{unknown[0]} is not a run option: the options are"
+                             f" {', '.join(f.name for f in dataclasses.fields(self))}")
+        return dataclasses.replace(self, **changes)

@@ -1,0 +1,149 @@
+"""The plan of a run: where its agents run, in what batches, with which engine strategy.
+
+:func:`make_plan` decides it once, from the options and the agents' memory, before
+anything trains; ``meta.json`` states it (:meth:`RunPlan.describe`). Nothing below
+rewrites an option: a choice the options leave open (``strategy="auto"``) is made here and
+written down, a contradictory one (the sequential strategy for agents sharded over several
+devices) is refused in one line.
+
+* **Processes** (hosts after ``jax.distributed.initialize``): each runs its contiguous
+  share of the agents (:func:`~vdbejax.distributed.process_share`) on its own devices.
+* **Devices**: with several, every batch's agent axis is sharded over them
+  (:meth:`RunPlan.run_engine`): padded to a multiple of the device count, placed with
+  ``NamedSharding(mesh, P("agents"))``; each agent's lane depends on itself only, so the
+  results are those of one device. Sharded agents run the lockstep strategy without
+  compaction (which would gather the active agents across shards).
+* **Batches**: agents that do not fit the memory budget run in sequential batches of
+  :attr:`RunPlan.batch_size` (:mod:`vdbejax.batching`).
+"""
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import numpy as np
+
+from vdbejax.batching import agents_per_batch, bytes_per_agent, default_memory_budget, mdp_bytes
+from vdbejax.distributed import (
+    agent_mesh,
+    local_devices,
+    pad_agents,
+    process_share,
+    select_devices,
+    shard_agents,
+    unpad_agents,
+)
+from vdbejax.engine import AgentState, RunResult, run_agents
+from vdbejax.engine.programs import Programs
+from vdbejax.envs.tabular import TabularMDP
+from vdbejax.methods.agents import AgentParams, table_layout
+from vdbejax.runs.options import RunOptions
+
+
+@dataclasses.dataclass(frozen=True)
+class RunPlan:
+    """Where and how a run's agents run (:func:`make_plan`).
+
+    Attributes:
+      devices: the devices of the run (every process's).
+      local: this process's devices among them.
+      rows: the agent rows this process runs.
+      batch_size: agents per sequential batch.
+      memory_budget_bytes: the per-device budget the batch size was computed for.
+      strategy: the engine strategy asked of every batch.
+      compact: the lockstep strategy's compaction.
+      chunk_episodes: episodes per engine chunk.
+      threads: worker threads of the sequential strategy (None: the engine's default).
+    """
+
+    devices: tuple[jax.Device, ...]
+    local: tuple[jax.Device, ...]
+    rows: np.ndarray
+    batch_size: int
+    memory_budget_bytes: int
+    strategy: str
+    compact: bool
+    chunk_episodes: int
+    threads: int | None
+
+    @property
+    def sharded(self) -> bool:
+        return len(self.local) > 1
+
+    def describe(self) -> dict[str, Any]:
+        """The plan as ``meta.json`` states it."""
+        return {"devices": len(self.devices), "processes": jax.process_count(),
+                "sharded": self.sharded, "strategy": self.strategy, "compact": self.compact,
+                "agents_per_batch": self.batch_size,
+                "memory_budget_bytes": int(self.memory_budget_bytes)}
+
+    def run_engine(self, mdp: TabularMDP, params: AgentParams, keys: np.ndarray,
+                   num_episodes: int, *, initial: tuple | None,
+                   on_chunk: Callable[..., None] | None, chunk_states: bool,
+                   keep_final_state: bool, programs: Programs) -> RunResult:
+        """One engine call on a batch (sharded over :attr:`local` when there are several):
+        :func:`~vdbejax.engine.run_agents` to ``num_episodes`` episodes."""
+        options: dict[str, Any] = dict(chunk_episodes=self.chunk_episodes, strategy=self.strategy,
+                                       compact=self.compact, threads=self.threads,
+                                       on_chunk=on_chunk, chunk_states=chunk_states,
+                                       keep_final_state=keep_final_state, programs=programs)
+        if not self.sharded:
+            return run_agents(mdp, params, keys, num_episodes, initial=initial, **options)
+        mesh = agent_mesh(self.local)
+        (params, keys), count = pad_agents((params, np.asarray(keys, np.uint32)),
+                                           len(self.local))
+        params, keys = shard_agents((params, keys), mesh)
+        if initial is not None:
+            done, agents, returns, lengths = initial
+            (agents, returns, lengths), _ = pad_agents((agents, returns, lengths),
+                                                       len(self.local))
+            initial = (done, shard_agents(agents, mesh), returns, lengths)
+        if on_chunk is not None:
+            real = on_chunk
+
+            def unpadded(done: int, agents: AgentState | None, returns: np.ndarray,
+                         lengths: np.ndarray) -> None:
+                real(done, None if agents is None else unpad_agents(agents, count),
+                     returns[:count], lengths[:count])
+
+            options["on_chunk"] = unpadded
+        result = run_agents(mdp, params, keys, num_episodes, initial=initial, **options)
+        final = result.final_state
+        return dataclasses.replace(
+            result, returns=result.returns[:count], lengths=result.lengths[:count],
+            nonfinite=result.nonfinite[:count],
+            final_state=None if final is None else unpad_agents(final, count))
+
+
+def make_plan(mdp: TabularMDP, params: AgentParams, num_agents: int, num_episodes: int,
+              run: RunOptions) -> RunPlan:
+    """Decide a run's plan (module docstring).
+
+    Raises:
+      ValueError: more devices than there are, devices of no process of this one, the
+        sequential strategy for sharded agents, or a budget no agent fits.
+    """
+    devices = select_devices(run.devices)
+    local = local_devices(devices)
+    rows = process_share(num_agents)
+    sharded = len(local) > 1
+    strategy = run.strategy
+    if sharded and strategy == "sequential":
+        raise ValueError(f"strategy='sequential' is invalid with devices={len(local)}: agents"
+                         " sharded over several devices run the lockstep strategy (use"
+                         " devices=1 for the sequential one)")
+    if strategy == "auto":
+        strategy = ("sequential" if jax.default_backend() == "cpu" and not sharded
+                    else "lockstep")
+    budget = (default_memory_budget(local) if run.memory_budget_bytes is None
+              else int(run.memory_budget_bytes))
+    batch_size = agents_per_batch(
+        max(len(rows), 1),
+        bytes_per_agent(mdp, min(run.chunk_episodes, num_episodes), table_layout(params)),
+        budget, len(local), fixed_bytes=mdp_bytes(mdp))
+    return RunPlan(devices=tuple(devices), local=tuple(local), rows=rows,
+                   batch_size=batch_size, memory_budget_bytes=budget, strategy=strategy,
+                   compact=not sharded, chunk_episodes=run.chunk_episodes,
+                   threads=run.threads)

@@ -1,0 +1,143 @@
+"""Where a run stands: :class:`RunState`, the one resume state (what a checkpoint stores).
+
+A run's agents are independent, so they can run in any grouping with the same results;
+the state records, per agent, the episodes done, whether it stopped early (a stop policy,
+:mod:`vdbejax.runs.stop`), its NaN flag, and the full engine state of the agents started
+but unfinished. Any run resumes from it whatever the batch size, device count or chunk
+size.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+
+from vdbejax.distributed import take_agents
+from vdbejax.engine import AgentState
+
+
+@dataclasses.dataclass
+class RunState:
+    """Progress of a (possibly batched) run.
+
+    Attributes:
+      returns: float32 ``[agents, episodes]`` (zeros past each agent's ``episodes_done``).
+      lengths: int32 ``[agents, episodes]``.
+      episodes_done: int64 ``[agents]`` completed episodes per agent.
+      stopped: bool ``[agents]``: the agent stopped before ``episodes`` (stop policy).
+      nonfinite: bool ``[agents]``: NaN/inf appeared (final for finished agents).
+      state_rows: int64 ``[m]`` agents that are started but unfinished.
+      state: their :class:`~vdbejax.engine.AgentState` (numpy leaves, leading axis m),
+        or None when m = 0.
+    """
+
+    returns: np.ndarray
+    lengths: np.ndarray
+    episodes_done: np.ndarray
+    stopped: np.ndarray
+    nonfinite: np.ndarray
+    state_rows: np.ndarray
+    state: AgentState | None
+
+    @classmethod
+    def fresh(cls, num_agents: int, num_episodes: int) -> RunState:
+        """Nothing done yet."""
+        return cls(
+            returns=np.zeros((num_agents, num_episodes), np.float32),
+            lengths=np.zeros((num_agents, num_episodes), np.int32),
+            episodes_done=np.zeros(num_agents, np.int64),
+            stopped=np.zeros(num_agents, bool),
+            nonfinite=np.zeros(num_agents, bool),
+            state_rows=np.zeros(0, np.int64),
+            state=None,
+        )
+
+    @property
+    def num_episodes(self) -> int:
+        return int(self.returns.shape[1])
+
+    @property
+    def finished(self) -> np.ndarray:
+        """bool ``[agents]``: ran its budget or stopped early."""
+        return self.stopped | (self.episodes_done >= self.num_episodes)
+
+    def add_episodes(self, rows: np.ndarray, start: int, done: int, returns: np.ndarray,
+                     lengths: np.ndarray) -> None:
+        """Store episodes ``[start, done)`` of agents ``rows`` (``returns`` and ``lengths``
+        are ``[rows, done - start]``): they have done ``done`` episodes."""
+        self.returns[rows, start:done] = returns
+        self.lengths[rows, start:done] = lengths
+        self.episodes_done[rows] = done
+
+    def set_agents(self, rows: np.ndarray, agents: AgentState | None,
+                   nonfinite: np.ndarray | None = None) -> None:
+        """Store the states of agents ``rows`` where they are unfinished, and their NaN
+        flags (``nonfinite``, or those of ``agents``).
+
+        ``agents`` may hold device arrays: only what is kept is copied to numpy; it may be
+        ``None`` given ``nonfinite`` when no row needs its state kept.
+        """
+        if nonfinite is None:
+            assert agents is not None  # the states may be None only given nonfinite
+            nonfinite = np.asarray(agents.nonfinite)
+        self.nonfinite[rows] = np.asarray(nonfinite)
+        unfinished = self.episodes_done[rows] < self.num_episodes
+        if unfinished.any():
+            assert agents is not None, "unfinished agents need their states"
+            if not unfinished.all():
+                rows, agents = rows[unfinished], take_agents(agents, unfinished)
+        else:
+            agents = None
+        self._keep_states(rows, agents)
+
+    def stop(self, rows: np.ndarray) -> None:
+        """Agents ``rows`` stop where they are (a stop policy): their states are dropped."""
+        self.stopped[rows] = True
+        self._keep_states(rows, None)
+
+    def _keep_states(self, rows: np.ndarray, agents: AgentState | None) -> None:
+        keep = ~np.isin(self.state_rows, rows)
+        row_parts, state_parts = [], []
+        if keep.any():
+            row_parts.append(self.state_rows[keep])
+            state_parts.append(take_agents(self.state, keep))
+        if agents is not None:
+            row_parts.append(np.asarray(rows, np.int64))
+            state_parts.append(jax.tree.map(np.asarray, agents))
+        self.state_rows = np.concatenate(row_parts) if row_parts else np.zeros(0, np.int64)
+        self.state = (jax.tree.map(lambda *leaves: np.concatenate(leaves), *state_parts)
+                      if state_parts else None)
+
+    def states_of(self, rows: np.ndarray) -> AgentState:
+        """The stored states of agents ``rows`` (each must be started and unfinished)."""
+        position = {int(r): i for i, r in enumerate(self.state_rows)}
+        try:
+            index = np.asarray([position[int(r)] for r in rows])
+        except KeyError as missing:
+            raise ValueError(f"checkpoint lacks the state of agent {missing}") from None
+        assert self.state is not None  # agents in progress: their states are stored
+        return take_agents(self.state, index)
+
+    def resume_point(self, rows: np.ndarray) -> tuple | None:
+        """The engine's ``initial=`` for agents ``rows`` (all with the same episodes done),
+        or None when they have not started."""
+        done = int(self.episodes_done[rows[0]])
+        if done == 0:
+            return None
+        return (done, self.states_of(rows), self.returns[rows, :done], self.lengths[rows, :done])
+
+    def next_batch(self, batch_size: int) -> np.ndarray:
+        """Agents of the next batch: up to ``batch_size`` unfinished agents that have all
+        done the same number of episodes (in-progress agents first, then fresh ones);
+        empty when every agent is finished."""
+        pending = np.flatnonzero(~self.finished)
+        if pending.size == 0:
+            return pending
+        done = self.episodes_done[pending]
+        return pending[done == done.max()][:batch_size]
+
+    def episodes_credited(self) -> int:
+        """Agent-episodes done, a stopped agent credited with its whole budget (what a
+        progress bar counts: it reaches the total when every agent is finished)."""
+        return int(np.where(self.stopped, self.num_episodes, self.episodes_done).sum())

@@ -1,0 +1,9 @@
+"""Studies: commands that train into a result folder, all through one pipeline.
+
+* :mod:`~vdbejax.studies.folder` — :func:`train_in_folder`: check the folder, lock it,
+  run (checkpointed, resumable), save, write the outputs. ``vdbejax reproduce``,
+  ``vdbejax run``, ``vdbejax scale`` and ``vdbejax ablate`` all train through it.
+"""
+from vdbejax.studies.folder import CHECKPOINT_FILE, checkpoint_files, train_in_folder
+
+__all__ = ["CHECKPOINT_FILE", "checkpoint_files", "train_in_folder"]

@@ -1,0 +1,101 @@
+"""The result-folder pipeline: every command that trains writes its folder through it.
+
+:func:`train_in_folder` takes a run that is already checked and planned
+(:func:`~vdbejax.runs.prepare_grid`: a bad input has failed in one line, and nothing was
+created), then:
+
+1. checks the folder (created if needed, writable, no output path that is a folder);
+2. locks it (:class:`~vdbejax.result_folder.FolderLock`) until its last file is written;
+3. runs, checkpointing to ``checkpoint.npz`` after every chunk; with ``resume`` it
+   continues from there, or — if the folder already holds this run's whole result (same
+   fingerprint) — loads it instead of training again;
+4. saves ``returns.npz``, ``configs.csv``, ``meta.json`` (marked while written,
+   :mod:`vdbejax.result_folder`), removes the checkpoint, and writes the outputs.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, TypeVar
+
+from vdbejax import io
+from vdbejax.distributed import process_checkpoint_path
+from vdbejax.grid_result import GridResult
+from vdbejax.result_folder import FolderLock, check_output_paths, marked_stage, save_run
+from vdbejax.runs.checkpoint import log_path, remove_checkpoint
+from vdbejax.runs.grid import PreparedGrid, run_prepared
+from vdbejax.validation import check_writable_dir
+
+T = TypeVar("T")
+CHECKPOINT_FILE = "checkpoint.npz"
+
+
+def checkpoint_files() -> list[str]:
+    """The checkpoint's two files in a result folder."""
+    return [CHECKPOINT_FILE, log_path(CHECKPOINT_FILE).name]
+
+
+def saved_result(out: Path, fingerprint: str) -> GridResult | None:
+    """The whole result of the run with ``fingerprint`` saved in ``out``, or None."""
+    meta_file = out / io.META_FILE
+    if not meta_file.is_file() or marked_stage(out) == "results":
+        return None
+    try:
+        meta = io.load_json(meta_file)
+    except (OSError, ValueError):
+        return None
+    if not isinstance(meta, dict) or meta.get("fingerprint") != fingerprint:
+        return None
+    try:
+        return GridResult.load(out)
+    except ValueError:
+        return None  # damaged: train again
+
+
+def train_in_folder(
+    out_dir: str | os.PathLike,
+    prepared: PreparedGrid,
+    write: Callable[[GridResult, Any], T],
+    *,
+    files: Sequence[str],
+    annotate: Callable[[GridResult], None] | None = None,
+    bands: bool = True,
+    statistics: bool = True,
+    name: str = "out",
+) -> tuple[GridResult, T]:
+    """Train ``prepared`` into the result folder ``out_dir`` (module docstring).
+
+    Args:
+      out_dir: the result folder (created if needed).
+      prepared: the checked, planned run; its ``run.resume`` resumes (or reuses a saved
+        whole result of the same run).
+      write: writes the outputs: ``write(result, statistics)`` with the returns'
+        :class:`~vdbejax.stats.CurveStatistics` (``None`` with ``statistics=False``).
+      files: the files the outputs write (none may be a folder: checked before training).
+      annotate: adds to the result's ``meta`` before it is saved.
+      bands: compute Figure 3's bootstrap bands with the statistics.
+      statistics: compute the statistics.
+      name: the folder's parameter name in error messages.
+
+    Returns:
+      ``(result, what write returned)``.
+
+    Raises:
+      ValueError: an unwritable folder, an output path that is a folder, a folder another
+        run holds, a checkpoint of another run; an operating-system error while writing
+        (the computed results are kept, :func:`~vdbejax.result_folder.save_run`).
+    """
+    out = check_writable_dir(name, out_dir)
+    check_output_paths(out, [*io.RESULT_FILES, *files, *checkpoint_files()], name)
+    with FolderLock(out, name):  # held from before training to the last file
+        checkpoint = out / CHECKPOINT_FILE
+        result = saved_result(out, prepared.fingerprint) if prepared.run.resume else None
+        if result is None:
+            result = run_prepared(prepared.with_checkpoint(checkpoint))
+            if annotate is not None:
+                annotate(result)
+        value = save_run(result, out, lambda stats: write(result, stats), bands=bands,
+                         statistics=statistics, on_saved=lambda: remove_checkpoint(
+                             process_checkpoint_path(checkpoint)))
+    return result, value
