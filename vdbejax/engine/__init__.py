@@ -6,11 +6,13 @@ Read it one module at a time:
   starts, and its counter-based random stream;
 * :mod:`~vdbejax.engine.step` — the step rule (:func:`lockstep_iteration`): one
   iteration of a batch of agents of one kind, calling the plug-ins
-  (:mod:`vdbejax.methods`);
+  (:mod:`vdbejax.methods`), its tables read and written lane by lane
+  (:mod:`~vdbejax.engine.lanes`);
 * :mod:`~vdbejax.engine.lockstep` — all agents of a batch advance together, with
   compaction (accelerators, sharded agents);
 * :mod:`~vdbejax.engine.sequential` — native step loops of four agents side by side, one
-  program per kind, work items on threads (the default on a CPU);
+  program for every kind (:mod:`~vdbejax.engine.kinds`), work items on threads
+  (:mod:`~vdbejax.engine.work_items`; the default on a CPU);
 * :mod:`~vdbejax.engine.driver` — :func:`run_agents`, the Python loop over chunks.
 
 Both strategies run the same step function, so they compute the same thing, bit for bit

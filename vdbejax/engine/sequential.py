@@ -3,12 +3,15 @@ steps, each running :data:`LANES` agents side by side (a lane whose agent has fi
 takes the work item's next agent), and work items of agents on several threads.
 
 With a few lanes every table access is a dynamic slice, so XLA's CPU backend compiles the
-whole loop into one native function (see :mod:`vdbejax._xla_flags`). One program is
-compiled per kind of agent (learner and explorer type, with their static fields): XLA
-keeps only the kind's own work; a chunk of a work item is one call of it, a single
-native function. A work item's chunks follow each other without waiting for the other
-items (:meth:`_SequentialRun.run_chunks`). Results are bit-identical to the lockstep
-strategy (products are rounded on their own, :mod:`vdbejax._numerics`).
+whole loop into one native function (see :mod:`vdbejax._xla_flags`). One program serves
+every kind of agent of the run (learner and explorer type, with their static fields):
+each kind's part of the step is a branch of a ``lax.switch`` on the item's kind
+(:class:`~vdbejax.engine.kinds.KindSwitch`), so the loop is traced once, not once per
+kind — tracing is most of what a run pays besides its steps; a chunk of a work item is
+one call of it, a single native function. A work item's chunks follow each other
+without waiting for the other items (:meth:`_SequentialRun.run_chunks`). Results are
+bit-identical to the lockstep strategy (products are rounded on their own,
+:mod:`vdbejax._numerics`).
 """
 from __future__ import annotations
 
@@ -25,24 +28,24 @@ import jax.numpy as jnp
 import numpy as np
 
 from vdbejax import _pytree, _xla_flags
-from vdbejax.engine.lockstep import _next_power_of_two
+from vdbejax.engine.packing import _pack, _unpack
 from vdbejax.engine.programs import Call, Programs
-from vdbejax.engine.state import AgentState, init_agents, state_bytes
-from vdbejax.engine.step import UNROLLED_LANES_MAX, run_loop, start_support
+from vdbejax.engine.state import AgentState, init_agents
+from vdbejax.engine.step import UNROLLED_LANES_MAX, KindSwitch, can_switch, run_loop, start_support
+from vdbejax.engine.work_items import (  # noqa: F401  (re-exported)
+    HOST_INIT_MAX_BYTES,
+    LANES,
+    _padded,
+    _sequential_groups,
+    common_rows,
+    created_in_items,
+)
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.methods.agents import AgentParams, table_layout
+from vdbejax.methods.agents import AgentParams
 
 Array = jax.Array
 
 
-#: Agents one native step loop runs side by side, one vector lane each. Their steps are
-#: independent (each lane reads and writes only its own agent's rows), so the width
-#: changes the speed, not the results: the products are rounded on their own
-#: (:mod:`vdbejax._numerics`), and widths 1, 2, 4, 8 and 16 give the same bits on the
-#: paper grid (tests check 1, 2 and 4 against lockstep). Four were the fastest on the
-#: 2-core AVX-512 machine (``benchmarks/RESULTS.md``). Work items of fewer agents run at
-#: their own (power-of-two) size, so no table is padded beyond the next power of two.
-LANES = 4
 assert LANES <= UNROLLED_LANES_MAX  # wider loops would use scatters: not native
 
 
@@ -52,8 +55,9 @@ def lanes_for(rows: int) -> int:
 
 
 def _run_sequential(mdp: TabularMDP, agent: Any, agents: AgentState, chunk_start: Array,
-                    chunk_end: Array, count: Array, support: Any, *, chunk_length: int,
-                    lanes: int) -> tuple[AgentState, Array, Array, Array, Array]:
+                    chunk_end: Array, count: Array, support: Any, kind: Array | None = None,
+                    *, chunk_length: int, lanes: int
+                    ) -> tuple[AgentState, Array, Array, Array, Array]:
     """:func:`_chunk_loops` as one native call: its whole body inside a ``while`` loop of
     one trip, which XLA's CPU backend compiles into one function (the loop's contents are
     not dispatched operation by operation, and none waits for a thread of the pool that
@@ -67,7 +71,7 @@ def _run_sequential(mdp: TabularMDP, agent: Any, agents: AgentState, chunk_start
         _, agents, returns, lengths, _, _ = carry
         return (jnp.asarray(True), *_chunk_loops(
             mdp, agent, agents, returns, lengths, chunk_start, chunk_end, count, support,
-            lanes=lanes))
+            lanes=lanes, kind=kind))
 
     return jax.lax.while_loop(lambda carry: ~carry[0], once,
                               (jnp.asarray(False), *outputs))[1:]
@@ -75,7 +79,8 @@ def _run_sequential(mdp: TabularMDP, agent: Any, agents: AgentState, chunk_start
 
 def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array,
                  lengths: Array, chunk_start: Array, chunk_end: Array, count: Array,
-                 support: Any, *, lanes: int) -> tuple[AgentState, Array, Array, Array, Array]:
+                 support: Any, *, lanes: int, kind: Array | None = None
+                 ) -> tuple[AgentState, Array, Array, Array, Array]:
     """Agents ``0 .. count-1`` of the batch run their own step loops to ``chunk_end``,
     ``lanes`` agents at a time side by side, writing their episodes into the zeroed
     ``[agents, chunk_length]`` buffers ``returns`` and ``lengths``.
@@ -87,7 +92,9 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
     the chunk, the loop stops, the lane's agent is written back and the next waiting agent
     takes the lane; once none waits, the lanes run until their agents have all finished.
     ``agent`` holds the work item's hyperparameters, all of one kind: the kind's types
-    fix the program, so XLA keeps only the work that kind needs. Rows from ``count`` on
+    fix the program, so XLA keeps only the work that kind needs — or, with ``kind``,
+    ``agent`` holds every kind's (a tuple) and one program serves them all
+    (:class:`~vdbejax.engine.step.KindSwitch`). Rows from ``count`` on
     are padding and never run. The batch's tables are updated in place (``agents`` is
     donated): a loop indexes them at its agents' rows.
 
@@ -122,8 +129,11 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
         real = rows < count
         lane_state = dataclasses.replace(_unpack(lane_packed, fields_layout), q=tables[0],
                                          tables=tables[1])
+        lane_params = _unpack(lane_agent, agent_layout)
+        if kind is not None:
+            lane_params = KindSwitch(kinds=lane_params, kind=kind)
         lane_state, returns, lengths, loop_trips = run_loop(
-            mdp, _unpack(lane_agent, agent_layout), lane_state, returns, lengths,
+            mdp, lane_params, lane_state, returns, lengths,
             chunk_start, jnp.where(real, chunk_end, 0), big, 1, support, table_rows=rows,
             stop_at_first_finish=waiting_from < count,
         )
@@ -160,49 +170,6 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
     real_rows = jnp.arange(num_agents) < count
     iterations = jnp.sum(jnp.where(real_rows, agents.counter - started, 0)).astype(jnp.int32)
     return agents, returns, lengths, iterations, lane_iterations
-
-
-def _words(leaf: Array) -> Array:
-    """``leaf`` (``[rows, ...]``) as uint32 words, ``[rows, n]``; exact (see :func:`_unpack`)."""
-    flat = leaf.reshape(leaf.shape[0], -1)
-    if flat.dtype == jnp.bool_:
-        return flat.astype(jnp.uint32)
-    if flat.dtype.itemsize < 4:  # the bits of an 8- or 16-bit value, widened
-        return jax.lax.bitcast_convert_type(flat, _UNSIGNED[flat.dtype.itemsize]).astype(jnp.uint32)
-    return jax.lax.bitcast_convert_type(flat, jnp.uint32).reshape(leaf.shape[0], -1)
-
-
-_UNSIGNED = {1: jnp.uint8, 2: jnp.uint16}
-
-
-def _pack(tree: Any) -> Array:
-    """Every leaf of ``tree`` (leading axis = rows) side by side: uint32 ``[rows, words]``."""
-    return jnp.concatenate([_words(leaf) for leaf in jax.tree.leaves(tree)], axis=1)
-
-
-def _unpack(packed: Array, layout: Any) -> Any:
-    """:func:`_pack`'s inverse: ``layout``'s tree, leaves' dtypes and trailing shapes, on
-    ``packed``'s rows."""
-    leaves, treedef = jax.tree.flatten(layout)
-    rows, out, start = packed.shape[0], [], 0
-    for leaf in leaves:
-        shape = (rows, *leaf.shape[1:])
-        size = int(np.prod(leaf.shape[1:], dtype=np.int64))
-        dtype = jnp.dtype(leaf.dtype)
-        width = size * max(1, dtype.itemsize // 4)
-        words = packed[:, start:start + width]
-        start += width
-        if dtype == jnp.bool_:
-            value = words != 0
-        elif dtype.itemsize < 4:
-            value = jax.lax.bitcast_convert_type(words.astype(_UNSIGNED[dtype.itemsize]), dtype)
-        elif dtype.itemsize == 4:
-            value = jax.lax.bitcast_convert_type(words, dtype)
-        else:
-            value = jax.lax.bitcast_convert_type(
-                words.reshape(rows, size, dtype.itemsize // 4), dtype)
-        out.append(value.reshape(shape))
-    return jax.tree.unflatten(treedef, out)
 
 
 #: Per-compilation XLA options of the CPU engine: with region analysis, copy insertion
@@ -247,53 +214,12 @@ def _check_native(executable: Any) -> bool:
     return native
 
 
-def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None = None
-                       ) -> list[np.ndarray]:
-    """Agent indices per work item: one kind each, ≈ ``4 × threads`` items in all.
-
-    ``costs`` estimates each agent's work (e.g. its steps in an earlier run; ``None``: all
-    equal). Within a kind, the agents are dealt to the kind's items in order of
-    decreasing cost, back and forth, so the items have equal sizes (few shapes to
-    compile) and similar costs, and an item's agents stay in order of decreasing cost,
-    so that the agents side by side in a loop (:data:`LANES`) finish at similar times.
-    Items are returned most costly first, so that the last items to start are short ones
-    and the threads finish together.
-    """
-    num_agents = kinds.shape[0]
-    costs = np.ones(num_agents) if costs is None else np.asarray(costs, np.float64)
-    # Agents per item: a multiple of the loop width, so that no lane is padding.
-    target = LANES * max(1, -(-num_agents // (4 * threads * LANES)))
-    groups = []
-    for kind in np.unique(kinds):
-        members = np.flatnonzero(kinds == kind)
-        parts = -(-members.size // target)
-        ordered = members[np.argsort(-costs[members], kind="stable")]
-        deal = np.arange(ordered.size) % (2 * parts)
-        deal = np.where(deal < parts, deal, 2 * parts - 1 - deal)  # 0,1,..,p-1,p-1,..,0
-        groups += [ordered[deal == k] for k in range(parts)]
-    return sorted(groups, key=lambda group: (-costs[group].sum(), -len(group)))
-
-
-#: Agents whose state (Q, ε(s)) exceeds this many bytes are created in their work items,
-#: on the device, instead of on the host first (no host copy of large tables).
-HOST_INIT_MAX_BYTES = 1 << 20
-
-
-def _padded(index: np.ndarray) -> np.ndarray:
-    """A work item's rows, repeated up to a power of two (few shapes to compile)."""
-    return np.resize(index, _next_power_of_two(index.size))
-
-
-def created_in_items(mdp: TabularMDP, params: AgentParams) -> bool:
-    """Whether an agent's tables exceed :data:`HOST_INIT_MAX_BYTES` (see _SequentialRun)."""
-    return state_bytes(mdp, table_layout(params)) > HOST_INIT_MAX_BYTES
-
-
 class _SequentialRun:
     """The sequential strategy over the chunks of one :func:`run_agents` call.
 
-    Agents are split by kind (learner and explorer type), one program per kind
-    (:func:`_run_sequential`), and into about ``4 × threads`` work items
+    Agents are split by kind (learner and explorer type), one program for every kind
+    (:func:`_run_sequential` with a :class:`~vdbejax.engine.kinds.KindSwitch`; one per kind
+    where a table name is written two ways), and into about ``4 × threads`` work items
     (:func:`_sequential_groups`); worker threads take items as they become free (XLA
     releases the GIL while a program runs). An item's loop runs :data:`LANES` agents side
     by side. An item's arrays are padded to a power-of-two number of rows (few shapes to
@@ -322,6 +248,8 @@ class _SequentialRun:
         self.items: list[tuple[np.ndarray, Any]] | None = None
         self.item_programs: list[tuple[Any, Any]] = []  # per item: executable, hyperparameters
         self.kinds = np.asarray(self.params.kind)
+        self.switch = can_switch(tuple(self.params.kinds))
+        self.item_rows = 0  # every item's padded rows (0: each its own power of two)
         self.support = start_support(mdp)
         self.layout = (jax.eval_shape(partial(init_agents), mdp, self.params, self.keys)
                        if agents is None else
@@ -360,32 +288,37 @@ class _SequentialRun:
 
     def _call(self, index: np.ndarray, agents: Any, chunk: tuple[int, int, int]) -> Call:
         """The program call of an item; ``agents`` may be shapes only."""
-        rows = _padded(index)
-        kind = self.params.kinds[int(self.kinds[index[0]])]
-        agent = jax.tree.map(lambda leaf: leaf[rows], kind)
+        rows = _padded(index, self.item_rows)
+        kind = int(self.kinds[index[0]])
+        # One program for every kind where it can serve them (KindSwitch), else the kind's.
+        agent = (self.params.kinds if self.switch else self.params.kinds[kind])
+        agent = jax.tree.map(lambda leaf: leaf[rows], agent)
         static = {"chunk_length": chunk[2], "lanes": lanes_for(rows.size)}
-        args = self._arguments(agent, agents, index, chunk)
+        args = self._arguments((agent, kind), agents, index, chunk)
         return Call(_run_sequential, args, static, donate=("agents",),
                     options=_CPU_COMPILER_OPTIONS)
 
-    def _arguments(self, agent: Any, agents: Any, index: np.ndarray,
+    def _arguments(self, agent: tuple[Any, int], agents: Any, index: np.ndarray,
                    chunk: tuple[int, int, int]) -> tuple:
         """The positional arguments of :func:`_run_sequential` for an item."""
-        return (self.mdp, agent, agents, np.int32(chunk[0]), np.int32(chunk[1]),
-                np.int32(index.size), self.support)
+        params, kind = agent
+        return (self.mdp, params, agents, np.int32(chunk[0]), np.int32(chunk[1]),
+                np.int32(index.size), self.support,
+                np.int32(kind) if self.switch else None)
 
     def _group(self, chunk: tuple[int, int, int]) -> bool:
         """The work items, from the current state; ``False`` if a loop is not native."""
         groups = _sequential_groups(self.kinds, self.threads)
+        self.item_rows = common_rows(groups) if self.switch else 0
 
         def shapes(index: np.ndarray) -> Any:  # enough to compile: no copy of the rows
-            size = _padded(index).size
+            size = _padded(index, self.item_rows).size
             return jax.tree.map(
                 lambda leaf: jax.ShapeDtypeStruct((size, *leaf.shape[1:]), leaf.dtype),
                 self.layout,
             )
 
-        # Get the programs (one per kind and padded size) before running; compiling them
+        # Get the programs (one for every kind and item) before running; compiling them
         # or reading JAX's cache runs on the worker threads, mostly outside the GIL.
         calls = [self._call(index, shapes(index), chunk) for index in groups]
         executables = self.run_programs.get_all(calls, self.threads)
@@ -393,13 +326,14 @@ class _SequentialRun:
             return False
         # Each item's program and hyperparameters, for every chunk (items keep their
         # agents, and a run's chunks have one length, a static argument of the program).
-        self.item_programs = [(executable, call.args[1])
-                         for executable, call in zip(executables, calls, strict=True)]
+        self.item_programs = [(executable, (call.args[1], int(self.kinds[index[0]])))
+                              for executable, call, index in zip(executables, calls, groups,
+                                                                 strict=True)]
         fresh = self.host is None  # large fresh agents: created in their item, on the device
         host = None if fresh else self.agents()
         items = []
         for index in groups:
-            rows = _padded(index)
+            rows = _padded(index, self.item_rows)
             if fresh:
                 args = (self.mdp, jax.tree.map(lambda leaf, rows=rows: leaf[rows], self.params),
                         self.keys[rows])

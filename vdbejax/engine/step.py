@@ -28,6 +28,21 @@ import jax.numpy as jnp
 import numpy as np
 
 from vdbejax._numerics import sample_categorical
+from vdbejax.engine.kinds import (  # noqa: F401  (re-exported)
+    KindSwitch,
+    _write_form,
+    can_switch,
+    table_forms,
+)
+from vdbejax.engine.lanes import (  # noqa: F401  (UNROLLED_LANES_MAX: re-exported)
+    UNROLLED_LANES_MAX,
+    _unrolled,
+    _write_lanes,
+    put_learned,
+    put_where,
+    take,
+    take_row,
+)
 from vdbejax.engine.state import AgentState, uniforms
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Agent
@@ -62,83 +77,6 @@ def start_support(mdp: TabularMDP) -> tuple[Array, Array]:
     support = np.flatnonzero(host > 0).astype(np.int32)
     # device_put, not jnp.asarray: that compiles a small program per shape (≈ 10 ms each)
     return jax.device_put(support), jax.device_put(host[support])
-
-
-# Per-lane buffer access. A batch of a few lanes (the CPU engine's loops) uses unrolled
-# dynamic slices instead of gathers/scatters: XLA's CPU backend then compiles the whole
-# loop into one native function (scatters would keep it on the per-op runtime).
-
-
-#: Batches of at most this many lanes access their rows by unrolled dynamic slices (the
-#: sequential strategy's loops, :data:`~vdbejax.engine.sequential.LANES`); wider ones by
-#: gathers and scatters.
-UNROLLED_LANES_MAX = 4
-
-
-def _unrolled(index: Array) -> bool:
-    return index.ndim == 1 and index.shape[0] <= UNROLLED_LANES_MAX
-
-
-def take(buffer: Array, index: Array) -> Array:
-    """``buffer[index]``, one value per lane (``[B]``)."""
-    if _unrolled(index):
-        return jnp.concatenate([jax.lax.dynamic_slice(buffer, (index[k],), (1,))
-                                for k in range(index.shape[0])])
-    return buffer.at[index].get(mode="promise_in_bounds")
-
-
-def take_row(buffer: Array, index: Array, width: int) -> Array:
-    """``buffer[index + j]`` for ``j < width``, one row per lane (``[B, width]``)."""
-    if _unrolled(index):
-        return jnp.stack([jax.lax.dynamic_slice(buffer, (index[k],), (width,))
-                          for k in range(index.shape[0])])
-    columns = jnp.arange(width, dtype=index.dtype)[None, :]
-    return buffer.at[index[:, None] + columns].get(mode="promise_in_bounds")
-
-
-def _scatter(buffer: Array, index: Array, value: Array, rows: bool = False) -> Array:
-    """``buffer[index] = value`` (``[B]``), or with ``rows`` ``buffer[index + j] =
-    value[:, j]`` (``[B, width]``), for distinct in-bounds lanes (wide batches; a few
-    lanes write through :func:`_write_lanes`)."""
-    value = value.astype(buffer.dtype)
-    if not rows:
-        return buffer.at[index].set(value, mode="promise_in_bounds", unique_indices=True)
-    columns = jnp.arange(value.shape[1], dtype=index.dtype)[None, :]
-    return buffer.at[index[:, None] + columns].set(value, mode="promise_in_bounds",
-                                                   unique_indices=True)
-
-
-def _write_lanes(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
-    """Unrolled ``buffer[index[k] + j] = value[k, j]`` where ``mask[k]``, lane by lane.
-
-    Each lane reads what it would overwrite just before writing, so a lane without
-    ``mask`` rewrites the value that is there, even one another lane has just written: a
-    masked lane may point anywhere (an idle lane of the sequential strategy points past
-    its work item's agents, clamped onto the last one's rows)."""
-    value = value.astype(buffer.dtype).reshape(index.shape[0], -1)
-    for k in range(index.shape[0]):
-        old = jax.lax.dynamic_slice(buffer, (index[k],), (value.shape[1],))
-        buffer = jax.lax.dynamic_update_slice(
-            buffer, jnp.where(mask[k], value[k], old), (index[k],))
-    return buffer
-
-
-def put_where(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
-    """``buffer[index] = value`` where ``mask``; lanes without it write nothing."""
-    if _unrolled(index):
-        return _write_lanes(buffer, index, value, mask)
-    index = jnp.where(mask, index, buffer.shape[0])  # past the end: dropped
-    return buffer.at[index].set(value.astype(buffer.dtype), mode="drop")
-
-
-def put_learned(buffer: Array, index: Array, new: Array, old: Array, mask: Array,
-                rows: bool = False) -> Array:
-    """``buffer[index] = new`` where ``mask``, ``old`` (the value read) elsewhere; a few
-    lanes write lane by lane, those without ``mask`` nothing (see :func:`_write_lanes`)."""
-    if _unrolled(index):
-        return _write_lanes(buffer, index, new, mask)
-    kept = jnp.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
-    return _scatter(buffer, index, kept, rows)
 
 
 def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array) -> tuple[Array, Array, Array]:
@@ -214,9 +152,48 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
             jnp.asarray(next_action, jnp.int32), finite)
 
 
+def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
+               q_sa: Array, q_next: Array, reward: Array, terminal: Array,
+               self_loop: Array, sa_index: Array, pair_base: Array, state_base: Array,
+               update_context: Context, select_context: Context, u: tuple, *,
+               num_actions: int) -> tuple[Array, dict, dict, Array, Array]:
+    """The part of an iteration that depends on the kind: the plug-ins' tables read, the
+    learner's and explorer's step (:func:`_agent_step`, vmapped over the lanes).
+
+    Returns:
+      ``(new_q_sa, learner_sa (new, old), explorer_s (new, old), next_action, finite)``,
+      the table dicts mapping each of the kind's tables to its new and old values.
+    """
+    learner, explorer = agent.learner, agent.explorer
+    A = num_actions
+    explorer_end = ENGINE_UNIFORMS + explorer.num_uniforms
+    learner_end = explorer_end + learner.num_uniforms
+    learner_specs = learner.tables()
+    learner_sa = {name: take(tables[name], sa_index) for name in learner_specs}
+    learner_next = {name: take_row(tables[name], pair_base + act_state * A, A)
+                    for name in learner_specs}
+    explorer_specs = explorer.tables()
+
+    def explorer_rows(state: Array) -> dict:
+        return {name: (take(tables[name], state_base + state) if spec.per == "state"
+                       else take_row(tables[name], pair_base + state * A, A))
+                for name, spec in explorer_specs.items()}
+
+    explorer_s, explorer_next = explorer_rows(s), explorer_rows(act_state)
+    new_q_sa, new_learner_sa, new_explorer_s, next_action, finite = jax.vmap(_agent_step)(
+        agent, a, q_sa, q_next, learner_sa, learner_next, explorer_s, explorer_next, reward,
+        terminal, self_loop, update_context, select_context, u[ENGINE_UNIFORMS:explorer_end],
+        u[explorer_end:learner_end], u[learner_end:learner_end + (
+            explorer.num_uniforms if learner.redraws_next_action else 0)],
+    )
+    learned = {name: (new_learner_sa[name], learner_sa[name]) for name in learner_specs}
+    explored = {name: (new_explorer_s[name], explorer_s[name]) for name in explorer_specs}
+    return new_q_sa, learned, explored, next_action, finite
+
+
 def lockstep_iteration(
     mdp: TabularMDP,
-    agent: Agent,
+    agent: Agent | KindSwitch,
     agents: AgentState,
     returns: Array,
     lengths: Array,
@@ -232,7 +209,8 @@ def lockstep_iteration(
 
     Args:
       mdp: the task (shared by all agents).
-      agent: batched hyperparameters of one kind (leading axis = agents).
+      agent: batched hyperparameters of one kind (leading axis = agents), or a
+        :class:`KindSwitch` of every kind's and the one that runs.
       agents: batched states, tables flattened as above.
       returns: flat ``[B·L]`` return buffer of the chunk (``L`` episodes per agent).
       lengths: flat ``[B·L]`` length buffer.
@@ -246,7 +224,7 @@ def lockstep_iteration(
     Returns:
       ``(agents, returns, lengths)`` after the iteration.
     """
-    learner, explorer = agent.learner, agent.explorer
+    kinds = agent.kinds if isinstance(agent, KindSwitch) else (agent,)
     num_agents = agents.episode.shape[0]
     S, A = mdp.num_states, mdp.num_actions
     lane = jnp.arange(num_agents, dtype=jnp.int32)
@@ -256,9 +234,9 @@ def lockstep_iteration(
     pair_base, state_base = table_lane * (S * A), table_lane * S
 
     active = agents.episode < chunk_end
-    u = uniforms(agents.key, agents.counter, num_uniforms(agent))
-    explorer_end = ENGINE_UNIFORMS + explorer.num_uniforms
-    learner_end = explorer_end + learner.num_uniforms
+    # Draw j depends on (key, counter, j) alone: drawing the most any kind needs gives
+    # every kind its own draws.
+    u = uniforms(agents.key, agents.counter, max(num_uniforms(k) for k in kinds))
     resetting = agents.pending_reset
     learn = active & ~resetting
     s, a = agents.state, agents.action
@@ -281,38 +259,60 @@ def lockstep_iteration(
     sa_index = pair_base + s * A + a
     q_sa = take(agents.q, sa_index)
     q_next = take_row(agents.q, pair_base + act_state * A, A)
-    learner_specs = learner.tables()
-    learner_sa = {name: take(agents.tables[name], sa_index) for name in learner_specs}
-    learner_next = {name: take_row(agents.tables[name], pair_base + act_state * A, A)
-                    for name in learner_specs}
-    explorer_specs = explorer.tables()
-
-    def explorer_rows(state: Array) -> dict:
-        return {name: (take(agents.tables[name], state_base + state) if spec.per == "state"
-                       else take_row(agents.tables[name], pair_base + state * A, A))
-                for name, spec in explorer_specs.items()}
-
-    explorer_s, explorer_next = explorer_rows(s), explorer_rows(act_state)
     update_context = Context(episode=agents.episode, step=length, terminal=terminal)
     select_context = Context(episode=agents.episode + done.astype(jnp.int32),
                              step=jnp.where(resetting | done, 0, length),
                              terminal=jnp.zeros_like(terminal))
     self_loop = ~resetting & (act_state == s)
-    new_q_sa, new_learner_sa, new_explorer_s, next_action, finite = jax.vmap(_agent_step)(
-        agent, a, q_sa, q_next, learner_sa, learner_next, explorer_s, explorer_next, reward,
-        terminal, self_loop, update_context, select_context, u[ENGINE_UNIFORMS:explorer_end],
-        u[explorer_end:learner_end], u[learner_end:],
-    )
+    operands = (agents.tables, a, s, act_state, q_sa, q_next, reward, terminal, self_loop,
+                sa_index, pair_base, state_base, update_context, select_context, u)
 
-    q = put_learned(agents.q, sa_index, new_q_sa, q_sa, learn)
+    def index_of(form: str) -> Array:  # where a table of this write form is written
+        return {"pair_value": lambda: sa_index, "state_value": lambda: state_base + s,
+                "pair_row": lambda: pair_base + s * A}[form]()
+
     tables = dict(agents.tables)
-    for name in learner_specs:
-        tables[name] = put_learned(tables[name], sa_index, new_learner_sa[name],
-                                   learner_sa[name], learn)
-    for name, spec in explorer_specs.items():
-        index = state_base + s if spec.per == "state" else pair_base + s * A
-        tables[name] = put_learned(tables[name], index, new_explorer_s[name],
-                                   explorer_s[name], learn, spec.per == "pair")
+    if not isinstance(agent, KindSwitch):
+        new_q_sa, learned, explored, next_action, finite = _kind_step(
+            agent, *operands, num_actions=A)
+        q = put_learned(agents.q, sa_index, new_q_sa, q_sa, learn)
+        for name, (new, old) in learned.items():
+            tables[name] = put_learned(tables[name], sa_index, new, old, learn)
+        for name, spec in agent.explorer.tables().items():
+            new, old = explored[name]
+            tables[name] = put_learned(tables[name], index_of(_write_form("explorer", spec.per)),
+                                       new, old, learn, spec.per == "pair")
+    else:
+        forms = table_forms(kinds)
+        assert forms is not None and _unrolled(lane), "see can_switch"
+
+        def branch(kind_agent: Agent) -> Any:
+            def run(*operands: Any) -> tuple:
+                new_q_sa, learned, explored, next_action, finite = _kind_step(
+                    kind_agent, *operands, num_actions=A)
+                mine = {**learned, **explored}
+                # Every table of every kind, in one form: the kind's new values where it
+                # owns the table, a write that is masked off where it does not.
+                writes = {}
+                for name, form in forms.items():
+                    width = A if form == "pair_row" else 1
+                    if name in mine:
+                        value = mine[name][0].reshape(num_agents, width)
+                        writes[name] = (value.astype(agents.tables[name].dtype),
+                                        jnp.asarray(True))
+                    else:
+                        writes[name] = (jnp.zeros((num_agents, width),
+                                                  agents.tables[name].dtype),
+                                        jnp.asarray(False))
+                return new_q_sa, writes, jnp.asarray(next_action, jnp.int32), finite
+            return run
+
+        new_q_sa, writes, next_action, finite = jax.lax.switch(
+            agent.kind, [branch(k) for k in kinds], *operands)
+        q = put_learned(agents.q, sa_index, new_q_sa, q_sa, learn)
+        for name, form in forms.items():
+            value, owned = writes[name]
+            tables[name] = _write_lanes(tables[name], index_of(form), value, learn & owned)
 
     episode_return = agents.episode_return + reward
     slot = agents.episode - chunk_start
@@ -346,7 +346,7 @@ def lockstep_iteration(
 
 def run_loop(
     mdp: TabularMDP,
-    agent: Agent,
+    agent: Agent | KindSwitch,
     agents: AgentState,
     returns: Array,
     lengths: Array,

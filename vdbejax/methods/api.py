@@ -7,9 +7,10 @@ part of the program. Its methods are pure JAX functions of **one agent**: a Q ro
 ``[num_actions]``, a per-state table value a scalar, a per-(state, action) table a row
 ``[num_actions]``; the engine ``vmap``s them over its lanes and calls them inside its
 jitted step loop (:mod:`vdbejax.engine.step`). The type (class and static fields) is the
-*kind* of the agent: the engine compiles one program per kind, so a plug-in costs what
-its own arithmetic costs (MushroomRL's "the policy is an object handed to the
-algorithm", with JAX's "the object is data").
+*kind* of the agent: each kind's step is its own code (on a CPU one branch of the run's
+one program, :mod:`vdbejax.engine.kinds`), so a plug-in costs what its own arithmetic
+costs (MushroomRL's "the policy is an object handed to the algorithm", with JAX's "the
+object is data").
 
 Write one with :func:`explorer` / :func:`learner`::
 

@@ -1,0 +1,90 @@
+"""Per-lane table access of the step rule (:mod:`vdbejax.engine.step`).
+
+Tables are flat 1-D buffers (``[B·S·A]``, ``[B·S]``), so every access is one row per lane:
+a 1-D gather or scatter for wide batches, and for a batch of a few lanes (the sequential
+strategy's loops) unrolled dynamic slices — XLA's CPU backend then compiles the whole loop
+into one native function (scatters would keep it on the per-op runtime).
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+Array = jax.Array
+
+
+# Per-lane buffer access. A batch of a few lanes (the CPU engine's loops) uses unrolled
+# dynamic slices instead of gathers/scatters: XLA's CPU backend then compiles the whole
+# loop into one native function (scatters would keep it on the per-op runtime).
+
+
+#: Batches of at most this many lanes access their rows by unrolled dynamic slices (the
+#: sequential strategy's loops, :data:`~vdbejax.engine.sequential.LANES`); wider ones by
+#: gathers and scatters.
+UNROLLED_LANES_MAX = 4
+
+
+def _unrolled(index: Array) -> bool:
+    return index.ndim == 1 and index.shape[0] <= UNROLLED_LANES_MAX
+
+
+def take(buffer: Array, index: Array) -> Array:
+    """``buffer[index]``, one value per lane (``[B]``)."""
+    if _unrolled(index):
+        return jnp.concatenate([jax.lax.dynamic_slice(buffer, (index[k],), (1,))
+                                for k in range(index.shape[0])])
+    return buffer.at[index].get(mode="promise_in_bounds")
+
+
+def take_row(buffer: Array, index: Array, width: int) -> Array:
+    """``buffer[index + j]`` for ``j < width``, one row per lane (``[B, width]``)."""
+    if _unrolled(index):
+        return jnp.stack([jax.lax.dynamic_slice(buffer, (index[k],), (width,))
+                          for k in range(index.shape[0])])
+    columns = jnp.arange(width, dtype=index.dtype)[None, :]
+    return buffer.at[index[:, None] + columns].get(mode="promise_in_bounds")
+
+
+def _scatter(buffer: Array, index: Array, value: Array, rows: bool = False) -> Array:
+    """``buffer[index] = value`` (``[B]``), or with ``rows`` ``buffer[index + j] =
+    value[:, j]`` (``[B, width]``), for distinct in-bounds lanes (wide batches; a few
+    lanes write through :func:`_write_lanes`)."""
+    value = value.astype(buffer.dtype)
+    if not rows:
+        return buffer.at[index].set(value, mode="promise_in_bounds", unique_indices=True)
+    columns = jnp.arange(value.shape[1], dtype=index.dtype)[None, :]
+    return buffer.at[index[:, None] + columns].set(value, mode="promise_in_bounds",
+                                                   unique_indices=True)
+
+
+def _write_lanes(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
+    """Unrolled ``buffer[index[k] + j] = value[k, j]`` where ``mask[k]``, lane by lane.
+
+    Each lane reads what it would overwrite just before writing, so a lane without
+    ``mask`` rewrites the value that is there, even one another lane has just written: a
+    masked lane may point anywhere (an idle lane of the sequential strategy points past
+    its work item's agents, clamped onto the last one's rows)."""
+    value = value.astype(buffer.dtype).reshape(index.shape[0], -1)
+    for k in range(index.shape[0]):
+        old = jax.lax.dynamic_slice(buffer, (index[k],), (value.shape[1],))
+        buffer = jax.lax.dynamic_update_slice(
+            buffer, jnp.where(mask[k], value[k], old), (index[k],))
+    return buffer
+
+
+def put_where(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
+    """``buffer[index] = value`` where ``mask``; lanes without it write nothing."""
+    if _unrolled(index):
+        return _write_lanes(buffer, index, value, mask)
+    index = jnp.where(mask, index, buffer.shape[0])  # past the end: dropped
+    return buffer.at[index].set(value.astype(buffer.dtype), mode="drop")
+
+
+def put_learned(buffer: Array, index: Array, new: Array, old: Array, mask: Array,
+                rows: bool = False) -> Array:
+    """``buffer[index] = new`` where ``mask``, ``old`` (the value read) elsewhere; a few
+    lanes write lane by lane, those without ``mask`` nothing (see :func:`_write_lanes`)."""
+    if _unrolled(index):
+        return _write_lanes(buffer, index, new, mask)
+    kept = jnp.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
+    return _scatter(buffer, index, kept, rows)
