@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax.experiment import GridResult
+from vdbejax.grid_result import GridResult
 from vdbejax.stats import (  # noqa: F401  (re-exported: the historical home of these names)
     FRACTION,
     LAST,

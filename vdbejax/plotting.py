@@ -17,7 +17,7 @@ if "ipykernel" not in sys.modules:  # headless by default; keep a notebook's inl
 import matplotlib.pyplot as plt
 import numpy as np
 
-from vdbejax.experiment import GridResult
+from vdbejax.grid_result import GridResult
 from vdbejax.methods.agents import parameter_name
 from vdbejax.methods.api import EXPLORERS, explorer_title, learner_title
 from vdbejax.stats import WINDOW, CurveStatistics, convolve_full, curve_statistics

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from vdbejax import io
-from vdbejax.experiment import GridResult
+from vdbejax.grid_result import GridResult
 from vdbejax.paper.ablation_document import (  # noqa: F401  (re-exported)
     VERDICT_MARKS,
     claims_table,
