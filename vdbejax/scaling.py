@@ -36,7 +36,7 @@ from typing import Any
 
 from vdbejax import io
 from vdbejax.methods.agents import Setting, make_agent, parameter_name
-from vdbejax.result_folder import FolderLock
+from vdbejax.result_folder import FolderLock, mark, unmark
 from vdbejax.runs import RunOptions, UntilSolved, prepare_grid
 from vdbejax.scaling_adaptive import AdaptiveRun, adaptive_run, run_until_solved
 from vdbejax.scaling_report import (
@@ -305,9 +305,13 @@ def _study(out: Path, parsed: list[tuple[int, int]], settings: list[Setting],
     import jax
 
     meta.update(jax_version=jax.__version__, backend=jax.default_backend())
+    # Marked while the study's files are replaced: a folder killed between scaling.csv and
+    # meta.json is recognised (load_scaling refuses it), never read as one study.
+    mark(out, "results")
     io.write_csv(out / CSV_FILE, rows, ROW_COLUMNS)
     io.save_json(out / META_FILE, meta)
     write_reports(out, rows, variants, meta, figure=figure)
+    unmark(out)
     if not save_runs:
         for size in runs:
             shutil.rmtree(out / RUNS_FOLDER / size, ignore_errors=True)

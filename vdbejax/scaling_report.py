@@ -22,6 +22,7 @@ import numpy as np
 
 from vdbejax import io
 from vdbejax.methods.agents import Setting, remember_parameter_names
+from vdbejax.result_folder import MARKER_FILE, marked_stage
 
 #: The files of a study folder (``runs/`` holds one result folder ``NxK/`` per variant).
 CSV_FILE = "scaling.csv"
@@ -71,12 +72,17 @@ def load_scaling(out_dir: str | Path) -> tuple[list[dict[str, Any]], list[dict[s
     (no training): redraw with :func:`write_reports`, or read the numbers in a notebook.
 
     Raises:
-      ValueError: the folder lacks ``scaling.csv`` or ``meta.json``.
+      ValueError: the folder lacks ``scaling.csv`` or ``meta.json``, or a study was
+        stopped while writing them.
     """
     out = Path(out_dir)
     missing = [f for f in (CSV_FILE, META_FILE) if not (out / f).is_file()]
     if missing:
         raise ValueError(f"scaling folder {str(out)!r} lacks {', '.join(missing)}")
+    if marked_stage(out) is not None:
+        raise ValueError(f"scaling folder {str(out)!r} is half-written: a study was stopped"
+                         f" while writing its files ({MARKER_FILE} is still there); run it"
+                         " again with --resume (its whole variants are reused)")
     meta = io.load_json(out / META_FILE)
     remember_parameter_names(meta.get("parameter_names", {}))  # plug-ins not imported here
     settings = [Setting(learner, explorer, param, values)

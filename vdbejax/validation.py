@@ -6,6 +6,7 @@ is allowed, so the CLI can print it and exit 2.
 from __future__ import annotations
 
 import math
+import operator
 import os
 from collections.abc import Iterable
 from pathlib import Path
@@ -96,9 +97,12 @@ def check_int(name: str, value: Any, minimum: int = 1, maximum: int | None = Non
     """
     allowed = f"must be an integer >= {minimum}" + (
         "" if maximum is None else f" and <= {maximum}")
-    if isinstance(value, (bool, np.bool_)) or not hasattr(value, "__index__"):
+    if isinstance(value, (bool, np.bool_)):
         _fail(name, value, allowed)
-    number = int(value)
+    try:  # an int or numpy integer; not a float, nor a float array that int() would cut
+        number = operator.index(value)
+    except TypeError:
+        _fail(name, value, allowed)
     if number < minimum or (maximum is not None and number > maximum):
         _fail(name, value, allowed)
     return number

@@ -118,8 +118,10 @@ def _describe(value: Any) -> str:
 
 
 def _check_same(what: str, value: Any, expected: Any) -> None:
-    got = jax.tree.map(lambda x: tuple(x.shape), value)
-    want = jax.tree.map(lambda x: tuple(x.shape), expected)
+    # Shapes and dtypes: an int32 Q, say, would be stored without a word and round the
+    # learning away.
+    got = jax.tree.map(lambda x: (tuple(x.shape), jnp.dtype(x.dtype).name), value)
+    want = jax.tree.map(lambda x: (tuple(x.shape), jnp.dtype(x.dtype).name), expected)
     # jax.tree.structure's return type (PyTreeDef) does not resolve for mypy.
     if (jax.tree.structure(got) != jax.tree.structure(want)  # type: ignore[operator]
             or jax.tree.leaves(got) != jax.tree.leaves(want)):

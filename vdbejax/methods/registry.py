@@ -43,6 +43,7 @@ def explorer(name: str, parameter: str | None = None,
         if parameter is not None and parameter not in field_names(cls):
             raise ValueError(f"explorer {name!r}: parameter={parameter!r} is not one of its fields"
                              f" {field_names(cls)}")
+        _check_name(EXPLORERS, "explorer", name, cls)
         EXPLORERS[name] = cls
         return cls
 
@@ -64,10 +65,22 @@ def learner(name: str,
         cls.name, cls.title = name, title or name
         if "gamma" not in field_names(cls):
             raise ValueError(f"learner {name!r} has no gamma field: the engine needs the discount")
+        _check_name(LEARNERS, "learner", name, cls)
         LEARNERS[name] = cls
         return cls
 
     return register
+
+
+def _check_name(registry: dict[str, Any], role: str, name: str, cls: type) -> None:
+    """Refuse a plug-in that would replace a built-in under its name (its results would be
+    labelled as the built-in's). A plug-in may replace its own earlier registration (a
+    notebook cell run again)."""
+    old = registry.get(name)
+    if (old is not None and old.__module__.startswith("vdbejax.")
+            and not cls.__module__.startswith("vdbejax.")):
+        raise ValueError(f"{role} name {name!r} is a built-in's ({old.__name__}): register"
+                         " yours under another name")
 
 
 def explorer_title(name: str) -> str:

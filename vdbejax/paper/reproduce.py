@@ -109,6 +109,12 @@ def reading_settings(reading: str, details: dict | None = None) -> list[Setting]
     check_choice("reading", reading, READINGS)
     if details is None:
         details = AUTHORS_DETAILS if reading == "authors" else {}
+    if not isinstance(details, dict):
+        raise ValueError(f"details={details!r} is invalid: must be a dict {{name: value}}")
+    for name in details:  # a name no agent has would be dropped without a word
+        if not any(owners(name, s.learner, s.explorer) for s in paper_settings()):
+            raise ValueError(f"details has {name!r}: no learner or explorer of the paper's grid"
+                             f" has it (the authors' details are {', '.join(AUTHORS_DETAILS)})")
     if not details:
         return paper_settings()
     return [Setting(s.learner, s.explorer, s.param,

@@ -8,8 +8,10 @@ created), then:
 2. locks it (:class:`~vdbejax.result_folder.FolderLock`) until its last file is written;
 3. runs, checkpointing to ``checkpoint.npz`` after every chunk; with ``resume`` it
    continues from there, or — if the folder already holds this run's whole result (same
-   fingerprint) — loads it instead of training again;
-4. saves ``returns.npz``, ``configs.csv``, ``meta.json`` (marked while written,
+   fingerprint) — loads it instead of training again; without ``resume`` a checkpoint left
+   there by an interrupted run is refused in one line (its progress is not thrown away);
+4. removes the outputs an earlier run left (figures, the long CSV), saves
+   ``returns.npz``, ``configs.csv``, ``meta.json`` (marked while written,
    :mod:`vdbejax.result_folder`), removes the checkpoint, and writes the outputs.
 """
 from __future__ import annotations
@@ -90,11 +92,20 @@ def train_in_folder(
     check_output_paths(out, [*io.RESULT_FILES, *files, *checkpoint_files()], name)
     with FolderLock(out, name):  # held from before training to the last file
         checkpoint = out / CHECKPOINT_FILE
+        if not prepared.run.resume and process_checkpoint_path(checkpoint).exists():
+            raise ValueError(
+                f"{name}={str(out)!r} holds the checkpoint of an interrupted run"
+                f" ({CHECKPOINT_FILE}): resume it (--resume, resume=True), or delete"
+                f" {' and '.join(checkpoint_files())} to start again")
         result = saved_result(out, prepared.fingerprint) if prepared.run.resume else None
         if result is None:
             result = run_prepared(prepared.with_checkpoint(checkpoint))
             if annotate is not None:
                 annotate(result)
+        # Outputs of an earlier run that this one may not write (figures of a run with
+        # figures beside one without, a long CSV) must not outlive it.
+        for stale in {*files, io.LONG_CSV_FILE} - set(io.RESULT_FILES):
+            (out / stale).unlink(missing_ok=True)
         value = save_run(result, out, lambda stats: write(result, stats), bands=bands,
                          statistics=statistics, on_saved=lambda: remove_checkpoint(
                              process_checkpoint_path(checkpoint)))

@@ -1,0 +1,110 @@
+"""Mistakes that used to pass without a word (issue "Nothing silent"): each is now refused
+in one line, before anything trains, or cleaned up."""
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from vdbejax import cli, scaling
+from vdbejax.envs.table_cleaning import make_mdp
+from vdbejax.experiment import run_grid
+from vdbejax.methods import Explorer, Learner, LearnerUpdate, Setting, explorer, learner
+from vdbejax.methods.agents import AgentOptions
+from vdbejax.paper.reproduce import reproduce
+from vdbejax.result_folder import MARKER_FILE, FolderLock, mark
+from vdbejax.validation import check_int
+
+
+def sweep_args(out, *extra):
+    return ["run", "--out", str(out), "--learners", "qlearning", "--explorers", "egreedy",
+            "--seeds", "2", "--episodes", "10", "--quiet", *extra]
+
+
+def one_error_line(capsys) -> str:
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    return lines[0]
+
+
+def test_a_rerun_without_resume_keeps_an_interrupted_runs_checkpoint(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "checkpoint.npz").write_bytes(b"an interrupted run's progress")
+    assert cli.main(sweep_args(out)) == 2
+    line = one_error_line(capsys)
+    assert "checkpoint of an interrupted run" in line and "--resume" in line
+    assert (out / "checkpoint.npz").read_bytes() == b"an interrupted run's progress"
+    assert not (out / "returns.npz").exists()
+
+
+def test_outputs_of_an_earlier_run_do_not_survive_a_rerun(tmp_path):
+    out = tmp_path / "run"
+    assert cli.main(sweep_args(out, "--long-csv")) == 0
+    assert (out / "fig3.png").exists() and (out / "returns_long.csv").exists()
+    assert cli.main(sweep_args(out, "--no-figures", "--episodes", "12")) == 0
+    assert not (out / "fig3.png").exists() and not (out / "sensitivity.png").exists()
+    assert not (out / "returns_long.csv").exists()  # it described the earlier run
+
+
+def test_scale_locks_its_folder_and_a_half_written_study_is_refused(tmp_path):
+    out = tmp_path / "scale"
+    out.mkdir()
+    with FolderLock(out), pytest.raises(ValueError, match="is being written by another"):
+        scaling.run_scaling(out, quick=True, progress=False)
+    (out / "scaling.csv").write_text("size\n")
+    (out / "meta.json").write_text("{}")
+    mark(out, "results")
+    with pytest.raises(ValueError, match=f"half-written.*{MARKER_FILE}"):
+        scaling.load_scaling(out)
+
+
+def test_a_plug_in_cannot_take_a_built_ins_name():
+    with pytest.raises(ValueError, match="explorer name 'egreedy' is a built-in's"):
+        @explorer("egreedy", parameter="epsilon")
+        class Impostor(Explorer):
+            epsilon: float = 0.1
+
+            def select(self, q, tables, context, uniforms):
+                return jnp.argmax(q)
+
+    @explorer("nothing_silent_mine")  # a plug-in may replace its own registration
+    class Mine(Explorer):
+        def select(self, q, tables, context, uniforms):
+            return jnp.argmax(q)
+
+    @explorer("nothing_silent_mine")
+    class MineAgain(Explorer):
+        def select(self, q, tables, context, uniforms):
+            return jnp.argmin(q)
+
+
+@pytest.mark.parametrize("value", [np.array(2.7), np.float64(2.0), 2.0])
+def test_a_float_count_is_not_cut_to_an_integer(value):
+    with pytest.raises(ValueError, match="num_seeds=2.* is invalid: must be an integer"):
+        check_int("num_seeds", value)
+    with pytest.raises(ValueError, match="num_seeds=2.* is invalid"):
+        run_grid(make_mdp(), [Setting("qlearning", "egreedy", 0.1)], num_seeds=value,
+                 num_episodes=2)
+    assert check_int("num_seeds", np.array(3)) == 3
+
+
+def test_an_unknown_detail_is_refused_before_the_folder_exists(tmp_path):
+    with pytest.raises(ValueError, match="details has 'nosuch': no learner or explorer"):
+        reproduce(tmp_path / "never", details={"nosuch": 1}, progress=False)
+    assert not (tmp_path / "never").exists()
+
+
+@learner("nothing_silent_int_q")
+class _IntegerQ(Learner):
+    gamma: float = 0.9
+
+    def update(self, t):
+        new = jnp.round(t.q).astype(jnp.int32)  # Q stored as integers: learning rounded away
+        return LearnerUpdate(new, {}, new - t.q)
+
+
+def test_a_learner_returning_integer_q_values_is_refused():
+    with pytest.raises(ValueError, match="update\\(\\) q returned .*int32.*expected .*float32"):
+        run_grid(make_mdp(), [Setting("nothing_silent_int_q", "egreedy", 0.1)], num_seeds=1,
+                 num_episodes=2, options=AgentOptions())
