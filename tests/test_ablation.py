@@ -149,3 +149,21 @@ def test_factorial_mode_and_sections_in_the_document(tmp_path):
     assert "## Factorial" in doc and "intro text" in doc
     assert "[report](factorial/authors-td-td-alpha0.8-constant/report.md)" in doc
     assert "Most claims fully reproduced" in doc
+
+
+def test_a_variant_left_half_written_by_a_killed_run_is_continued(tmp_path):
+    from vdbejax.experiment import GridResult
+    from vdbejax.result_folder import MARKER_FILE, mark
+
+    (variant,) = ablation.select_variants("spec")
+    folder = tmp_path / "spec"
+    first = ablation.run_variant(variant, folder, seeds=2, episodes=12)
+    whole = GridResult.load(folder)
+    for damage in ("marker", "meta.json is a list"):
+        mark(folder, "results")  # as a run killed while writing its result files leaves it
+        if damage == "meta.json is a list":
+            (folder / "meta.json").write_text("[]")
+        again = ablation.run_variant(variant, folder, seeds=2, episodes=12)
+        assert not (folder / MARKER_FILE).exists(), damage
+        assert [c.verdict for c in again.claims] == [c.verdict for c in first.claims]
+        assert (GridResult.load(folder).returns == whole.returns).all(), damage

@@ -68,13 +68,20 @@ def test_a_plug_in_cannot_take_a_built_ins_name():
             def select(self, q, tables, context, uniforms):
                 return jnp.argmax(q)
 
-    @explorer("nothing_silent_mine")  # a plug-in may replace its own registration
-    class Mine(Explorer):
-        def select(self, q, tables, context, uniforms):
-            return jnp.argmax(q)
+    for _ in range(2):  # the same definition run again (a notebook cell) replaces itself
+        @explorer("nothing_silent_mine")
+        class Mine(Explorer):
+            def select(self, q, tables, context, uniforms):
+                return jnp.argmax(q)
 
-    @explorer("nothing_silent_mine")
-    class MineAgain(Explorer):
+    with pytest.raises(ValueError, match="explorer name 'nothing_silent_mine' is taken by"):
+        @explorer("nothing_silent_mine")
+        class Other(Explorer):
+            def select(self, q, tables, context, uniforms):
+                return jnp.argmin(q)
+
+    @explorer("nothing_silent_mine", replace=True)
+    class Replacement(Explorer):
         def select(self, q, tables, context, uniforms):
             return jnp.argmin(q)
 
@@ -108,3 +115,77 @@ def test_a_learner_returning_integer_q_values_is_refused():
     with pytest.raises(ValueError, match="update\\(\\) q returned .*int32.*expected .*float32"):
         run_grid(make_mdp(), [Setting("nothing_silent_int_q", "egreedy", 0.1)], num_seeds=1,
                  num_episodes=2, options=AgentOptions())
+
+
+@learner("nothing_silent_expected_undeclared")
+class _UndeclaredProbabilities(Learner):  # Expected SARSA without uses_next_probabilities
+    gamma: float = 0.9
+    alpha: float = 0.5
+
+    def update(self, t):
+        target = t.reward + t.discount * jnp.sum(t.next_probabilities * t.q_next)
+        delta = self.alpha * (target - t.q)
+        return LearnerUpdate(t.q + delta, {}, delta)
+
+
+@learner("nothing_silent_sarsa_undeclared")
+class _UndeclaredAction(Learner):  # SARSA without uses_next_action
+    gamma: float = 0.9
+
+    def update(self, t):
+        target = t.reward + t.discount * t.q_next[t.next_action]
+        return LearnerUpdate(target, {}, target - t.q)
+
+
+@pytest.mark.parametrize("name, field, flag", [
+    ("nothing_silent_expected_undeclared", "next_probabilities", "uses_next_probabilities"),
+    ("nothing_silent_sarsa_undeclared", "next_action", "uses_next_action"),
+])
+def test_a_learner_reading_what_it_did_not_declare_is_refused(name, field, flag):
+    with pytest.raises(ValueError, match=f"reads t.{field} but the learner does not declare"
+                                         f" {flag} = True"):
+        run_grid(make_mdp(), [Setting(name, "softmax", 0.1)], num_seeds=1, num_episodes=2)
+
+
+def test_no_lock_file_stays_after_a_run_or_a_refusal(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert cli.main(sweep_args(out, "--no-figures")) == 0
+    assert not (out / ".vdbejax.lock").exists()
+    (out / "checkpoint.npz").write_bytes(b"x")  # refused: an interrupted run's checkpoint
+    assert cli.main(sweep_args(out)) == 2
+    assert not (out / ".vdbejax.lock").exists()
+    assert cli.main(["plot", "--results", str(out)]) == 0
+    assert not (out / ".vdbejax.lock").exists()
+
+
+def test_a_lock_file_deleted_during_the_run_is_noticed(tmp_path, monkeypatch, capsys):
+    from vdbejax.studies import folder
+
+    out = tmp_path / "run"
+    real = folder.run_prepared
+
+    def delete_the_lock(prepared):
+        result = real(prepared)
+        (out / ".vdbejax.lock").unlink()  # as a careless user or another tool would
+        return result
+
+    monkeypatch.setattr(folder, "run_prepared", delete_the_lock)
+    assert cli.main(sweep_args(out, "--no-figures")) == 2
+    line = one_error_line(capsys)
+    assert "lock file was deleted during the run" in line and "kept in" in line
+    from vdbejax.experiment import GridResult
+
+    kept = line.split("kept in '")[1].split("'")[0]
+    assert GridResult.load(kept).returns.shape == (1, 2, 10)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"settings": Setting("qlearning", "egreedy", 0.1)}, "settings=Setting.* must be a list"),
+    ({"settings": None}, "settings=None is invalid: must be a list"),
+    ({"options": {"alpha": 0.5}}, "options=.* must be an AgentOptions"),
+])
+def test_wrong_types_at_run_grid_are_one_line(kwargs, match):
+    work = {"settings": [Setting("qlearning", "egreedy", 0.1)], "num_seeds": 1,
+            "num_episodes": 2, **kwargs}
+    with pytest.raises(ValueError, match=match):
+        run_grid(make_mdp(), **work)

@@ -1,9 +1,12 @@
 """One run's files per result folder: a writer lock, a run marker and leftover cleanup.
 
 * **Lock.** A run takes an exclusive ``flock`` on ``<folder>/.vdbejax.lock`` before it
-  trains, and holds it until its last file is written. A second run into the same folder
-  is refused at once with one line (no training). The operating system drops the lock
-  when the process ends, however it ends, so a killed run never leaves the folder locked.
+  trains, and holds it until its last file is written; then it removes the file. A second
+  run into the same folder is refused at once with one line (no training). The operating
+  system drops the lock when the process ends, however it ends, so a killed run never
+  leaves the folder locked (its lock file stays, unlocked, until the next run). A lock
+  file deleted during a run is noticed before the results are written
+  (:meth:`FolderLock.held`).
 * **Run marker.** ``<folder>/.vdbejax-writing`` exists while a run replaces the folder's
   files. Its ``stage`` says how far it got: ``"results"`` while ``returns.npz``,
   ``configs.csv`` and ``meta.json`` are written (they may then mix two runs: loading is
@@ -62,12 +65,14 @@ class FolderLock:
     def acquire(self) -> None:
         """Take the lock, then remove the temporary files of dead writers."""
         path = self.folder / LOCK_FILE
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-        except OSError as error:
-            raise ValueError(f"{self.name}={str(self.folder)!r} cannot be locked for writing:"
-                             f" {error.strerror or error} ({path})") from None
-        if fcntl is not None:
+        while True:
+            try:
+                fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+            except OSError as error:
+                raise ValueError(f"{self.name}={str(self.folder)!r} cannot be locked for"
+                                 f" writing: {error.strerror or error} ({path})") from None
+            if fcntl is None:
+                break
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as error:
@@ -80,18 +85,37 @@ class FolderLock:
                 raise ValueError(f"{self.name}={str(self.folder)!r} is being written by another"
                                  f" vdbejax run ({who}): wait for it to finish or choose another"
                                  " folder") from None
+            if _same_file(path, fd):
+                break
+            os.close(fd)  # its holder removed it on release: lock the file there now
         os.ftruncate(fd, 0)
         os.pwrite(fd, str(os.getpid()).encode(), 0)
         self._fd = fd
         remove_stale_temporaries(self.folder)
 
+    def held(self) -> bool:
+        """Whether the lock file is still the one this lock holds (someone may have
+        deleted it during the run, letting another writer in)."""
+        return self._fd is not None and (fcntl is None
+                                         or _same_file(self.folder / LOCK_FILE, self._fd))
+
     def release(self) -> None:
-        """Give the lock back (the lock file stays: removing it would race a new writer)."""
+        """Give the lock back and remove the lock file (a writer that opened it meanwhile
+        finds it gone once it holds it, and locks a new one: :meth:`acquire`)."""
         if self._fd is not None:
             if fcntl is not None:
+                if _same_file(self.folder / LOCK_FILE, self._fd):
+                    (self.folder / LOCK_FILE).unlink(missing_ok=True)
                 fcntl.flock(self._fd, fcntl.LOCK_UN)
             os.close(self._fd)
             self._fd = None
+
+
+def _same_file(path: Path, fd: int) -> bool:
+    try:
+        return os.stat(path).st_ino == os.fstat(fd).st_ino
+    except OSError:
+        return False
 
 
 def check_output_paths(folder: str | os.PathLike, names: list[str], name: str = "out") -> None:
@@ -218,7 +242,7 @@ def save_run(
                 raise failure
     except OSError as error:
         raise ValueError(f"cannot write the results in {str(out)!r}: {describe_os_error(error)};"
-                         f" {_rescue(result)}") from None
+                         f" {rescue(result)}") from None
     if on_saved is not None:
         on_saved()
     try:
@@ -239,7 +263,7 @@ def describe_os_error(error: OSError) -> str:
     return f"{error.strerror or error}{where}"
 
 
-def _rescue(result: Any) -> str:
+def rescue(result: Any) -> str:
     """Save ``result`` in a fresh folder under the temporary directory; say where."""
     import tempfile
 

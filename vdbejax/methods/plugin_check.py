@@ -85,6 +85,35 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
     _check_same(f"{lname} update() q", result.q, scalar)
     _check_same(f"{lname} update() delta_q", result.delta_q, scalar)
     _check_same(f"{lname} update() tables", result.tables, {k: scalar for k in ltables})
+    _check_declared_inputs(lname, agent_learner, transition)
+
+
+#: What a learner's update may read only when it declares it (the engine passes zeros
+#: otherwise, so an undeclared read gives wrong numbers, not an error).
+_DECLARED_INPUTS = (("next_action", "uses_next_action"),
+                    ("next_probabilities", "uses_next_probabilities"))
+
+
+def _check_declared_inputs(lname: str, agent_learner: Learner, transition: Transition) -> None:
+    """Refuse a learner whose update depends on ``next_action`` or ``next_probabilities``
+    without the flag that makes the engine compute it (the traced program shows it)."""
+    from jax._src.interpreters import partial_eval
+
+    undeclared = [(field, flag) for field, flag in _DECLARED_INPUTS
+                  if not getattr(agent_learner, flag)]
+    if not undeclared:
+        return
+
+    closed = jax.make_jaxpr(agent_learner.update)(transition)
+    _, used = partial_eval.dce_jaxpr(closed.jaxpr, [True] * len(closed.jaxpr.outvars))
+    paths = [jax.tree_util.keystr(path)
+             for path, _ in jax.tree_util.tree_flatten_with_path(transition)[0]]
+    used = [any(u for p, u in zip(paths, used, strict=True) if field in p)
+            for field, _ in undeclared]
+    for (field, flag), needed in zip(undeclared, used, strict=True):
+        if needed:
+            raise ValueError(f"{lname} update() reads t.{field} but the learner does not"
+                             f" declare {flag} = True: the engine would pass zeros")
 
 
 def _abstract(shape: tuple[int, ...], dtype: Any) -> Any:

@@ -24,17 +24,19 @@ LEARNERS: dict[str, type[Learner]] = {}
 
 
 @dataclass_transform(frozen_default=True, field_specifiers=(dataclasses.field,))
-def explorer(name: str, parameter: str | None = None,
-             title: str | None = None) -> Callable[[type[ExplorerT]], type[ExplorerT]]:
+def explorer(name: str, parameter: str | None = None, title: str | None = None, *,
+             replace: bool = False) -> Callable[[type[ExplorerT]], type[ExplorerT]]:
     """Class decorator: make ``cls`` a pytree dataclass and register it as explorer ``name``.
 
     Args:
       name: the name settings use (``Setting(learner, name, param)``).
       parameter: the field a setting's ``param`` sets (its swept parameter).
       title: the name figures and tables show (default: ``name``).
+      replace: replace another plug-in registered under ``name`` (never a built-in).
 
     Raises:
-      ValueError: ``cls`` is not an :class:`Explorer` or lacks ``select``.
+      ValueError: ``cls`` is not an :class:`Explorer` or lacks ``select``; ``name`` is a
+        built-in's, or another plug-in's without ``replace``.
     """
     def register(cls: type[ExplorerT]) -> type[ExplorerT]:
         _check_class(cls, Explorer, "explorer", name, ("select",))
@@ -43,7 +45,7 @@ def explorer(name: str, parameter: str | None = None,
         if parameter is not None and parameter not in field_names(cls):
             raise ValueError(f"explorer {name!r}: parameter={parameter!r} is not one of its fields"
                              f" {field_names(cls)}")
-        _check_name(EXPLORERS, "explorer", name, cls)
+        _check_name(EXPLORERS, "explorer", name, cls, replace)
         EXPLORERS[name] = cls
         return cls
 
@@ -51,13 +53,15 @@ def explorer(name: str, parameter: str | None = None,
 
 
 @dataclass_transform(frozen_default=True, field_specifiers=(dataclasses.field,))
-def learner(name: str,
-            title: str | None = None) -> Callable[[type[LearnerT]], type[LearnerT]]:
+def learner(name: str, title: str | None = None, *,
+            replace: bool = False) -> Callable[[type[LearnerT]], type[LearnerT]]:
     """Class decorator: make ``cls`` a pytree dataclass and register it as learner ``name``
-    (``title``: the name figures and tables show; default ``name``).
+    (``title``: the name figures and tables show; default ``name``; ``replace``: replace
+    another plug-in registered under ``name``, never a built-in).
 
     Raises:
-      ValueError: ``cls`` is not a :class:`Learner`, lacks ``update`` or a ``gamma`` field.
+      ValueError: ``cls`` is not a :class:`Learner`, lacks ``update`` or a ``gamma`` field;
+        ``name`` is a built-in's, or another plug-in's without ``replace``.
     """
     def register(cls: type[LearnerT]) -> type[LearnerT]:
         _check_class(cls, Learner, "learner", name, ("update",))
@@ -65,22 +69,27 @@ def learner(name: str,
         cls.name, cls.title = name, title or name
         if "gamma" not in field_names(cls):
             raise ValueError(f"learner {name!r} has no gamma field: the engine needs the discount")
-        _check_name(LEARNERS, "learner", name, cls)
+        _check_name(LEARNERS, "learner", name, cls, replace)
         LEARNERS[name] = cls
         return cls
 
     return register
 
 
-def _check_name(registry: dict[str, Any], role: str, name: str, cls: type) -> None:
-    """Refuse a plug-in that would replace a built-in under its name (its results would be
-    labelled as the built-in's). A plug-in may replace its own earlier registration (a
-    notebook cell run again)."""
+def _check_name(registry: dict[str, Any], role: str, name: str, cls: type,
+                replace: bool) -> None:
+    """Refuse a plug-in that would replace another under its name without a word (its
+    results would carry the other's name). The same class defined again (a notebook cell
+    or a plug-in file run twice: same module and name) replaces its earlier self."""
     old = registry.get(name)
-    if (old is not None and old.__module__.startswith("vdbejax.")
-            and not cls.__module__.startswith("vdbejax.")):
+    if old is None or (old.__module__, old.__qualname__) == (cls.__module__, cls.__qualname__):
+        return
+    if old.__module__.startswith("vdbejax.") and not cls.__module__.startswith("vdbejax."):
         raise ValueError(f"{role} name {name!r} is a built-in's ({old.__name__}): register"
                          " yours under another name")
+    if not replace:
+        raise ValueError(f"{role} name {name!r} is taken by {old.__module__}.{old.__qualname__}:"
+                         f" choose another name, or pass replace=True to @{role}(...)")
 
 
 def explorer_title(name: str) -> str:

@@ -83,7 +83,8 @@ def run_variant(
       variant: the options.
       results_dir: folder for this variant's raw results and outputs.
       seeds, episodes, seed: run size.
-      reuse: load a saved result of the same variant and size instead of rerunning.
+      reuse: load a saved result of the same variant and size instead of rerunning (a
+        folder a killed run left half-written is continued from its checkpoint instead).
       progress: progress bar on stderr.
       run: ``resume``, ``devices`` and ``memory_budget_bytes`` for the variant's run
         (:class:`~vdbejax.runs.RunOptions`; its other fields are the variant's own).
@@ -94,9 +95,17 @@ def run_variant(
     run = RunOptions() if run is None else run
     folder = Path(results_dir)
     meta_file = folder / io.META_FILE
-    if (reuse and meta_file.exists()
-            and _matches(io.load_json(meta_file), variant, seeds, episodes, seed)):
-        result = GridResult.load(folder)
+    result = None
+    try:
+        saved = io.load_json(meta_file) if reuse and meta_file.exists() else None
+    except (OSError, ValueError):  # unreadable: not a result to reuse
+        saved = None
+    if isinstance(saved, dict) and _matches(saved, variant, seeds, episodes, seed):
+        try:
+            result = GridResult.load(folder)
+        except ValueError:  # half-written (a killed run): continue it below
+            run = run.replace(resume=True)
+    if result is not None:
         best = saved_best_return(result)
         summary, claims = write_outputs(result, folder, best)
     else:

@@ -140,6 +140,12 @@ def prepare_grid(
     if not isinstance(mdp, TabularMDP):
         raise ValueError(f"mdp={type(mdp).__name__} is invalid: must be a TabularMDP"
                          " (see make_tabular_mdp, compile_env)")
+    if not isinstance(settings, (list, tuple)):
+        raise ValueError(f"settings={settings!r} is invalid: must be a list of Setting"
+                         " (e.g. [Setting('qlearning', 'vdbe', 1.0)])")
+    if not isinstance(options, AgentOptions):
+        raise ValueError(f"options={options!r} is invalid: must be an AgentOptions"
+                         " (e.g. AgentOptions(alpha=0.5))")
     settings = tuple(settings)
     if not settings:
         raise ValueError("settings is empty: need at least one setting")

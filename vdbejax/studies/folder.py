@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 from vdbejax import io
 from vdbejax.distributed import process_checkpoint_path
 from vdbejax.grid_result import GridResult
-from vdbejax.result_folder import FolderLock, check_output_paths, marked_stage, save_run
+from vdbejax.result_folder import FolderLock, check_output_paths, marked_stage, rescue, save_run
 from vdbejax.runs.checkpoint import log_path, remove_checkpoint
 from vdbejax.runs.grid import PreparedGrid, run_prepared
 from vdbejax.validation import check_writable_dir
@@ -90,7 +90,7 @@ def train_in_folder(
     """
     out = check_writable_dir(name, out_dir)
     check_output_paths(out, [*io.RESULT_FILES, *files, *checkpoint_files()], name)
-    with FolderLock(out, name):  # held from before training to the last file
+    with FolderLock(out, name) as lock:  # held from before training to the last file
         checkpoint = out / CHECKPOINT_FILE
         if not prepared.run.resume and process_checkpoint_path(checkpoint).exists():
             raise ValueError(
@@ -102,6 +102,9 @@ def train_in_folder(
             result = run_prepared(prepared.with_checkpoint(checkpoint))
             if annotate is not None:
                 annotate(result)
+        if not lock.held():
+            raise ValueError(f"{name}={str(out)!r}: its lock file was deleted during the run, so"
+                             f" another run may be writing there; {rescue(result)}")
         # Outputs of an earlier run that this one may not write (figures of a run with
         # figures beside one without, a long CSV) must not outlive it.
         for stale in {*files, io.LONG_CSV_FILE} - set(io.RESULT_FILES):
