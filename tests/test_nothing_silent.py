@@ -189,3 +189,26 @@ def test_wrong_types_at_run_grid_are_one_line(kwargs, match):
             "num_episodes": 2, **kwargs}
     with pytest.raises(ValueError, match=match):
         run_grid(make_mdp(), **work)
+
+
+def test_quick_does_not_override_the_sizes_without_a_word(tmp_path, capsys):
+    assert cli.main(["scale", "--out", str(tmp_path / "s"), "--quick", "--sizes", "4x2"]) == 2
+    assert "--quick sets the study's size: leave out --sizes" in one_error_line(capsys)
+
+
+def test_an_axis_and_a_shared_value_of_one_name_are_refused(tmp_path, capsys):
+    args = sweep_args(tmp_path / "r", "--axis", "alpha=0.1,0.5", "--set", "alpha=0.3")
+    assert cli.main(args) == 2
+    assert "alpha is both a sweep axis and a shared value" in one_error_line(capsys)
+
+
+def test_the_parser_imports_no_jax():
+    import subprocess
+    import sys
+
+    code = ("import sys; from vdbejax import cli; cli.build_parser();"
+            " print(sorted(m for m in sys.modules if m == 'jax' or m.startswith('jax.'))[:3])")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"  # --help and --version stay fast

@@ -155,6 +155,10 @@ def _run(args: argparse.Namespace) -> None:
                  for name, values in _pairs(args.axis, "--axis")})
     shared = dict(spec.get("shared", {}))
     shared.update({name: _value(value) for name, value in _pairs(args.set, "--set")})
+    both = sorted(set(axes) & set(shared))
+    if both:  # one would override the other without a word
+        raise ValueError(f"{both[0]} is both a sweep axis and a shared value (--axis, --set or"
+                         " the sweep file's [axes] and [shared]): give it once")
     spec["axes"], spec["shared"] = axes, shared
     spec["plugins"] = list(spec.get("plugins", [])) + args.plugin
     for key in ("learners", "explorers"):
@@ -258,8 +262,8 @@ def _ablate(args: argparse.Namespace) -> None:
 
 
 def _add_scale(sub: argparse._SubParsersAction) -> None:
-    from vdbejax.scaling import SIZES
-
+    # Nothing of vdbejax.scaling here: building the parser (--help, --version) must not
+    # import JAX.
     p = sub.add_parser(
         "scale", help="episodes to solve of every exploration method on growing task variants;"
                       " writes scaling.csv, scaling.md, scaling.png",
@@ -268,13 +272,13 @@ def _add_scale(sub: argparse._SubParsersAction) -> None:
                     " solved agents leave the batch.")
     number = parse_cli_number
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--sizes", default=",".join(SIZES),
+    p.add_argument("--sizes", default=None,
                    help="variants NxK (N sections, K goblets), comma-separated"
-                        f" (default {','.join(SIZES)})")
-    p.add_argument("--seeds", type=number, default=10, help="agents per setting (default 10)")
-    p.add_argument("--episodes", type=number, default=2000,
+                        " (default: the study's, vdbejax.scaling.SIZES)")
+    p.add_argument("--seeds", type=number, default=None, help="agents per setting (default 10)")
+    p.add_argument("--episodes", type=number, default=None,
                    help="smallest episode budget per agent and variant (default 2000)")
-    p.add_argument("--episodes-per-state", type=number, default=3.0,
+    p.add_argument("--episodes-per-state", type=number, default=None,
                    help="budget per variant: max(EPISODES, this x reachable states)"
                         " (default 3; 0: EPISODES for every variant)")
     p.add_argument("--seconds", type=number, default=None,
@@ -302,8 +306,20 @@ def _add_scale(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="no status lines")
 
 
+#: ``vdbejax scale``'s sizes of the study, which ``--quick`` sets (flag: default).
+SCALE_SIZE_FLAGS = {"sizes": None, "seeds": 10, "episodes": 2000, "episodes_per_state": 3.0}
+
+
 def _scale(args: argparse.Namespace) -> None:
-    from vdbejax.scaling import run_scaling
+    from vdbejax.scaling import SIZES, run_scaling
+
+    given = [name for name in SCALE_SIZE_FLAGS if getattr(args, name) is not None]
+    if args.quick and given:  # --quick would override them without a word
+        raise ValueError(f"--quick sets the study's size: leave out --{given[0].replace('_', '-')}"
+                         " (or --quick)")
+    for name, default in SCALE_SIZE_FLAGS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, ",".join(SIZES) if name == "sizes" else default)
 
     learners = [n for n in args.learners.split(",") if n]
     methods = None if args.methods is None else args.methods.split(",")
