@@ -212,3 +212,20 @@ def test_the_parser_imports_no_jax():
                           timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]"  # --help and --version stay fast
+
+
+def test_a_window_longer_than_the_budget_is_refused(tmp_path, capsys):
+    from vdbejax.runs import UntilSolved
+
+    with pytest.raises(ValueError, match="window=50 is invalid with num_episodes=20"):
+        run_grid(make_mdp(), [Setting("qlearning", "egreedy", 0.1)], num_seeds=1,
+                 num_episodes=20, stop=UntilSolved(window=50))
+    assert cli.main(["scale", "--out", str(tmp_path / "s"), "--window", "1000000000"]) == 2
+    assert "window=1000000000 is invalid with episodes=2000" in one_error_line(capsys)
+
+
+def test_an_option_the_authors_task_ignores_is_refused(tmp_path, capsys):
+    args = ["run", "--out", str(tmp_path / "r"), "--task", "cruz2018", "--invalid-action",
+            "fail", "--learners", "qlearning", "--explorers", "egreedy", "--quiet"]
+    assert cli.main(args) == 2
+    assert "invalid_action='fail' is invalid with task='cruz2018'" in one_error_line(capsys)

@@ -183,6 +183,9 @@ def run_scaling(
     seed = check_int("seed", seed, 0, UINT32_MAX)
     fraction = check_in_range("fraction", fraction, 0.0, 1.0, low_open=True)
     window = check_int("window", window, 1)
+    if window > episodes:  # every agent would be censored without a word
+        raise ValueError(f"window={window} is invalid with episodes={episodes}: the moving"
+                         " average needs that many episodes before any agent can solve")
     if chunk_episodes is not None:
         chunk_episodes = check_int("chunk_episodes", chunk_episodes, 1, INT32_MAX)
     if max_steps is not None:

@@ -68,6 +68,9 @@ def make_task(task: str, *, max_steps: int | None = None,
     from vdbejax.envs.table_cleaning import make_mdp, make_variant_mdp
 
     if task == "cruz2018":
+        if invalid_action != "noop":  # the option would be ignored, yet recorded
+            raise ValueError(f"invalid_action={invalid_action!r} is invalid with task='cruz2018':"
+                             " the published table decides every action's effect")
         return make_authors_mdp(STEP_CAP if max_steps is None else max_steps)
     max_steps = 100 if max_steps is None else max_steps
     if task == "table_cleaning":

@@ -156,6 +156,10 @@ def prepare_grid(
         check_writable_dir("checkpoint folder", Path(run.checkpoint).parent)
     check_run_size(len(settings) * num_seeds, num_episodes, run.checkpoint)  # before allocating
     stop = run.stop.resolve(mdp)
+    window = getattr(stop, "window", None)
+    if stop.checks_chunks and window is not None and window > num_episodes:
+        raise ValueError(f"window={window} is invalid with num_episodes={num_episodes}: no"
+                         " agent could ever solve the task (a window needs that many episodes)")
     params, keys = grid_agents(settings, num_seeds, seed, options)
     check_params(params, mdp.num_actions)  # a bad plug-in: one line before anything runs
     plan = make_plan(mdp, params, len(settings) * num_seeds, num_episodes, run)
