@@ -44,6 +44,18 @@ def assert_same_curves(a: GridResult, b: GridResult) -> None:
     np.testing.assert_array_equal(a.nonfinite, b.nonfinite)
 
 
+def assert_fixed_budget_up_to_each_stop(stopped: Any, fixed: GridResult,
+                                        stops: Any) -> None:
+    """``stopped``'s curves (a GridResult or AdaptiveRun) equal ``fixed``'s bit for bit up
+    to each agent's stop (``stops``: ``[configs, seeds]``), NaN returns and 0 lengths past it."""
+    import numpy as np
+
+    for (c, i), e in np.ndenumerate(stops):
+        np.testing.assert_array_equal(stopped.returns[c, i, :e], fixed.returns[c, i, :e])
+        np.testing.assert_array_equal(stopped.lengths[c, i, :e], fixed.lengths[c, i, :e])
+        assert np.isnan(stopped.returns[c, i, e:]).all() and (stopped.lengths[c, i, e:] == 0).all()
+
+
 def budget_for(mdp: Any, agents: int, chunk_episodes: int = 8) -> int:
     """The per-device memory budget that fits exactly ``agents`` agents."""
     from vdbejax.batching import bytes_per_agent, mdp_bytes

@@ -6,7 +6,16 @@ import json
 
 import numpy as np
 import pytest
-from small_grid import EPISODES, SEEDS, SETTINGS, assert_same_curves, budget_for, run_small, small_mdp
+from small_grid import (
+    EPISODES,
+    SEEDS,
+    SETTINGS,
+    assert_fixed_budget_up_to_each_stop,
+    assert_same_curves,
+    budget_for,
+    run_small,
+    small_mdp,
+)
 
 from vdbejax import cli
 from vdbejax.envs.table_cleaning import make_mdp
@@ -105,12 +114,7 @@ def test_until_solved_equals_the_fixed_budget_up_to_each_stop(until):
     best = until.meta["stop"]["best"]
     solve = episodes_to_solve(until.returns, best, fraction=0.5, episodes_run=stops)
     np.testing.assert_array_equal(solve.solved[stops < 160], True)
-    for c in range(len(SETTINGS)):
-        for i in range(SEEDS):
-            e = stops[c, i]
-            np.testing.assert_array_equal(until.returns[c, i, :e], fixed.returns[c, i, :e])
-            np.testing.assert_array_equal(until.lengths[c, i, :e], fixed.lengths[c, i, :e])
-            assert np.isnan(until.returns[c, i, e:]).all() and (until.lengths[c, i, e:] == 0).all()
+    assert_fixed_budget_up_to_each_stop(until, fixed, stops)
     assert until.meta["stopped"] == "episodes"  # some agent ran the whole budget
     assert until.meta["fingerprint"] != fixed.meta["fingerprint"]  # the policy is part of it
 

@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from small_grid import assert_fixed_budget_up_to_each_stop
+
 from vdbejax import cli, scaling, scaling_adaptive, scaling_report, scaling_study, solvers
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import run_grid
@@ -52,12 +54,7 @@ def test_adaptive_stopping_equals_the_fixed_budget_up_to_each_stop(adaptive, fix
     assert run.stopped == "episodes"  # SARSA + VDBE never solves: censored at the budget
     assert (stop[:2] < EPISODES).all() and (stop[3] == EPISODES).all()
     assert (stop % CHUNK == 0).all()  # agents leave at the end of a chunk
-    for c in range(len(SETTINGS)):
-        for i in range(SEEDS):
-            e = stop[c, i]
-            np.testing.assert_array_equal(run.returns[c, i, :e], fixed.returns[c, i, :e])
-            np.testing.assert_array_equal(run.lengths[c, i, :e], fixed.lengths[c, i, :e])
-            assert np.isnan(run.returns[c, i, e:]).all() and (run.lengths[c, i, e:] == 0).all()
+    assert_fixed_budget_up_to_each_stop(run, fixed, stop)
     # The same solve episodes as measured on the fixed run's full curves.
     full = episodes_to_solve(fixed.returns, task[1])
     np.testing.assert_array_equal(run.solve.solved, full.solved)

@@ -166,6 +166,10 @@ def run_scaling(
     Raises:
       ValueError: any invalid input, before training.
     """
+    from vdbejax.experiment import version_info
+    from vdbejax.solvers import best_return, start_states, steps_to_goal
+    from vdbejax.sweeps import make_task
+
     for name, flag in (("quick", quick), ("progress", progress), ("figure", figure),
                        ("drop_unsolved", drop_unsolved), ("save_runs", save_runs)):
         check_bool(name, flag)
@@ -199,126 +203,108 @@ def run_scaling(
     knobs = RunOptions(resume=resume, memory_budget_bytes=memory_budget_bytes, devices=devices)
     out = check_writable_dir("out", out_dir)
     with FolderLock(out):  # the study's folder, held to its last file
-        return _study(out, parsed, settings, chosen, knobs, seeds=seeds, episodes=episodes,
-                      episodes_per_state=episodes_per_state, seconds=seconds, seed=seed,
-                      learners=learners, fraction=fraction, window=window,
-                      chunk_episodes=chunk_episodes, max_steps=max_steps,
-                      drop_unsolved=drop_unsolved, quick=quick, progress=progress,
-                      figure=figure, save_runs=save_runs, command=command)
+        tasks = []
+        for sections, goblets in parsed:  # every task built and solved before any training
+            size = f"{sections}x{goblets}"
+            mdp = make_task(f"variant:{size}", max_steps=max_steps)
+            best = best_return(mdp)
+            threshold = solve_threshold(best, fraction)
+            shortest = int(steps_to_goal(mdp)[start_states(mdp)].max())
+            tasks.append((size, mdp, best, threshold, shortest))
+        tasks.sort(key=lambda task: task[1].num_states)
 
+        versions = version_info()  # the code that runs: read before training, not after
+        rows: list[dict[str, Any]] = []
+        variants: list[dict[str, Any]] = []
+        runs: dict[str, AdaptiveRun] = {}
+        remaining = list(settings)
+        order = {s: i for i, s in enumerate(settings)}
+        dropped_on: dict[Setting, str] = {}
+        started = time.perf_counter()
+        for size, mdp, best, threshold, shortest in tasks:
+            budget = variant_budget(mdp.num_states, episodes, episodes_per_state)
+            chunk = auto_chunk(budget) if chunk_episodes is None else chunk_episodes
+            base = {"size": size, "states": int(mdp.num_states), "actions": int(mdp.num_actions),
+                    "best_return": float(best), "threshold": float(threshold)}
+            for setting in settings:
+                if setting in dropped_on:
+                    rows.append(dict(base, **_setting_columns(setting, order[setting]), status=(
+                        f"dropped: none solved {dropped_on[setting]}"), **_empty_row()))
+            if not remaining:
+                variants.append(dict(base, shortest_solution=shortest, settings_run=0, agents=0,
+                                     budget_episodes=budget, chunk_episodes=chunk,
+                                     episodes_reached=0, stopped="-", agent_episodes=0,
+                                     fixed_budget_agent_episodes=0, agent_steps=0,
+                                     training_seconds=0.0, compile_seconds=0.0,
+                                     steps_per_second=math.nan))
+                continue
+            if progress:
+                sys.stderr.write(f"{size} ({mdp.num_states} states): {len(remaining)} settings ×"
+                                 f" {seeds} agents, up to {budget} episodes\n")
+            run = _run_variant(out / RUNS_FOLDER / size, mdp, remaining, seeds=seeds, budget=budget,
+                               stop=UntilSolved(best=best, fraction=fraction, window=window,
+                                                max_seconds=seconds),
+                               seed=seed, options=knobs.replace(chunk_episodes=chunk,
+                                                                progress=progress),
+                               size=size)
+            runs[size] = run
+            if progress:
+                sys.stderr.write(
+                    f"{size} ({mdp.num_states} states): {int(run.solve.solved.sum())}/"
+                    f"{run.solve.solved.size} agents solved, {run.elapsed_seconds:.1f} s"
+                    f" ({run.steps_per_second / 1e6:.2f} M steps/s)\n")
+            reached = int(run.episodes_run.max())
+            for c, setting in enumerate(run.settings):
+                summary = summarize_solving(run.solve.episodes[c], run.solve.solved[c])
+                rows.append(dict(base, **_setting_columns(setting, order[setting]), status="run",
+                                 agents=summary.agents, solved=summary.solved,
+                                 fraction_solved=summary.fraction,
+                                 fraction_low=summary.fraction_low,
+                                 fraction_high=summary.fraction_high,
+                                 median_episodes=summary.median, median_low=summary.median_low,
+                                 median_high=summary.median_high, budget=summary.budget,
+                                 median_text=summary.median_text(),
+                                 agent_episodes=int(run.episodes_run[c].sum()),
+                                 nonfinite_agents=int(run.nonfinite[c].sum())))
+                if drop_unsolved and summary.solved == 0:
+                    dropped_on[setting] = f"on {size} in {summary.budget} episodes"
+            remaining = [s for s in remaining if s not in dropped_on]
+            variants.append(dict(
+                base, shortest_solution=shortest, settings_run=len(run.settings),
+                agents=int(run.episodes_run.size), budget_episodes=budget, chunk_episodes=chunk,
+                episodes_reached=reached, stopped=run.stopped,
+                agent_episodes=int(run.episodes_run.sum()),
+                fixed_budget_agent_episodes=int(run.episodes_run.size) * budget,
+                agent_steps=run.agent_steps, training_seconds=run.elapsed_seconds,
+                compile_seconds=run.compile_seconds, steps_per_second=run.steps_per_second))
+        rank = {task[0]: i for i, task in enumerate(tasks)}
+        rows.sort(key=lambda r: (rank[r["size"]], order[_row_setting(r)]))
+        options = {"sizes": [t[0] for t in tasks], "seeds": seeds, "episodes": episodes,
+                   "episodes_per_state": episodes_per_state, "seconds": seconds, "seed": seed,
+                   "learners": list(learners),
+                   "methods": [dataclasses.asdict(m) for m in chosen], "fraction": fraction,
+                   "window": window, "chunk_episodes": chunk_episodes, "max_steps": max_steps,
+                   "drop_unsolved": drop_unsolved, "quick": quick}
+        meta = {"command": command, "options": options,
+                "elapsed_seconds": time.perf_counter() - started,
+                "settings": [[s.learner, s.explorer, s.param, dict(s.hyperparameters)]
+                             for s in settings],
+                "parameter_names": {m.explorer: parameter_name(m.explorer) for m in chosen},
+                "variants": variants, **versions}
+        import jax
 
-def _study(out: Path, parsed: list[tuple[int, int]], settings: list[Setting],
-           chosen: list[Method], knobs: RunOptions, *, seeds: int, episodes: int,
-           episodes_per_state: float | None, seconds: float | None, seed: int,
-           learners: Sequence[str], fraction: float, window: int, chunk_episodes: int | None,
-           max_steps: int | None, drop_unsolved: bool, quick: bool, progress: bool,
-           figure: bool, save_runs: bool, command: str | None) -> ScalingResult:
-    """:func:`run_scaling` once its inputs are checked and its folder is locked."""
-    from vdbejax.experiment import version_info
-    from vdbejax.solvers import best_return, start_states, steps_to_goal
-    from vdbejax.sweeps import make_task
-
-
-    tasks = []
-    for sections, goblets in parsed:  # every task built and solved before any training
-        size = f"{sections}x{goblets}"
-        mdp = make_task(f"variant:{size}", max_steps=max_steps)
-        best = best_return(mdp)
-        threshold = solve_threshold(best, fraction)
-        shortest = int(steps_to_goal(mdp)[start_states(mdp)].max())
-        tasks.append((size, mdp, best, threshold, shortest))
-    tasks.sort(key=lambda task: task[1].num_states)
-
-    versions = version_info()  # the code that runs: read before training, not after
-    rows: list[dict[str, Any]] = []
-    variants: list[dict[str, Any]] = []
-    runs: dict[str, AdaptiveRun] = {}
-    remaining = list(settings)
-    order = {s: i for i, s in enumerate(settings)}
-    dropped_on: dict[Setting, str] = {}
-    started = time.perf_counter()
-    for size, mdp, best, threshold, shortest in tasks:
-        budget = variant_budget(mdp.num_states, episodes, episodes_per_state)
-        chunk = auto_chunk(budget) if chunk_episodes is None else chunk_episodes
-        base = {"size": size, "states": int(mdp.num_states), "actions": int(mdp.num_actions),
-                "best_return": float(best), "threshold": float(threshold)}
-        for setting in settings:
-            if setting in dropped_on:
-                rows.append(dict(base, **_setting_columns(setting, order[setting]), status=(
-                    f"dropped: none solved {dropped_on[setting]}"), **_empty_row()))
-        if not remaining:
-            variants.append(dict(base, shortest_solution=shortest, settings_run=0, agents=0,
-                                 budget_episodes=budget, chunk_episodes=chunk,
-                                 episodes_reached=0, stopped="-", agent_episodes=0,
-                                 fixed_budget_agent_episodes=0, agent_steps=0,
-                                 training_seconds=0.0, compile_seconds=0.0,
-                                 steps_per_second=math.nan))
-            continue
-        if progress:
-            sys.stderr.write(f"{size} ({mdp.num_states} states): {len(remaining)} settings ×"
-                             f" {seeds} agents, up to {budget} episodes\n")
-        run = _run_variant(out / RUNS_FOLDER / size, mdp, remaining, seeds=seeds, budget=budget,
-                           stop=UntilSolved(best=best, fraction=fraction, window=window,
-                                            max_seconds=seconds),
-                           seed=seed, options=knobs.replace(chunk_episodes=chunk,
-                                                            progress=progress),
-                           size=size)
-        runs[size] = run
-        if progress:
-            sys.stderr.write(f"{size} ({mdp.num_states} states): {int(run.solve.solved.sum())}/"
-                             f"{run.solve.solved.size} agents solved, {run.elapsed_seconds:.1f} s"
-                             f" ({run.steps_per_second / 1e6:.2f} M steps/s)\n")
-        reached = int(run.episodes_run.max())
-        for c, setting in enumerate(run.settings):
-            summary = summarize_solving(run.solve.episodes[c], run.solve.solved[c])
-            rows.append(dict(base, **_setting_columns(setting, order[setting]), status="run",
-                             agents=summary.agents, solved=summary.solved,
-                             fraction_solved=summary.fraction, fraction_low=summary.fraction_low,
-                             fraction_high=summary.fraction_high,
-                             median_episodes=summary.median, median_low=summary.median_low,
-                             median_high=summary.median_high, budget=summary.budget,
-                             median_text=summary.median_text(),
-                             agent_episodes=int(run.episodes_run[c].sum()),
-                             nonfinite_agents=int(run.nonfinite[c].sum())))
-            if drop_unsolved and summary.solved == 0:
-                dropped_on[setting] = f"on {size} in {summary.budget} episodes"
-        remaining = [s for s in remaining if s not in dropped_on]
-        variants.append(dict(
-            base, shortest_solution=shortest, settings_run=len(run.settings),
-            agents=int(run.episodes_run.size), budget_episodes=budget, chunk_episodes=chunk,
-            episodes_reached=reached, stopped=run.stopped,
-            agent_episodes=int(run.episodes_run.sum()),
-            fixed_budget_agent_episodes=int(run.episodes_run.size) * budget,
-            agent_steps=run.agent_steps, training_seconds=run.elapsed_seconds,
-            compile_seconds=run.compile_seconds, steps_per_second=run.steps_per_second))
-    rank = {task[0]: i for i, task in enumerate(tasks)}
-    rows.sort(key=lambda r: (rank[r["size"]], order[_row_setting(r)]))
-    options = {"sizes": [t[0] for t in tasks], "seeds": seeds, "episodes": episodes,
-               "episodes_per_state": episodes_per_state, "seconds": seconds, "seed": seed,
-               "learners": list(learners),
-               "methods": [dataclasses.asdict(m) for m in chosen], "fraction": fraction,
-               "window": window, "chunk_episodes": chunk_episodes, "max_steps": max_steps,
-               "drop_unsolved": drop_unsolved, "quick": quick}
-    meta = {"command": command, "options": options,
-            "elapsed_seconds": time.perf_counter() - started,
-            "settings": [[s.learner, s.explorer, s.param, dict(s.hyperparameters)]
-                         for s in settings],
-            "parameter_names": {m.explorer: parameter_name(m.explorer) for m in chosen},
-            "variants": variants, **versions}
-    import jax
-
-    meta.update(jax_version=jax.__version__, backend=jax.default_backend())
-    # Marked while the study's files are replaced: a folder killed between scaling.csv and
-    # meta.json is recognised (load_scaling refuses it), never read as one study.
-    mark(out, "results")
-    io.write_csv(out / CSV_FILE, rows, ROW_COLUMNS)
-    io.save_json(out / META_FILE, meta)
-    write_reports(out, rows, variants, meta, figure=figure)
-    unmark(out)
-    if not save_runs:
-        for size in runs:
-            shutil.rmtree(out / RUNS_FOLDER / size, ignore_errors=True)
-    return ScalingResult(rows, variants, meta, runs)
+        meta.update(jax_version=jax.__version__, backend=jax.default_backend())
+        # Marked while the study's files are replaced: a folder killed between scaling.csv and
+        # meta.json is recognised (load_scaling refuses it), never read as one study.
+        mark(out, "results")
+        io.write_csv(out / CSV_FILE, rows, ROW_COLUMNS)
+        io.save_json(out / META_FILE, meta)
+        write_reports(out, rows, variants, meta, figure=figure)
+        unmark(out)
+        if not save_runs:
+            for size in runs:
+                shutil.rmtree(out / RUNS_FOLDER / size, ignore_errors=True)
+        return ScalingResult(rows, variants, meta, runs)
 
 
 def _run_variant(folder: Path, mdp: Any, settings: list[Setting], *, seeds: int, budget: int,

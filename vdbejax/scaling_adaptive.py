@@ -129,7 +129,6 @@ def run_until_solved(
     from vdbejax.runs import UntilSolved, run_grid
     from vdbejax.validation import INT32_MAX, check_int
 
-    check_int("num_seeds", num_seeds, 1, INT32_MAX)
     check_int("max_episodes", max_episodes, 1, INT32_MAX)  # named as the caller knows it
     stop = UntilSolved(best=best, fraction=fraction, window=window, max_seconds=max_seconds)
     run = (RunOptions() if run is None else run).replace(

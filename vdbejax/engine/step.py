@@ -268,8 +268,9 @@ def lockstep_iteration(
                 sa_index, pair_base, state_base, update_context, select_context, u)
 
     def index_of(form: str) -> Array:  # where a table of this write form is written
-        return {"pair_value": lambda: sa_index, "state_value": lambda: state_base + s,
-                "pair_row": lambda: pair_base + s * A}[form]()
+        if form == "pair_value":
+            return sa_index
+        return state_base + s if form == "state_value" else pair_base + s * A
 
     tables = dict(agents.tables)
     if not isinstance(agent, KindSwitch):

@@ -21,6 +21,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from vdbejax.distributed import take_agents
 from vdbejax.engine import AgentState
 from vdbejax.engine.programs import Programs
 from vdbejax.envs.tabular import TabularMDP
@@ -70,8 +71,6 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
     Returns:
       :class:`Drive`.
     """
-    from vdbejax.distributed import take_agents
-
     programs = Programs() if programs is None else programs
     num_episodes = state.num_episodes
     total = state.returns.shape[0] * num_episodes
@@ -82,11 +81,18 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
         if progress is not None:
             progress(state.episodes_credited(), total, time.perf_counter() - started)
 
+    def after_stop() -> None:  # the stages that follow the stop policy's decision
+        if checkpoint is not None:
+            checkpoint(state)
+        report()
+
     report()
     while (batch := state.next_batch(plan.batch_size)).size:
         start = int(state.episodes_done[batch[0]])
-        end = (min(start + plan.chunk_episodes, num_episodes) if stop.checks_chunks
-               else num_episodes)
+        # A fixed budget runs the batch to its end in one call, the stages after every
+        # chunk; a policy that checks chunks gets one call per chunk and the stages after it.
+        per_chunk = stop.checks_chunks
+        end = min(start + plan.chunk_episodes, num_episodes) if per_chunk else num_episodes
         recorded = [start]
 
         def after_chunk(done: int, agents: AgentState | None, returns: np.ndarray,
@@ -98,33 +104,25 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
             recorded[0] = done
             if agents is not None:
                 state.set_agents(batch, agents)
-            if checkpoint is not None:
-                checkpoint(state)
-            report()
+            after_stop()  # a fixed budget stops no agent
 
-        # A fixed budget runs the batch to its end in one call, stages after every chunk;
-        # a policy that checks chunks gets one call per chunk and the stages after it.
-        per_chunk = not stop.checks_chunks
         result = plan.run_engine(
             mdp, take_agents(params, batch), keys[batch], end,
-            initial=state.resume_point(batch), on_chunk=after_chunk if per_chunk else None,
+            initial=state.resume_point(batch), on_chunk=None if per_chunk else after_chunk,
             chunk_states=checkpoint is not None, keep_final_state=end < num_episodes,
             programs=programs)
         batches += 1
         strategy = result.strategy
-        if not per_chunk:
+        if per_chunk:
             state.add_episodes(batch, start, end, result.returns[:, start:end],
                                result.lengths[:, start:end])
         state.set_agents(batch, result.final_state, nonfinite=result.nonfinite)
-        if stop.checks_chunks:
-            solved = stop.newly_stopped(state.returns, batch, start, end)
-            state.stop(batch[solved])
+        if per_chunk:
+            state.stop(batch[stop.newly_stopped(state.returns, batch, start, end)])
             if stop.out_of_time(time.perf_counter() - started) and not state.finished.all():
                 state.stop(np.flatnonzero(~state.finished))
                 timed_out = True
-            if checkpoint is not None:
-                checkpoint(state)
-            report()
+            after_stop()
         del result  # the batch's states are in ``state``: free the engine's copies
     reached = bool(((state.episodes_done >= num_episodes) & ~state.stopped).any())
     stopped = "seconds" if timed_out else ("episodes" if reached or not stop.checks_chunks

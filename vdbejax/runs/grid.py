@@ -110,6 +110,7 @@ class PreparedGrid:
         """The same run, checkpointed to ``path`` (its folder must exist or be creatable)."""
         run = self.run.replace(checkpoint=path)
         check_writable_dir("checkpoint folder", Path(path).parent)
+        check_run_size(self.num_agents, self.num_episodes, path)  # the log's disk space
         return dataclasses.replace(self, run=run)
 
 
@@ -246,8 +247,6 @@ def run_prepared(prepared: PreparedGrid, programs: Programs | None = None) -> Gr
     # A process's checkpoint holds its share only: tie it to the process layout.
     checkpoint_fingerprint = fingerprint if jax.process_count() == 1 else _fingerprint(
         dict(prepared.description, process=[jax.process_index(), jax.process_count()]))
-    if run.checkpoint is not None:
-        check_run_size(prepared.num_agents, prepared.num_episodes, run.checkpoint)
     state, writer = _resume_state(prepared, checkpoint_fingerprint)
     state = RunState.fresh(len(plan.rows), prepared.num_episodes) if state is None else state
     resumed_from = int(state.episodes_done.sum())

@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 from vdbejax import io
 from vdbejax.distributed import process_checkpoint_path
 from vdbejax.grid_result import GridResult
-from vdbejax.result_folder import FolderLock, check_output_paths, marked_stage, rescue, save_run
+from vdbejax.result_folder import FolderLock, check_output_paths, rescue, save_run
 from vdbejax.runs.checkpoint import log_path, remove_checkpoint
 from vdbejax.runs.grid import PreparedGrid, run_prepared
 from vdbejax.validation import check_writable_dir
@@ -41,7 +41,7 @@ def checkpoint_files() -> list[str]:
 def saved_result(out: Path, fingerprint: str) -> GridResult | None:
     """The whole result of the run with ``fingerprint`` saved in ``out``, or None."""
     meta_file = out / io.META_FILE
-    if not meta_file.is_file() or marked_stage(out) == "results":
+    if not meta_file.is_file():
         return None
     try:
         meta = io.load_json(meta_file)
@@ -52,7 +52,7 @@ def saved_result(out: Path, fingerprint: str) -> GridResult | None:
     try:
         return GridResult.load(out)
     except ValueError:
-        return None  # damaged: train again
+        return None  # damaged or half-written (GridResult.load): train again
 
 
 def train_in_folder(
