@@ -48,6 +48,16 @@ def table_forms(kinds: tuple) -> dict[str, str] | None:
     return forms
 
 
+def is_whole_kind(agent: Any) -> bool:
+    """Whether a kind's learner uses a model, plans or updates its whole table
+    (:mod:`vdbejax.engine.whole`)."""
+    learner = agent.learner
+    return bool(learner.uses_model or learner.updates_whole_table
+                or learner.plan_at is not None)
+
+
 def can_switch(kinds: tuple) -> bool:
-    """Whether one :class:`KindSwitch` program can serve ``kinds``."""
-    return len(kinds) > 1 and table_forms(kinds) is not None
+    """Whether one :class:`KindSwitch` program can serve ``kinds`` (whole kinds get a
+    program each)."""
+    return (len(kinds) > 1 and not any(is_whole_kind(k) for k in kinds)
+            and table_forms(kinds) is not None)

@@ -88,3 +88,13 @@ def put_learned(buffer: Array, index: Array, new: Array, old: Array, mask: Array
         return _write_lanes(buffer, index, new, mask)
     kept = jnp.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
     return _scatter(buffer, index, kept, rows)
+
+
+def rows_of(tables: dict, specs: dict, state: Array, pair_base: Array, state_base: Array,
+            num_actions: int) -> dict:
+    """The values of ``specs``' tables at ``state`` per lane: a scalar of a per-state
+    table, an ``[A]`` row of a per-(state, action) one."""
+    A = num_actions
+    return {name: (take(tables[name], state_base + state) if spec.per == "state"
+                   else take_row(tables[name], pair_base + state * A, A))
+            for name, spec in specs.items()}

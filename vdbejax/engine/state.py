@@ -11,6 +11,7 @@ import numpy as np
 from vdbejax._pytree import pytree_dataclass
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams, table_layout
+from vdbejax.methods.model import capacity
 
 Array = jax.Array
 
@@ -48,8 +49,13 @@ class AgentState:
     nonfinite: Array
 
 
-def _table_shape(mdp: TabularMDP, per: str) -> tuple[int, ...]:
-    return (mdp.num_states,) if per == "state" else (mdp.num_states, mdp.num_actions)
+def table_shape(mdp: TabularMDP, per: str) -> tuple[int, ...]:
+    """One agent's table of kind ``per`` (``"state"``, ``"pair"`` or a model's
+    ``"outcome"`` list, :mod:`vdbejax.methods.model`)."""
+    S, A = mdp.num_states, mdp.num_actions
+    if per == "state":
+        return (S,)
+    return (S, A) if per == "pair" else (S, A, capacity(S, mdp.num_outcomes))
 
 
 def init_agent(mdp: TabularMDP, params: AgentParams, key: Array) -> AgentState:
@@ -66,14 +72,14 @@ def init_agent(mdp: TabularMDP, params: AgentParams, key: Array) -> AgentState:
     layout = table_layout(params)
     S, A = mdp.num_states, mdp.num_actions
     q = jnp.zeros((S, A), jnp.float32)
-    tables = {name: jnp.zeros(_table_shape(mdp, per), jnp.float32) for name, per in layout.items()}
+    tables = {name: jnp.zeros(table_shape(mdp, per), jnp.float32) for name, per in layout.items()}
     key = jnp.asarray(key, jnp.uint32)
     for k, agent in enumerate(params.kinds):
         mine = params.kind == k
         q = jnp.where(mine, agent.learner.initial_q(key, S, A).astype(jnp.float32), q)
         for owner in (agent.learner, agent.explorer):
             for name, spec in owner.tables().items():
-                init = jnp.full(_table_shape(mdp, spec.per), spec.init, jnp.float32)
+                init = jnp.full(table_shape(mdp, spec.per), spec.init, jnp.float32)
                 tables[name] = jnp.where(mine, init, tables[name])
     zero = jnp.asarray(0, jnp.int32)
     return AgentState(
@@ -170,4 +176,4 @@ def broadcast_agents(params: Any, repeats: int) -> Any:
 def state_bytes(mdp: TabularMDP, layout: dict[str, str]) -> int:
     """Bytes of one agent's Q and tables."""
     S, A = mdp.num_states, mdp.num_actions
-    return 4 * S * A + sum(4 * (S if per == "state" else S * A) for per in layout.values())
+    return 4 * S * A + sum(4 * int(np.prod(table_shape(mdp, per))) for per in layout.values())

@@ -21,6 +21,7 @@ loop natively.
 from __future__ import annotations
 
 import dataclasses
+from functools import partial
 from typing import Any
 
 import jax
@@ -40,13 +41,22 @@ from vdbejax.engine.lanes import (  # noqa: F401  (UNROLLED_LANES_MAX: re-export
     _write_lanes,
     put_learned,
     put_where,
+    rows_of,
     take,
     take_row,
 )
 from vdbejax.engine.state import AgentState, uniforms
+from vdbejax.engine.whole import (
+    LearnedStep,
+    after_learning,
+    defers_selection,
+    is_whole_kind,
+    whole_blocks,
+)
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Agent
 from vdbejax.methods.api import Context, Transition
+from vdbejax.methods.model import capacity
 
 Array = jax.Array
 
@@ -59,7 +69,8 @@ def num_uniforms(agent: Agent) -> int:
     learner's, and the explorer's again when the learner redraws its next action."""
     explorer = int(agent.explorer.num_uniforms)
     redraw = explorer if agent.learner.redraws_next_action else 0
-    return ENGINE_UNIFORMS + explorer + int(agent.learner.num_uniforms) + redraw
+    return (ENGINE_UNIFORMS + explorer + int(agent.learner.num_uniforms) + redraw
+            + int(agent.learner.plan_uniforms))
 
 
 def start_support(mdp: TabularMDP) -> tuple[Array, Array]:
@@ -95,13 +106,18 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
                 learner_next: dict, explorer_s: dict, explorer_next: dict, reward: Array,
                 terminal: Array, self_loop: Array, update_context: Context,
                 select_context: Context, explorer_uniforms: tuple, learner_uniforms: tuple,
-                redraw_uniforms: tuple) -> tuple[Array, dict, dict, Array, Array]:
+                redraw_uniforms: tuple, state: Array, next_state: Array, time: Array,
+                whole: tuple | None = None, *, select_next: bool = True
+                ) -> tuple[Array, dict, dict, Array, Array]:
     """One agent's learning and choice (vmapped over lanes by :func:`lockstep_iteration`).
 
     ``self_loop``: the next action is chosen in the state just left (its rows must show
     this step's update for learners that choose after it). ``redraw_uniforms``: for a
     learner that ``redraws_next_action`` (the authors' SARSA), the uniforms of the action
-    actually taken, drawn afresh after the update.
+    actually taken, drawn afresh after the update. ``whole``: the agent's whole Q and
+    learner tables, for a learner that ``updates_whole_table`` (its update returns them
+    whole). Without ``select_next`` a learner that chooses after its update chooses
+    nothing here (:mod:`vdbejax.engine.whole` chooses once the tables are written).
 
     Returns:
       ``(new_q_sa, new_learner_sa, new_explorer_s, next_action, finite)``.
@@ -111,11 +127,15 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
     zero_probabilities = jnp.zeros_like(q_next)
 
     def learn(next_action: Array, probabilities: Array) -> tuple:
-        update = learner.update(Transition(
+        transition = Transition(
             q=q_sa, tables=learner_sa, reward=reward, discount=discount, q_next=q_next,
             tables_next=learner_next, next_action=next_action,
             next_probabilities=probabilities, uniforms=learner_uniforms, terminal=terminal,
-        ))
+            state=state, action=a, next_state=next_state, step=update_context.step,
+            time=time,
+        )
+        update = (learner.update(transition) if whole is None
+                  else learner.update_table(whole[0], whole[1], transition))
         new_explorer_s = explorer.update(explorer_s, a, update.delta_q, update_context)
         return update, new_explorer_s
 
@@ -144,7 +164,8 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
             next_action = select_after(update, new_explorer_s, redraw_uniforms)
     else:
         update, new_explorer_s = learn(jnp.zeros((), jnp.int32), probabilities_next())
-        next_action = select_after(update, new_explorer_s, explorer_uniforms)
+        next_action = (select_after(update, new_explorer_s, explorer_uniforms) if select_next
+                       else jnp.zeros((), jnp.int32))
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(leaf))
                                   for leaf in jax.tree.leaves((update.q, update.tables,
                                                                new_explorer_s))]))
@@ -155,14 +176,17 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
 def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
                q_sa: Array, q_next: Array, reward: Array, terminal: Array,
                self_loop: Array, sa_index: Array, pair_base: Array, state_base: Array,
-               update_context: Context, select_context: Context, u: tuple, *,
-               num_actions: int) -> tuple[Array, dict, dict, Array, Array]:
+               update_context: Context, select_context: Context, u: tuple, s_next: Array,
+               time: Array, *, num_actions: int, whole: tuple | None = None,
+               select_next: bool = True) -> tuple[Array, dict, dict, Array, Array]:
     """The part of an iteration that depends on the kind: the plug-ins' tables read, the
     learner's and explorer's step (:func:`_agent_step`, vmapped over the lanes).
+    ``whole``, ``select_next``: see :func:`_agent_step` (batched over the lanes).
 
     Returns:
       ``(new_q_sa, learner_sa (new, old), explorer_s (new, old), next_action, finite)``,
-      the table dicts mapping each of the kind's tables to its new and old values.
+      the table dicts mapping each of the kind's tables to its new and old values (with
+      ``whole``: the new Q and learner tables whole, and their old values).
     """
     learner, explorer = agent.learner, agent.explorer
     A = num_actions
@@ -175,20 +199,36 @@ def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
     explorer_specs = explorer.tables()
 
     def explorer_rows(state: Array) -> dict:
-        return {name: (take(tables[name], state_base + state) if spec.per == "state"
-                       else take_row(tables[name], pair_base + state * A, A))
-                for name, spec in explorer_specs.items()}
+        return rows_of(tables, explorer_specs, state, pair_base, state_base, A)
 
     explorer_s, explorer_next = explorer_rows(s), explorer_rows(act_state)
-    new_q_sa, new_learner_sa, new_explorer_s, next_action, finite = jax.vmap(_agent_step)(
+    step = (_agent_step if select_next and whole is None
+            else partial(_agent_step, select_next=select_next))
+    new_q_sa, new_learner_sa, new_explorer_s, next_action, finite = jax.vmap(step)(
         agent, a, q_sa, q_next, learner_sa, learner_next, explorer_s, explorer_next, reward,
         terminal, self_loop, update_context, select_context, u[ENGINE_UNIFORMS:explorer_end],
         u[explorer_end:learner_end], u[learner_end:learner_end + (
-            explorer.num_uniforms if learner.redraws_next_action else 0)],
+            explorer.num_uniforms if learner.redraws_next_action else 0)], s, s_next, time,
+        *(() if whole is None else (whole,)),
     )
-    learned = {name: (new_learner_sa[name], learner_sa[name]) for name in learner_specs}
+    old = learner_sa if whole is None else whole[1]
+    learned = {name: (new_learner_sa[name], old[name]) for name in learner_specs}
     explored = {name: (new_explorer_s[name], explorer_s[name]) for name in explorer_specs}
     return new_q_sa, learned, explored, next_action, finite
+
+
+def _after_learning(mdp: TabularMDP, agent: Agent, q: Array, tables: dict,
+                    next_action: Array, finite: Array, u: tuple, step: LearnedStep
+                    ) -> tuple[Array, dict, Array, Array]:
+    """:func:`~vdbejax.engine.whole.after_learning`, given the kind's uniforms."""
+    explorer_end = ENGINE_UNIFORMS + agent.explorer.num_uniforms
+    plan_start = explorer_end + agent.learner.num_uniforms
+    step = dataclasses.replace(
+        step, explorer_uniforms=u[ENGINE_UNIFORMS:explorer_end],
+        plan_uniforms=u[plan_start:plan_start + agent.learner.plan_uniforms])
+    return after_learning(agent, q, tables, next_action, finite, step,
+                          num_states=mdp.num_states, num_actions=mdp.num_actions,
+                          capacity=capacity(mdp.num_states, mdp.num_outcomes))
 
 
 def lockstep_iteration(
@@ -265,7 +305,8 @@ def lockstep_iteration(
                              terminal=jnp.zeros_like(terminal))
     self_loop = ~resetting & (act_state == s)
     operands = (agents.tables, a, s, act_state, q_sa, q_next, reward, terminal, self_loop,
-                sa_index, pair_base, state_base, update_context, select_context, u)
+                sa_index, pair_base, state_base, update_context, select_context, u, s_next,
+                agents.counter.astype(jnp.int32))
 
     def index_of(form: str) -> Array:  # where a table of this write form is written
         if form == "pair_value":
@@ -274,15 +315,33 @@ def lockstep_iteration(
 
     tables = dict(agents.tables)
     if not isinstance(agent, KindSwitch):
+        whole_kind = is_whole_kind(agent)
+        blocks = (whole_blocks(agents.q, agents.tables, agent.learner, pair_base, S * A, (S, A))
+                  if agent.learner.updates_whole_table else None)
         new_q_sa, learned, explored, next_action, finite = _kind_step(
-            agent, *operands, num_actions=A)
-        q = put_learned(agents.q, sa_index, new_q_sa, q_sa, learn)
-        for name, (new, old) in learned.items():
-            tables[name] = put_learned(tables[name], sa_index, new, old, learn)
+            agent, *operands, num_actions=A, whole=blocks,
+            select_next=not (whole_kind and defers_selection(agent.learner)))
+        if blocks is None:
+            q = put_learned(agents.q, sa_index, new_q_sa, q_sa, learn)
+            for name, (new, old) in learned.items():
+                tables[name] = put_learned(tables[name], sa_index, new, old, learn)
+        else:  # the whole Q and learner tables
+            q = put_learned(agents.q, pair_base, new_q_sa.reshape(num_agents, -1),
+                            blocks[0].reshape(num_agents, -1), learn, True)
+            for name, (new, old) in learned.items():
+                tables[name] = put_learned(tables[name], pair_base, new.reshape(num_agents, -1),
+                                           old.reshape(num_agents, -1), learn, True)
         for name, spec in agent.explorer.tables().items():
             new, old = explored[name]
             tables[name] = put_learned(tables[name], index_of(_write_form("explorer", spec.per)),
                                        new, old, learn, spec.per == "pair")
+        if whole_kind:
+            q, tables, next_action, finite = _after_learning(
+                mdp, agent, q, tables, next_action, finite, u, LearnedStep(
+                    s=s, s_next=s_next, act_state=act_state, reward=reward, terminal=terminal,
+                    sa_index=sa_index, pair_base=pair_base, state_base=state_base, learn=learn,
+                    active=active, resetting=resetting, counter=agents.counter,
+                    select_context=select_context, explorer_uniforms=(), plan_uniforms=()))
     else:
         forms = table_forms(kinds)
         assert forms is not None and _unrolled(lane), "see can_switch"

@@ -7,14 +7,17 @@
   (:mod:`~vdbejax.methods.plugin_check`).
 * :mod:`vdbejax.methods.selection` — the action-selection rules as pure functions
   (greedy, softmax, the paper's one rule, the VDBE ε(s) update).
-* :mod:`vdbejax.methods.explorers` — ε-greedy, softmax, VDBE, VDBE-Softmax, Max-Boltzmann,
+* :mod:`vdbejax.methods.explorers` — greedy, ε-greedy, softmax, VDBE, VDBE-Softmax, Max-Boltzmann,
   decaying ε-greedy and softmax, UCB-1, count bonus.
 * :mod:`vdbejax.methods.learners` — Q-learning, SARSA, Expected SARSA, Double Q-learning.
+* :mod:`vdbejax.methods.model` — the agent's count model of its task and planning on it;
+  :mod:`vdbejax.methods.model_based` — R-max, MBIE-EB; :mod:`vdbejax.methods.traces` —
+  SARSA(λ), Watkins Q(λ); :mod:`vdbejax.methods.dyna` — Dyna-Q, Dyna-Q+.
 * :mod:`vdbejax.methods.agents` — :class:`Setting`, :func:`sweep`, :func:`make_agent`.
 """
 from vdbejax._numerics import rounded, sample_categorical
 from vdbejax._pytree import static_field
-from vdbejax.methods import explorers, learners
+from vdbejax.methods import dyna, explorers, learners, model_based, traces
 from vdbejax.methods.agents import (
     Agent,
     AgentOptions,
@@ -43,10 +46,36 @@ from vdbejax.methods.api import (
 from vdbejax.methods.selection import greedy, select_action, softmax_weights
 
 __all__ = [
-    "EXPLORERS", "LEARNERS", "Agent", "AgentOptions", "AgentParams", "Context", "Explorer",
-    "Learner", "LearnerUpdate", "Setting", "Table", "Transition", "check_plugin", "explorer",
-    "explorer_title", "explorers", "greedy", "learner", "learner_title", "learners",
-    "make_agent", "paper_settings", "rounded",
-    "sample_categorical", "select_action", "softmax_weights", "stack_agents", "static_field",
+    "EXPLORERS",
+    "LEARNERS",
+    "Agent",
+    "AgentOptions",
+    "AgentParams",
+    "Context",
+    "Explorer",
+    "Learner",
+    "LearnerUpdate",
+    "Setting",
+    "Table",
+    "Transition",
+    "check_plugin",
+    "dyna",
+    "explorer",
+    "explorer_title",
+    "explorers",
+    "greedy",
+    "learner",
+    "learner_title",
+    "learners",
+    "make_agent",
+    "model_based",
+    "paper_settings",
+    "rounded",
+    "sample_categorical",
+    "select_action",
+    "softmax_weights",
+    "stack_agents",
+    "static_field",
     "sweep",
+    "traces",
 ]

@@ -35,6 +35,7 @@ from vdbejax.methods.explorers import (
     explorer_class,
 )
 from vdbejax.methods.learners import PAPER_ALPHA, PAPER_GAMMA, PAPER_LEARNERS, learner_class
+from vdbejax.methods.model import MODEL_PREFIX, MODEL_TABLES
 
 #: The paper's swept values (spec, "Exploration").
 PAPER_PARAMETERS: dict[str, tuple[float, ...]] = {
@@ -340,17 +341,21 @@ def stack_agents(agents: Sequence[Agent]) -> AgentParams:
 
 
 def table_layout(params: AgentParams) -> dict[str, str]:
-    """Every table the batch's agents keep beside Q: ``{name: "state" | "pair"}``.
+    """Every table the batch's agents keep beside Q: ``{name: "state" | "pair" |
+    "outcome"}`` (``"outcome"``: ``[S, A, K]``, a model's successor lists).
 
     Raises:
       ValueError: two kinds use one table name for tables of different shapes.
     """
     layout: dict[str, str] = {}
     for agent in params.kinds:
+        if agent.learner.uses_model:
+            layout.update(MODEL_TABLES)
         for owner in (agent.learner, agent.explorer):
             for name, spec in owner.tables().items():
-                if name == "q":
-                    raise ValueError(f"{type(owner).__name__}: table name 'q' is reserved for Q")
+                if name == "q" or name.startswith(MODEL_PREFIX):
+                    raise ValueError(f"{type(owner).__name__}: table name {name!r} is reserved"
+                                     f" (for Q and the model's tables, {MODEL_PREFIX}*)")
                 if layout.setdefault(name, spec.per) != spec.per:
                     raise ValueError(f"table {name!r} is per {layout[name]!r} for one kind and per"
                                      f" {spec.per!r} for another: rename one of them")

@@ -22,6 +22,17 @@ Array = jax.Array
 #: What a table holds one value of.
 TABLE_KINDS = ("state", "pair")
 
+#: When the engine calls a learner's :meth:`Learner.plan` (``plan_at``):
+#:
+#: * ``"step"``: after every learning step;
+#: * ``"episode"``: before each episode's first action (after the update of the step that
+#:   ended the previous one);
+#: * ``"every"``: after every learning step that is the agent's ``plan_every``-th
+#:   iteration (its iteration counter, resets included, a multiple of ``plan_every``);
+#: * ``"known"``: after the learning step that brings the visits of its (s, a) to
+#:   ``known_visits`` (R-max's "the pair becomes known"; needs ``uses_model``).
+PLAN_MOMENTS = ("step", "episode", "every", "known")
+
 
 @dataclasses.dataclass(frozen=True)
 class Table:
@@ -61,6 +72,12 @@ class Transition:
       uniforms: the learner's ``num_uniforms`` uniforms in [0, 1).
       terminal: the transition ended its episode (a failure has a negative reward, a goal
         a positive one, on the tasks of vdbejax).
+      state, action, next_state: s, a and s′ (int32 scalars; s′ is the state the
+        transition reached, also when it is terminal).
+      step: the steps taken in the episode, this one included (1 on an episode's first
+        step: where traces of the previous episode are cleared after a truncation).
+      time: the agent's iterations before this one (its counter: steps, plus one per
+        episode start after a truncation; int32).
     """
 
     q: Array
@@ -73,11 +90,18 @@ class Transition:
     next_probabilities: Array
     uniforms: tuple
     terminal: Array
+    # The engine always passes these; a learner's own unit test may leave them out.
+    state: Array | None = None
+    action: Array | None = None
+    next_state: Array | None = None
+    step: Array | None = None
+    time: Array | None = None
 
 
 @pytree_dataclass
 class LearnerUpdate:
-    """A learner's result: new Q(s,a), new values of its tables at (s,a), and ΔQ."""
+    """A learner's result: new Q(s,a), new values of its tables at (s,a), and ΔQ (from
+    :meth:`Learner.update_table`: the whole new Q ``[S, A]`` and tables)."""
 
     q: Array
     tables: dict
@@ -129,6 +153,16 @@ class Learner:
     uses_next_action: ClassVar[bool] = False
     uses_next_probabilities: ClassVar[bool] = False
     option_aliases: ClassVar[dict[str, str]] = {}
+    #: The engine keeps the agent's model of the task (:class:`~vdbejax.methods.model.Model`:
+    #: visits, rewards and observed successors of every (s, a)) and hands it to :meth:`plan`.
+    uses_model: ClassVar[bool] = False
+    #: :meth:`update_table` replaces :meth:`update`: the whole Q and tables every step
+    #: (eligibility traces).
+    updates_whole_table: ClassVar[bool] = False
+    #: When :meth:`plan` runs (one of :data:`PLAN_MOMENTS`), or ``None``: never.
+    plan_at: ClassVar[str | None] = None
+    #: Uniforms :meth:`plan` receives.
+    plan_uniforms: ClassVar[int] = 0
     #: The discount γ: every learner has this field (:func:`learner` checks it).
     gamma: float | Array
 
@@ -153,6 +187,19 @@ class Learner:
 
     def update(self, transition: Transition) -> LearnerUpdate:
         raise NotImplementedError
+
+    def update_table(self, q: Array, tables: Mapping[str, Array],
+                     transition: Transition) -> LearnerUpdate:
+        """With ``updates_whole_table``: the whole new Q ``[S, A]`` and tables (each at
+        its full shape) after ``transition``, and ΔQ(s, a) for the explorer."""
+        raise NotImplementedError(f"learner {self.name!r} does not define update_table()")
+
+    def plan(self, q: Array, tables: Mapping[str, Array], model: Any, context: Context,
+             uniforms: tuple[Array, ...]) -> tuple[Array, dict[str, Array]]:
+        """With ``plan_at``: the new whole Q ``[S, A]`` and the learner's whole tables,
+        planned on the agent's model (``None`` without ``uses_model``). ``context`` is
+        where the agent chooses its next action."""
+        raise NotImplementedError(f"learner {self.name!r} does not define plan()")
 
     def validate(self) -> None:
         """Raise a one-line ``ValueError`` for out-of-range hyperparameters."""

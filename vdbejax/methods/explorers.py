@@ -87,6 +87,25 @@ class EpsilonGreedy(Explorer):
         _check_tie_break(self.tie_break)
 
 
+@explorer("greedy", title="greedy")
+class Greedy(Explorer):
+    """Always a greedy action (ties broken by ``tie_break``): for learners whose Q holds
+    their own exploration (R-max, MBIE-EB, UCBVI, PSRL, optimistic initial values)."""
+
+    tie_break: str = static_field("random")
+    num_uniforms = 1
+
+    def select(self, q: Array, tables: Mapping[str, Array], context: Context,
+               uniforms: tuple[Array, ...]) -> Array:
+        return greedy(q, uniforms[0], self.tie_break)
+
+    def probabilities(self, q: Array, tables: Mapping[str, Array], context: Context) -> Array:
+        return greedy_probabilities(q, self.tie_break)
+
+    def validate(self) -> None:
+        _check_tie_break(self.tie_break)
+
+
 @explorer("softmax", parameter="tau", title="softmax")
 class Softmax(Explorer):
     """Softmax (Boltzmann): sample ``P(a) ∝ exp(Q(s,a)/τ)``."""

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from vdbejax.methods.contract import (
+    PLAN_MOMENTS,
     TABLE_KINDS,
     Context,
     Explorer,
@@ -20,6 +21,7 @@ from vdbejax.methods.contract import (
     Table,
     Transition,
 )
+from vdbejax.methods.model import Model
 
 
 def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: int = 3) -> None:
@@ -76,16 +78,83 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
     behaviour = traced(f"{lname} behaviour()", agent_learner.behaviour, row, ltables)
     _check_same(f"{lname} behaviour()", behaviour, row)
     luniforms = tuple(scalar for _ in range(_count(lname, agent_learner.num_uniforms)))
+    index = _abstract((), jnp.int32)
     transition = Transition(scalar, {k: scalar for k in ltables}, scalar, scalar, row, ltables,
-                            action, row, luniforms, _abstract((), jnp.bool_))
-    result = traced(f"{lname} update()", agent_learner.update, transition)
+                            action, row, luniforms, _abstract((), jnp.bool_), index, index,
+                            index, index, index)
+    _check_whole_flags(lname, agent_learner)
+    if agent_learner.updates_whole_table:
+        whole_q = _abstract((_STATES, A), f32)
+        whole = {k: whole_q for k in ltables}
+        result = traced(f"{lname} update_table()", agent_learner.update_table, whole_q, whole,
+                        transition)
+        _check_update(f"{lname} update_table()", result, whole_q, whole, scalar)
+    else:
+        result = traced(f"{lname} update()", agent_learner.update, transition)
+        _check_update(f"{lname} update()", result, scalar, {k: scalar for k in ltables},
+                      scalar)
+        _check_declared_inputs(lname, agent_learner, transition)
+    if agent_learner.plan_at is not None:
+        _check_plan(lname, agent_learner, A, context, traced)
+
+
+#: States and listed successors of the abstract task a whole-table plug-in is traced on.
+_STATES, _SUCCESSORS = 4, 2
+
+
+def _check_update(what: str, result: Any, q: Any, tables: Any, delta_q: Any) -> None:
     if not isinstance(result, LearnerUpdate):
-        raise ValueError(f"{lname} update() returned {type(result).__name__}: must return a"
+        raise ValueError(f"{what} returned {type(result).__name__}: must return a"
                          " LearnerUpdate(q, tables, delta_q)")
-    _check_same(f"{lname} update() q", result.q, scalar)
-    _check_same(f"{lname} update() delta_q", result.delta_q, scalar)
-    _check_same(f"{lname} update() tables", result.tables, {k: scalar for k in ltables})
-    _check_declared_inputs(lname, agent_learner, transition)
+    _check_same(f"{what} q", result.q, q)
+    _check_same(f"{what} delta_q", result.delta_q, delta_q)
+    _check_same(f"{what} tables", result.tables, tables)
+
+
+def _check_whole_flags(lname: str, agent_learner: Learner) -> None:
+    """The model, planning and whole-table flags: known values, fields they need, and no
+    combination the engine cannot honour."""
+    when = agent_learner.plan_at
+    if when is not None and when not in PLAN_MOMENTS:
+        raise ValueError(f"{lname} plan_at={when!r} is invalid: must be None or one of"
+                         f" {', '.join(PLAN_MOMENTS)}")
+    for flag in ("uses_model", "updates_whole_table"):
+        if not isinstance(getattr(agent_learner, flag), (bool, np.bool_)):
+            raise ValueError(f"{lname} {flag}={getattr(agent_learner, flag)!r} is invalid:"
+                             " must be True or False")
+    _count(f"{lname} plan", agent_learner.plan_uniforms)
+    fields = {"every": "plan_every", "known": "known_visits"}
+    if when in fields and not hasattr(agent_learner, fields[when]):
+        raise ValueError(f"{lname} plan_at={when!r} needs a field {fields[when]!r}")
+    if when == "known" and not agent_learner.uses_model:
+        raise ValueError(f"{lname} plan_at='known' needs uses_model = True (the visits are the"
+                         " model's)")
+    if when is not None and agent_learner.uses_next_action:
+        raise ValueError(f"{lname} plans (plan_at={when!r}) but declares uses_next_action: a′"
+                         " would be chosen before the plan could inform it")
+    whole = when is not None or agent_learner.uses_model or agent_learner.updates_whole_table
+    if whole and agent_learner.redraws_next_action:
+        raise ValueError(f"{lname} redraws its next action, which a model-based, planning or"
+                         " whole-table learner cannot do")
+
+
+def _check_plan(lname: str, agent_learner: Learner, num_actions: int, context: Context,
+                traced: Callable) -> None:
+    f32 = jnp.float32
+    whole_q = _abstract((_STATES, num_actions), f32)
+    whole = {k: whole_q for k in agent_learner.tables()}
+    model = None
+    if agent_learner.uses_model:
+        lists = _abstract((_STATES, num_actions, _SUCCESSORS), f32)
+        model = Model(whole_q, whole_q, whole_q, whole_q, lists, lists)
+    uniforms = tuple(_abstract((), f32) for _ in range(agent_learner.plan_uniforms))
+    result = traced(f"{lname} plan()", agent_learner.plan, whole_q, whole, model, context,
+                    uniforms)
+    if not (isinstance(result, tuple) and len(result) == 2):
+        raise ValueError(f"{lname} plan() returned {type(result).__name__}: must return"
+                         " (q, tables)")
+    _check_same(f"{lname} plan() q", result[0], whole_q)
+    _check_same(f"{lname} plan() tables", dict(result[1]), whole)
 
 
 #: What a learner's update may read only when it declares it (the engine passes zeros

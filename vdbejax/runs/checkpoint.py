@@ -31,6 +31,7 @@ import numpy as np
 
 from vdbejax import io
 from vdbejax.engine import AgentState
+from vdbejax.engine.state import table_shape
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.runs.state import RunState
 
@@ -280,7 +281,7 @@ def _check_progress(done: np.ndarray, stopped: np.ndarray, nonfinite: Any, rows:
         if set(state.tables) != set(layout):
             return f"tables must be {sorted(layout)}, not {sorted(state.tables)}"
         for name, per in layout.items():
-            wanted = (m, S) if per == "state" else (m, S, A)
+            wanted = (m, *table_shape(mdp, per))
             if np.shape(state.tables[name]) != wanted:
                 return (f"table {name!r} must be {list(wanted)},"
                         f" not {list(np.shape(state.tables[name]))}")

@@ -1,0 +1,380 @@
+"""The exploration canon's contract (model, planning, whole-table updates) and built-ins
+(R-max, MBIE-EB, SARSA(λ), Watkins Q(λ), Dyna-Q, Dyna-Q+), each against its formula under
+jit and vmap and against a plain-numpy implementation of the same algorithm."""
+from __future__ import annotations
+
+import hashlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vdbejax
+from vdbejax import RunOptions, run_grid
+from vdbejax.envs.tabular import make_tabular_mdp
+from vdbejax.methods import model as model_lib
+from vdbejax.methods.agents import AgentOptions, Setting
+from vdbejax.methods.api import Learner, LearnerUpdate, check_plugin, learner
+from vdbejax.methods.traces import trace_update
+
+F = np.float32
+
+
+def chain(num_states: int = 6, max_steps: int = 30):
+    """Right / left / stay on a line; reaching the last state ends with +1, a step costs
+    0.01 (staying 0.05)."""
+    S = num_states
+    nxt = np.zeros((S, 3), np.int32)
+    rew = np.full((S, 3), -0.01, np.float32)
+    for s in range(S):
+        nxt[s] = [min(s + 1, S - 1), max(s - 1, 0), s]
+    rew[:, 2] = -0.05
+    rew[S - 2, 0] = 1.0
+    term = np.zeros((S, 3), bool)
+    term[S - 2, 0] = True
+    start = np.zeros(S, np.float32)
+    start[0] = 1.0
+    return make_tabular_mdp(nxt, rew, term, start, max_steps=max_steps, name="chain")
+
+
+def stochastic_chain(num_states: int = 5, max_steps: int = 25):
+    """The chain whose moves slip (stay put) with probability 0.3."""
+    S = num_states
+    nxt = np.zeros((S, 2, 2), np.int32)
+    rew = np.full((S, 2, 2), -0.01, np.float32)
+    prob = np.zeros((S, 2, 2), np.float32)
+    term = np.zeros((S, 2, 2), bool)
+    for s in range(S):
+        nxt[s, 0] = [min(s + 1, S - 1), s]
+        nxt[s, 1] = [max(s - 1, 0), s]
+        prob[s, :, 0], prob[s, :, 1] = 0.7, 0.3
+    rew[S - 2, 0, 0] = 1.0
+    term[S - 2, 0, 0] = True
+    start = np.zeros(S, np.float32)
+    start[0] = 1.0
+    return make_tabular_mdp(nxt, rew, term, start, prob, max_steps=max_steps, name="slip")
+
+
+FIRST = AgentOptions(tie_break="first")
+
+
+def grid(mdp, settings, seeds=2, episodes=40, options=FIRST, **run):
+    return run_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes, options=options,
+                    run=RunOptions(**run))
+
+
+# --- the model -------------------------------------------------------------------------
+
+def test_observe_counts_like_a_dense_table_under_jit_and_vmap():
+    K = 3
+    rows = {name: (jnp.zeros(K) if per == "outcome" else jnp.float32(0))
+            for name, per in model_lib.MODEL_TABLES.items()}
+    outcomes = [(2, 0.5, False), (4, -1.0, False), (2, 0.5, False), (0, 1.0, True),
+                (1, 0.0, False)]
+    observe = jax.jit(model_lib.observe)
+    for s_next, r, done in outcomes:
+        rows = observe(rows, jnp.int32(s_next), jnp.float32(r), jnp.bool_(done))
+    assert float(rows["model_visits"]) == 5
+    assert float(rows["model_terminal"]) == 1
+    assert float(rows["model_reward_sum"]) == pytest.approx(1.0)
+    assert float(rows["model_reward_squares"]) == pytest.approx(2.5)
+    np.testing.assert_array_equal(rows["model_next_state"], [2, 4, 1])  # first seen first
+    np.testing.assert_array_equal(rows["model_next_count"], [2, 1, 1])
+    batched = jax.vmap(model_lib.observe)(
+        jax.tree.map(lambda x: jnp.stack([x, x]), rows), jnp.array([4, 3]),
+        jnp.array([0.0, 0.0], jnp.float32), jnp.array([False, False]))
+    np.testing.assert_array_equal(batched["model_next_count"], [[2, 2, 1], [2, 1, 1]])
+    assert float(batched["model_visits"][1]) == 6  # the list is full: counted, not listed
+
+
+def test_expected_is_the_dense_model_times_values():
+    rng = np.random.default_rng(0)
+    S, A, K = 5, 2, 3
+    nxt = rng.integers(0, S, (S, A, K)).astype(F)
+    counts = rng.integers(0, 4, (S, A, K)).astype(F)
+    terminal = rng.integers(0, 2, (S, A)).astype(F)
+    visits = counts.sum(-1) + terminal
+    zeros = np.zeros((S, A), F)
+    model = model_lib.Model(jnp.asarray(visits), jnp.asarray(zeros), jnp.asarray(zeros),
+                            jnp.asarray(terminal), jnp.asarray(nxt), jnp.asarray(counts))
+    values = rng.normal(size=S).astype(F)
+    dense = np.zeros((S, A, S))
+    for s in range(S):
+        for a in range(A):
+            for k in range(K):
+                dense[s, a, int(nxt[s, a, k])] += counts[s, a, k]
+    want = dense @ values / np.maximum(visits, 1)
+    got = jax.jit(lambda m, v: m.expected(v))(model, jnp.asarray(values))
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+    twice = jax.vmap(lambda m, v: m.expected(v))(
+        jax.tree.map(lambda x: jnp.stack([x, x]), model), jnp.stack([values, values]))
+    np.testing.assert_array_equal(twice[0], got)  # batched: the same bits
+
+
+# --- numpy references (same semantics, float32, ties to the first action) --------------
+
+def _np_value_iteration(q, known, reward_mean, prob, nxt, gamma, bonus, v_max, tol, sweeps):
+    change, n = np.inf, 0
+    while change > tol and n < sweeps:
+        values = q.max(axis=1)
+        future = np.zeros_like(q)
+        for k in range(prob.shape[2]):
+            future = future + prob[..., k] * values[nxt[..., k]]
+        new = np.where(known, reward_mean + bonus + F(gamma) * future, F(v_max)).astype(F)
+        change, q, n = np.abs(new - q).max(), new, n + 1
+    return q
+
+
+def _np_optimistic(mdp, episodes, method, m=2.0, beta=0.1, gamma=0.9, r_max=1.0):
+    """R-max (plan when a pair's visits reach m) or MBIE-EB (plan every step), greedy."""
+    S, A = mdp.num_states, mdp.num_actions
+    nxt_true = np.asarray(mdp.next_state)[..., 0]
+    rew_true, term_true = np.asarray(mdp.reward)[..., 0], np.asarray(mdp.terminal)[..., 0]
+    v_max = F(r_max) / F(1.0 - F(gamma))
+    q = np.full((S, A), v_max, F)
+    visits, rsum = np.zeros((S, A), F), np.zeros((S, A), F)
+    count, succ = np.zeros((S, A, 1), F), np.zeros((S, A, 1), F)
+    returns, lengths = [], []
+    start = int(np.argmax(np.asarray(mdp.start_probability)))
+    for _ in range(episodes):
+        s, a, total, length = start, int(np.argmax(q[start])), F(0), 0
+        while True:
+            s2, r, done = int(nxt_true[s, a]), F(rew_true[s, a]), bool(term_true[s, a])
+            total, length = F(total + r), length + 1
+            before = visits[s, a]
+            visits[s, a] += 1
+            rsum[s, a] += r
+            if not done:
+                succ[s, a, 0], count[s, a, 0] = s2, count[s, a, 0] + 1
+            n = np.maximum(visits, 1)
+            prob = count / n[..., None]
+            if method == "rmax" and before < m <= visits[s, a]:
+                q = _np_value_iteration(q, visits >= m, rsum / n, prob, succ.astype(int),
+                                        gamma, np.zeros_like(q), v_max, 1e-4, 1000)
+            if method == "mbie_eb":
+                q = _np_value_iteration(q, visits > 0, rsum / n, prob, succ.astype(int),
+                                        gamma, (F(beta) / np.sqrt(n)).astype(F), v_max, 1e-4,
+                                        1000)
+            if done or length >= int(mdp.max_steps):
+                break
+            s, a = s2, int(np.argmax(q[s2]))
+        returns.append(total)
+        lengths.append(length)
+    return np.array(returns, F), np.array(lengths)
+
+
+@pytest.mark.parametrize("method", ["rmax", "mbie_eb"])
+def test_optimistic_planners_match_numpy(method):
+    mdp = chain()
+    values = {"known_visits": 2.0} if method == "rmax" else {"beta": 0.1}
+    result = grid(mdp, [Setting(method, "greedy", None, values)], seeds=1, episodes=25)
+    want_returns, want_lengths = _np_optimistic(mdp, 25, method)
+    np.testing.assert_array_equal(result.lengths[0, 0], want_lengths)
+    np.testing.assert_allclose(result.returns[0, 0], want_returns, atol=1e-5)
+    assert want_returns[-1] > 0.9  # they solve the chain
+
+
+def _np_traces(mdp, episodes, method, alpha=0.5, gamma=0.9, lam=0.8, kind="replacing"):
+    S, A = mdp.num_states, mdp.num_actions
+    nxt, rew = np.asarray(mdp.next_state)[..., 0], np.asarray(mdp.reward)[..., 0]
+    term = np.asarray(mdp.terminal)[..., 0]
+    q = np.zeros((S, A), F)
+    start = int(np.argmax(np.asarray(mdp.start_probability)))
+    returns, lengths = [], []
+    carried = None  # after a terminal step, a′ was chosen in the start state already
+    for _ in range(episodes):
+        s, e, total, length = start, np.zeros((S, A), F), F(0), 0
+        a = int(np.argmax(q[s])) if carried is None else carried
+        carried = None
+        while True:
+            s2, r, done = int(nxt[s, a]), F(rew[s, a]), bool(term[s, a])
+            total, length = F(total + r), length + 1
+            act = start if done else s2
+            a2 = int(np.argmax(q[act]))  # chosen before the update
+            discount = F(0) if done else F(gamma)
+            if method == "sarsa_lambda":
+                target, decay = F(r + discount * q[act, a2]), F(F(gamma) * F(lam))
+            else:
+                best = q[act].max()
+                target = F(r + discount * best)
+                decay = F(F(gamma) * F(lam)) if q[act, a2] == best else F(0)
+            e[s, a] = e[s, a] + 1 if kind == "accumulating" else 1
+            step = F(F(alpha) * F(target - q[s, a]))
+            q = (q + step * e).astype(F)
+            e = (decay * e).astype(F)
+            if done:
+                carried = a2
+            if done or length >= int(mdp.max_steps):
+                break
+            s, a = s2, a2
+        returns.append(total)
+        lengths.append(length)
+    return np.array(returns, F), np.array(lengths)
+
+
+@pytest.mark.parametrize("method", ["sarsa_lambda", "q_lambda"])
+@pytest.mark.parametrize("kind", ["replacing", "accumulating"])
+def test_traces_match_numpy(method, kind):
+    mdp = chain()
+    values = {"alpha": 0.5, "lam": 0.8, "trace": kind}
+    result = grid(mdp, [Setting(method, "greedy", None, values)], seeds=1, episodes=30)
+    want_returns, want_lengths = _np_traces(mdp, 30, method, kind=kind)
+    np.testing.assert_array_equal(result.lengths[0, 0], want_lengths)
+    np.testing.assert_allclose(result.returns[0, 0], want_returns, atol=1e-5)
+
+
+def test_trace_update_formula_under_jit_and_vmap():
+    q = jnp.arange(6, dtype=jnp.float32).reshape(3, 2)
+    trace = jnp.full((3, 2), 0.5, jnp.float32)
+    args = (jnp.int32(1), jnp.int32(0), jnp.float32(2.0), 0.5, 0.25, "accumulating",
+            jnp.bool_(False))
+    new_q, new_e = jax.jit(trace_update, static_argnums=7)(q, trace, *args)
+    e = np.full((3, 2), 0.5, F)
+    e[1, 0] = 1.5
+    np.testing.assert_allclose(new_q, np.asarray(q) + 0.5 * 2.0 * e)
+    np.testing.assert_allclose(new_e, 0.25 * e)
+    cleared = trace_update(q, trace, *args[:-1], jnp.bool_(True))[1]
+    assert float(cleared.sum()) == pytest.approx(0.25)  # only (s, a), once cleared
+    batched = jax.vmap(lambda qq: trace_update(qq, trace, *args)[0])(jnp.stack([q, q]))
+    np.testing.assert_array_equal(batched[1], new_q)
+
+
+# --- equivalences and strategies --------------------------------------------------------
+
+def test_no_lambda_and_no_planning_are_the_one_step_methods():
+    mdp = chain()
+    settings = [Setting("sarsa", "egreedy", 0.2), Setting("sarsa_lambda", "egreedy", 0.2,
+                                                           {"lam": 0.0}),
+                Setting("qlearning", "egreedy", 0.2),
+                Setting("dyna_q", "egreedy", 0.2, {"planning_steps": 0}),
+                Setting("dyna_q_plus", "egreedy", 0.2, {"planning_steps": 0})]
+    r = grid(mdp, settings, seeds=3, episodes=40, options=AgentOptions()).returns
+    np.testing.assert_array_equal(r[0], r[1])
+    np.testing.assert_array_equal(r[2], r[3])
+    np.testing.assert_array_equal(r[2], r[4])
+
+
+CANON = [Setting("rmax", "greedy"), Setting("mbie_eb", "greedy"),
+         Setting("sarsa_lambda", "egreedy", 0.1), Setting("q_lambda", "softmax", 0.5),
+         Setting("dyna_q", "egreedy", 0.1, {"planning_steps": 3}),
+         Setting("dyna_q_plus", "vdbe", 1.0, {"planning_steps": 2}),
+         Setting("qlearning", "egreedy", 0.1)]
+
+
+def test_strategies_chunks_and_lane_widths_give_the_same_bits():
+    mdp = stochastic_chain()
+    base = grid(mdp, CANON, seeds=3, episodes=30, options=AgentOptions())
+    for run in ({"strategy": "lockstep"}, {"chunk_episodes": 7}, {"threads": 1}):
+        other = grid(mdp, CANON, seeds=3, episodes=30, options=AgentOptions(), **run)
+        np.testing.assert_array_equal(other.returns, base.returns, err_msg=str(run))
+        np.testing.assert_array_equal(other.lengths, base.lengths, err_msg=str(run))
+    assert vdbejax.engine.native_step_loops() is True
+
+
+def _np_dyna(mdp, episodes, rng, n=5, alpha=0.5, gamma=0.9, epsilon=0.1):
+    """Dyna-Q (Sutton & Barto Fig. 8.2) with a count model, ε-greedy, random ties."""
+    S, A = mdp.num_states, mdp.num_actions
+    nxt, prob = np.asarray(mdp.next_state), np.asarray(mdp.probability)
+    rew, term = np.asarray(mdp.reward), np.asarray(mdp.terminal)
+    q = np.zeros((S, A))
+    outcomes: dict = {}
+    out = []
+
+    def act(s):
+        if rng.random() < epsilon:
+            return int(rng.integers(A))
+        best = np.flatnonzero(q[s] == q[s].max())
+        return int(rng.choice(best))
+
+    for _ in range(episodes):
+        s, total, length = 0, 0.0, 0
+        while True:
+            a = act(s)
+            k = rng.choice(prob.shape[2], p=prob[s, a])
+            s2, r, done = int(nxt[s, a, k]), float(rew[s, a, k]), bool(term[s, a, k])
+            total, length = total + r, length + 1
+            q[s, a] += alpha * (r + (0 if done else gamma * q[s2].max()) - q[s, a])
+            outcomes.setdefault((s, a), []).append((s2, r, done))
+            pairs = list(outcomes)
+            for _ in range(n):
+                ps, pa = pairs[rng.integers(len(pairs))]
+                seen = outcomes[ps, pa]
+                ms2, _, mdone = seen[rng.integers(len(seen))]
+                mr = np.mean([o[1] for o in seen])
+                q[ps, pa] += alpha * (mr + (0 if mdone else gamma * q[ms2].max()) - q[ps, pa])
+            if done or length >= int(mdp.max_steps):
+                break
+            s = s2
+        out.append(total)
+    return np.array(out)
+
+
+def test_dyna_q_agrees_with_numpy_statistically():
+    mdp = stochastic_chain()
+    agents, episodes = 60, 12
+    ours = grid(mdp, [Setting("dyna_q", "egreedy", 0.1, {"alpha": 0.5})], seeds=agents,
+                episodes=episodes, options=AgentOptions()).returns[0].mean(axis=1)
+    rng = np.random.default_rng(7)
+    theirs = np.array([_np_dyna(mdp, episodes, rng).mean() for _ in range(agents)])
+    spread = np.sqrt(ours.var(ddof=1) / agents + theirs.var(ddof=1) / agents)
+    assert abs(ours.mean() - theirs.mean()) < 4 * spread + 0.02, (ours.mean(), theirs.mean())
+    long = chain(12, max_steps=200)  # planning speeds learning up
+    first = [grid(long, [Setting(name, "egreedy", 0.1, {"alpha": 0.5})], seeds=20,
+                  episodes=3, options=AgentOptions()).lengths[0].sum()
+             for name in ("dyna_q", "qlearning")]
+    assert first[0] < first[1], first
+
+
+def test_plain_plugins_keep_their_program():
+    """A grid without the canon is the same program as before (the paper grid's bits are
+    checked elsewhere); a canon kind next to it changes nothing of the others."""
+    mdp = chain()
+    alone = grid(mdp, [Setting("qlearning", "egreedy", 0.1)], seeds=3).returns
+    beside = grid(mdp, [Setting("qlearning", "egreedy", 0.1), Setting("rmax", "greedy")],
+                  seeds=3).returns
+    np.testing.assert_array_equal(alone[0], beside[0])
+    digest = hashlib.sha256(alone.tobytes()).hexdigest()
+    assert digest == hashlib.sha256(
+        grid(mdp, [Setting("qlearning", "egreedy", 0.1)], seeds=3).returns.tobytes()).hexdigest()
+
+
+# --- the plug-in check ------------------------------------------------------------------
+
+def _learner(**attributes):
+    base = {"gamma": 0.9}
+
+    def update(self, t):
+        return LearnerUpdate(t.q, {}, t.q * 0)
+
+    def plan(self, q, tables, model, context, uniforms):
+        return q, {}
+
+    namespace = {"__annotations__": {"gamma": float}, "update": update, "plan": plan,
+                 **base, **attributes}
+    return type("Probe", (Learner,), namespace)
+
+
+@pytest.mark.parametrize("attributes, message", [
+    ({"plan_at": "sometimes"}, "plan_at='sometimes' is invalid"),
+    ({"plan_at": "known"}, "needs a field 'known_visits'"),
+    ({"plan_at": "known", "known_visits": 2.0}, "needs uses_model = True"),
+    ({"plan_at": "every"}, "needs a field 'plan_every'"),
+    ({"plan_at": "step", "uses_next_action": True}, "a′ would be chosen before the plan"),
+    ({"plan_at": "step", "plan": lambda self, q, t, m, c, u: (q[0], {})}, "plan() q returned"),
+])
+def test_plugin_check_refuses_what_the_engine_cannot_honour(attributes, message):
+    cls = learner("probe_canon", replace=True)(_learner(**attributes))
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        check_plugin(cls(), vdbejax.methods.explorers.make_explorer("greedy"), 3)
+
+
+def test_model_tables_are_counted_and_reserved():
+    from vdbejax.engine.state import state_bytes, table_shape
+    from vdbejax.methods.agents import make_agent, stack_agents, table_layout
+
+    mdp = stochastic_chain()
+    layout = table_layout(stack_agents([make_agent(Setting("rmax", "greedy"))]))
+    assert set(layout) == set(model_lib.MODEL_TABLES)
+    assert table_shape(mdp, "outcome") == (5, 2, 2)
+    assert state_bytes(mdp, layout) == 4 * (5 * 2) * (1 + 4) + 4 * (5 * 2 * 2) * 2
