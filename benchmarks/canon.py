@@ -33,6 +33,10 @@ METHODS = [
     Setting("dyna_q_plus", "egreedy", 0.1),
     Setting("sarsa_lambda", "egreedy", 0.1),
     Setting("q_lambda", "egreedy", 0.1),
+    Setting("ucbvi", "greedy", None, {"gamma": 1.0, "bonus_scale": 0.1}),
+    Setting("ucbvi", "greedy", None, {"gamma": 1.0, "bonus": "hoeffding",
+                                      "bonus_scale": 0.001}),
+    Setting("ucb_h", "greedy", None, {"gamma": 1.0, "bonus_scale": 0.001}),
 ]
 
 

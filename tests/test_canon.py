@@ -154,7 +154,7 @@ def _np_optimistic(mdp, episodes, method, m=2.0, beta=0.1, gamma=0.9, r_max=1.0)
                                         gamma, np.zeros_like(q), v_max, 1e-4, 1000)
             if method == "mbie_eb":
                 q = _np_value_iteration(q, visits > 0, rsum / n, prob, succ.astype(int),
-                                        gamma, (F(beta) / np.sqrt(n)).astype(F), v_max, 1e-4,
+                                        gamma, (F(beta) * np.sqrt(F(1) / n)).astype(F), v_max, 1e-4,
                                         1000)
             if done or length >= int(mdp.max_steps):
                 break
@@ -378,3 +378,176 @@ def test_model_tables_are_counted_and_reserved():
     assert set(layout) == set(model_lib.MODEL_TABLES)
     assert table_shape(mdp, "outcome") == (5, 2, 2)
     assert state_bytes(mdp, layout) == 4 * (5 * 2) * (1 + 4) + 4 * (5 * 2 * 2) * 2
+
+
+# --- finite-horizon methods -------------------------------------------------------------
+
+def _np_ucbvi(mdp, episodes, horizon, bonus_kind, scale=0.1, delta=0.1, r_max=1.0,
+              convention="paper"):
+    S, A = mdp.num_states, mdp.num_actions
+    at_visit = np.zeros((horizon, S, A), F)  # rlberry: the visits of the last visit at h
+    nxt, rew = np.asarray(mdp.next_state)[..., 0], np.asarray(mdp.reward)[..., 0]
+    term = np.asarray(mdp.terminal)[..., 0]
+    visits, rsum = np.zeros((S, A), F), np.zeros((S, A), F)
+    count, succ = np.zeros((S, A), F), np.zeros((S, A), int)
+    returns, lengths = [], []
+    for episode in range(episodes):
+        n = np.maximum(visits, F(1))
+        inverse_root = np.sqrt(F(1) / n).astype(F)
+        stages = np.zeros((horizon, S, A), F)
+        values, v_next = np.zeros(S, F), F(0)
+        log_term = np.log(F(5 * S * A) * F(horizon * (episode + 1)) / F(delta)).astype(F)
+        for h in range(horizon - 1, -1, -1):
+            v_max = F(F(r_max) + F(1) * v_next)
+            if convention == "rlberry":
+                m = np.maximum(at_visit[h], F(1))
+                bonus = np.where(at_visit[h] > 0, np.minimum(
+                    F(scale) * np.sqrt(F(1) / m) + v_max / m, v_max), v_max).astype(F)
+            elif bonus_kind == "bernstein":
+                bonus = np.minimum(F(scale) * inverse_root + v_max / n, v_max).astype(F)
+            else:
+                bonus = (F(scale) * F(7.0) * F(horizon) * log_term * inverse_root).astype(F)
+            future = (count / n) * values[succ]
+            if convention == "rlberry":  # unclipped; unvisited: r̂ = 0, uniform successors
+                future = np.where(visits > 0, future, values.mean())
+                stages[h] = (rsum / n + bonus + future).astype(F)
+            else:
+                backed = np.minimum(rsum / n + bonus + future, v_max)
+                stages[h] = np.where(visits > 0, backed, v_max)
+            values, v_next = stages[h].max(axis=1), v_max
+        s, total, length = 0, F(0), 0
+        while True:
+            a = int(np.argmax(stages[min(length, horizon - 1), s]))
+            s2, r, done = int(nxt[s, a]), F(rew[s, a]), bool(term[s, a])
+            total, length = F(total + r), length + 1
+            visits[s, a] += 1
+            at_visit[min(length - 1, horizon - 1), s, a] = visits[s, a]
+            rsum[s, a] += r
+            if not done:
+                succ[s, a], count[s, a] = s2, count[s, a] + 1
+            if done or length >= int(mdp.max_steps):
+                break
+            s = s2
+        returns.append(total)
+        lengths.append(length)
+    return np.array(returns, F), np.array(lengths)
+
+
+@pytest.mark.parametrize("bonus, convention", [("bernstein", "paper"), ("hoeffding", "paper"),
+                                               ("bernstein", "rlberry")])
+def test_ucbvi_matches_numpy(bonus, convention):
+    mdp = chain(max_steps=12)
+    scale = 0.1 if bonus == "bernstein" else 0.001
+    values = {"horizon": 12, "bonus": bonus, "bonus_scale": scale, "gamma": 1.0,
+              "convention": convention}
+    result = grid(mdp, [Setting("ucbvi", "greedy", None, values)], seeds=1, episodes=30)
+    want_returns, want_lengths = _np_ucbvi(mdp, 30, 12, bonus, scale=scale,
+                                           convention=convention)
+    np.testing.assert_array_equal(result.lengths[0, 0], want_lengths)
+    np.testing.assert_allclose(result.returns[0, 0], want_returns, atol=1e-5)
+    assert want_returns[-10:].max() > 0.9  # it finds the goal's shortest path
+
+
+def _np_ucb_h(mdp, episodes, horizon, scale=0.01, iota=1.0, r_max=1.0):
+    S, A = mdp.num_states, mdp.num_actions
+    nxt, rew = np.asarray(mdp.next_state)[..., 0], np.asarray(mdp.reward)[..., 0]
+    term = np.asarray(mdp.terminal)[..., 0]
+    v_max = F(horizon * r_max)
+    q = np.full((horizon, S, A), v_max, F)
+    n = np.zeros((horizon, S, A), F)
+    returns, lengths = [], []
+    for _ in range(episodes):
+        s, total, length = 0, F(0), 0
+        while True:
+            h = min(length, horizon - 1)
+            a = int(np.argmax(q[h, s]))
+            s2, r, done = int(nxt[s, a]), F(rew[s, a]), bool(term[s, a])
+            total, length = F(total + r), length + 1
+            n[h, s, a] += 1
+            t = n[h, s, a]
+            rate = F((horizon + 1.0) / (horizon + t))
+            bonus = F(F(scale) * np.sqrt(F(horizon ** 3) * F(iota) / t))
+            later = 0.0 if h + 1 >= horizon or done else min(v_max, q[h + 1, s2].max())
+            target = F(F(r + F(later)) + bonus)
+            q[h, s, a] = F(q[h, s, a] + F(rate * F(target - q[h, s, a])))
+            if done or length >= int(mdp.max_steps):
+                break
+            s = s2
+        returns.append(total)
+        lengths.append(length)
+    return np.array(returns, F), np.array(lengths)
+
+
+def test_ucb_h_matches_numpy():
+    mdp = chain(max_steps=12)
+    values = {"horizon": 12, "bonus_scale": 0.01, "gamma": 1.0}
+    result = grid(mdp, [Setting("ucb_h", "greedy", None, values)], seeds=1, episodes=60)
+    want_returns, want_lengths = _np_ucb_h(mdp, 60, 12)
+    np.testing.assert_array_equal(result.lengths[0, 0], want_lengths)
+    np.testing.assert_allclose(result.returns[0, 0], want_returns, atol=1e-5)
+
+
+def test_finite_horizon_methods_keep_their_bits_across_strategies():
+    mdp = stochastic_chain()
+    settings = [Setting("ucbvi", "greedy", None, {"horizon": 25}),
+                Setting("ucbvi", "greedy", None, {"horizon": 25, "bonus": "hoeffding",
+                                                  "bonus_scale": 0.01}),
+                Setting("ucbvi", "greedy", None, {"horizon": 25, "convention": "rlberry"}),
+                Setting("ucb_h", "egreedy", 0.1, {"horizon": 25, "bonus_scale": 0.01})]
+    base = grid(mdp, settings, seeds=3, episodes=25, options=AgentOptions())
+    for run in ({"strategy": "lockstep"}, {"chunk_episodes": 6}):
+        other = grid(mdp, settings, seeds=3, episodes=25, options=AgentOptions(), **run)
+        np.testing.assert_array_equal(other.returns, base.returns, err_msg=str(run))
+    assert vdbejax.engine.native_step_loops() is True
+
+
+# --- the planning moments, counted ------------------------------------------------------
+
+@pytest.mark.parametrize("moment", ["step", "episode", "every"])
+def test_planning_moments_are_kept(moment):
+    from vdbejax.engine import run_agents
+    from vdbejax.engine.state import agent_keys, broadcast_agents
+    from vdbejax.methods.agents import make_agent, stack_agents
+    from vdbejax.methods.api import Table
+
+    class Counting(Learner):
+        gamma: float = 0.9
+        plan_every: float = 3.0
+        plan_at = moment
+
+        def tables(self):
+            return {"plans": Table("pair", 0.0)}
+
+        def update(self, t):
+            return LearnerUpdate(t.q, dict(t.tables), t.q * 0)
+
+        def plan(self, q, tables, model, context, uniforms):
+            first = jnp.zeros_like(tables["plans"]).at[0, 0].set(1.0)
+            return q, {"plans": tables["plans"] + first}
+
+    learner(f"probe_{moment}", replace=True)(Counting)
+    mdp = chain(max_steps=100_000)  # no truncation: every episode ends at the goal
+    episodes = 6
+    params = broadcast_agents(stack_agents([make_agent(Setting(f"probe_{moment}", "egreedy",
+                                                               0.5))]), 3)
+    done = run_agents(mdp, params, agent_keys(0, 3), episodes)
+    plans = done.final_state.tables["plans"][:, 0, 0]
+    steps = done.lengths.sum(axis=1)
+    want = {"step": steps, "episode": np.full(3, episodes + 1),
+            "every": (steps + 1) // 3}[moment]
+    np.testing.assert_array_equal(plans, want)
+
+
+def test_the_model_based_example_runs(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "model_based_plugin.py"
+    done = subprocess.run([sys.executable, str(example), "--seeds", "2", "--episodes", "20",
+                           "--out", str(tmp_path)], capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr
+    lines = [line for line in done.stdout.splitlines() if "final return" in line]
+    assert len(lines) == 5 and lines[0].startswith("ucb_vi/greedy/beta=0.05")
+    assert (tmp_path / "returns.npz").exists()

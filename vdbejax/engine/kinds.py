@@ -53,7 +53,12 @@ def is_whole_kind(agent: Any) -> bool:
     (:mod:`vdbejax.engine.whole`)."""
     learner = agent.learner
     return bool(learner.uses_model or learner.updates_whole_table
-                or learner.plan_at is not None)
+                or learner.plan_at is not None or has_stage_tables(learner))
+
+
+def has_stage_tables(learner: Any) -> bool:
+    """Whether a learner keeps stage-dependent tables (``Table("stage", ...)``)."""
+    return any(spec.per == "stage" for spec in learner.tables().values())
 
 
 def can_switch(kinds: tuple) -> bool:

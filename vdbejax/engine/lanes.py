@@ -7,6 +7,8 @@ into one native function (scatters would keep it on the per-op runtime).
 """
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 
@@ -98,3 +100,15 @@ def rows_of(tables: dict, specs: dict, state: Array, pair_base: Array, state_bas
     return {name: (take(tables[name], state_base + state) if spec.per == "state"
                    else take_row(tables[name], pair_base + state * A, A))
             for name, spec in specs.items()}
+
+
+def learner_rows(buffer: Array, index: Array, count: int, spec: Any) -> Array:
+    """A learner table's (``spec``, a :class:`~vdbejax.methods.contract.Table`) ``count``
+    consecutive pairs from pair ``index`` per lane: ``[B]`` (one pair of a per-pair
+    table), ``[B, count]`` or, for a stage table of ``length`` entries per pair,
+    ``[B, length]`` / ``[B, count, length]``."""
+    if spec.per != "stage":
+        return take(buffer, index) if count == 1 else take_row(buffer, index, count)
+    width = spec.width()
+    rows = take_row(buffer, index * width, count * width)
+    return rows if count == 1 else rows.reshape(-1, count, width)

@@ -55,6 +55,8 @@ def table_shape(mdp: TabularMDP, per: str) -> tuple[int, ...]:
     S, A = mdp.num_states, mdp.num_actions
     if per == "state":
         return (S,)
+    if per.startswith("stage:"):  # a learner's stage table (table_layout names its length)
+        return (S, A, int(per.split(":", 1)[1]))
     return (S, A) if per == "pair" else (S, A, capacity(S, mdp.num_outcomes))
 
 
@@ -79,7 +81,7 @@ def init_agent(mdp: TabularMDP, params: AgentParams, key: Array) -> AgentState:
         q = jnp.where(mine, agent.learner.initial_q(key, S, A).astype(jnp.float32), q)
         for owner in (agent.learner, agent.explorer):
             for name, spec in owner.tables().items():
-                init = jnp.full(table_shape(mdp, spec.per), spec.init, jnp.float32)
+                init = jnp.full(table_shape(mdp, layout[name]), spec.init, jnp.float32)
                 tables[name] = jnp.where(mine, init, tables[name])
     zero = jnp.asarray(0, jnp.int32)
     return AgentState(

@@ -39,6 +39,7 @@ from vdbejax.engine.lanes import (  # noqa: F401  (UNROLLED_LANES_MAX: re-export
     UNROLLED_LANES_MAX,
     _unrolled,
     _write_lanes,
+    learner_rows,
     put_learned,
     put_where,
     rows_of,
@@ -56,6 +57,7 @@ from vdbejax.engine.whole import (
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Agent
 from vdbejax.methods.api import Context, Transition
+from vdbejax.methods.contract import behaviour_values
 from vdbejax.methods.model import capacity
 
 Array = jax.Array
@@ -142,7 +144,7 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
     def probabilities_next() -> Array:
         if not learner.uses_next_probabilities:
             return zero_probabilities
-        behaviour = learner.behaviour(q_next, learner_next)
+        behaviour = behaviour_values(learner, q_next, learner_next, select_context)
         return explorer.probabilities(behaviour, explorer_next, select_context)
 
     def select_after(update: Any, new_explorer_s: dict, uniforms: tuple) -> Array:
@@ -153,11 +155,11 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
                        for name, row in learner_next.items()}
         act_explorer = {name: jnp.where(self_loop, new_explorer_s[name], value)
                         for name, value in explorer_next.items()}
-        behaviour = learner.behaviour(act_q, act_learner)
+        behaviour = behaviour_values(learner, act_q, act_learner, select_context)
         return explorer.select(behaviour, act_explorer, select_context, uniforms)
 
     if learner.uses_next_action:
-        behaviour = learner.behaviour(q_next, learner_next)
+        behaviour = behaviour_values(learner, q_next, learner_next, select_context)
         next_action = explorer.select(behaviour, explorer_next, select_context, explorer_uniforms)
         update, new_explorer_s = learn(next_action, probabilities_next())
         if learner.redraws_next_action:  # the a' of the target is not the one taken
@@ -193,9 +195,10 @@ def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
     explorer_end = ENGINE_UNIFORMS + explorer.num_uniforms
     learner_end = explorer_end + learner.num_uniforms
     learner_specs = learner.tables()
-    learner_sa = {name: take(tables[name], sa_index) for name in learner_specs}
-    learner_next = {name: take_row(tables[name], pair_base + act_state * A, A)
-                    for name in learner_specs}
+    learner_sa = {name: learner_rows(tables[name], sa_index, 1, spec)
+                  for name, spec in learner_specs.items()}
+    learner_next = {name: learner_rows(tables[name], pair_base + act_state * A, A, spec)
+                    for name, spec in learner_specs.items()}
     explorer_specs = explorer.tables()
 
     def explorer_rows(state: Array) -> dict:
@@ -324,7 +327,9 @@ def lockstep_iteration(
         if blocks is None:
             q = put_learned(agents.q, sa_index, new_q_sa, q_sa, learn)
             for name, (new, old) in learned.items():
-                tables[name] = put_learned(tables[name], sa_index, new, old, learn)
+                spec = agent.learner.tables()[name]
+                tables[name] = put_learned(tables[name], sa_index * spec.width(), new, old,
+                                           learn, spec.per == "stage")
         else:  # the whole Q and learner tables
             q = put_learned(agents.q, pair_base, new_q_sa.reshape(num_agents, -1),
                             blocks[0].reshape(num_agents, -1), learn, True)

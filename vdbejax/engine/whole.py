@@ -23,10 +23,10 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from vdbejax.engine.kinds import is_whole_kind  # noqa: F401  (re-exported)
-from vdbejax.engine.lanes import _unrolled, put_learned, rows_of, take, take_row
+from vdbejax.engine.kinds import has_stage_tables, is_whole_kind  # noqa: F401  (re-exported)
+from vdbejax.engine.lanes import _unrolled, learner_rows, put_learned, rows_of, take, take_row
 from vdbejax.methods.agents import Agent
-from vdbejax.methods.contract import Context, Learner
+from vdbejax.methods.contract import Context, Learner, behaviour_values
 from vdbejax.methods.model import MODEL_TABLES, Model, observe
 
 Array = jax.Array
@@ -34,18 +34,23 @@ Array = jax.Array
 
 def defers_selection(learner: Learner) -> bool:
     """Whether the next action is chosen after the tables are written (planning or a
-    whole-table update changes rows other than (s, a))."""
+    whole-table update changes rows other than (s, a); a stage table's rows are read
+    whole)."""
     return not learner.uses_next_action and (learner.plan_at is not None
-                                             or learner.updates_whole_table)
+                                             or learner.updates_whole_table
+                                             or has_stage_tables(learner))
 
 
 def whole_blocks(q: Array, tables: dict, learner: Learner, pair_base: Array,
                  size: int, shape: tuple[int, int]) -> tuple[Array, dict]:
-    """Each lane's whole Q and learner tables (``[B, S, A]``)."""
-    def block(buffer: Array) -> Array:
-        return take_row(buffer, pair_base, size).reshape(-1, *shape)
+    """Each lane's whole Q and learner tables (``[B, S, A]``, stage tables ``[B, S, A,
+    length]``)."""
+    def block(buffer: Array, width: int = 1, stage: bool = False) -> Array:
+        rows = take_row(buffer, pair_base * width, size * width)
+        return rows.reshape(-1, *shape, *((width,) if stage else ()))
 
-    return block(q), {name: block(tables[name]) for name in learner.tables()}
+    return block(q), {name: block(tables[name], spec.width(), spec.per == "stage")
+                      for name, spec in learner.tables().items()}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,14 +140,21 @@ def _plan(agent: Agent, q: Array, tables: dict, moment: Array, step: LearnedStep
     learner = agent.learner
     S, A, K = num_states, num_actions, capacity
     size = S * A
-    own = list(learner.tables())
+    specs = learner.tables()
+    own = list(specs)
     model_names = list(MODEL_TABLES) if learner.uses_model else []
 
+    def per_pair(name: str) -> int:  # entries per (s, a)
+        if name in specs:
+            return specs[name].width()
+        return K if MODEL_TABLES[name] == "outcome" else 1
+
     def width(name: str) -> int:
-        return size * K if MODEL_TABLES.get(name) == "outcome" else size
+        return size * per_pair(name)
 
     def shape(name: str) -> tuple[int, ...]:
-        return (S, A, K) if MODEL_TABLES.get(name) == "outcome" else (S, A)
+        listed = specs[name].per == "stage" if name in specs else MODEL_TABLES[name] == "outcome"
+        return (S, A, per_pair(name)) if listed else (S, A)
 
     def planned(lane_agent: Any, q_block: Array, blocks: dict, context: Context,
                 uniforms: tuple) -> tuple[Array, dict, Array]:
@@ -174,7 +186,7 @@ def _plan(agent: Agent, q: Array, tables: dict, moment: Array, step: LearnedStep
                 tables = dict(tables)
                 for n in own:
                     tables[n] = jax.lax.dynamic_update_slice(
-                        tables[n], new_tables[n].reshape(-1), (base,))
+                        tables[n], new_tables[n].reshape(-1), (base * per_pair(n),))
                 return (q, tables), ok
 
             def skip(buffers: tuple) -> tuple:
@@ -194,7 +206,8 @@ def _plan(agent: Agent, q: Array, tables: dict, moment: Array, step: LearnedStep
                     q_blocks.reshape(n_lanes, -1), moment, True)
     tables = dict(tables)
     for n in own:
-        tables[n] = put_learned(tables[n], step.pair_base, new_tables[n].reshape(n_lanes, -1),
+        tables[n] = put_learned(tables[n], step.pair_base * per_pair(n),
+                                new_tables[n].reshape(n_lanes, -1),
                                 blocks[n].reshape(n_lanes, -1), moment, True)
     return q, tables, ok | ~moment
 
@@ -205,14 +218,15 @@ def _select(agent: Agent, q: Array, tables: dict, step: LearnedStep, num_actions
     A = num_actions
     learner_specs = agent.learner.tables()
     q_next = take_row(q, step.pair_base + step.act_state * A, A)
-    learner_next = {name: take_row(tables[name], step.pair_base + step.act_state * A, A)
-                    for name in learner_specs}
+    learner_next = {name: learner_rows(tables[name], step.pair_base + step.act_state * A, A,
+                                       spec)
+                    for name, spec in learner_specs.items()}
     explorer_next = rows_of(tables, agent.explorer.tables(), step.act_state, step.pair_base,
                             step.state_base, A)
 
     def choose(lane_agent: Agent, q_row: Array, learner_row: dict, explorer_row: dict,
                context: Context, uniforms: tuple) -> Array:
-        behaviour = lane_agent.learner.behaviour(q_row, learner_row)
+        behaviour = behaviour_values(lane_agent.learner, q_row, learner_row, context)
         return jnp.asarray(lane_agent.explorer.select(behaviour, explorer_row, context,
                                                       uniforms), jnp.int32)
 

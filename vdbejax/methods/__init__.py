@@ -12,12 +12,13 @@
 * :mod:`vdbejax.methods.learners` — Q-learning, SARSA, Expected SARSA, Double Q-learning.
 * :mod:`vdbejax.methods.model` — the agent's count model of its task and planning on it;
   :mod:`vdbejax.methods.model_based` — R-max, MBIE-EB; :mod:`vdbejax.methods.traces` —
-  SARSA(λ), Watkins Q(λ); :mod:`vdbejax.methods.dyna` — Dyna-Q, Dyna-Q+.
+  SARSA(λ), Watkins Q(λ); :mod:`vdbejax.methods.dyna` — Dyna-Q, Dyna-Q+;
+  :mod:`vdbejax.methods.finite_horizon` — UCBVI, UCB-H.
 * :mod:`vdbejax.methods.agents` — :class:`Setting`, :func:`sweep`, :func:`make_agent`.
 """
 from vdbejax._numerics import rounded, sample_categorical
 from vdbejax._pytree import static_field
-from vdbejax.methods import dyna, explorers, learners, model_based, traces
+from vdbejax.methods import dyna, explorers, finite_horizon, learners, model_based, traces
 from vdbejax.methods.agents import (
     Agent,
     AgentOptions,
@@ -63,6 +64,7 @@ __all__ = [
     "explorer",
     "explorer_title",
     "explorers",
+    "finite_horizon",
     "greedy",
     "learner",
     "learner_title",

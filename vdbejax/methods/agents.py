@@ -356,9 +356,10 @@ def table_layout(params: AgentParams) -> dict[str, str]:
                 if name == "q" or name.startswith(MODEL_PREFIX):
                     raise ValueError(f"{type(owner).__name__}: table name {name!r} is reserved"
                                      f" (for Q and the model's tables, {MODEL_PREFIX}*)")
-                if layout.setdefault(name, spec.per) != spec.per:
+                per = f"stage:{spec.width()}" if spec.per == "stage" else spec.per
+                if layout.setdefault(name, per) != per:
                     raise ValueError(f"table {name!r} is per {layout[name]!r} for one kind and per"
-                                     f" {spec.per!r} for another: rename one of them")
+                                     f" {per!r} for another: rename one of them")
     return layout
 
 

@@ -19,8 +19,9 @@ from vdbejax._pytree import pytree_dataclass
 
 Array = jax.Array
 
-#: What a table holds one value of.
-TABLE_KINDS = ("state", "pair")
+#: What a table holds one value of (``"stage"``: one per (state, action, stage), a
+#: learner's stage-dependent values, ``length`` stages).
+TABLE_KINDS = ("state", "pair", "stage")
 
 #: When the engine calls a learner's :meth:`Learner.plan` (``plan_at``):
 #:
@@ -36,11 +37,18 @@ PLAN_MOMENTS = ("step", "episode", "every", "known")
 
 @dataclasses.dataclass(frozen=True)
 class Table:
-    """A table an agent keeps per state (``"state"``: ``[S]``) or per (state, action)
-    (``"pair"``: ``[S, A]``), every entry starting at ``init``."""
+    """A table an agent keeps per state (``"state"``: ``[S]``), per (state, action)
+    (``"pair"``: ``[S, A]``) or, for a learner, per (state, action, stage) (``"stage"``:
+    ``[S, A, length]``, e.g. the Q_h of finite-horizon methods), every entry starting at
+    ``init``."""
 
     per: str
     init: Any = 0.0
+    length: int | None = None
+
+    def width(self) -> int:
+        """Entries per (state, action) of a learner's table (``length`` of a stage table)."""
+        return int(self.length) if self.per == "stage" and self.length is not None else 1
 
 
 @pytree_dataclass
@@ -163,6 +171,9 @@ class Learner:
     plan_at: ClassVar[str | None] = None
     #: Uniforms :meth:`plan` receives.
     plan_uniforms: ClassVar[int] = 0
+    #: :meth:`behaviour` takes the :class:`Context` of the choice as a third argument
+    #: (stage-dependent values: the step within the episode picks the stage).
+    behaviour_uses_context: ClassVar[bool] = False
     #: The discount γ: every learner has this field (:func:`learner` checks it).
     gamma: float | Array
 
@@ -204,3 +215,12 @@ class Learner:
     def validate(self) -> None:
         """Raise a one-line ``ValueError`` for out-of-range hyperparameters."""
 
+
+
+def behaviour_values(learner: Learner, q: Array, tables: Mapping[str, Array],
+                     context: Context) -> Array:
+    """The ``[A]`` values ``learner``'s explorer acts on in a state (its :meth:`Learner.
+    behaviour`, given the context where it asks for it)."""
+    if learner.behaviour_uses_context:
+        return learner.behaviour(q, tables, context)  # type: ignore[call-arg]
+    return learner.behaviour(q, tables)

@@ -114,7 +114,7 @@ class DynaQPlus(DynaQ):
     def planning_bonus(self, q: Array, tables: Mapping[str, Array]) -> Array:
         last = tables["last_tried"]
         now = jnp.max(last)  # the pair just tried holds the current time
-        return self.kappa * jnp.sqrt(now - last)
+        return rounded(self.kappa * jnp.sqrt(now - last), self.kappa)
 
     def plannable(self, model: Model) -> Array:
         seen_states = jnp.any(model.visits > 0, axis=1, keepdims=True)

@@ -111,7 +111,8 @@ class MBIEEB(_ValueIterationLearner):
     def plan(self, q: Array, tables: Mapping[str, Array], model: Any, context: Context,
              uniforms: tuple[Array, ...]) -> tuple[Array, dict[str, Array]]:
         visited = model.visits > 0
-        bonus = self.beta / jnp.sqrt(jnp.maximum(model.visits, 1.0))
+        # exact (no rsqrt), and never fused into the next add
+        bonus = rounded(self.beta * jnp.sqrt(1.0 / jnp.maximum(model.visits, 1.0)), self.beta)
         return self.solve(model, q, bonus, visited), {}
 
     def validate(self) -> None:

@@ -38,11 +38,27 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
     f32 = jnp.float32
     row, scalar = _abstract((A,), f32), _abstract((), f32)
     tables = _table_values(name, agent_explorer.tables(), row, scalar)
+    for tname, spec in agent_explorer.tables().items():
+        if spec.per == "stage":
+            raise ValueError(f"{name} table {tname!r} is per 'stage': stage tables are a"
+                             " learner's")
     ltables = _table_values(f"learner {agent_learner.name!r}", agent_learner.tables(), row, scalar)
-    for lname, spec in agent_learner.tables().items():
-        if spec.per != "pair":
-            raise ValueError(f"learner {agent_learner.name!r} table {lname!r} is per {spec.per!r}:"
-                             " a learner's extra tables must be per 'pair'")
+    lspecs = agent_learner.tables()
+    for tname, spec in lspecs.items():
+        if spec.per == "state":
+            raise ValueError(f"learner {agent_learner.name!r} table {tname!r} is per 'state': a"
+                             " learner's extra tables are per 'pair' or 'stage'")
+        if spec.per == "stage" and (isinstance(spec.length, bool)
+                                    or not isinstance(spec.length, (int, np.integer))
+                                    or spec.length < 1):
+            raise ValueError(f"learner {agent_learner.name!r} table {tname!r} length="
+                             f"{spec.length!r} is invalid: a stage table needs an integer"
+                             " length >= 1")
+    # a learner's tables at (s, a), their rows at a state, whole
+    lpair = {k: _abstract((s.width(),), f32) if s.per == "stage" else scalar
+             for k, s in lspecs.items()}
+    ltables = {k: _abstract((A, s.width()), f32) if s.per == "stage" else row
+               for k, s in lspecs.items()}
     context = Context(_abstract((), jnp.int32), _abstract((), jnp.int32),
                       _abstract((), jnp.bool_))
     uniforms = tuple(scalar for _ in range(_count(name, agent_explorer.num_uniforms)))
@@ -75,24 +91,24 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
                        context)
         _check_same(f"{name} probabilities()", probs, row)
     lname = f"learner {agent_learner.name!r}"
-    behaviour = traced(f"{lname} behaviour()", agent_learner.behaviour, row, ltables)
+    behaviour = traced(f"{lname} behaviour()", agent_learner.behaviour, row, ltables,
+                       *((context,) if agent_learner.behaviour_uses_context else ()))
     _check_same(f"{lname} behaviour()", behaviour, row)
     luniforms = tuple(scalar for _ in range(_count(lname, agent_learner.num_uniforms)))
     index = _abstract((), jnp.int32)
-    transition = Transition(scalar, {k: scalar for k in ltables}, scalar, scalar, row, ltables,
+    transition = Transition(scalar, lpair, scalar, scalar, row, ltables,
                             action, row, luniforms, _abstract((), jnp.bool_), index, index,
                             index, index, index)
     _check_whole_flags(lname, agent_learner)
     if agent_learner.updates_whole_table:
         whole_q = _abstract((_STATES, A), f32)
-        whole = {k: whole_q for k in ltables}
+        whole = _whole_tables(lspecs, A)
         result = traced(f"{lname} update_table()", agent_learner.update_table, whole_q, whole,
                         transition)
         _check_update(f"{lname} update_table()", result, whole_q, whole, scalar)
     else:
         result = traced(f"{lname} update()", agent_learner.update, transition)
-        _check_update(f"{lname} update()", result, scalar, {k: scalar for k in ltables},
-                      scalar)
+        _check_update(f"{lname} update()", result, scalar, lpair, scalar)
         _check_declared_inputs(lname, agent_learner, transition)
     if agent_learner.plan_at is not None:
         _check_plan(lname, agent_learner, A, context, traced)
@@ -100,6 +116,12 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
 
 #: States and listed successors of the abstract task a whole-table plug-in is traced on.
 _STATES, _SUCCESSORS = 4, 2
+
+
+def _whole_tables(specs: Mapping[str, Table], num_actions: int) -> dict[str, Any]:
+    """Abstract whole learner tables: ``[S, A]``, a stage table ``[S, A, length]``."""
+    return {k: _abstract((_STATES, num_actions, *((s.width(),) if s.per == "stage" else ())),
+                         jnp.float32) for k, s in specs.items()}
 
 
 def _check_update(what: str, result: Any, q: Any, tables: Any, delta_q: Any) -> None:
@@ -142,7 +164,7 @@ def _check_plan(lname: str, agent_learner: Learner, num_actions: int, context: C
                 traced: Callable) -> None:
     f32 = jnp.float32
     whole_q = _abstract((_STATES, num_actions), f32)
-    whole = {k: whole_q for k in agent_learner.tables()}
+    whole = _whole_tables(agent_learner.tables(), num_actions)
     model = None
     if agent_learner.uses_model:
         lists = _abstract((_STATES, num_actions, _SUCCESSORS), f32)
@@ -205,7 +227,7 @@ def _table_values(name: str, specs: Any, row: Any, scalar: Any) -> dict[str, Any
     for key, spec in specs.items():
         if not isinstance(spec, Table) or spec.per not in TABLE_KINDS:
             raise ValueError(f"{name} table {key!r}={spec!r} is invalid: must be"
-                             " Table('state' or 'pair', init)")
+                             " Table('state', 'pair' or 'stage', init)")
         values[key] = scalar if spec.per == "state" else row
     return values
 
