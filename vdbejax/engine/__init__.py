@@ -6,8 +6,9 @@ Read it one module at a time:
   starts, and its counter-based random stream;
 * :mod:`~vdbejax.engine.step` — the step rule (:func:`lockstep_iteration`): one
   iteration of a batch of agents of one kind, calling the plug-ins
-  (:mod:`vdbejax.methods`), its tables read and written lane by lane
-  (:mod:`~vdbejax.engine.lanes`);
+  (:mod:`vdbejax.methods`; one kind's part: :mod:`~vdbejax.engine.kind_step`), its tables
+  read and written lane by lane (:mod:`~vdbejax.engine.lanes`); the model, planning and
+  whole-table learners' part: :mod:`~vdbejax.engine.whole`;
 * :mod:`~vdbejax.engine.lockstep` — all agents of a batch advance together, with
   compaction (accelerators, sharded agents);
 * :mod:`~vdbejax.engine.sequential` — native step loops of four agents side by side, one

@@ -21,7 +21,6 @@ loop natively.
 from __future__ import annotations
 
 import dataclasses
-from functools import partial
 from typing import Any
 
 import jax
@@ -29,6 +28,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from vdbejax._numerics import sample_categorical
+from vdbejax.engine.kind_step import (  # noqa: F401  (re-exported)
+    ENGINE_UNIFORMS,
+    _agent_step,
+    _kind_step,
+    num_uniforms,
+)
 from vdbejax.engine.kinds import (  # noqa: F401  (re-exported)
     KindSwitch,
     _write_form,
@@ -39,10 +44,8 @@ from vdbejax.engine.lanes import (  # noqa: F401  (UNROLLED_LANES_MAX: re-export
     UNROLLED_LANES_MAX,
     _unrolled,
     _write_lanes,
-    learner_rows,
     put_learned,
     put_where,
-    rows_of,
     take,
     take_row,
 )
@@ -56,24 +59,10 @@ from vdbejax.engine.whole import (
 )
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Agent
-from vdbejax.methods.api import Context, Transition
-from vdbejax.methods.contract import behaviour_values
+from vdbejax.methods.api import Context
 from vdbejax.methods.model import capacity
 
 Array = jax.Array
-
-#: Uniforms the engine itself draws per iteration: start state and outcome.
-ENGINE_UNIFORMS = 2
-
-
-def num_uniforms(agent: Agent) -> int:
-    """Uniforms one iteration of this kind draws: the engine's, the explorer's, the
-    learner's, and the explorer's again when the learner redraws its next action."""
-    explorer = int(agent.explorer.num_uniforms)
-    redraw = explorer if agent.learner.redraws_next_action else 0
-    return (ENGINE_UNIFORMS + explorer + int(agent.learner.num_uniforms) + redraw
-            + int(agent.learner.plan_uniforms))
-
 
 def start_support(mdp: TabularMDP) -> tuple[Array, Array]:
     """States with a positive start probability and their weights (host side if possible).
@@ -102,122 +91,6 @@ def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array) -> tuple[Array, A
         return take(table.reshape(-1), flat)
 
     return at(mdp.next_state), at(mdp.reward), at(mdp.terminal)
-
-
-def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: dict,
-                learner_next: dict, explorer_s: dict, explorer_next: dict, reward: Array,
-                terminal: Array, self_loop: Array, update_context: Context,
-                select_context: Context, explorer_uniforms: tuple, learner_uniforms: tuple,
-                redraw_uniforms: tuple, state: Array, next_state: Array, time: Array,
-                whole: tuple | None = None, *, select_next: bool = True
-                ) -> tuple[Array, dict, dict, Array, Array]:
-    """One agent's learning and choice (vmapped over lanes by :func:`lockstep_iteration`).
-
-    ``self_loop``: the next action is chosen in the state just left (its rows must show
-    this step's update for learners that choose after it). ``redraw_uniforms``: for a
-    learner that ``redraws_next_action`` (the authors' SARSA), the uniforms of the action
-    actually taken, drawn afresh after the update. ``whole``: the agent's whole Q and
-    learner tables, for a learner that ``updates_whole_table`` (its update returns them
-    whole). Without ``select_next`` a learner that chooses after its update chooses
-    nothing here (:mod:`vdbejax.engine.whole` chooses once the tables are written).
-
-    Returns:
-      ``(new_q_sa, new_learner_sa, new_explorer_s, next_action, finite)``.
-    """
-    learner, explorer = agent.learner, agent.explorer
-    discount = jnp.where(terminal, 0.0, learner.gamma)
-    zero_probabilities = jnp.zeros_like(q_next)
-
-    def learn(next_action: Array, probabilities: Array) -> tuple:
-        transition = Transition(
-            q=q_sa, tables=learner_sa, reward=reward, discount=discount, q_next=q_next,
-            tables_next=learner_next, next_action=next_action,
-            next_probabilities=probabilities, uniforms=learner_uniforms, terminal=terminal,
-            state=state, action=a, next_state=next_state, step=update_context.step,
-            time=time,
-        )
-        update = (learner.update(transition) if whole is None
-                  else learner.update_table(whole[0], whole[1], transition))
-        new_explorer_s = explorer.update(explorer_s, a, update.delta_q, update_context)
-        return update, new_explorer_s
-
-    def probabilities_next() -> Array:
-        if not learner.uses_next_probabilities:
-            return zero_probabilities
-        behaviour = behaviour_values(learner, q_next, learner_next, select_context)
-        return explorer.probabilities(behaviour, explorer_next, select_context)
-
-    def select_after(update: Any, new_explorer_s: dict, uniforms: tuple) -> Array:
-        """Choose after the update: where a' is chosen in s itself, its rows show it."""
-        patched = self_loop & (jnp.arange(q_next.shape[0]) == a)
-        act_q = jnp.where(patched, update.q, q_next)
-        act_learner = {name: jnp.where(patched, update.tables[name], row)
-                       for name, row in learner_next.items()}
-        act_explorer = {name: jnp.where(self_loop, new_explorer_s[name], value)
-                        for name, value in explorer_next.items()}
-        behaviour = behaviour_values(learner, act_q, act_learner, select_context)
-        return explorer.select(behaviour, act_explorer, select_context, uniforms)
-
-    if learner.uses_next_action:
-        behaviour = behaviour_values(learner, q_next, learner_next, select_context)
-        next_action = explorer.select(behaviour, explorer_next, select_context, explorer_uniforms)
-        update, new_explorer_s = learn(next_action, probabilities_next())
-        if learner.redraws_next_action:  # the a' of the target is not the one taken
-            next_action = select_after(update, new_explorer_s, redraw_uniforms)
-    else:
-        update, new_explorer_s = learn(jnp.zeros((), jnp.int32), probabilities_next())
-        next_action = (select_after(update, new_explorer_s, explorer_uniforms) if select_next
-                       else jnp.zeros((), jnp.int32))
-    finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(leaf))
-                                  for leaf in jax.tree.leaves((update.q, update.tables,
-                                                               new_explorer_s))]))
-    return (update.q, update.tables, new_explorer_s,
-            jnp.asarray(next_action, jnp.int32), finite)
-
-
-def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
-               q_sa: Array, q_next: Array, reward: Array, terminal: Array,
-               self_loop: Array, sa_index: Array, pair_base: Array, state_base: Array,
-               update_context: Context, select_context: Context, u: tuple, s_next: Array,
-               time: Array, *, num_actions: int, whole: tuple | None = None,
-               select_next: bool = True) -> tuple[Array, dict, dict, Array, Array]:
-    """The part of an iteration that depends on the kind: the plug-ins' tables read, the
-    learner's and explorer's step (:func:`_agent_step`, vmapped over the lanes).
-    ``whole``, ``select_next``: see :func:`_agent_step` (batched over the lanes).
-
-    Returns:
-      ``(new_q_sa, learner_sa (new, old), explorer_s (new, old), next_action, finite)``,
-      the table dicts mapping each of the kind's tables to its new and old values (with
-      ``whole``: the new Q and learner tables whole, and their old values).
-    """
-    learner, explorer = agent.learner, agent.explorer
-    A = num_actions
-    explorer_end = ENGINE_UNIFORMS + explorer.num_uniforms
-    learner_end = explorer_end + learner.num_uniforms
-    learner_specs = learner.tables()
-    learner_sa = {name: learner_rows(tables[name], sa_index, 1, spec)
-                  for name, spec in learner_specs.items()}
-    learner_next = {name: learner_rows(tables[name], pair_base + act_state * A, A, spec)
-                    for name, spec in learner_specs.items()}
-    explorer_specs = explorer.tables()
-
-    def explorer_rows(state: Array) -> dict:
-        return rows_of(tables, explorer_specs, state, pair_base, state_base, A)
-
-    explorer_s, explorer_next = explorer_rows(s), explorer_rows(act_state)
-    step = (_agent_step if select_next and whole is None
-            else partial(_agent_step, select_next=select_next))
-    new_q_sa, new_learner_sa, new_explorer_s, next_action, finite = jax.vmap(step)(
-        agent, a, q_sa, q_next, learner_sa, learner_next, explorer_s, explorer_next, reward,
-        terminal, self_loop, update_context, select_context, u[ENGINE_UNIFORMS:explorer_end],
-        u[explorer_end:learner_end], u[learner_end:learner_end + (
-            explorer.num_uniforms if learner.redraws_next_action else 0)], s, s_next, time,
-        *(() if whole is None else (whole,)),
-    )
-    old = learner_sa if whole is None else whole[1]
-    learned = {name: (new_learner_sa[name], old[name]) for name in learner_specs}
-    explored = {name: (new_explorer_s[name], explorer_s[name]) for name in explorer_specs}
-    return new_q_sa, learned, explored, next_action, finite
 
 
 def _after_learning(mdp: TabularMDP, agent: Agent, q: Array, tables: dict,
