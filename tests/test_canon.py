@@ -264,9 +264,9 @@ CANON = [Setting("rmax", "greedy"), Setting("mbie_eb", "greedy"),
 
 def test_strategies_chunks_and_lane_widths_give_the_same_bits():
     mdp = stochastic_chain()
-    base = grid(mdp, CANON, seeds=3, episodes=30, options=AgentOptions())
-    for run in ({"strategy": "lockstep"}, {"chunk_episodes": 7}, {"threads": 1}):
-        other = grid(mdp, CANON, seeds=3, episodes=30, options=AgentOptions(), **run)
+    base = grid(mdp, CANON, seeds=3, episodes=20, options=AgentOptions())
+    for run in ({"strategy": "lockstep"}, {"chunk_episodes": 7, "threads": 1}):
+        other = grid(mdp, CANON, seeds=3, episodes=20, options=AgentOptions(), **run)
         np.testing.assert_array_equal(other.returns, base.returns, err_msg=str(run))
         np.testing.assert_array_equal(other.lengths, base.lengths, err_msg=str(run))
     assert vdbejax.engine.native_step_loops() is True

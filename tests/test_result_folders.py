@@ -364,3 +364,27 @@ def test_the_size_estimate_counts_results_and_the_checkpoint_log(tmp_path, monke
     monkeypatch.setattr(batching.shutil, "disk_usage", lambda path: type("U", (), {"free": 1000})())
     with pytest.raises(ValueError, match="episode log would need ≈ 78.1 KiB of disk"):
         batching.check_run_size(10, 1000, tmp_path / "ckpt.npz", available_bytes=10**9)
+
+
+def test_loading_a_grid_of_unregistered_plugins_keeps_the_process_state(tmp_path):
+    """The swept parameter's name of an explorer this process never imported comes with
+    the loaded settings (meta.json), not from a process-wide table that loading fills."""
+    from vdbejax.methods.agents import Setting, parameter_name, with_parameter_names
+
+    grid = run_small()
+    grid.save(tmp_path)
+    meta = json.loads((tmp_path / io.META_FILE).read_text())
+    configs = (tmp_path / io.CONFIGS_FILE).read_text().replace("egreedy", "never_imported")
+    (tmp_path / io.CONFIGS_FILE).write_text(configs)
+    meta["parameter_names"]["never_imported"] = "eps0"
+    (tmp_path / io.META_FILE).write_text(json.dumps(meta))
+    loaded = GridResult.load(tmp_path)
+    renamed = [s for s in loaded.settings if s.explorer == "never_imported"]
+    assert renamed and all(s.label.startswith(f"{s.learner}/never_imported/eps0=")
+                           for s in renamed if s.param is not None)
+    assert parameter_name("never_imported") == "param"  # nothing process-wide changed
+    plain = Setting("qlearning", "never_imported", 0.5)
+    assert plain.label == "qlearning/never_imported/param=0.5"
+    named = with_parameter_names([plain], {"never_imported": "eps0"})[0]
+    assert named == plain and named.label == "qlearning/never_imported/eps0=0.5"
+    assert len(grid.settings) == len(loaded.settings)

@@ -13,7 +13,7 @@ from vdbejax.methods.agents import (
     Setting,
     agent_hyperparameters,
     make_agent,
-    remember_parameter_names,
+    with_parameter_names,
 )
 
 
@@ -187,7 +187,7 @@ class GridResult:
         settings = io.load_settings(out / io.CONFIGS_FILE)
         _check_saved_arrays(returns_path, len(settings), returns, lengths, nonfinite,
                             episodes_run)
-        remember_parameter_names(meta.get("parameter_names", {}))
+        settings = with_parameter_names(settings, meta.get("parameter_names", {}))
         return cls(settings, returns, lengths, nonfinite, meta, episodes_run)
 
 

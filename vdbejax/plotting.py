@@ -173,6 +173,7 @@ def sensitivity(
     best_return: float | None = None,
     path: str | os.PathLike | None = None,
     title: str | None = None,
+    parameter_names: Mapping[str, str] | None = None,
 ) -> plt.Figure:
     """Final return and convergence episode against each explorer's parameter.
 
@@ -186,6 +187,8 @@ def sensitivity(
       best_return: reference line on the final-return row, if given.
       path: save the figure there (PNG) if given.
       title: figure title.
+      parameter_names: ``{explorer: swept parameter's name}`` for the x labels of
+        explorers not registered in this process (a grid's ``Setting.parameter``).
 
     Returns:
       the matplotlib figure.
@@ -231,7 +234,8 @@ def sensitivity(
             if row == 0:
                 ax.set_title(explorer_title(explorer))
             if row == len(SENSITIVITY_METRICS) - 1:
-                ax.set_xlabel(_symbol(parameter_name(explorer)) + " (log scale)")
+                name = (parameter_names or {}).get(explorer) or parameter_name(explorer)
+                ax.set_xlabel(_symbol(name) + " (log scale)")
             if col == 0:
                 ax.set_ylabel(label)
             ax.grid(alpha=0.3, which="both")

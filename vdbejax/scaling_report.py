@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from vdbejax import io
-from vdbejax.methods.agents import Setting, remember_parameter_names
+from vdbejax.methods.agents import Setting, with_parameter_names
 from vdbejax.result_folder import MARKER_FILE, marked_stage
 
 #: The files of a study folder (``runs/`` holds one result folder ``NxK/`` per variant).
@@ -84,9 +84,10 @@ def load_scaling(out_dir: str | Path) -> tuple[list[dict[str, Any]], list[dict[s
                          f" while writing its files ({MARKER_FILE} is still there); run it"
                          " again with --resume (its whole variants are reused)")
     meta = io.load_json(out / META_FILE)
-    remember_parameter_names(meta.get("parameter_names", {}))  # plug-ins not imported here
-    settings = [Setting(learner, explorer, param, values)
-                for learner, explorer, param, values in meta["settings"]]
+    settings = with_parameter_names(  # plug-ins not imported here carry their saved names
+        [Setting(learner, explorer, param, values)
+         for learner, explorer, param, values in meta["settings"]],
+        meta.get("parameter_names", {}))
     integers = {"config", "states", "actions", "agents", "solved", "budget", "agent_episodes",
                 "nonfinite_agents"}
     rows = []

@@ -169,7 +169,9 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
 
         io.save_figure(figure3(result, best_return=best, bands=bands, statistics=statistics),
                        out / FIGURE_FILE)
-        io.save_figure(sensitivity(summary, best_return=best), out / SENSITIVITY_FILE)
+        names = {s.explorer: s.parameter for s in result.settings}
+        io.save_figure(sensitivity(summary, best_return=best, parameter_names=names),
+                       out / SENSITIVITY_FILE)
     return summary
 
 

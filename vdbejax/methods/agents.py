@@ -46,22 +46,20 @@ PAPER_PARAMETERS: dict[str, tuple[float, ...]] = {
 }
 
 
-#: Swept-parameter names of explorers known from loaded results (their classes may not be
-#: imported in this process, e.g. ``vdbejax plot`` on a grid of user plug-ins).
-_SAVED_PARAMETER_NAMES: dict[str, str] = {}
-
-
 def parameter_name(explorer: str) -> str:
-    """The name of an explorer's swept parameter (``"param"`` if it is unknown)."""
+    """The name of a registered explorer's swept parameter (``"param"`` if it is unknown:
+    a saved result's settings carry their own, :func:`with_parameter_names`)."""
     cls = EXPLORERS.get(explorer)
-    name = cls.parameter if cls is not None else _SAVED_PARAMETER_NAMES.get(explorer)
-    return name or "param"
+    return (cls.parameter if cls is not None else None) or "param"
 
 
-def remember_parameter_names(names: Mapping[str, str]) -> None:
-    """Record ``{explorer: parameter name}`` read from a saved result."""
-    if isinstance(names, Mapping):
-        _SAVED_PARAMETER_NAMES.update({str(k): str(v) for k, v in names.items()})
+def with_parameter_names(settings: Sequence[Setting], names: Any) -> list[Setting]:
+    """``settings`` whose explorers are not registered in this process (a saved grid of
+    user plug-ins, e.g. ``vdbejax plot``) with the swept parameter's name a saved result
+    recorded (``meta.json["parameter_names"]``, ``{explorer: name}``)."""
+    names = names if isinstance(names, Mapping) else {}
+    return [dataclasses.replace(s, param_name=str(names[s.explorer]))
+            if s.explorer not in EXPLORERS and s.explorer in names else s for s in settings]
 
 
 def _plain(value: Any) -> Any:
@@ -92,6 +90,9 @@ class Setting:
     explorer: str
     param: float | None = None
     hyperparameters: Any = ()
+    #: The swept parameter's name where the explorer is not registered here (a saved
+    #: result's, :func:`with_parameter_names`); not part of the setting's identity.
+    param_name: str | None = dataclasses.field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         values = self.hyperparameters
@@ -112,8 +113,13 @@ class Setting:
         """The explicit values: the swept parameter (under its name) and the rest."""
         values = dict(self.hyperparameters)
         if self.param is not None:
-            values = {parameter_name(self.explorer): self.param, **values}
+            values = {self.parameter: self.param, **values}
         return values
+
+    @property
+    def parameter(self) -> str:
+        """The name of the explorer's swept parameter (``epsilon``, ``sigma``, …)."""
+        return self.param_name or parameter_name(self.explorer)
 
     @property
     def label(self) -> str:
@@ -378,4 +384,5 @@ __all__ = [
     "stack_agents",
     "sweep",
     "table_layout",
+    "with_parameter_names",
 ]

@@ -39,7 +39,6 @@ from vdbejax.methods.agents import (
     Setting,
     agent_hyperparameters,
     make_agent,
-    parameter_name,
     stack_agents,
     table_layout,
 )
@@ -167,7 +166,7 @@ def prepare_grid(
     description = {
         "mdp": mdp.name,
         "mdp_tables": _fingerprint_arrays(mdp),
-        "settings": [dataclasses.astuple(s) for s in settings],
+        "settings": [(s.learner, s.explorer, s.param, s.hyperparameters) for s in settings],
         "num_seeds": num_seeds,
         "num_episodes": num_episodes,
         "seed": seed,
@@ -318,7 +317,7 @@ def _collect(prepared: PreparedGrid, state: RunState, fingerprint: str, resumed_
     meta["agents_truncated"] = int(cut.any(axis=2).sum())
     meta["truncated_episodes_by_config"] = cut.sum(axis=(1, 2)).tolist()
     meta["hyperparameters"] = [agent_hyperparameters(make_agent(s, options)) for s in settings]
-    meta["parameter_names"] = {s.explorer: parameter_name(s.explorer) for s in settings}
+    meta["parameter_names"] = {s.explorer: s.parameter for s in settings}
     return GridResult(settings, returns, lengths, nonfinite, meta,
                       episodes_run.astype(np.int64) if stopped_early else None)
 
