@@ -551,3 +551,72 @@ def test_the_model_based_example_runs(tmp_path):
     lines = [line for line in done.stdout.splitlines() if "final return" in line]
     assert len(lines) == 5 and lines[0].startswith("ucb_vi/greedy/beta=0.05")
     assert (tmp_path / "returns.npz").exists()
+
+
+# --- PSRL ---------------------------------------------------------------------------------
+
+def test_posterior_sample_has_the_posterior_mean_under_jit_and_vmap():
+    from vdbejax.methods.finite_horizon import posterior_sample
+
+    S, A = 3, 2
+    visits = jnp.array([[4.0, 0.0], [2.0, 1.0], [0.0, 0.0]])
+    model = model_lib.Model(visits, jnp.array([[2.0, 0.0], [1.0, -1.0], [0.0, 0.0]]),
+                            jnp.zeros((S, A)), jnp.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]]),
+                            jnp.array([[[2.0], [0.0]], [[0.0], [0.0]], [[0.0], [0.0]]]),
+                            jnp.array([[[3.0], [0.0]], [[2.0], [0.0]], [[0.0], [0.0]]]))
+    keys = jax.random.split(jax.random.key(0), 4000)
+    rewards, transitions = jax.jit(jax.vmap(lambda k: posterior_sample(model, k, 0.5, 0.0)))(
+        keys)
+    want = np.full((S, A, S + 1), 0.5)
+    want[0, 0, 2] += 3
+    want[0, 0, 3] += 1
+    want[1, 0, 0] += 2
+    want[1, 1, 3] += 1
+    want /= want.sum(-1, keepdims=True)
+    np.testing.assert_allclose(transitions.mean(0), want, atol=0.02)
+    np.testing.assert_allclose(rewards.mean(0), np.asarray(model.reward_sum) / (1 + visits),
+                               atol=0.05)
+    np.testing.assert_allclose(rewards.std(0), 1 / np.sqrt(1 + np.asarray(visits)), rtol=0.1)
+
+
+def _np_psrl(mdp, episodes, rng, horizon, prior=1.0):
+    S, A = mdp.num_states, mdp.num_actions
+    nxt, prob = np.asarray(mdp.next_state), np.asarray(mdp.probability)
+    rew, term = np.asarray(mdp.reward), np.asarray(mdp.terminal)
+    counts, visits, rsum = np.zeros((S, A, S + 1)), np.zeros((S, A)), np.zeros((S, A))
+    out = []
+    for _ in range(episodes):
+        p = np.apply_along_axis(rng.dirichlet, -1, prior + counts)
+        r = (rsum / (1 + visits)) + rng.normal(size=(S, A)) / np.sqrt(1 + visits)
+        q, v = np.zeros((horizon, S, A)), np.zeros(S)
+        for h in range(horizon - 1, -1, -1):
+            q[h] = r + p[..., :S] @ v
+            v = q[h].max(axis=1)
+        s, total = 0, 0.0
+        for h in range(int(mdp.max_steps)):
+            a = int(np.argmax(q[min(h, horizon - 1), s]))
+            k = rng.choice(prob.shape[2], p=prob[s, a])
+            s2, reward, done = int(nxt[s, a, k]), float(rew[s, a, k]), bool(term[s, a, k])
+            total += reward
+            visits[s, a] += 1
+            rsum[s, a] += reward
+            counts[s, a, S if done else s2] += 1
+            if done:
+                break
+            s = s2
+        out.append(total)
+    return np.array(out)
+
+
+def test_psrl_agrees_with_numpy_statistically_and_keeps_its_bits():
+    mdp = stochastic_chain()
+    agents, episodes = 40, 15
+    setting = Setting("psrl", "greedy", None, {"horizon": 25, "gamma": 1.0})
+    ours = grid(mdp, [setting], seeds=agents, episodes=episodes)
+    rng = np.random.default_rng(11)
+    theirs = np.array([_np_psrl(mdp, episodes, rng, 25).mean() for _ in range(agents)])
+    mine = ours.returns[0].mean(axis=1)
+    spread = np.sqrt(mine.var(ddof=1) / agents + theirs.var(ddof=1) / agents)
+    assert abs(mine.mean() - theirs.mean()) < 4 * spread + 0.02, (mine.mean(), theirs.mean())
+    other = grid(mdp, [setting], seeds=agents, episodes=episodes, strategy="lockstep")
+    np.testing.assert_array_equal(other.returns, ours.returns)

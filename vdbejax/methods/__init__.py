@@ -13,7 +13,7 @@
 * :mod:`vdbejax.methods.model` — the agent's count model of its task and planning on it;
   :mod:`vdbejax.methods.model_based` — R-max, MBIE-EB; :mod:`vdbejax.methods.traces` —
   SARSA(λ), Watkins Q(λ); :mod:`vdbejax.methods.dyna` — Dyna-Q, Dyna-Q+;
-  :mod:`vdbejax.methods.finite_horizon` — UCBVI, UCB-H.
+  :mod:`vdbejax.methods.finite_horizon` — UCBVI, UCB-H, PSRL.
 * :mod:`vdbejax.methods.agents` — :class:`Setting`, :func:`sweep`, :func:`make_agent`.
 """
 from vdbejax._numerics import rounded, sample_categorical
