@@ -620,3 +620,58 @@ def test_psrl_agrees_with_numpy_statistically_and_keeps_its_bits():
     assert abs(mine.mean() - theirs.mean()) < 4 * spread + 0.02, (mine.mean(), theirs.mean())
     other = grid(mdp, [setting], seeds=agents, episodes=episodes, strategy="lockstep")
     np.testing.assert_array_equal(other.returns, ours.returns)
+
+
+# --- Delayed Q-learning -------------------------------------------------------------------
+
+def _np_delayed_q(mdp, episodes, m=3.0, eps1=0.01, gamma=0.9, r_max=1.0):
+    """Strehl et al. 2006, Alg. 1, on a deterministic task, greedy with first ties."""
+    S, A = mdp.num_states, mdp.num_actions
+    nxt, rew = np.asarray(mdp.next_state)[..., 0], np.asarray(mdp.reward)[..., 0]
+    term = np.asarray(mdp.terminal)[..., 0]
+    q = np.full((S, A), F(r_max) / F(1 - F(gamma)), F)
+    u, n = np.zeros((S, A), F), np.zeros((S, A), F)
+    learn, attempted, changed = np.ones((S, A), bool), np.zeros((S, A), F), F(0)
+    clock, returns, lengths = 1, [], []  # the engine's first iteration is the first reset
+    a = None
+    for _ in range(episodes):
+        s, total, length = 0, F(0), 0
+        a = int(np.argmax(q[s]))
+        while True:
+            s2, r, done = int(nxt[s, a]), F(rew[s, a]), bool(term[s, a])
+            total, length = F(total + r), length + 1
+            now = F(clock + 1)
+            if learn[s, a]:
+                u[s, a] = F(u[s, a] + F(r + (F(0) if done else F(gamma) * q[s2].max())))
+                n[s, a] += 1
+                if n[s, a] >= m:
+                    mean = F(u[s, a] / F(m))
+                    if q[s, a] - mean >= F(2 * eps1):
+                        q[s, a], changed = F(mean + F(eps1)), now
+                    elif attempted[s, a] >= changed:
+                        learn[s, a] = False
+                    attempted[s, a], u[s, a], n[s, a] = now, 0, 0
+            elif attempted[s, a] < changed:
+                learn[s, a] = True
+            clock += 1
+            if done:
+                break
+            s, a = s2, int(np.argmax(q[s2]))
+        returns.append(total)
+        lengths.append(length)
+    return np.array(returns, F), np.array(lengths)
+
+
+def test_delayed_q_matches_numpy():
+    mdp = chain(max_steps=100_000)
+    values = {"updates": 3.0, "epsilon1": 0.01}
+    result = grid(mdp, [Setting("delayed_q", "greedy", None, values)], seeds=1, episodes=40)
+    want_returns, want_lengths = _np_delayed_q(mdp, 40)
+    np.testing.assert_array_equal(result.lengths[0, 0], want_lengths)
+    np.testing.assert_allclose(result.returns[0, 0], want_returns, atol=1e-5)
+    assert want_returns[-5:].max() > 0.9
+    other = grid(mdp, [Setting("delayed_q", "egreedy", 0.2, values)], seeds=3, episodes=20,
+                 options=AgentOptions())
+    lockstep = grid(mdp, [Setting("delayed_q", "egreedy", 0.2, values)], seeds=3,
+                    episodes=20, options=AgentOptions(), strategy="lockstep")
+    np.testing.assert_array_equal(other.returns, lockstep.returns)

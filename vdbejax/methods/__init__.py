@@ -13,12 +13,21 @@
 * :mod:`vdbejax.methods.model` — the agent's count model of its task and planning on it;
   :mod:`vdbejax.methods.model_based` — R-max, MBIE-EB; :mod:`vdbejax.methods.traces` —
   SARSA(λ), Watkins Q(λ); :mod:`vdbejax.methods.dyna` — Dyna-Q, Dyna-Q+;
-  :mod:`vdbejax.methods.finite_horizon` — UCBVI, UCB-H, PSRL.
+  :mod:`vdbejax.methods.finite_horizon` — UCBVI, UCB-H, PSRL;
+  :mod:`vdbejax.methods.delayed_q` — Delayed Q-learning.
 * :mod:`vdbejax.methods.agents` — :class:`Setting`, :func:`sweep`, :func:`make_agent`.
 """
 from vdbejax._numerics import rounded, sample_categorical
 from vdbejax._pytree import static_field
-from vdbejax.methods import dyna, explorers, finite_horizon, learners, model_based, traces
+from vdbejax.methods import (
+    delayed_q,
+    dyna,
+    explorers,
+    finite_horizon,
+    learners,
+    model_based,
+    traces,
+)
 from vdbejax.methods.agents import (
     Agent,
     AgentOptions,
@@ -60,6 +69,7 @@ __all__ = [
     "Table",
     "Transition",
     "check_plugin",
+    "delayed_q",
     "dyna",
     "explorer",
     "explorer_title",
