@@ -37,6 +37,8 @@ METHODS = [
     Setting("ucbvi", "greedy", None, {"gamma": 1.0, "bonus": "hoeffding",
                                       "bonus_scale": 0.001}),
     Setting("ucb_h", "greedy", None, {"gamma": 1.0, "bonus_scale": 0.001}),
+    Setting("delayed_q", "greedy"),
+    Setting("psrl", "greedy", None, {"gamma": 1.0}),
 ]
 
 
@@ -92,7 +94,10 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--seeds", type=int, default=20)
+    parser.add_argument("--only", default="", help="comma-separated learner names to time")
     args = parser.parse_args()
+    if args.only:
+        METHODS[:] = [s for s in METHODS if s.learner in args.only.split(",")]
     print(f"vdbejax {vdbejax.__version__}, jax {jax.__version__}, "
           f"{args.seeds} agents × {args.episodes} episodes per setting, paper task")
     print("| setting | first call s | warm s (median) | steps | µs/step | final return |")
