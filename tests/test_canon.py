@@ -16,6 +16,7 @@ from vdbejax.envs.tabular import make_tabular_mdp
 from vdbejax.methods import model as model_lib
 from vdbejax.methods.agents import AgentOptions, Setting
 from vdbejax.methods.api import Learner, LearnerUpdate, check_plugin, learner
+from vdbejax.methods.learners import pair_mask
 from vdbejax.methods.traces import trace_update
 
 F = np.float32
@@ -272,11 +273,22 @@ def test_strategies_chunks_and_lane_widths_give_the_same_bits():
     assert vdbejax.engine.native_step_loops() is True
 
 
+def _np_step(mdp, s, a, rng):
+    """One outcome of (s, a) drawn with numpy's ``rng``: ``(s′, r, terminal)``."""
+    k = rng.choice(mdp.probability.shape[2], p=np.asarray(mdp.probability)[s, a])
+    return (int(mdp.next_state[s, a, k]), float(mdp.reward[s, a, k]),
+            bool(mdp.terminal[s, a, k]))
+
+
+def _assert_same_mean(ours, theirs):
+    """Per-agent means of two implementations agree within 4 standard errors (+ 0.02)."""
+    spread = np.sqrt(ours.var(ddof=1) / ours.size + theirs.var(ddof=1) / theirs.size)
+    assert abs(ours.mean() - theirs.mean()) < 4 * spread + 0.02, (ours.mean(), theirs.mean())
+
+
 def _np_dyna(mdp, episodes, rng, n=5, alpha=0.5, gamma=0.9, epsilon=0.1):
     """Dyna-Q (Sutton & Barto Fig. 8.2) with a count model, ε-greedy, random ties."""
     S, A = mdp.num_states, mdp.num_actions
-    nxt, prob = np.asarray(mdp.next_state), np.asarray(mdp.probability)
-    rew, term = np.asarray(mdp.reward), np.asarray(mdp.terminal)
     q = np.zeros((S, A))
     outcomes: dict = {}
     out = []
@@ -291,8 +303,7 @@ def _np_dyna(mdp, episodes, rng, n=5, alpha=0.5, gamma=0.9, epsilon=0.1):
         s, total, length = 0, 0.0, 0
         while True:
             a = act(s)
-            k = rng.choice(prob.shape[2], p=prob[s, a])
-            s2, r, done = int(nxt[s, a, k]), float(rew[s, a, k]), bool(term[s, a, k])
+            s2, r, done = _np_step(mdp, s, a, rng)
             total, length = total + r, length + 1
             q[s, a] += alpha * (r + (0 if done else gamma * q[s2].max()) - q[s, a])
             outcomes.setdefault((s, a), []).append((s2, r, done))
@@ -317,8 +328,7 @@ def test_dyna_q_agrees_with_numpy_statistically():
                 episodes=episodes, options=AgentOptions()).returns[0].mean(axis=1)
     rng = np.random.default_rng(7)
     theirs = np.array([_np_dyna(mdp, episodes, rng).mean() for _ in range(agents)])
-    spread = np.sqrt(ours.var(ddof=1) / agents + theirs.var(ddof=1) / agents)
-    assert abs(ours.mean() - theirs.mean()) < 4 * spread + 0.02, (ours.mean(), theirs.mean())
+    _assert_same_mean(ours, theirs)
     long = chain(12, max_steps=200)  # planning speeds learning up
     first = [grid(long, [Setting(name, "egreedy", 0.1, {"alpha": 0.5})], seeds=20,
                   episodes=3, options=AgentOptions()).lengths[0].sum()
@@ -581,8 +591,6 @@ def test_posterior_sample_has_the_posterior_mean_under_jit_and_vmap():
 
 def _np_psrl(mdp, episodes, rng, horizon, prior=1.0):
     S, A = mdp.num_states, mdp.num_actions
-    nxt, prob = np.asarray(mdp.next_state), np.asarray(mdp.probability)
-    rew, term = np.asarray(mdp.reward), np.asarray(mdp.terminal)
     counts, visits, rsum = np.zeros((S, A, S + 1)), np.zeros((S, A)), np.zeros((S, A))
     out = []
     for _ in range(episodes):
@@ -595,8 +603,7 @@ def _np_psrl(mdp, episodes, rng, horizon, prior=1.0):
         s, total = 0, 0.0
         for h in range(int(mdp.max_steps)):
             a = int(np.argmax(q[min(h, horizon - 1), s]))
-            k = rng.choice(prob.shape[2], p=prob[s, a])
-            s2, reward, done = int(nxt[s, a, k]), float(rew[s, a, k]), bool(term[s, a, k])
+            s2, reward, done = _np_step(mdp, s, a, rng)
             total += reward
             visits[s, a] += 1
             rsum[s, a] += reward
@@ -615,9 +622,7 @@ def test_psrl_agrees_with_numpy_statistically_and_keeps_its_bits():
     ours = grid(mdp, [setting], seeds=agents, episodes=episodes)
     rng = np.random.default_rng(11)
     theirs = np.array([_np_psrl(mdp, episodes, rng, 25).mean() for _ in range(agents)])
-    mine = ours.returns[0].mean(axis=1)
-    spread = np.sqrt(mine.var(ddof=1) / agents + theirs.var(ddof=1) / agents)
-    assert abs(mine.mean() - theirs.mean()) < 4 * spread + 0.02, (mine.mean(), theirs.mean())
+    _assert_same_mean(ours.returns[0].mean(axis=1), theirs)
     other = grid(mdp, [setting], seeds=agents, episodes=episodes, strategy="lockstep")
     np.testing.assert_array_equal(other.returns, ours.returns)
 
@@ -675,3 +680,40 @@ def test_delayed_q_matches_numpy():
     lockstep = grid(mdp, [Setting("delayed_q", "egreedy", 0.2, values)], seeds=3,
                     episodes=20, options=AgentOptions(), strategy="lockstep")
     np.testing.assert_array_equal(other.returns, lockstep.returns)
+
+
+def test_a_whole_table_learner_writes_its_stage_tables_back_to_its_own_rows():
+    """Every agent's stage table, updated whole each step, stays its own: a count of its
+    visits per (s, a, stage) adds up to its own steps (a block written at another agent's
+    rows would not)."""
+    from vdbejax.engine import run_agents
+    from vdbejax.engine.state import agent_keys, broadcast_agents
+    from vdbejax.methods.agents import make_agent, stack_agents
+    from vdbejax.methods.api import Table
+
+    class StageCounts(Learner):
+        gamma: float = 0.9
+        updates_whole_table = True
+
+        def tables(self):
+            return {"seen": Table("stage", 0.0, length=4)}
+
+        def update(self, t):
+            raise NotImplementedError
+
+        def update_table(self, q, tables, t):
+            stage = jnp.minimum(jnp.asarray(t.step) - 1, 3)
+            here = (pair_mask(q, t.state, t.action)[..., None]
+                    & (jnp.arange(4) == stage))
+            return LearnerUpdate(q, {"seen": tables["seen"] + here}, t.q * 0)
+
+    learner("probe_stage_counts", replace=True)(StageCounts)
+    mdp = chain(max_steps=30)
+    params = broadcast_agents(stack_agents([make_agent(Setting("probe_stage_counts",
+                                                               "egreedy", 0.5))]), 5)
+    for strategy in ("sequential", "lockstep"):
+        done = run_agents(mdp, params, agent_keys(0, 5), 6, strategy=strategy)
+        seen = done.final_state.tables["seen"]
+        np.testing.assert_array_equal(seen.sum(axis=(1, 2, 3)), done.lengths.sum(axis=1))
+        first_steps = seen[..., 0].sum(axis=(1, 2))
+        np.testing.assert_array_equal(first_steps, np.full(5, 6))  # one per episode

@@ -24,13 +24,27 @@ Array = jax.Array
 ENGINE_UNIFORMS = 2
 
 
-def num_uniforms(agent: Agent) -> int:
-    """Uniforms one iteration of this kind draws: the engine's, the explorer's, the
-    learner's, and the explorer's again when the learner redraws its next action."""
+def _uniform_counts(agent: Agent) -> tuple[int, int, int, int]:
+    """Uniforms of an iteration after the engine's, in order: the explorer's, the
+    learner's, the explorer's again when the learner redraws its next action, the plan's."""
     explorer = int(agent.explorer.num_uniforms)
     redraw = explorer if agent.learner.redraws_next_action else 0
-    return (ENGINE_UNIFORMS + explorer + int(agent.learner.num_uniforms) + redraw
-            + int(agent.learner.plan_uniforms))
+    return explorer, int(agent.learner.num_uniforms), redraw, int(agent.learner.plan_uniforms)
+
+
+def num_uniforms(agent: Agent) -> int:
+    """Uniforms one iteration of this kind draws (the engine's and :func:`uniform_parts`)."""
+    return ENGINE_UNIFORMS + sum(_uniform_counts(agent))
+
+
+def uniform_parts(agent: Agent, u: tuple) -> tuple[tuple, tuple, tuple, tuple]:
+    """An iteration's uniforms ``u`` split into the explorer's, the learner's, the
+    redrawn choice's and the plan's (the engine's own are ``u[:ENGINE_UNIFORMS]``)."""
+    parts, start = [], ENGINE_UNIFORMS
+    for count in _uniform_counts(agent):
+        parts.append(u[start:start + count])
+        start += count
+    return parts[0], parts[1], parts[2], parts[3]
 
 
 def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: dict,
@@ -121,8 +135,7 @@ def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
     """
     learner, explorer = agent.learner, agent.explorer
     A = num_actions
-    explorer_end = ENGINE_UNIFORMS + explorer.num_uniforms
-    learner_end = explorer_end + learner.num_uniforms
+    explorer_u, learner_u, redraw_u, _ = uniform_parts(agent, u)
     learner_specs = learner.tables()
     learner_sa = {name: learner_rows(tables[name], sa_index, 1, spec)
                   for name, spec in learner_specs.items()}
@@ -134,14 +147,11 @@ def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
         return rows_of(tables, explorer_specs, state, pair_base, state_base, A)
 
     explorer_s, explorer_next = explorer_rows(s), explorer_rows(act_state)
-    step = (_agent_step if select_next and whole is None
-            else partial(_agent_step, select_next=select_next))
+    step = partial(_agent_step, select_next=select_next)
     new_q_sa, new_learner_sa, new_explorer_s, next_action, finite = jax.vmap(step)(
         agent, a, q_sa, q_next, learner_sa, learner_next, explorer_s, explorer_next, reward,
-        terminal, self_loop, update_context, select_context, u[ENGINE_UNIFORMS:explorer_end],
-        u[explorer_end:learner_end], u[learner_end:learner_end + (
-            explorer.num_uniforms if learner.redraws_next_action else 0)], s, s_next, time,
-        *(() if whole is None else (whole,)),
+        terminal, self_loop, update_context, select_context, explorer_u, learner_u, redraw_u,
+        s, s_next, time, *(() if whole is None else (whole,)),
     )
     old = learner_sa if whole is None else whole[1]
     learned = {name: (new_learner_sa[name], old[name]) for name in learner_specs}

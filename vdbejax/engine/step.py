@@ -33,6 +33,7 @@ from vdbejax.engine.kind_step import (  # noqa: F401  (re-exported)
     _agent_step,
     _kind_step,
     num_uniforms,
+    uniform_parts,
 )
 from vdbejax.engine.kinds import (  # noqa: F401  (re-exported)
     KindSwitch,
@@ -91,20 +92,6 @@ def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array) -> tuple[Array, A
         return take(table.reshape(-1), flat)
 
     return at(mdp.next_state), at(mdp.reward), at(mdp.terminal)
-
-
-def _after_learning(mdp: TabularMDP, agent: Agent, q: Array, tables: dict,
-                    next_action: Array, finite: Array, u: tuple, step: LearnedStep
-                    ) -> tuple[Array, dict, Array, Array]:
-    """:func:`~vdbejax.engine.whole.after_learning`, given the kind's uniforms."""
-    explorer_end = ENGINE_UNIFORMS + agent.explorer.num_uniforms
-    plan_start = explorer_end + agent.learner.num_uniforms
-    step = dataclasses.replace(
-        step, explorer_uniforms=u[ENGINE_UNIFORMS:explorer_end],
-        plan_uniforms=u[plan_start:plan_start + agent.learner.plan_uniforms])
-    return after_learning(agent, q, tables, next_action, finite, step,
-                          num_states=mdp.num_states, num_actions=mdp.num_actions,
-                          capacity=capacity(mdp.num_states, mdp.num_outcomes))
 
 
 def lockstep_iteration(
@@ -207,19 +194,24 @@ def lockstep_iteration(
             q = put_learned(agents.q, pair_base, new_q_sa.reshape(num_agents, -1),
                             blocks[0].reshape(num_agents, -1), learn, True)
             for name, (new, old) in learned.items():
-                tables[name] = put_learned(tables[name], pair_base, new.reshape(num_agents, -1),
+                width = agent.learner.tables()[name].width()  # a stage table's block is wider
+                tables[name] = put_learned(tables[name], pair_base * width,
+                                           new.reshape(num_agents, -1),
                                            old.reshape(num_agents, -1), learn, True)
         for name, spec in agent.explorer.tables().items():
             new, old = explored[name]
             tables[name] = put_learned(tables[name], index_of(_write_form("explorer", spec.per)),
                                        new, old, learn, spec.per == "pair")
         if whole_kind:
-            q, tables, next_action, finite = _after_learning(
-                mdp, agent, q, tables, next_action, finite, u, LearnedStep(
+            explorer_u, _, _, plan_u = uniform_parts(agent, u)
+            q, tables, next_action, finite = after_learning(
+                agent, q, tables, next_action, finite, LearnedStep(
                     s=s, s_next=s_next, act_state=act_state, reward=reward, terminal=terminal,
                     sa_index=sa_index, pair_base=pair_base, state_base=state_base, learn=learn,
                     active=active, resetting=resetting, counter=agents.counter,
-                    select_context=select_context, explorer_uniforms=(), plan_uniforms=()))
+                    select_context=select_context, explorer_uniforms=explorer_u,
+                    plan_uniforms=plan_u),
+                num_states=S, num_actions=A, capacity=capacity(S, mdp.num_outcomes))
     else:
         forms = table_forms(kinds)
         assert forms is not None and _unrolled(lane), "see can_switch"

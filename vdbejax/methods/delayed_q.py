@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from vdbejax._numerics import rounded
 from vdbejax.methods.contract import Learner, LearnerUpdate, Table, Transition
-from vdbejax.methods.learners import PAPER_GAMMA
+from vdbejax.methods.learners import PAPER_GAMMA, masked_value, pair_mask
 from vdbejax.methods.registry import learner
 from vdbejax.validation import check_in_range
 
@@ -51,11 +51,10 @@ class DelayedQ(Learner):
     def update_table(self, q: Array, tables: Mapping[str, Array],
                      t: Transition) -> LearnerUpdate:
         assert t.state is not None and t.action is not None and t.time is not None
-        here = ((jnp.arange(q.shape[0])[:, None] == t.state)
-                & (jnp.arange(q.shape[1])[None, :] == t.action))
+        here = pair_mask(q, t.state, t.action)
 
-        def at(table: Array) -> Array:  # the value at (s, a), by a mask (no gather)
-            return jnp.max(jnp.where(here, table, -jnp.inf))
+        def at(table: Array) -> Array:  # the value at (s, a)
+            return masked_value(table, here)
 
         now = jnp.asarray(t.time, jnp.float32) + 1.0
         changed = tables["changed"][0, 0]

@@ -20,8 +20,9 @@ import jax
 import jax.numpy as jnp
 
 from vdbejax._numerics import rounded
-from vdbejax._pytree import static_field
+from vdbejax._pytree import pytree_dataclass, static_field
 from vdbejax.methods.contract import Context, Learner, LearnerUpdate, Table, Transition
+from vdbejax.methods.learners import masked_value
 from vdbejax.methods.model import Model, expected_under
 from vdbejax.methods.registry import learner
 from vdbejax.validation import check_choice, check_in_range, check_int
@@ -37,8 +38,7 @@ UCBVI_CONVENTIONS = ("paper", "rlberry")
 
 def at_stage(row: Array, stage: Array) -> Array:
     """``row[..., stage]`` of a ``[..., H]`` stage row, by a mask (no gather)."""
-    mask = jnp.arange(row.shape[-1]) == stage
-    return jnp.max(jnp.where(mask, row, -jnp.inf), axis=-1)
+    return masked_value(row, jnp.arange(row.shape[-1]) == stage, axis=-1)
 
 
 def stage_values(stage_row: Array, context: Context) -> Array:
@@ -73,12 +73,37 @@ def ucbvi_values(model: Model, bonus: Any, gamma: Any, r_max: Any, horizon: int,
         return (jnp.max(q, axis=1), v_max), q
 
     start = (jnp.zeros(model.visits.shape[0], jnp.float32), jnp.asarray(0.0, jnp.float32))
+    return backward_induction(stage, start, horizon)
+
+
+def backward_induction(stage: Any, start: Any, horizon: int) -> Array:
+    """``[S, A, H]`` Q_h from ``stage(carry, h) -> (carry, Q_h)`` run for h = H − 1 … 0
+    (``carry`` holds what the next stage needs, e.g. V_{h+1})."""
     stages: Array = jax.lax.scan(stage, start, jnp.arange(horizon - 1, -1, -1))[1]
-    return jnp.flip(stages, axis=0).transpose(1, 2, 0)  # scanned from h = H − 1
+    return jnp.flip(stages, axis=0).transpose(1, 2, 0)
+
+
+@pytree_dataclass
+class _StageLearner(Learner):
+    """A finite-horizon learner: Q_h in a stage table ``q_stage``, acting on the episode
+    step's stage (see the module docstring)."""
+
+    horizon: int = static_field(100)
+    behaviour_uses_context = True
+
+    def tables(self) -> dict[str, Table]:
+        return {"q_stage": Table("stage", 0.0, length=self.horizon)}
+
+    def behaviour(self, q: Array, tables: Mapping[str, Array],  # type: ignore[override]
+                  context: Context) -> Array:
+        return stage_values(tables["q_stage"], context)
+
+    def validate(self) -> None:
+        check_int("horizon", self.horizon, 1)
 
 
 @learner("ucbvi", title="UCBVI")
-class UCBVI(Learner):
+class UCBVI(_StageLearner):
     """UCBVI (Azar, Osband & Munos 2017, "Minimax regret bounds for reinforcement
     learning", ICML, Alg. 1): before each episode (``plan_at = "episode"``), Q_h by
     backward induction on the empirical model plus a bonus (:func:`ucbvi_values`).
@@ -100,7 +125,6 @@ class UCBVI(Learner):
     """
 
     gamma: float | Array = 1.0
-    horizon: int = static_field(100)
     bonus_scale: float | Array = 1.0
     delta: float | Array = 0.1
     r_max: float | Array = 1.0
@@ -108,18 +132,13 @@ class UCBVI(Learner):
     convention: str = static_field("paper")
     uses_model = True
     plan_at = "episode"
-    behaviour_uses_context = True
 
     def tables(self) -> dict[str, Table]:
-        tables = {"q_stage": Table("stage", 0.0, length=self.horizon)}
+        tables = super().tables()
         if self.convention == "rlberry":  # visits at each stage's last visit, and in all
             tables["bonus_visits"] = Table("stage", 0.0, length=self.horizon)
             tables["visits"] = Table("pair", 0.0)
         return tables
-
-    def behaviour(self, q: Array, tables: Mapping[str, Array],  # type: ignore[override]
-                  context: Context) -> Array:
-        return stage_values(tables["q_stage"], context)
 
     def update(self, t: Transition) -> LearnerUpdate:  # the values come from planning
         tables = dict(t.tables)
@@ -167,8 +186,8 @@ class UCBVI(Learner):
         return stages[..., 0], {**tables, "q_stage": stages}
 
     def validate(self) -> None:
+        super().validate()
         check_in_range("gamma", self.gamma, 0.0, 1.0)
-        check_int("horizon", self.horizon, 1)
         check_in_range("bonus_scale", self.bonus_scale, 0.0, 1e30)
         check_in_range("delta", self.delta, 0.0, 1.0, low_open=True, high_open=True)
         check_in_range("r_max", self.r_max, 0.0, 1e30, low_open=True)
@@ -180,7 +199,7 @@ class UCBVI(Learner):
 
 
 @learner("ucb_h", title="UCB-H")
-class UCBH(Learner):
+class UCBH(_StageLearner):
     """Q-learning with UCB-Hoeffding exploration (Jin, Allen-Zhu, Bubeck & Jordan 2018,
     "Is Q-learning provably efficient?", NeurIPS, Alg. 1): after the step at stage h,
     with t the visits of (s, a) at stage h, ``Q_h(s,a) ← (1 − α_t) Q_h(s,a) + α_t (r +
@@ -192,11 +211,9 @@ class UCBH(Learner):
     """
 
     gamma: float | Array = 1.0
-    horizon: int = static_field(100)
     bonus_scale: float | Array = 1.0
     iota: float | Array = 1.0
     r_max: float | Array = 1.0
-    behaviour_uses_context = True
 
     def v_max(self) -> Array:
         return jnp.asarray(self.horizon * self.r_max, jnp.float32)
@@ -207,10 +224,6 @@ class UCBH(Learner):
 
     def initial_q(self, key: Array, num_states: int, num_actions: int) -> Array:
         return jnp.full((num_states, num_actions), self.v_max(), jnp.float32)
-
-    def behaviour(self, q: Array, tables: Mapping[str, Array],  # type: ignore[override]
-                  context: Context) -> Array:
-        return stage_values(tables["q_stage"], context)
 
     def update(self, t: Transition) -> LearnerUpdate:
         H = self.horizon
@@ -233,8 +246,8 @@ class UCBH(Learner):
                              first - t.q)
 
     def validate(self) -> None:
+        super().validate()
         check_in_range("gamma", self.gamma, 0.0, 1.0)
-        check_int("horizon", self.horizon, 1)
         check_in_range("bonus_scale", self.bonus_scale, 0.0, 1e30)
         check_in_range("iota", self.iota, 0.0, 1e30)
         check_in_range("r_max", self.r_max, 0.0, 1e30, low_open=True)
@@ -272,7 +285,7 @@ def posterior_sample(model: Model, key: Array, prior: Any, reward_prior_mean: An
 
 
 @learner("psrl", title="PSRL")
-class PSRL(Learner):
+class PSRL(_StageLearner):
     """Posterior sampling for RL (Osband, Russo & Van Roy 2013, "(More) efficient
     reinforcement learning via posterior sampling", NeurIPS, Alg. 1): before each episode
     (``plan_at = "episode"``) one MDP is drawn from the posterior (:func:`posterior_sample`:
@@ -286,20 +299,11 @@ class PSRL(Learner):
     """
 
     gamma: float | Array = 1.0
-    horizon: int = static_field(100)
     prior: float | Array = 1.0
     reward_prior_mean: float | Array = 0.0
     uses_model = True
     plan_at = "episode"
     plan_uniforms = 2
-    behaviour_uses_context = True
-
-    def tables(self) -> dict[str, Table]:
-        return {"q_stage": Table("stage", 0.0, length=self.horizon)}
-
-    def behaviour(self, q: Array, tables: Mapping[str, Array],  # type: ignore[override]
-                  context: Context) -> Array:
-        return stage_values(tables["q_stage"], context)
 
     def update(self, t: Transition) -> LearnerUpdate:  # the values come from planning
         return LearnerUpdate(t.q, dict(t.tables), jnp.zeros_like(t.q))
@@ -315,13 +319,11 @@ class PSRL(Learner):
             q_h = rewards + rounded(self.gamma * expected, self.gamma)
             return jnp.max(q_h, axis=1), q_h
 
-        start = jnp.zeros(q.shape[0], jnp.float32)
-        stages: Array = jax.lax.scan(stage, start, None, length=self.horizon)[1]
-        stages = jnp.flip(stages, axis=0).transpose(1, 2, 0)
+        stages = backward_induction(stage, jnp.zeros(q.shape[0], jnp.float32), self.horizon)
         return stages[..., 0], {"q_stage": stages}
 
     def validate(self) -> None:
+        super().validate()
         check_in_range("gamma", self.gamma, 0.0, 1.0)
-        check_int("horizon", self.horizon, 1)
         check_in_range("prior", self.prior, 0.0, 1e30, low_open=True)
         check_in_range("reward_prior_mean", self.reward_prior_mean, -1e30, 1e30)

@@ -103,6 +103,19 @@ def double_q_learning_target(reward: Array, discount: Array, q_next_value: Array
     return reward + rounded(discount * value, discount)
 
 
+def pair_mask(q: Array, state: Array, action: Array) -> Array:
+    """``[S, A]`` True at (s, a) only (whole-table learners select by it: no gather or
+    scatter in the engine's native loops)."""
+    return ((jnp.arange(q.shape[0])[:, None] == state)
+            & (jnp.arange(q.shape[1])[None, :] == action))
+
+
+def masked_value(table: Array, mask: Array, axis: int | None = None) -> Array:
+    """The entry of ``table`` where ``mask`` holds (one per slice along ``axis``), read
+    by a mask (exact: the other entries are −∞ to the max)."""
+    return jnp.max(jnp.where(mask, table, -jnp.inf), axis=axis)
+
+
 #: How a TD learner treats a failure (a terminal step with a negative reward): a TD
 #: update toward ``r`` (the textbook), or ``Q(s,a) ← failure_value`` (the authors' code).
 FAILURE_UPDATES = ("td", "overwrite")

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 from vdbejax._numerics import rounded
 from vdbejax._pytree import pytree_dataclass, static_field
 from vdbejax.methods.contract import Learner, LearnerUpdate, Table, Transition
-from vdbejax.methods.learners import PAPER_ALPHA, PAPER_GAMMA, sarsa_target
+from vdbejax.methods.learners import PAPER_ALPHA, PAPER_GAMMA, pair_mask, sarsa_target
 from vdbejax.methods.registry import learner
 from vdbejax.validation import check_choice, check_finite, check_in_range
 
@@ -34,8 +34,7 @@ def trace_update(q: Array, trace: Array, state: Array, action: Array, td_error: 
     """``(Q + α δ e, decay · e)`` after marking (s, a) in ``e`` (cleared on the episode's
     first step); ``decay`` is γλ, or 0 to cut the traces (Watkins's exploratory a′)."""
     trace = jnp.where(first_step, 0.0, trace)
-    visited = ((jnp.arange(q.shape[0])[:, None] == state)
-               & (jnp.arange(q.shape[1])[None, :] == action))
+    visited = pair_mask(q, state, action)
     trace = jnp.where(visited, trace + 1.0 if kind == "accumulating" else 1.0, trace)
     step = rounded(alpha * td_error, alpha)
     return q + rounded(step * trace, step), rounded(decay * trace, decay)
