@@ -70,8 +70,8 @@ def _worker_vdbejax(args) -> dict:
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     from vdbejax import engine
     from vdbejax.engine import programs
-    from vdbejax.methods.agents import make_agent, paper_settings, stack_agents
     from vdbejax.experiment import grid_agents
+    from vdbejax.methods.agents import make_agent, paper_settings, stack_agents
 
     factory = _load_factory(args.mdp_factory)  # its module's import is not timed either
     rss_import = _peak_rss_mb()
@@ -293,7 +293,7 @@ def _machine() -> list[str]:
         f"- Versions: Python {platform.python_version()}, jax {jax.__version__}, "
         f"numba {numba.__version__}, numpy {np.__version__}, "
         f"mushroom-rl {mushroom or 'not installed'}.",
-        f"- Date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC}.",
+        f"- Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M UTC}.",
     ]
 
 

@@ -7,7 +7,7 @@ For each run it prints and records the wall time (warm: the programs compiled in
 untimed run of the same shapes), agent-steps per second and the device's peak memory
 (``memory_stats()['peak_bytes_in_use']`` where the backend reports it, else the host's peak
 RSS). The sweep multiplies the paper grid's seeds (46 settings × seeds agents) until the
-next size would not fit the device (:func:`vdbejax.batching.check_run_size` and the device's
+next size would not fit the device (:func:`vdbejax.runs.batching.check_run_size` and the device's
 free memory) or ``--max-agents``.
 
 The result is written as the section ``## GPU (benchmarks.gpu)`` of ``--out``: replaced if
@@ -67,7 +67,7 @@ def run_once(seeds: int, episodes: int) -> dict:
 
 
 def _fits(agents: int, episodes: int) -> bool:
-    from vdbejax.batching import check_run_size
+    from vdbejax.runs.batching import check_run_size
 
     try:
         check_run_size(agents, episodes)
@@ -104,7 +104,7 @@ def render(grid: dict, rows: list[dict], command: str) -> str:
     device, _ = _device_summary()
     lines = [
         HEADING, "",
-        f"Command: `{command}`; {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC};"
+        f"Command: `{command}`; {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M UTC};"
         f" {device}; jax {jax.__version__}, Python {platform.python_version()}. Warm runs"
         " (programs compiled by an untimed run first).", "",
         f"Full paper grid (46 settings × 20 agents × {grid['episodes']:,} episodes):"

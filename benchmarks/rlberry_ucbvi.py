@@ -28,20 +28,21 @@ S, A = 6, 2
 
 
 def river_swim() -> tuple[np.ndarray, np.ndarray]:
-    """``(R [S, A], P [S, A, S])``; action 0 = left, 1 = right."""
-    P = np.zeros((S, A, S))
-    R = np.zeros((S, A))
-    for s in range(S):
-        P[s, 0, max(s - 1, 0)] = 1.0
-        if s == 0:
-            P[s, 1, 0], P[s, 1, 1] = 0.6, 0.4
-        elif s == S - 1:
-            P[s, 1, s], P[s, 1, s - 1] = 0.6, 0.4
-        else:
-            P[s, 1, s + 1], P[s, 1, s], P[s, 1, s - 1] = 0.35, 0.6, 0.05
-    R[0, 0] = 0.005
-    R[S - 1, 1] = 1.0
-    return R, P
+    """``(R [S, A], P [S, A, S])``; action 0 = left, 1 = right: the task suite's model
+    (``vdbejax.envs.suite.river_swim``), read from its file where JAX is missing (rlberry's
+    venv: importing the package ``vdbejax.envs`` imports JAX; the model needs numpy only)."""
+    try:
+        from vdbejax.envs.suite.river_swim import normalised_river_swim_model
+    except ImportError:
+        import importlib.util
+
+        path = Path(__file__).resolve().parents[1] / "vdbejax/envs/suite/river_swim.py"
+        spec = importlib.util.spec_from_file_location("_suite_river_swim", path)
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        normalised_river_swim_model = module.normalised_river_swim_model
+    return normalised_river_swim_model(S)
 
 
 def run_vdbejax(args: argparse.Namespace) -> dict:

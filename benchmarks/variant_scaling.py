@@ -38,10 +38,11 @@ def peak_rss_gib() -> float:
 
 def measure(n: int, k: int, seeds: int, episodes: int, max_steps: int) -> dict:
     """Compile, solve and run one variant (in this process); returns the measurements."""
-    from vdbejax import engine, solvers
-    from vdbejax.methods.agents import Setting
+    from vdbejax import engine
+    from vdbejax.envs import solvers
     from vdbejax.envs.table_cleaning import make_variant, make_variant_mdp
     from vdbejax.experiment import run_grid
+    from vdbejax.methods.agents import Setting
 
     started = time.perf_counter()
     mdp = make_variant_mdp(n, k, max_steps=max_steps)

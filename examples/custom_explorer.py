@@ -19,8 +19,15 @@ import argparse
 import jax
 import jax.numpy as jnp
 
-from vdbejax.methods import (Explorer, Learner, LearnerUpdate, Table, explorer, learner,
-                             select_action)
+from vdbejax.methods import (
+    Explorer,
+    Learner,
+    LearnerUpdate,
+    Table,
+    explorer,
+    learner,
+    select_action,
+)
 from vdbejax.methods.learners import td_update
 
 
@@ -60,9 +67,9 @@ class MellowQ(Learner):
 
 def main(argv: list[str] | None = None) -> int:
     import vdbejax
-    from vdbejax.analysis import summarize
     from vdbejax.envs.table_cleaning import make_mdp
     from vdbejax.methods import Setting
+    from vdbejax.results.analysis import summarize
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)

@@ -51,9 +51,9 @@ class UCBValueIteration(Learner):
 
 def main(argv: list[str] | None = None) -> int:
     import vdbejax
-    from vdbejax.analysis import summarize
     from vdbejax.envs.table_cleaning import make_mdp
     from vdbejax.methods import Setting
+    from vdbejax.results.analysis import summarize
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from vdbejax.methods.agents import Setting
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import GridResult, run_grid
+from vdbejax.methods.agents import Setting
 
 #: One setting of every explorer, both learners.
 SETTINGS = [
@@ -58,6 +58,6 @@ def assert_fixed_budget_up_to_each_stop(stopped: Any, fixed: GridResult,
 
 def budget_for(mdp: Any, agents: int, chunk_episodes: int = 8) -> int:
     """The per-device memory budget that fits exactly ``agents`` agents."""
-    from vdbejax.batching import bytes_per_agent, mdp_bytes
+    from vdbejax.runs.batching import bytes_per_agent, mdp_bytes
 
     return mdp_bytes(mdp) + agents * bytes_per_agent(mdp, chunk_episodes)

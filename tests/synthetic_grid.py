@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from vdbejax.methods.agents import paper_settings
 from vdbejax.experiment import GridResult
+from vdbejax.methods.agents import paper_settings
 
 BEST = 0.86
 

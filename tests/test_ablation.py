@@ -153,7 +153,7 @@ def test_factorial_mode_and_sections_in_the_document(tmp_path):
 
 def test_a_variant_left_half_written_by_a_killed_run_is_continued(tmp_path):
     from vdbejax.experiment import GridResult
-    from vdbejax.result_folder import MARKER_FILE, mark
+    from vdbejax.results.folder_lock import MARKER_FILE, mark
 
     (variant,) = ablation.select_variants("spec")
     folder = tmp_path / "spec"

@@ -2,11 +2,12 @@
 markdown tables, probability-of-improvement matrices."""
 import numpy as np
 import pytest
-
 from synthetic_grid import synthetic_grid
-from vdbejax import analysis, snapshots
-from vdbejax.methods.agents import Setting
+
 from vdbejax.envs.table_cleaning import make_mdp
+from vdbejax.methods.agents import Setting
+from vdbejax.results import analysis
+from vdbejax.studies import snapshots
 
 Q = np.array([0.0, 1.0, 1.0, -1.0])
 

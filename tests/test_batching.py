@@ -13,13 +13,13 @@ from small_grid import (
     small_mdp,
 )
 
-from vdbejax.batching import (
+from vdbejax.runs import RunState
+from vdbejax.runs.batching import (
     agents_per_batch,
     bytes_per_agent,
     default_memory_budget,
     mdp_bytes,
 )
-from vdbejax.runs import RunState
 from vdbejax.validation import parse_bytes
 
 
@@ -43,7 +43,7 @@ def test_agents_per_batch():
 
 def test_default_budget_is_a_positive_share_of_free_memory():
     budget = default_memory_budget()
-    assert 0 < budget
+    assert budget > 0
     assert budget < 2**50
 
 

@@ -22,11 +22,12 @@ from vdbejax.methods import (
     Table,
     Transition,
     explorer,
+    explorers,
     learner,
+    learners,
     make_agent,
     stack_agents,
 )
-from vdbejax.methods import explorers, learners
 from vdbejax.methods.explorers import (
     UCB1,
     decayed,
@@ -50,7 +51,7 @@ BUILTIN_EXPLORERS = ("egreedy", "softmax", "vdbe", "vdbe_softmax", "max_boltzman
 BUILTIN_LEARNERS = ("qlearning", "sarsa", "expected_sarsa", "double_qlearning")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def make_mdp(max_steps=100):
     """The table-cleaning task (108 states, 7 actions), built once per length."""
     return _make_mdp(max_steps=max_steps)

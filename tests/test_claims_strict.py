@@ -2,10 +2,10 @@
 import dataclasses
 
 import pytest
-
-from vdbejax.analysis import summarize
-from vdbejax.paper.claims import ABOUT, evaluate_claims
 from synthetic_grid import BEST, synthetic_grid
+
+from vdbejax.paper.claims import ABOUT, evaluate_claims
+from vdbejax.results.analysis import summarize
 
 
 def claim5(episodes: dict[str, int]):

@@ -2,8 +2,8 @@
 import csv
 
 import pytest
-
 from synthetic_grid import synthetic_grid
+
 from vdbejax import cli
 
 

@@ -4,11 +4,11 @@ from collections import deque
 import numpy as np
 import pytest
 
-from vdbejax import solvers
+from vdbejax.envs import solvers
 from vdbejax.envs.cruz2018 import ACTION_NAMES, STEP_CAP, make_authors_mdp, table
 from vdbejax.experiment import run_grid
 from vdbejax.methods import Setting
-from vdbejax.sweeps import make_task
+from vdbejax.studies.sweeps import make_task
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from small_grid import SETTINGS, assert_same_curves, budget_for, run_small, small_mdp
 
 

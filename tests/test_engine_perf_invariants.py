@@ -3,17 +3,17 @@ streams) must not change any result: each agent's results depend only on its key
 hyperparameters."""
 from __future__ import annotations
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
-import chex
 import pytest
 from absl.testing import parameterized
 
 from vdbejax import engine
 from vdbejax.engine import sequential
-from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents
 from vdbejax.envs.table_cleaning import make_mdp
+from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents
 from vdbejax.methods.explorers import select_action
 from vdbejax.methods.learners import q_learning_target, sarsa_target
 

@@ -1,6 +1,6 @@
-"""Layers point one way: what the results and statistics modules import (at the top of
-the module or inside a function, transitively) never reaches the engine or the run path,
-and tasks never reach the plug-in surface's agents or the engine."""
+"""The package's layers import one way (docs/architecture.md): a module imports only from
+its own layer or the layers before it, whatever the depth of the import (function-level
+imports included)."""
 from __future__ import annotations
 
 import ast
@@ -8,66 +8,81 @@ from pathlib import Path
 
 import pytest
 
+from vdbejax._moved import MOVED
+
 PACKAGE = Path(__file__).resolve().parents[1] / "vdbejax"
 
-
-def _module_file(name: str) -> Path | None:
-    parts = name.split(".")[1:]
-    base = PACKAGE.joinpath(*parts)
-    for candidate in (base.with_suffix(".py"), base / "__init__.py"):
-        if candidate.is_file():
-            return candidate
-    return None
-
-
-def _imports(name: str) -> set[str]:
-    """The vdbejax modules ``name`` imports (its parent packages' ``__init__`` included)."""
-    path = _module_file(name)
-    if path is None:
-        return set()
-    found = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.Import):
-            found |= {alias.name for alias in node.names}
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            found.add(node.module)
-            found |= {f"{node.module}.{alias.name}" for alias in node.names}
-    found = {n for n in found if n.startswith("vdbejax.") and _module_file(n) is not None}
-    parents = {".".join(n.split(".")[:i]) for n in found for i in range(2, n.count(".") + 1)}
-    return found | {p for p in parents if _module_file(p) is not None}
+#: The dependency order. ``results`` (data and statistics, numpy) comes before ``runs``:
+#: a run produces a GridResult, while statistics never train.
+ORDER = ["base", "methods", "envs", "engine", "results", "runs", "studies", "paper", "cli",
+         "facade"]
+#: The package's front (``vdbejax``, ``vdbejax.experiment``, the old paths of moved modules):
+#: only for users; the package itself imports each name from the module that defines it.
+MOVED_NAMES = {name.split(".")[1] for name in MOVED}
+#: Within one rank neither may import the other: tasks know nothing of methods.
+FORBIDDEN = {("envs", "methods"), ("methods", "envs")}
 
 
-def reachable(name: str) -> set[str]:
-    seen, todo = set(), [name]
-    while todo:
-        module = todo.pop()
-        if module not in seen:
-            seen.add(module)
-            todo.extend(_imports(module) - seen)
-    return seen - {name}
+def layer(module: str) -> str:
+    parts = module.split(".")
+    if len(parts) == 1 or parts[1] in {"__main__", "experiment"} or parts[1] in MOVED_NAMES:
+        return "facade"
+    if parts[1] in ORDER:
+        return parts[1]
+    if parts[1].startswith("_") or parts[1] == "validation":
+        return "base"
+    raise AssertionError(f"{module} belongs to no layer: add it to ORDER or move it")
 
 
-@pytest.mark.parametrize("module", ["vdbejax.grid_result", "vdbejax.stats", "vdbejax.summary",
-                                    "vdbejax.analysis", "vdbejax.plotting", "vdbejax.solving",
-                                    "vdbejax.scaling_report"])
-def test_results_and_statistics_never_reach_the_engine_or_the_run_path(module):
-    bad = sorted(m for m in reachable(module)
-                 if m.startswith(("vdbejax.engine", "vdbejax.runs", "vdbejax.studies")))
-    assert not bad, f"{module} reaches {bad}"
+def imports() -> list[tuple[str, str]]:
+    edges = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        module = ".".join(("vdbejax", *path.relative_to(PACKAGE).with_suffix("").parts))
+        module = module.removesuffix(".__init__")
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                if node.module == "vdbejax":
+                    edges += [(module, f"vdbejax.{a.name}") for a in node.names]
+                elif node.module.startswith("vdbejax."):
+                    edges.append((module, node.module))
+            elif isinstance(node, ast.Import):
+                edges += [(module, a.name) for a in node.names if a.name.startswith("vdbejax.")]
+    return edges
 
 
-@pytest.mark.parametrize("module", ["vdbejax.envs.tabular", "vdbejax.envs.table_cleaning",
-                                    "vdbejax.envs.cruz2018"])
-def test_tasks_never_reach_the_engine_or_the_agents(module):
-    bad = sorted(m for m in reachable(module)
-                 if m.startswith(("vdbejax.engine", "vdbejax.runs", "vdbejax.methods")))
-    assert not bad, f"{module} reaches {bad}"
+def test_the_walk_finds_the_package() -> None:
+    edges = imports()
+    assert ("vdbejax.runs.grid", "vdbejax.engine.programs") in edges
+    assert ("vdbejax.cli.paper_commands", "vdbejax.paper.reproduce") in edges
 
 
-def test_nothing_below_the_paper_imports_it():
-    for path in PACKAGE.rglob("*.py"):
-        name = "vdbejax." + ".".join(path.relative_to(PACKAGE).with_suffix("").parts)
-        name = name.removesuffix(".__init__")
-        if name.startswith(("vdbejax.paper", "vdbejax.cli")) or name == "vdbejax":
-            continue
-        assert not any(m.startswith("vdbejax.paper") for m in _imports(name)), name
+@pytest.mark.parametrize("edge", imports(), ids=lambda e: f"{e[0]}->{e[1]}")
+def test_imports_point_one_way(edge: tuple[str, str]) -> None:
+    source, target = edge
+    a, b = layer(source), layer(target)
+    assert b != "facade" or a == "facade", \
+        f"{source} imports {target}: import from the module that defines the name"
+    assert ORDER.index(b) <= ORDER.index(a), f"{source} ({a}) imports {target} ({b}), a later layer"
+    assert (a, b) not in FORBIDDEN, f"{source} ({a}) imports {target} ({b})"
+
+
+def test_a_check_of_the_rule_fails_on_an_upward_import() -> None:
+    assert layer("vdbejax.results.stats") == "results"
+    assert ORDER.index(layer("vdbejax.runs.grid")) > ORDER.index(layer("vdbejax.results.stats"))
+    with pytest.raises(AssertionError, match="a later layer"):
+        test_imports_point_one_way(("vdbejax.results.stats", "vdbejax.runs.grid"))
+    with pytest.raises(AssertionError, match=r"imports vdbejax\.methods"):
+        test_imports_point_one_way(("vdbejax.envs.tabular", "vdbejax.methods.agents"))
+    with pytest.raises(AssertionError, match="defines the name"):
+        test_imports_point_one_way(("vdbejax.studies.scaling", "vdbejax.experiment"))
+
+
+def test_old_import_paths_give_the_moved_module_itself() -> None:
+    import importlib
+
+    from vdbejax._moved import MOVED
+
+    for old, new in MOVED.items():
+        moved = importlib.import_module(old)
+        assert moved is importlib.import_module(new)
+        assert moved.__name__ == new and moved.__spec__.name == new

@@ -6,10 +6,11 @@ import csv
 import numpy as np
 import pytest
 
-from vdbejax import cli, io
+from vdbejax import cli
 from vdbejax.experiment import GridResult
 from vdbejax.methods import Setting
-from vdbejax.sweeps import run_sweep
+from vdbejax.results import io
+from vdbejax.studies.sweeps import run_sweep
 
 
 @pytest.fixture(scope="module")

@@ -6,13 +6,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vdbejax import cli, scaling
+from vdbejax import cli
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import run_grid
 from vdbejax.methods import Explorer, Learner, LearnerUpdate, Setting, explorer, learner
 from vdbejax.methods.agents import AgentOptions
 from vdbejax.paper.reproduce import reproduce
-from vdbejax.result_folder import MARKER_FILE, FolderLock, mark
+from vdbejax.results.folder_lock import MARKER_FILE, FolderLock, mark
+from vdbejax.studies import scaling
 from vdbejax.validation import check_int
 
 

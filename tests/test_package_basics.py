@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 import vdbejax
-from vdbejax import cli, experiment, solvers
-from vdbejax.envs import make_tabular_mdp
+from vdbejax import cli, experiment
+from vdbejax.envs import make_tabular_mdp, solvers
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.envs.table_cleaning.env import ACTION_NAMES
 from vdbejax.experiment import GridResult, run_grid

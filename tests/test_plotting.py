@@ -2,14 +2,14 @@
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.image  # noqa: E402
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
+import matplotlib.image
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+from synthetic_grid import BEST, synthetic_grid
 
-from synthetic_grid import BEST, synthetic_grid  # noqa: E402
-from vdbejax import plotting  # noqa: E402
-from vdbejax.analysis import summarize  # noqa: E402
+from vdbejax.results import plotting
+from vdbejax.results.analysis import summarize
 
 
 @pytest.fixture(scope="module")
@@ -83,7 +83,7 @@ def test_epsilon_heatmap(tmp_path):
 
 
 def test_figure3_as_the_authors_plot_it(grid):
-    from vdbejax import stats
+    from vdbejax.results import stats
 
     window = 20
     fig = plotting.figure3(grid, smoothing="authors", window=window)

@@ -88,7 +88,7 @@ def test_the_command_lines_own_handler_is_restored_on_exit(monkeypatch, tmp_path
     monkeypatch.setitem(cli.COMMANDS, "run", (original[0], lambda args: (
         seen.append(signal.getsignal(signal.SIGTERM)), original[1](args))))
     before = signal.getsignal(signal.SIGTERM)
-    monkeypatch.setattr(cli, "_freeze_imports", lambda: None)
+    monkeypatch.setattr("vdbejax.cli.paper_commands.freeze_imports", lambda: None)
     assert cli.main() == 0
     assert seen == [cli._terminate]  # installed while the command ran
     assert signal.getsignal(signal.SIGTERM) is before

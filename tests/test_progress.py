@@ -6,7 +6,7 @@ import io
 import sys
 import types
 
-from vdbejax import progress
+from vdbejax.engine import progress
 
 
 class FakeClock:

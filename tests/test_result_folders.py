@@ -13,13 +13,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from small_grid import run_small
 from damaged_results import damaged_copy
-from vdbejax import cli, io, result_folder, sweeps
+from small_grid import run_small
+
+from vdbejax import cli
 from vdbejax.experiment import GridResult
-from vdbejax.result_folder import FolderLock
+from vdbejax.results import folder_lock, io
+from vdbejax.results.folder_lock import FolderLock
 from vdbejax.studies import folder as studies_folder
+from vdbejax.studies import sweeps
 
 SWEEP = dict(learners=["qlearning"], explorers=["egreedy"], seeds=2, episodes=12, progress=False)
 
@@ -49,7 +51,7 @@ def test_a_second_writer_is_refused_before_training(tmp_path, monkeypatch):
 
 def test_the_lock_is_released_by_the_os_when_the_holder_dies(tmp_path):
     holder = subprocess.Popen([sys.executable, "-c", (
-        "import sys, time; from vdbejax.result_folder import FolderLock;"
+        "import sys, time; from vdbejax.results.folder_lock import FolderLock;"
         f" FolderLock({str(tmp_path)!r}).acquire(); print('locked', flush=True); time.sleep(60)")],
         stdout=subprocess.PIPE, text=True)
     try:
@@ -74,7 +76,7 @@ def test_a_run_stopped_while_saving_leaves_a_marker_that_loading_refuses(tmp_pat
     monkeypatch.setattr(GridResult, "save", killed)
     with pytest.raises(KeyboardInterrupt):
         sweeps.run_sweep(tmp_path, **SWEEP)
-    assert result_folder.marked_stage(tmp_path) == "results"
+    assert folder_lock.marked_stage(tmp_path) == "results"
     with pytest.raises(ValueError, match="half-written"):
         GridResult.load(tmp_path)
 
@@ -86,17 +88,17 @@ def test_a_run_stopped_while_drawing_is_finished_by_plot(tmp_path, monkeypatch, 
     monkeypatch.setattr(sweeps, "write_outputs", killed)
     with pytest.raises(KeyboardInterrupt):
         sweeps.run_sweep(tmp_path, **SWEEP)
-    assert result_folder.marked_stage(tmp_path) == "outputs"
+    assert folder_lock.marked_stage(tmp_path) == "outputs"
     GridResult.load(tmp_path)  # the raw results are one run's
     monkeypatch.undo()
     assert cli.main(["plot", "--results", str(tmp_path)]) == 0
-    assert result_folder.marked_stage(tmp_path) is None
+    assert folder_lock.marked_stage(tmp_path) is None
     assert (tmp_path / "summary.csv").exists()
 
 
 def test_a_whole_run_leaves_no_marker(saved):
-    assert result_folder.marked_stage(saved) is None
-    assert not (saved / result_folder.MARKER_FILE).exists()
+    assert folder_lock.marked_stage(saved) is None
+    assert not (saved / folder_lock.MARKER_FILE).exists()
 
 
 # ------------------------------------------------------------------ defect 7: OS errors
@@ -209,7 +211,7 @@ def test_sigterm_during_a_run_leaves_no_temporary_file(tmp_path):
                             "--episodes", "400000", "--chunk-episodes", "50", "--quiet"],
                            env=env, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 120
-    while not (out / result_folder.LOCK_FILE).exists() and time.time() < deadline:
+    while not (out / folder_lock.LOCK_FILE).exists() and time.time() < deadline:
         time.sleep(0.05)
     time.sleep(2.0)  # training by now (400,000 episodes take far longer)
     run.send_signal(signal.SIGTERM)
@@ -298,7 +300,7 @@ def test_damaged_copy_really_damages(saved, tmp_path):
 
 # ------------------------------------------------------------------ defect 4: checkpoint cost
 def test_checkpoint_writes_grow_with_the_chunk_not_with_the_run(tmp_path):
-    from vdbejax.checkpoint import log_path
+    from vdbejax.runs.checkpoint import log_path
 
     path = tmp_path / "ckpt.npz"
     sizes = []
@@ -320,7 +322,8 @@ def test_checkpoint_writes_grow_with_the_chunk_not_with_the_run(tmp_path):
 def test_a_resumed_run_ignores_what_a_killed_run_appended_to_the_log(tmp_path):
     from small_grid import assert_same_curves
     from test_resume import Interrupted, interrupt_after
-    from vdbejax.checkpoint import log_path
+
+    from vdbejax.runs.checkpoint import log_path
 
     path = tmp_path / "ckpt.npz"
     with pytest.raises(Interrupted):
@@ -332,7 +335,8 @@ def test_a_resumed_run_ignores_what_a_killed_run_appended_to_the_log(tmp_path):
 
 def test_a_log_that_misses_episodes_is_refused(tmp_path):
     from test_resume import Interrupted, interrupt_after
-    from vdbejax.checkpoint import log_path
+
+    from vdbejax.runs.checkpoint import log_path
 
     path = tmp_path / "ckpt.npz"
     with pytest.raises(Interrupted):
@@ -355,7 +359,7 @@ def test_a_huge_run_is_refused_at_once_with_its_estimate(capsys):
 
 
 def test_the_size_estimate_counts_results_and_the_checkpoint_log(tmp_path, monkeypatch):
-    from vdbejax import batching
+    from vdbejax.runs import batching
 
     needed = batching.check_run_size(10, 1000, available_bytes=10**9)
     assert needed == 10 * (1000 * 16 + 512)

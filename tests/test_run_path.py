@@ -20,9 +20,9 @@ from small_grid import (
 from vdbejax import cli
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import GridResult
+from vdbejax.results.solving import episodes_to_solve
 from vdbejax.runs import FixedBudget, RunOptions, RunState, UntilSolved, prepare_grid, run_prepared
 from vdbejax.runs.checkpoint import load_checkpoint
-from vdbejax.solving import episodes_to_solve
 
 
 @pytest.fixture(scope="module")
@@ -231,7 +231,7 @@ def test_run_resumes_from_its_checkpoint(tmp_path, monkeypatch, capsys):
 
 def test_run_flags_reach_the_run(tmp_path):
     out = tmp_path / "sweep"
-    from vdbejax.sweeps import make_task
+    from vdbejax.studies.sweeps import make_task
 
     budget = budget_for(make_task("table_cleaning"), 2, chunk_episodes=10)
     assert cli.main([*sweep_args(out), "--memory-budget", str(budget), "--devices", "1"]) == 0

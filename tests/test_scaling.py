@@ -1,7 +1,7 @@
 """Adaptive budgets equal a fixed budget for every agent they let finish; the scaling
 study end to end from the command line; bad inputs fail in one line before training; the
 study's modules: the report apart from the runner, every name importable from
-``vdbejax.scaling``."""
+``vdbejax.studies.scaling``."""
 from __future__ import annotations
 
 import ast
@@ -11,14 +11,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from small_grid import assert_fixed_budget_up_to_each_stop
 
-from vdbejax import cli, scaling, scaling_adaptive, scaling_report, scaling_study, solvers
+from vdbejax import cli
+from vdbejax.envs import solvers
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import run_grid
 from vdbejax.methods.agents import Setting
-from vdbejax.solving import episodes_to_solve
+from vdbejax.results.solving import episodes_to_solve
+from vdbejax.studies import scaling, scaling_adaptive, scaling_report, scaling_study
 
 REPO = Path(__file__).resolve().parents[1]
 #: Fast learners, slow ones and one that never solves the paper's task (SARSA + VDBE).
@@ -229,10 +230,10 @@ def _imported_modules(module) -> set[str]:
 def test_the_report_imports_nothing_of_the_runner():
     # The data flow one way: runner -> results -> report; the study's definition needs no
     # training either.
-    runner = {"vdbejax.scaling", "vdbejax.scaling_adaptive", "vdbejax.scaling_study"}
+    runner = {"vdbejax.studies.scaling", "vdbejax.studies.scaling_adaptive", "vdbejax.studies.scaling_study"}
     assert not _imported_modules(scaling_report) & runner
-    assert not _imported_modules(scaling_study) & (runner | {"vdbejax.scaling_report"})
-    assert not _imported_modules(scaling_adaptive) & (runner | {"vdbejax.scaling_report"})
+    assert not _imported_modules(scaling_study) & (runner | {"vdbejax.studies.scaling_report"})
+    assert not _imported_modules(scaling_adaptive) & (runner | {"vdbejax.studies.scaling_report"})
 
 
 def test_every_name_of_the_parts_is_importable_from_vdbejax_scaling():

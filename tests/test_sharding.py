@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from small_grid import assert_same_curves, run_small
-from vdbejax.distributed import pad_agents, select_devices, unpad_agents
+
+from vdbejax.engine.distributed import pad_agents, select_devices, unpad_agents
 from vdbejax.experiment import GridResult
 
 TESTS = Path(__file__).parent
@@ -28,7 +28,7 @@ FOUR_DEVICE_SCRIPT = textwrap.dedent(
     sys.path.insert(0, {tests!r})
     import jax, numpy as np
     from small_grid import SETTINGS, budget_for, run_small, small_mdp
-    from vdbejax.distributed import agent_mesh, shard_agents
+    from vdbejax.engine.distributed import agent_mesh, shard_agents
     from vdbejax.engine import agent_keys
 
     out = sys.argv[1]

@@ -4,8 +4,7 @@ from collections import deque
 import numpy as np
 import pytest
 
-from vdbejax import solvers
-from vdbejax.envs import make_tabular_mdp
+from vdbejax.envs import make_tabular_mdp, solvers
 from vdbejax.envs.table_cleaning import make_mdp
 
 

@@ -1,4 +1,4 @@
-"""Episodes to solve on hand-made curves, and the censored summaries (vdbejax.solving)."""
+"""Episodes to solve on hand-made curves, and the censored summaries (vdbejax.results.solving)."""
 from __future__ import annotations
 
 import math
@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from vdbejax import stats
-from vdbejax.solving import (
+from vdbejax.results import stats
+from vdbejax.results.solving import (
     SolveSummary,
     episodes_to_solve,
     median_episodes,
@@ -129,7 +129,7 @@ def test_all_solved_summary():
     assert (s.agents, s.solved, s.fraction) == (5, 5, 1.0)
     assert (s.fraction_low, s.fraction_high) == (1.0, 1.0)
     assert s.median == 110.0 and s.median_low <= 110.0 <= s.median_high
-    assert 90 <= s.median_low and s.median_high <= 130
+    assert s.median_low >= 90 and s.median_high <= 130
     assert not s.median_censored and s.budget == 130
     assert s.median_text() == f"110 [{s.median_low:.0f}, {s.median_high:.0f}]"
 

@@ -1,8 +1,8 @@
-"""Statistics against hand-computed values (vdbejax.stats)."""
+"""Statistics against hand-computed values (vdbejax.results.stats)."""
 import numpy as np
 import pytest
 
-from vdbejax import stats
+from vdbejax.results import stats
 
 
 def test_moving_average_partial_windows():
@@ -111,7 +111,7 @@ def test_probability_of_improvement_ci():
 
 
 def test_percentile_interval_equals_numpy_quantile_bit_for_bit():
-    from vdbejax.bootstrap import _interval
+    from vdbejax.results.bootstrap import _interval
 
     rng = np.random.default_rng(7)
     for trial in range(120):

@@ -6,18 +6,19 @@ import math
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
-
 from synthetic_grid import BEST, synthetic_grid
-from vdbejax import plotting, scaling
-from vdbejax.analysis import SUMMARY_COLUMNS, summarize, summary_columns
+
 from vdbejax.paper import claims
-from vdbejax.summary import (
+from vdbejax.results import plotting
+from vdbejax.results.analysis import SUMMARY_COLUMNS, summarize, summary_columns
+from vdbejax.results.summary import (
     SummaryRow,
     read_summary,
     summary_row,
     summary_rows,
     write_summary,
 )
+from vdbejax.studies import scaling
 
 
 @pytest.fixture(scope="module")

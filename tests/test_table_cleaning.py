@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vdbejax import solvers
+from vdbejax.envs import solvers
 from vdbejax.envs.table_cleaning import (
     ACTION_NAMES,
     TableCleaning,

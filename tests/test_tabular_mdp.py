@@ -4,9 +4,8 @@ import numpy as np
 import pytest
 
 import vdbejax
-from vdbejax import solvers
+from vdbejax.envs import TabularMDP, make_tabular_mdp, solvers
 from vdbejax.methods.agents import Setting
-from vdbejax.envs import TabularMDP, make_tabular_mdp
 
 
 def chain(**overrides):

@@ -9,12 +9,12 @@ import warnings
 
 import numpy as np
 import pytest
-
 from small_grid import SETTINGS, run_small
+
 from vdbejax import cli, make_tabular_mdp
-from vdbejax.methods.agents import AgentOptions, Setting, make_agent
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import GridResult, run_grid
+from vdbejax.methods.agents import AgentOptions, Setting, make_agent
 from vdbejax.methods.explorers import make_explorer
 from vdbejax.methods.learners import make_learner
 
@@ -282,7 +282,7 @@ def test_cli_prints_the_nonfinite_configs(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert "warning: NaN or inf appeared in Q or ε, or an invalid action was drawn, for: qlearning/egreedy/epsilon=0.01" in err
     assert GridResult.load(tmp_path).meta["nonfinite_agents"] > 0
-    from vdbejax import io
+    from vdbejax.results import io
 
     summary = io.read_csv(tmp_path / "summary.csv")
     assert int(summary[0]["nonfinite_agents"]) == 1  # the summary shows it per config
@@ -296,7 +296,7 @@ def test_nan_or_vanishing_action_weights_are_flagged_not_hidden():
     # flagged (nonfinite), not silently take some action.
     import jax.numpy as jnp
 
-    from vdbejax.methods import Explorer, explorer, greedy
+    from vdbejax.methods import Explorer, explorer
     from vdbejax.methods.explorers import sample_categorical
 
     @explorer("raw_softmax_test", parameter="tau")

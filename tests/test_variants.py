@@ -10,8 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vdbejax import solvers
-from vdbejax.envs import compile_env
+from vdbejax.envs import compile_env, solvers
 from vdbejax.envs.table_cleaning import (
     TableCleaning,
     TableCleaningGenerator,

@@ -1,12 +1,12 @@
 """Grid runs and their results: the names most scripts import.
 
 :func:`run_grid` lives in :mod:`vdbejax.runs.grid` (the one run path: options, plan,
-driver, stop policies, checkpoints) and :class:`GridResult` in :mod:`vdbejax.grid_result`;
+driver, stop policies, checkpoints) and :class:`GridResult` in :mod:`vdbejax.results.grid_result`;
 both, and the helpers below, are importable from here as before.
 """
 from __future__ import annotations
 
-from vdbejax.grid_result import GridResult
+from vdbejax.results.grid_result import GridResult
 from vdbejax.runs.grid import (
     PreparedGrid,
     git_commit,

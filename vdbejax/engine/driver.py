@@ -21,12 +21,12 @@ import numpy as np
 from vdbejax.engine.lockstep import DEFAULT_UNROLL, MAX_SAFE_BATCH, run_chunk_lockstep
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.programs import compile_seconds as _compile_seconds
+from vdbejax.engine.progress import ProgressCallback, text_progress  # noqa: F401  (re-exported: engine API)
 from vdbejax.engine.sequential import _SequentialRun, created_in_items
 from vdbejax.engine.state import AgentState, init_agents
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams
 from vdbejax.methods.api import check_plugin
-from vdbejax.progress import ProgressCallback, text_progress  # noqa: F401  (re-exported: engine API)
 from vdbejax.validation import check_choice, check_int
 
 Array = jax.Array

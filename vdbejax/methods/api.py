@@ -31,7 +31,7 @@ Contract (checked by :func:`check_plugin` before any training, one-line ``ValueE
   ``tables() -> {name: Table}``, ``update(tables, action, delta_q, context) -> tables``
   (after every learning step, with the tables of the state just left), ``probabilities(q,
   tables, context) -> [A]`` (the exact distribution ``select`` samples; Expected SARSA
-  and :func:`vdbejax.analysis.action_probabilities` use it), ``num_uniforms`` (uniforms in
+  and :func:`vdbejax.results.analysis.action_probabilities` use it), ``num_uniforms`` (uniforms in
   [0, 1) handed to ``select``; 3 by default).
 * **Learner**: ``update(transition) -> LearnerUpdate`` (new Q(s,a), new values of its own
   tables at (s,a), and ΔQ for the explorer); a ``gamma`` field (the engine passes

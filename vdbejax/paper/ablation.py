@@ -26,8 +26,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from vdbejax import io
-from vdbejax.grid_result import GridResult
 from vdbejax.paper.ablation_document import (  # noqa: F401  (re-exported)
     VERDICT_MARKS,
     claims_table,
@@ -53,6 +51,8 @@ from vdbejax.paper.reproduce import (  # noqa: F401  (AUTHORS_DETAILS: re-export
     saved_best_return,
     write_outputs,
 )
+from vdbejax.results import io
+from vdbejax.results.grid_result import GridResult
 from vdbejax.runs import RunOptions
 from vdbejax.validation import check_writable_dir
 

@@ -8,11 +8,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from vdbejax import io
 from vdbejax.methods.explorers import PAPER_EXPLORERS as EXPLORERS
 from vdbejax.paper.ablation_variants import VariantResult
 from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimTable
 from vdbejax.paper.reproduce import FIGURE_FILE, SENSITIVITY_FILE
+from vdbejax.results import io
 
 VERDICT_MARKS = {"reproduced": "✅ reproduced", "partly": "◐ partly", "not reproduced": "❌ not"}
 

@@ -19,7 +19,7 @@ from vdbejax.envs.cruz2018 import STEP_CAP
 from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.paper.claims import ClaimResult
 from vdbejax.paper.reproduce import AUTHORS_DETAILS
-from vdbejax.summary import SummaryRow
+from vdbejax.results.summary import SummaryRow
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,8 +1,9 @@
 """The paper's six claims (spec, last section), scored against measured results.
 
 Each claim is split into concrete checks on the summary table (final return = mean of the
-last 100 episodes over seeds; convergence episode as defined in :mod:`vdbejax.stats`). A claim
-is *reproduced* when every check holds, *not reproduced* when none does, *partly*
+last 100 episodes over seeds; convergence episode as defined in
+:mod:`vdbejax.results.stats`). A claim is *reproduced* when every check holds, *not
+reproduced* when none does, *partly*
 otherwise. "At or near the best return" means within ``NEAR`` of it. A figure the paper
 states as "about" a value (claim 5's episodes) must lie within ``ABOUT`` (±25 %) of it;
 bounds ("below about 0.6") are checked as stated.
@@ -17,7 +18,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 from vdbejax.methods import learner_title
-from vdbejax.summary import SummaryRow, summary_rows
+from vdbejax.results.summary import SummaryRow, summary_rows
 
 NEAR = 0.05
 #: Relative tolerance of a figure the paper gives as "about" a value.
@@ -52,7 +53,7 @@ class ClaimTable:
     """The summary rows the claims are scored on, with lookups by learner and explorer.
 
     Attributes:
-      rows: the rows (:class:`~vdbejax.summary.SummaryRow`).
+      rows: the rows (:class:`~vdbejax.results.summary.SummaryRow`).
       best_return: the task's best possible return.
       near: the lowest final return "at or near" it (``best_return − NEAR``).
       learners: the paper's learners that have rows, in :data:`LEARNER_NAMES` order.
@@ -282,12 +283,12 @@ CLAIMS: list[Callable[[ClaimTable], ClaimResult]] = [
 def evaluate_claims(rows: Iterable[SummaryRow | Mapping[str, Any]],
                     best_return: float = 0.86) -> list[ClaimResult]:
     """Score the six claims (:data:`CLAIMS`) on summary rows (see
-    :func:`vdbejax.analysis.summarize`).
+    :func:`vdbejax.results.analysis.summarize`).
 
     Claims whose settings are absent from ``rows`` get no checks and are skipped.
 
     Args:
-      rows: summary rows (:class:`~vdbejax.summary.SummaryRow`, or mappings of their
+      rows: summary rows (:class:`~vdbejax.results.summary.SummaryRow`, or mappings of their
         columns to strings or numbers, as read from ``summary.csv``).
       best_return: the task's best possible return ("near" = within :data:`NEAR` of it).
 

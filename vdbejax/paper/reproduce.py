@@ -10,20 +10,20 @@ import time
 import zipfile
 from pathlib import Path
 
-from vdbejax import io, sweeps
 from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
+from vdbejax.envs.solvers import best_return
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.grid_result import GridResult
 from vdbejax.methods.agents import AgentOptions, Setting, owners, paper_settings
 from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.paper.claims import ClaimResult, cap_message, evaluate_claims, render_report
-from vdbejax.result_folder import FolderLock, check_output_paths, describe_os_error, unmark
+from vdbejax.results import io
+from vdbejax.results.folder_lock import FolderLock, check_output_paths, describe_os_error, unmark
+from vdbejax.results.grid_result import GridResult
+from vdbejax.results.stats import CurveStatistics
+from vdbejax.results.summary import SummaryRow
 from vdbejax.runs import RunOptions, prepare_grid
-from vdbejax.solvers import best_return
-from vdbejax.stats import CurveStatistics
 from vdbejax.studies import CHECKPOINT_FILE as CHECKPOINT_FILE
-from vdbejax.studies import train_in_folder
-from vdbejax.summary import SummaryRow
+from vdbejax.studies import sweeps, train_in_folder
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, check_writable_dir
 
 SUMMARY_FILE, FIGURE_FILE, SENSITIVITY_FILE = (sweeps.SUMMARY_FILE, sweeps.FIGURE_FILE,
@@ -59,16 +59,16 @@ def write_outputs(
       bands: Figure 3 with 95% bootstrap bands over agents.
       figures: draw the figures.
       statistics: the returns' statistics, if already computed (see
-        :func:`vdbejax.sweeps.write_outputs`).
+        :func:`vdbejax.studies.sweeps.write_outputs`).
 
     Returns:
-      the summary rows (:class:`~vdbejax.summary.SummaryRow`) and the scored claims.
+      the summary rows (:class:`~vdbejax.results.summary.SummaryRow`) and the scored claims.
     """
     out = Path(out_dir)
     summary = sweeps.write_outputs(result, out, best, bands=bands, figures=figures,
                                    statistics=statistics)
     if figures and result.meta.get("reading") == "authors":
-        from vdbejax.plotting import figure3  # matplotlib only when plotting
+        from vdbejax.results.plotting import figure3  # matplotlib only when plotting
 
         # Figure 3 as the first author's code draws it (np.convolve "full", from episode 20).
         io.save_figure(figure3(result, best_return=best, smoothing="authors"),

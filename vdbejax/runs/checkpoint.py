@@ -29,10 +29,10 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from vdbejax import io
 from vdbejax.engine import AgentState
 from vdbejax.engine.state import table_shape
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.results import io
 from vdbejax.runs.state import RunState
 
 #: Version of the checkpoint layout (a checkpoint of another version is refused).

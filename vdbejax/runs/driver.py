@@ -8,7 +8,7 @@ and after every chunk applies the run's stages, in this order:
    states) in the one :class:`~vdbejax.runs.state.RunState`;
 2. **stop**: the stop policy retires agents (:mod:`vdbejax.runs.stop`; a fixed budget
    retires none, so its batches run to the end in one engine call);
-3. **checkpoint** the state (:class:`~vdbejax.checkpoint.CheckpointWriter`);
+3. **checkpoint** the state (:class:`~vdbejax.runs.checkpoint.CheckpointWriter`);
 4. **progress**: ``progress(done, total, elapsed)`` in agent-episodes.
 
 Resuming is starting from a state loaded from the checkpoint: the loop is the same.
@@ -21,12 +21,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from vdbejax.distributed import take_agents
 from vdbejax.engine import AgentState
+from vdbejax.engine.distributed import take_agents
 from vdbejax.engine.programs import Programs
+from vdbejax.engine.progress import ProgressCallback
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams
-from vdbejax.progress import ProgressCallback
 from vdbejax.runs.plan import RunPlan
 from vdbejax.runs.state import RunState
 from vdbejax.runs.stop import StopPolicy

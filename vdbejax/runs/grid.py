@@ -27,12 +27,10 @@ from typing import Any
 import jax
 import numpy as np
 
-from vdbejax.batching import check_run_size
-from vdbejax.distributed import gather_agents, process_checkpoint_path, take_agents
 from vdbejax.engine import agent_keys, broadcast_agents, check_params, text_progress
+from vdbejax.engine.distributed import gather_agents, process_checkpoint_path, take_agents
 from vdbejax.engine.programs import Programs
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.grid_result import GridResult
 from vdbejax.methods.agents import (
     AgentOptions,
     AgentParams,
@@ -42,7 +40,9 @@ from vdbejax.methods.agents import (
     stack_agents,
     table_layout,
 )
-from vdbejax.result_folder import describe_os_error, remove_stale_temporaries
+from vdbejax.results.folder_lock import describe_os_error, remove_stale_temporaries
+from vdbejax.results.grid_result import GridResult
+from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.checkpoint import CheckpointWriter, load_checkpoint, remove_checkpoint
 from vdbejax.runs.driver import drive
 from vdbejax.runs.options import RunOptions
@@ -204,7 +204,7 @@ def run_grid(
         (``chunk_episodes=50, checkpoint="run.npz", resume=True``), applied over ``run``.
 
     Returns:
-      :class:`~vdbejax.grid_result.GridResult`.
+      :class:`~vdbejax.results.grid_result.GridResult`.
 
     Raises:
       ValueError: invalid settings, counts or options, or a checkpoint from a different
@@ -223,7 +223,7 @@ def _resume_state(prepared: PreparedGrid, fingerprint: str
     if run.checkpoint is None:
         return None, None
     path = process_checkpoint_path(run.checkpoint)
-    remove_stale_temporaries(path.parent)  # what killed writers left (vdbejax.result_folder)
+    remove_stale_temporaries(path.parent)  # what killed writers left (vdbejax.results.folder_lock)
     shape = (len(prepared.plan.rows), prepared.num_episodes)
     if run.resume and path.exists():
         state, log_bytes, log_id = load_checkpoint(path, fingerprint, shape, prepared.mdp,
@@ -264,7 +264,7 @@ def run_prepared(prepared: PreparedGrid, programs: Programs | None = None) -> Gr
 def _failing_quietly(writer: CheckpointWriter) -> Callable[[RunState], None]:
     """The checkpoint stage: a checkpoint that cannot be written (disk full) stops the
     checkpoints, not the run — what the run computes is still saved at its end (or kept
-    elsewhere, :func:`~vdbejax.result_folder.save_run`)."""
+    elsewhere, :func:`~vdbejax.results.folder_lock.save_run`)."""
     failed: list[OSError] = []
 
     def write(state: RunState) -> None:

@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from vdbejax.progress import ProgressCallback
+from vdbejax.engine.progress import ProgressCallback
 from vdbejax.runs.stop import FixedBudget, StopPolicy, check_stop
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, parse_bytes
 
@@ -31,7 +31,7 @@ class RunOptions:
       progress: True for a progress bar on stderr, or ``progress(done, total, elapsed)``
         in agent-episodes.
       checkpoint: file written after every chunk (atomically), with its episode log
-        beside it (:mod:`vdbejax.checkpoint`).
+        beside it (:mod:`vdbejax.runs.checkpoint`).
       resume: continue from ``checkpoint`` if it exists.
       memory_budget_bytes: device memory the agents may use, per device (an int or a
         size such as ``"512M"``; default: half the free memory of the smallest device).

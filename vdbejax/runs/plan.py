@@ -7,14 +7,14 @@ written down, a contradictory one (the sequential strategy for agents sharded ov
 devices) is refused in one line.
 
 * **Processes** (hosts after ``jax.distributed.initialize``): each runs its contiguous
-  share of the agents (:func:`~vdbejax.distributed.process_share`) on its own devices.
+  share of the agents (:func:`~vdbejax.engine.distributed.process_share`) on its own devices.
 * **Devices**: with several, every batch's agent axis is sharded over them
   (:meth:`RunPlan.run_engine`): padded to a multiple of the device count, placed with
   ``NamedSharding(mesh, P("agents"))``; each agent's lane depends on itself only, so the
   results are those of one device. Sharded agents run the lockstep strategy without
   compaction (which would gather the active agents across shards).
 * **Batches**: agents that do not fit the memory budget run in sequential batches of
-  :attr:`RunPlan.batch_size` (:mod:`vdbejax.batching`).
+  :attr:`RunPlan.batch_size` (:mod:`vdbejax.runs.batching`).
 """
 from __future__ import annotations
 
@@ -25,8 +25,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from vdbejax.batching import agents_per_batch, bytes_per_agent, default_memory_budget, mdp_bytes
-from vdbejax.distributed import (
+from vdbejax.engine import AgentState, RunResult, run_agents
+from vdbejax.engine.distributed import (
     agent_mesh,
     local_devices,
     pad_agents,
@@ -35,10 +35,15 @@ from vdbejax.distributed import (
     shard_agents,
     unpad_agents,
 )
-from vdbejax.engine import AgentState, RunResult, run_agents
 from vdbejax.engine.programs import Programs
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams, table_layout
+from vdbejax.runs.batching import (
+    agents_per_batch,
+    bytes_per_agent,
+    default_memory_budget,
+    mdp_bytes,
+)
 from vdbejax.runs.options import RunOptions
 
 

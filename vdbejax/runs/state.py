@@ -13,8 +13,8 @@ import dataclasses
 import jax
 import numpy as np
 
-from vdbejax.distributed import take_agents
 from vdbejax.engine import AgentState
+from vdbejax.engine.distributed import take_agents
 
 
 @dataclasses.dataclass

@@ -2,7 +2,7 @@
 
 * :class:`FixedBudget` — every agent runs the run's ``num_episodes`` (the paper's grid).
 * :class:`UntilSolved` — after every chunk, an agent whose moving average has reached
-  ``fraction × best`` (:mod:`vdbejax.solving`) stops: it leaves its batch and costs no more
+  ``fraction × best`` (:mod:`vdbejax.results.solving`) stops: it leaves its batch and costs no more
   compute; the others continue from their state. An optional wall-clock budget stops every
   remaining agent at the end of the first chunk past it.
 
@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax.solving import FRACTION, TOLERANCE, WINDOW, episodes_to_solve, solve_threshold
+from vdbejax.results.solving import FRACTION, TOLERANCE, WINDOW, episodes_to_solve, solve_threshold
 from vdbejax.validation import check_in_range, check_int, check_positive
 
 
@@ -49,9 +49,9 @@ class UntilSolved:
     """Train each agent until it has solved the task, within the run's episode budget.
 
     Attributes:
-      best: the task's exact best return (default :func:`vdbejax.solvers.best_return` of
+      best: the task's exact best return (default :func:`vdbejax.envs.solvers.best_return` of
         the run's task, filled in by :meth:`resolve`).
-      fraction, window: the solve criterion (:func:`vdbejax.solving.episodes_to_solve`).
+      fraction, window: the solve criterion (:func:`vdbejax.results.solving.episodes_to_solve`).
       max_seconds: wall-clock budget of the whole run (None: none); which episode the
         remaining agents are stopped at then depends on the machine's speed, so the
         episode budget is the reproducible one.
@@ -77,7 +77,7 @@ class UntilSolved:
         """The policy with ``best`` computed for ``mdp`` when it was not given."""
         if self.best is not None:
             return self
-        from vdbejax.solvers import best_return
+        from vdbejax.envs.solvers import best_return
 
         best = best_return(mdp)
         solve_threshold(best, self.fraction)  # one line before training: best > 0
@@ -92,7 +92,7 @@ class UntilSolved:
                       end: int) -> np.ndarray:
         """Which ``rows`` (unsolved after ``start`` episodes) have solved by ``end``.
 
-        The decision is :func:`~vdbejax.solving.episodes_to_solve` on each agent's whole
+        The decision is :func:`~vdbejax.results.solving.episodes_to_solve` on each agent's whole
         prefix — the computation the final result makes — but only for the agents whose
         windows ending in ``[start, end)`` come within :data:`SCREEN_MARGIN` of the
         threshold (a direct mean per window): the rest cannot have solved, and the check

@@ -5,14 +5,14 @@
 created), then:
 
 1. checks the folder (created if needed, writable, no output path that is a folder);
-2. locks it (:class:`~vdbejax.result_folder.FolderLock`) until its last file is written;
+2. locks it (:class:`~vdbejax.results.folder_lock.FolderLock`) until its last file is written;
 3. runs, checkpointing to ``checkpoint.npz`` after every chunk; with ``resume`` it
    continues from there, or — if the folder already holds this run's whole result (same
    fingerprint) — loads it instead of training again; without ``resume`` a checkpoint left
    there by an interrupted run is refused in one line (its progress is not thrown away);
 4. removes the outputs an earlier run left (figures, the long CSV), saves
    ``returns.npz``, ``configs.csv``, ``meta.json`` (marked while written,
-   :mod:`vdbejax.result_folder`), removes the checkpoint, and writes the outputs.
+   :mod:`vdbejax.results.folder_lock`), removes the checkpoint, and writes the outputs.
 """
 from __future__ import annotations
 
@@ -21,10 +21,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
-from vdbejax import io
-from vdbejax.distributed import process_checkpoint_path
-from vdbejax.grid_result import GridResult
-from vdbejax.result_folder import FolderLock, check_output_paths, rescue, save_run
+from vdbejax.engine.distributed import process_checkpoint_path
+from vdbejax.results import io
+from vdbejax.results.folder_lock import FolderLock, check_output_paths, rescue, save_run
+from vdbejax.results.grid_result import GridResult
 from vdbejax.runs.checkpoint import log_path, remove_checkpoint
 from vdbejax.runs.grid import PreparedGrid, run_prepared
 from vdbejax.validation import check_writable_dir
@@ -73,7 +73,7 @@ def train_in_folder(
       prepared: the checked, planned run; its ``run.resume`` resumes (or reuses a saved
         whole result of the same run).
       write: writes the outputs: ``write(result, statistics)`` with the returns'
-        :class:`~vdbejax.stats.CurveStatistics` (``None`` with ``statistics=False``).
+        :class:`~vdbejax.results.stats.CurveStatistics` (``None`` with ``statistics=False``).
       files: the files the outputs write (none may be a folder: checked before training).
       annotate: adds to the result's ``meta`` before it is saved.
       bands: compute Figure 3's bootstrap bands with the statistics.
@@ -86,7 +86,7 @@ def train_in_folder(
     Raises:
       ValueError: an unwritable folder, an output path that is a folder, a folder another
         run holds, a checkpoint of another run; an operating-system error while writing
-        (the computed results are kept, :func:`~vdbejax.result_folder.save_run`).
+        (the computed results are kept, :func:`~vdbejax.results.folder_lock.save_run`).
     """
     out = check_writable_dir(name, out_dir)
     check_output_paths(out, [*io.RESULT_FILES, *files, *checkpoint_files()], name)

@@ -29,7 +29,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     # The writer's pid in the name lets a later run remove what a killed one left behind
-    # (vdbejax.result_folder.remove_stale_temporaries).
+    # (vdbejax.results.folder_lock.remove_stale_temporaries).
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp",
                                dir=path.parent)
     try:

@@ -1,6 +1,6 @@
 """The summary table: one typed :class:`SummaryRow` per setting of a grid.
 
-:func:`vdbejax.analysis.summarize` builds the rows from a grid's statistics,
+:func:`vdbejax.results.analysis.summarize` builds the rows from a grid's statistics,
 :func:`write_summary` writes them to ``summary.csv`` and :func:`read_summary` reads them
 back. :func:`summary_rows` is the one place where a row's text (``summary.csv``, or any
 mapping of column names to strings or numbers) becomes typed values: every consumer (the
@@ -18,12 +18,12 @@ import os
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
 
-from vdbejax import io
+from vdbejax.results import io
 
 #: ``summary.csv``'s columns, in order (``hyperparameters`` goes after ``param`` when a
 #: setting has values besides its swept parameter, ``episodes_cut`` and ``agents_cut`` at
 #: the end for a task whose step limit is only a safety cap:
-#: :func:`vdbejax.analysis.summary_columns`).
+#: :func:`vdbejax.results.analysis.summary_columns`).
 SUMMARY_COLUMNS = [
     "config",
     "learner",
@@ -44,12 +44,12 @@ SUMMARY_COLUMNS = [
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class SummaryRow(Mapping[str, Any]):
-    """Statistics of one setting of a grid (see :mod:`vdbejax.stats` for the conventions).
+    """Statistics of one setting of a grid (see :mod:`vdbejax.results.stats` for the conventions).
 
     Read it by attribute. It is also a read-only mapping from column names to the values
-    :func:`vdbejax.analysis.summarize` has always returned (``row["final_return"]``;
+    :func:`vdbejax.results.analysis.summarize` has always returned (``row["final_return"]``;
     ``row["param"]`` is ``""`` for the explorer's default; absent columns are left out),
-    which :func:`~vdbejax.analysis.markdown_table` and older code use.
+    which :func:`~vdbejax.results.analysis.markdown_table` and older code use.
 
     Attributes:
       config: the setting's index in the grid.
@@ -173,7 +173,7 @@ def summary_rows(rows: Iterable[SummaryRow | Mapping[str, Any]]) -> list[Summary
 def write_summary(path: str | os.PathLike, rows: Iterable[SummaryRow],
                   columns: list[str]) -> None:
     """Write ``summary.csv`` atomically: header ``columns``, floats with 6 significant
-    digits (:func:`vdbejax.io.write_csv`)."""
+    digits (:func:`vdbejax.results.io.write_csv`)."""
     io.write_csv(path, [row.as_dict() for row in rows], columns)
 
 

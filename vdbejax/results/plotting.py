@@ -17,11 +17,11 @@ if "ipykernel" not in sys.modules:  # headless by default; keep a notebook's inl
 import matplotlib.pyplot as plt
 import numpy as np
 
-from vdbejax.grid_result import GridResult
 from vdbejax.methods.agents import parameter_name
 from vdbejax.methods.api import EXPLORERS, explorer_title, learner_title
-from vdbejax.stats import WINDOW, CurveStatistics, convolve_full, curve_statistics
-from vdbejax.summary import SummaryRow, summary_rows
+from vdbejax.results.grid_result import GridResult
+from vdbejax.results.stats import WINDOW, CurveStatistics, convolve_full, curve_statistics
+from vdbejax.results.summary import SummaryRow, summary_rows
 from vdbejax.validation import check_choice
 
 #: Figure 3's smoothing conventions (:func:`figure3`).
@@ -63,10 +63,10 @@ def figure3(
       path: save the figure there (PNG) if given.
       bands: shade each curve's pointwise 95% bootstrap interval over seeds.
       statistics: the curves (and, for ``bands``, their bands) already computed by
-        :func:`~vdbejax.stats.curve_statistics` with this ``window``.
-      smoothing: ``"trailing"`` (:func:`~vdbejax.stats.moving_average`, from episode 1)
+        :func:`~vdbejax.results.stats.curve_statistics` with this ``window``.
+      smoothing: ``"trailing"`` (:func:`~vdbejax.results.stats.moving_average`, from episode 1)
         or ``"authors"``: as the first author's code plots Figure 3 —
-        :func:`~vdbejax.stats.convolve_full` of the agents' mean, from episode ``window``
+        :func:`~vdbejax.results.stats.convolve_full` of the agents' mean, from episode ``window``
         to its end, the fall-off past the last episode included (no bands).
 
     Returns:
@@ -182,8 +182,9 @@ def sensitivity(
     best return means "robust to parametrization".
 
     Args:
-      rows: summary rows (:func:`vdbejax.analysis.summarize`, or mappings of their columns
-        to strings or numbers as read from ``summary.csv``: :func:`vdbejax.summary.summary_rows`).
+      rows: summary rows (:func:`vdbejax.results.analysis.summarize`, or mappings of their columns
+        to strings or numbers as read from ``summary.csv``:
+        :func:`vdbejax.results.summary.summary_rows`).
       best_return: reference line on the final-return row, if given.
       path: save the figure there (PNG) if given.
       title: figure title.

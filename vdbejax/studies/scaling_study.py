@@ -3,8 +3,8 @@
 :data:`METHODS` (each a :class:`Method`: an explorer at one parameter value, with where the
 value comes from), :data:`LEARNERS`, the family of variants :data:`SIZES` (``NxK``:
 :func:`parse_sizes`), the ``--quick`` options :data:`QUICK` and the episode budget per
-variant (:func:`variant_budget`, :func:`auto_chunk`). :func:`~vdbejax.scaling.run_scaling`
-runs it (:mod:`vdbejax.scaling`); every name here is also importable from there.
+variant (:func:`variant_budget`, :func:`auto_chunk`). :func:`~vdbejax.studies.scaling.run_scaling`
+runs it (:mod:`vdbejax.studies.scaling`); every name here is also importable from there.
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from vdbejax.methods.agents import Setting
-from vdbejax.summary import SummaryRow, summary_rows
+from vdbejax.results.summary import SummaryRow, summary_rows
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,8 +78,8 @@ def best_parameters(rows: Sequence[SummaryRow | Mapping[str, Any]]) -> dict[str,
     (the first in ``rows`` on an exact tie).
 
     Args:
-      rows: summary rows (:class:`~vdbejax.summary.SummaryRow`, or ``summary.csv``'s rows
-        as strings or numbers: :func:`~vdbejax.summary.summary_rows`).
+      rows: summary rows (:class:`~vdbejax.results.summary.SummaryRow`, or ``summary.csv``'s rows
+        as strings or numbers: :func:`~vdbejax.results.summary.summary_rows`).
 
     Returns:
       ``{explorer: param}``.

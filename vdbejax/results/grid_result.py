@@ -8,13 +8,13 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax import io
 from vdbejax.methods.agents import (
     Setting,
     agent_hyperparameters,
     make_agent,
     with_parameter_names,
 )
+from vdbejax.results import io
 
 
 @dataclasses.dataclass
@@ -156,11 +156,11 @@ class GridResult:
 
         Raises:
           ValueError: the folder lacks the result files, holds a run stopped while writing
-            them (:mod:`vdbejax.result_folder`), or a file is unreadable or inconsistent
+            them (:mod:`vdbejax.results.folder_lock`), or a file is unreadable or inconsistent
             (array shapes and types, config indices, non-finite returns): one line naming
             the file.
         """
-        from vdbejax.result_folder import MARKER_FILE, marked_stage
+        from vdbejax.results.folder_lock import MARKER_FILE, marked_stage
 
         out = Path(out_dir)
         missing = [f for f in (io.RETURNS_FILE, io.CONFIGS_FILE) if not (out / f).exists()]

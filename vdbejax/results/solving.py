@@ -1,30 +1,31 @@
 """Episodes to solve a task, per agent, and honest summaries of censored samples (numpy only).
 
-Conventions (stated once, used by :mod:`vdbejax.scaling` and notebook 03):
+Conventions (stated once, used by :mod:`vdbejax.studies.scaling` and notebook 03):
 
 * **Solved**: an agent has solved the task at the first episode ``e`` (1-based) at which
-  the trailing :func:`~vdbejax.stats.moving_average` of its returns over ``window``
-  episodes (default :data:`~vdbejax.stats.WINDOW` = 20, the paper's smoothing) reaches
+  the trailing :func:`~vdbejax.results.stats.moving_average` of its returns over ``window``
+  episodes (default :data:`~vdbejax.results.stats.WINDOW` = 20, the paper's smoothing) reaches
   the threshold ``fraction × best`` (default ``fraction`` = 0.9), with ``best`` the exact
-  best return of the task (:func:`vdbejax.solvers.best_return`; it must be > 0, as on every
+  best return of the task (:func:`vdbejax.envs.solvers.best_return`; it must be > 0, as on every
   table-cleaning task). Only full windows count (``e ≥ window``): the moving average's
   partial windows at the start would let one lucky first episode "solve" the task.
   Returns are float32, so the comparison allows :data:`TOLERANCE`.
 * **Censored**: an agent that never reaches the threshold within the episodes it ran is
   censored at that count (its budget): all we know is that it needs more.
 * **Fraction solved**: the mean of the solved indicators, with the percentile bootstrap
-  interval of :func:`vdbejax.stats.bootstrap_ci` (agents are the sample).
+  interval of :func:`vdbejax.results.stats.bootstrap_ci` (agents are the sample).
 * **Median episodes to solve**: censored agents count as ``> budget`` (+∞ in the order),
   so the median is defined while fewer than half of the agents are censored; otherwise it
   is reported as censored, ``"> budget"`` — never as a mean or median of censoring points.
-  Its interval: the same bootstrap resamples of agents (:func:`vdbejax.stats.bootstrap_indices`,
+  Its interval: the same bootstrap resamples of agents
+  (:func:`vdbejax.results.stats.bootstrap_indices`,
   2000 resamples, fixed seed), each resample's median (+∞ when censored), and the order
   statistics just outside the percentile positions (numpy's ``"lower"`` / ``"higher"``
   quantile methods: no interpolation between a finite median and +∞). An upper bound of +∞
   reads "> budget". Ranking censored agents above every solved one is exact when they share
   a budget at least as large as every solve episode, as in a run with one episode budget.
 
-Array layout as in :mod:`vdbejax.stats`: episodes on the last axis.
+Array layout as in :mod:`vdbejax.results.stats`: episodes on the last axis.
 """
 from __future__ import annotations
 
@@ -34,12 +35,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from vdbejax import stats
+from vdbejax.results import stats
 from vdbejax.validation import check_in_range, check_int
 
 #: Default fraction of the best return that counts as solved.
 FRACTION = 0.9
-#: Default moving-average window (the paper's smoothing, :data:`vdbejax.stats.WINDOW`).
+#: Default moving-average window (the paper's smoothing, :data:`vdbejax.results.stats.WINDOW`).
 WINDOW = stats.WINDOW
 #: Slack of the threshold comparison: returns are float32 sums of float32 rewards.
 TOLERANCE = 1e-6
@@ -246,7 +247,7 @@ def summarize_solving(
       episodes: ``[agents]`` solve episodes, censoring points where not solved
         (:attr:`SolveTimes.episodes`).
       solved: bool ``[agents]``.
-      level, num_resamples, seed: bootstrap settings (:mod:`vdbejax.stats`).
+      level, num_resamples, seed: bootstrap settings (:mod:`vdbejax.results.stats`).
 
     Returns:
       the :class:`SolveSummary`.

@@ -1,6 +1,6 @@
 """The report of ``vdbejax scale``: its result folder, tables, ``scaling.md`` and figure.
 
-A study folder (:func:`~vdbejax.scaling.run_scaling`) holds ``scaling.csv`` (one row per
+A study folder (:func:`~vdbejax.studies.scaling.run_scaling`) holds ``scaling.csv`` (one row per
 variant × setting, :data:`ROW_COLUMNS`), ``meta.json`` (the options, one record per variant
 (:data:`VARIANT_COLUMNS`), the versions), ``runs/NxK/`` (each variant's result folder: its curves)
 and what this module draws from the rows: ``scaling.md`` (:func:`scaling_markdown`) and
@@ -8,7 +8,7 @@ and what this module draws from the rows: ``scaling.md`` (:func:`scaling_markdow
 :func:`load_scaling` reads a folder back, so the report redraws without training.
 
 It takes the rows as they are and imports nothing of the runner (the data flow one way:
-runner → results → report); every name here is also importable from :mod:`vdbejax.scaling`.
+runner → results → report); every name here is also importable from :mod:`vdbejax.studies.scaling`.
 """
 from __future__ import annotations
 
@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax import io
 from vdbejax.methods.agents import Setting, with_parameter_names
-from vdbejax.result_folder import MARKER_FILE, marked_stage
+from vdbejax.results import io
+from vdbejax.results.folder_lock import MARKER_FILE, marked_stage
 
 #: The files of a study folder (``runs/`` holds one result folder ``NxK/`` per variant).
 CSV_FILE = "scaling.csv"
@@ -68,8 +68,9 @@ def write_reports(out_dir: str | Path, rows: Sequence[dict[str, Any]],
 
 def load_scaling(out_dir: str | Path) -> tuple[list[dict[str, Any]], list[dict[str, Any]],
                                                 dict[str, Any]]:
-    """``(rows, variants, meta)`` of a folder written by :func:`~vdbejax.scaling.run_scaling`
-    (no training): redraw with :func:`write_reports`, or read the numbers in a notebook.
+    """``(rows, variants, meta)`` of a folder written by
+    :func:`~vdbejax.studies.scaling.run_scaling` (no training):
+    redraw with :func:`write_reports`, or read the numbers in a notebook.
 
     Raises:
       ValueError: the folder lacks ``scaling.csv`` or ``meta.json``, or a study was
@@ -137,7 +138,7 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
                      meta: dict[str, Any]) -> str:
     """``scaling.md``: the variants, then one row per method with a column per variant
     (median episodes to solve [95% interval], solved/agents) and its growth exponent."""
-    from vdbejax.analysis import markdown_table
+    from vdbejax.results.analysis import markdown_table
 
     options = meta["options"]
     lines = ["# Episodes to solve against task size", ""]
@@ -206,7 +207,7 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
     """
     import matplotlib
 
-    if "ipykernel" not in sys.modules:  # headless, as vdbejax.plotting; a notebook keeps its own
+    if "ipykernel" not in sys.modules:  # headless, as results.plotting; a notebook keeps its own
         matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

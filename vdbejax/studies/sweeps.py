@@ -32,14 +32,14 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from vdbejax import io
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.grid_result import GridResult
 from vdbejax.methods.agents import sweep
+from vdbejax.results import io
+from vdbejax.results.grid_result import GridResult
+from vdbejax.results.stats import CurveStatistics
+from vdbejax.results.summary import SummaryRow, write_summary
 from vdbejax.runs import RunOptions, prepare_grid
-from vdbejax.stats import CurveStatistics
 from vdbejax.studies import train_in_folder
-from vdbejax.summary import SummaryRow, write_summary
 from vdbejax.validation import INT32_MAX, check_bool, check_int
 
 SUMMARY_FILE = "summary.csv"
@@ -52,36 +52,26 @@ SWEEP_KEYS = ("task", "learners", "explorers", "axes", "shared", "seeds", "episo
 
 def make_task(task: str, *, max_steps: int | None = None,
               invalid_action: str = "noop") -> TabularMDP:
-    """A task by name: ``table_cleaning`` (the paper's text), ``cruz2018`` (the first
-    author's published table, :mod:`vdbejax.envs.cruz2018`) or ``variant:NxK`` (the
-    generated variant with N sections and K goblets).
+    """A task by name: any of the task suite (:func:`vdbejax.envs.suite.make_suite_task`):
+    ``table_cleaning`` (the paper's text), ``cruz2018`` (the first author's published
+    table), ``variant:NxK`` (N sections, K goblets), ``riverswim``, ``sixarms``,
+    ``chain:N``, ``deepsea:N``, ``windy_gridworld``, ``cliff_walking``, ``frozenlake4``, …
 
     Args:
       task: the name.
-      max_steps: truncation length (default 100; ``cruz2018``: its safety cap).
+      max_steps: truncation length (default: the task's horizon; the table-cleaning
+        tasks: 100; ``cruz2018``: its safety cap).
       invalid_action: ``noop`` or ``fail`` (the table-cleaning tasks of the paper's text).
 
     Raises:
-      ValueError: an unknown name.
+      ValueError: an unknown name or a bad option, in one line naming ``task``.
     """
-    from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
-    from vdbejax.envs.table_cleaning import make_mdp, make_variant_mdp
+    from vdbejax.envs.suite import make_suite_task
 
-    if task == "cruz2018":
-        if invalid_action != "noop":  # the option would be ignored, yet recorded
-            raise ValueError(f"invalid_action={invalid_action!r} is invalid with task='cruz2018':"
-                             " the published table decides every action's effect")
-        return make_authors_mdp(STEP_CAP if max_steps is None else max_steps)
-    max_steps = 100 if max_steps is None else max_steps
-    if task == "table_cleaning":
-        return make_mdp(max_steps=max_steps, invalid_action=invalid_action)
-    name, _, size = str(task).partition(":")
-    sections, _, goblets = size.partition("x")
-    if name == "variant" and sections.isdigit() and goblets.isdigit():
-        return make_variant_mdp(int(sections), int(goblets), max_steps=max_steps,
-                                invalid_action=invalid_action)
-    raise ValueError(f"task={task!r} is invalid: must be table_cleaning, cruz2018 or"
-                     " variant:NxK (e.g. variant:4x2)")
+    try:
+        return make_suite_task(task, max_steps=max_steps, invalid_action=invalid_action)
+    except ValueError as error:
+        raise ValueError(str(error).replace(f"name={task!r}", f"task={task!r}", 1)) from None
 
 
 def load_plugins(plugins: Sequence[str]) -> None:
@@ -149,14 +139,14 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
       best: the task's best return (reference lines), if known.
       bands: Figure 3 with 95% bootstrap bands over agents.
       figures: draw the figures.
-      statistics: :func:`~vdbejax.stats.curve_statistics` of the returns, if already
+      statistics: :func:`~vdbejax.results.stats.curve_statistics` of the returns, if already
         computed (with bands when ``figures and bands``).
 
     Returns:
-      the summary rows (:class:`~vdbejax.summary.SummaryRow`).
+      the summary rows (:class:`~vdbejax.results.summary.SummaryRow`).
     """
-    from vdbejax.analysis import summarize, summary_columns
-    from vdbejax.stats import curve_statistics
+    from vdbejax.results.analysis import summarize, summary_columns
+    from vdbejax.results.stats import curve_statistics
 
     out = Path(out_dir)
     # One pass over the returns serves the summary and Figure 3's curves and bands.
@@ -165,7 +155,7 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
     summary = summarize(result, statistics=statistics)
     write_summary(out / SUMMARY_FILE, summary, summary_columns(result))
     if figures:
-        from vdbejax.plotting import figure3, sensitivity  # matplotlib only when plotting
+        from vdbejax.results.plotting import figure3, sensitivity  # matplotlib only when plotting
 
         io.save_figure(figure3(result, best_return=best, bands=bands, statistics=statistics),
                        out / FIGURE_FILE)
@@ -226,7 +216,7 @@ def run_sweep(
     Raises:
       ValueError: any invalid input, before training starts.
     """
-    from vdbejax.solvers import best_return
+    from vdbejax.envs.solvers import best_return
 
     load_plugins(list(plugins))
     mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)

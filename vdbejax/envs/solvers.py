@@ -94,7 +94,8 @@ def _iterate(
     tol: float,
     policy: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Value iteration (``policy=None``) or policy evaluation; returns ``Q [S, A]``.
+    """Value iteration (``policy=None``) or policy evaluation (``policy``: int ``[S]``
+    actions, or float ``[S, A]`` action probabilities); returns ``Q [S, A]``.
 
     With a ``horizon``: exactly ``horizon`` backups, stopping early once ``V`` is a fixed
     point (every further backup then gives the same ``Q``, so the result is exact).
@@ -110,8 +111,16 @@ def _iterate(
     if deterministic:  # skip the outcome axis: 2-D gathers are several times faster
         next_state, weight = next_state[..., 0], weight[..., 0]
     rows = np.arange(mdp.num_states)
+
+    def value(q: np.ndarray) -> np.ndarray:
+        if policy is None:
+            return q.max(axis=1)
+        if policy.ndim == 2:
+            return (q * policy).sum(axis=1)
+        return q[rows, policy]
+
     q = expected_reward.copy()  # one backup from V = 0
-    v = q.max(axis=1) if policy is None else q[rows, policy]
+    v = value(q)
     buffer = np.empty_like(weight)
     iterations = horizon if horizon is not None else 100_000
     for _ in range(iterations - 1):
@@ -122,7 +131,7 @@ def _iterate(
             q += expected_reward
         else:
             np.add(buffer, expected_reward, out=q)
-        new_v = q.max(axis=1) if policy is None else q[rows, policy]
+        new_v = value(q)
         change = np.abs(new_v - v).max()
         v = new_v
         if change == 0.0 or (horizon is None and change < tol):
@@ -241,6 +250,22 @@ def policy_return(mdp: TabularMDP, policy: Any) -> float:
       ValueError: ``policy`` of the wrong shape or with an action out of range.
     """
     return _expected_from_start(mdp, policy_values(mdp, policy))
+
+
+def uniform_random_return(mdp: TabularMDP) -> float:
+    """Expected undiscounted episode return of the uniformly random policy (every action
+    with probability 1/A in every state), from the start distribution within
+    ``mdp.max_steps`` steps: the zero of normalised scores (rliable's "random" baseline).
+
+    Args:
+      mdp: the MDP.
+
+    Returns:
+      the expected return.
+    """
+    uniform = np.full((mdp.num_states, mdp.num_actions), 1.0 / mdp.num_actions)
+    q = _iterate(mdp, 1.0, int(mdp.max_steps), 0.0, policy=uniform)
+    return _expected_from_start(mdp, (q * uniform).sum(axis=1))
 
 
 def shortest_solution(mdp: TabularMDP, start: int) -> list[int]:

@@ -2,13 +2,13 @@
 
 :func:`run_until_solved` is :func:`~vdbejax.run_grid` with the stop policy
 :class:`~vdbejax.runs.UntilSolved`: chunk by chunk until every agent has solved the task
-(:mod:`vdbejax.solving`: its 20-episode moving average reaches 0.9 × the exact best return)
+(:mod:`vdbejax.results.solving`: its 20-episode moving average reaches 0.9 × the exact best return)
 or a budget of episodes or wall-clock seconds is spent. After each chunk the solved agents
 leave the batch — they cost no more compute — and the others continue from their state.
 Every agent draws from its own random stream, so an agent's returns do not depend on when
 the others stop: up to its stop episode they equal, bit for bit, those of a fixed-budget
 :func:`~vdbejax.run_grid` with the same settings, seeds and root seed
-(``tests/test_scaling.py``). Every name here is also importable from :mod:`vdbejax.scaling`.
+(``tests/test_scaling.py``). Every name here is also importable from :mod:`vdbejax.studies.scaling`.
 """
 from __future__ import annotations
 
@@ -18,11 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax.grid_result import GridResult
+from vdbejax.engine.progress import ProgressCallback
 from vdbejax.methods.agents import AgentOptions, Setting
-from vdbejax.progress import ProgressCallback
+from vdbejax.results.grid_result import GridResult
+from vdbejax.results.solving import FRACTION, WINDOW, SolveTimes, episodes_to_solve
 from vdbejax.runs.options import RunOptions
-from vdbejax.solving import FRACTION, WINDOW, SolveTimes, episodes_to_solve
 
 
 @dataclasses.dataclass
@@ -34,7 +34,7 @@ class AdaptiveRun:
       returns: float32 ``[configs, seeds, max_episodes]``; NaN past an agent's stop.
       lengths: int32, same shape; 0 past an agent's stop.
       episodes_run: int64 ``[configs, seeds]``: episodes each agent ran (its stop episode).
-      solve: :class:`~vdbejax.solving.SolveTimes` ``[configs, seeds]``.
+      solve: :class:`~vdbejax.results.solving.SolveTimes` ``[configs, seeds]``.
       nonfinite: bool ``[configs, seeds]``.
       best: the exact best return; ``fraction``, ``window``: the solve criterion.
       max_episodes, max_seconds: the budget.
@@ -92,7 +92,7 @@ def run_until_solved(
 
     :func:`~vdbejax.run_grid` with the stop policy :class:`~vdbejax.runs.UntilSolved`:
     after each chunk of ``chunk_episodes`` episodes, an agent whose moving average has
-    reached ``fraction × best`` (:func:`~vdbejax.solving.episodes_to_solve`) stops at the
+    reached ``fraction × best`` (:func:`~vdbejax.results.solving.episodes_to_solve`) stops at the
     end of that chunk (its stop episode, :attr:`AdaptiveRun.episodes_run`). The run ends
     when no agent is left, after ``max_episodes`` episodes, or after the first chunk that
     ends past ``max_seconds`` of wall clock (then every remaining agent is censored there;
@@ -108,7 +108,7 @@ def run_until_solved(
       num_seeds: agents per setting.
       max_episodes: episode budget per agent.
       max_seconds: wall-clock budget of the whole run (None: no limit).
-      best: the exact best return (default :func:`vdbejax.solvers.best_return` of ``mdp``).
+      best: the exact best return (default :func:`vdbejax.envs.solvers.best_return` of ``mdp``).
       fraction, window: the solve criterion.
       seed: root seed.
       options: values shared by every agent (α, γ, …).

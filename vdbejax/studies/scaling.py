@@ -2,7 +2,7 @@
 
 :func:`run_scaling` runs every method of :data:`METHODS` with both learners on a family of
 generated table-cleaning variants of growing size (``variant:NxK``,
-:func:`vdbejax.sweeps.make_task`), each agent until it has solved the variant or its budget
+:func:`vdbejax.studies.sweeps.make_task`), each agent until it has solved the variant or its budget
 is spent (:func:`~vdbejax.run_grid` with the stop policy :class:`~vdbejax.runs.UntilSolved`,
 as :func:`run_until_solved`: up to its stop, an agent's returns equal bit for bit those of a
 fixed budget), and writes ``scaling.csv``, ``scaling.md``, ``scaling.png`` (median episodes
@@ -13,11 +13,11 @@ command, :mod:`vdbejax.studies`: checkpointed, so ``--resume`` continues a study
 This module is the study's runner. Its other parts live apart, and every name of theirs
 below is importable from here too:
 
-* :mod:`vdbejax.scaling_study` — the study's definition: :class:`Method`, :data:`METHODS`,
+* :mod:`vdbejax.studies.scaling_study` — the study's definition: :class:`Method`, :data:`METHODS`,
   :data:`LEARNERS`, :data:`SIZES`, :data:`QUICK`, the budgets (:func:`variant_budget`,
   :func:`auto_chunk`) and :func:`best_parameters`.
-* :mod:`vdbejax.scaling_adaptive` — :func:`run_until_solved` and :class:`AdaptiveRun`.
-* :mod:`vdbejax.scaling_report` — the result folder's files and columns, ``scaling.md``
+* :mod:`vdbejax.studies.scaling_adaptive` — :func:`run_until_solved` and :class:`AdaptiveRun`.
+* :mod:`vdbejax.studies.scaling_report` — the result folder's files and columns, ``scaling.md``
   (:func:`scaling_markdown`), ``scaling.png`` (:func:`scaling_figure`),
   :func:`write_reports` and :func:`load_scaling` (a saved folder redraws without
   training). It imports nothing of the runner: the data flow one way, runner → results →
@@ -34,12 +34,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from vdbejax import io
 from vdbejax.methods.agents import Setting, make_agent, parameter_name
-from vdbejax.result_folder import FolderLock, mark, unmark
+from vdbejax.results import io
+from vdbejax.results.folder_lock import FolderLock, mark, unmark
+from vdbejax.results.solving import FRACTION, WINDOW, solve_threshold, summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved, prepare_grid
-from vdbejax.scaling_adaptive import AdaptiveRun, adaptive_run, run_until_solved
-from vdbejax.scaling_report import (
+from vdbejax.studies import train_in_folder
+from vdbejax.studies.scaling_adaptive import AdaptiveRun, adaptive_run, run_until_solved
+from vdbejax.studies.scaling_report import (
     CSV_FILE,
     META_FILE,
     ROW_COLUMNS,
@@ -52,11 +54,11 @@ from vdbejax.scaling_report import (
     scaling_markdown,
     write_reports,
 )
-from vdbejax.scaling_report import FIGURE_FILE as FIGURE_FILE
-from vdbejax.scaling_report import MARKDOWN_FILE as MARKDOWN_FILE
-from vdbejax.scaling_report import VARIANT_COLUMNS as VARIANT_COLUMNS
-from vdbejax.scaling_report import _param_text as _param_text
-from vdbejax.scaling_study import (
+from vdbejax.studies.scaling_report import FIGURE_FILE as FIGURE_FILE
+from vdbejax.studies.scaling_report import MARKDOWN_FILE as MARKDOWN_FILE
+from vdbejax.studies.scaling_report import VARIANT_COLUMNS as VARIANT_COLUMNS
+from vdbejax.studies.scaling_report import _param_text as _param_text
+from vdbejax.studies.scaling_study import (
     EPISODES,
     EPISODES_PER_STATE,
     LEARNERS,
@@ -71,9 +73,7 @@ from vdbejax.scaling_study import (
     study_settings,
     variant_budget,
 )
-from vdbejax.scaling_study import PAPER_METHODS as PAPER_METHODS
-from vdbejax.solving import FRACTION, WINDOW, solve_threshold, summarize_solving
-from vdbejax.studies import train_in_folder
+from vdbejax.studies.scaling_study import PAPER_METHODS as PAPER_METHODS
 from vdbejax.validation import (
     INT32_MAX,
     UINT32_MAX,
@@ -139,10 +139,10 @@ def run_scaling(
       seed: root seed.
       learners: learner names.
       methods: explorer names of :data:`METHODS` (default all).
-      fraction, window: the solve criterion (:mod:`vdbejax.solving`).
+      fraction, window: the solve criterion (:mod:`vdbejax.results.solving`).
       chunk_episodes: episodes between stop checks (default :func:`auto_chunk` of the
         budget: a solved agent runs at most 1 % of the budget past its solve episode).
-      max_steps: episode truncation (default 100, :func:`vdbejax.sweeps.make_task`).
+      max_steps: episode truncation (default 100, :func:`vdbejax.studies.sweeps.make_task`).
       drop_unsolved: skip settings on larger variants once none of their agents solved
         (off by default: SARSA + VDBE fails 3×1 and solves 4×1 within the same budget).
       quick: :data:`QUICK` sizes, seeds and episodes (overrides those arguments).
@@ -166,9 +166,9 @@ def run_scaling(
     Raises:
       ValueError: any invalid input, before training.
     """
-    from vdbejax.experiment import version_info
-    from vdbejax.solvers import best_return, start_states, steps_to_goal
-    from vdbejax.sweeps import make_task
+    from vdbejax.envs.solvers import best_return, start_states, steps_to_goal
+    from vdbejax.runs.grid import version_info
+    from vdbejax.studies.sweeps import make_task
 
     for name, flag in (("quick", quick), ("progress", progress), ("figure", figure),
                        ("drop_unsolved", drop_unsolved), ("save_runs", save_runs)):

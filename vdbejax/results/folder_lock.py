@@ -167,7 +167,7 @@ def _alive(pid: int) -> bool:
 
 def mark(folder: str | os.PathLike, stage: str) -> None:
     """Write the run marker: ``stage`` of :data:`STAGES` is being written now."""
-    from vdbejax.io import atomic_write_text
+    from vdbejax.results.io import atomic_write_text
 
     if stage not in STAGES:
         raise ValueError(f"stage={stage!r} is invalid: must be one of {', '.join(STAGES)}")
@@ -213,7 +213,7 @@ def save_run(
     Args:
       result: the :class:`~vdbejax.experiment.GridResult`.
       out: the (locked) result folder.
-      write: writes the outputs from the :class:`~vdbejax.stats.CurveStatistics`.
+      write: writes the outputs from the :class:`~vdbejax.results.stats.CurveStatistics`.
       bands: compute Figure 3's bootstrap bands too.
       on_saved: called after the save.
       statistics: compute the statistics (``False``: ``write(None)``).
@@ -226,7 +226,7 @@ def save_run(
         folder, permissions): one line naming the path; the computed results are kept,
         in ``out`` if they were saved there, else in a rescue folder the message names.
     """
-    from vdbejax.stats import curve_statistics
+    from vdbejax.results.stats import curve_statistics
 
     out = Path(out)
     try:

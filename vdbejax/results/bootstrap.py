@@ -1,6 +1,6 @@
 """Statistics of one value per seed (numpy only): bootstrap resamples of the seeds, the
 percentile interval, and the bootstrap interval of the mean, of the interquartile mean and
-of the probability of improvement, with the conventions of :mod:`vdbejax.stats`.
+of the probability of improvement, with the conventions of :mod:`vdbejax.results.stats`.
 """
 from __future__ import annotations
 

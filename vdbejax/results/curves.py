@@ -1,5 +1,5 @@
 """Statistics of one learning curve (numpy only): smoothing, final return and the
-convergence episode, with the conventions of :mod:`vdbejax.stats` (episodes on the last
+convergence episode, with the conventions of :mod:`vdbejax.results.stats` (episodes on the last
 axis).
 """
 from __future__ import annotations

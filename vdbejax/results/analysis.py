@@ -3,7 +3,7 @@ pairwise comparisons, truncation diagnostics and ε(s) snapshots.
 
 The array-level statistics and their conventions (smoothing, final return, convergence
 episode, bootstrap intervals, IQM, probability of improvement) live in
-:mod:`vdbejax.stats` and are re-exported here.
+:mod:`vdbejax.results.stats` and are re-exported here.
 """
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax.grid_result import GridResult
-from vdbejax.stats import (  # noqa: F401  (re-exported: the historical home of these names)
+from vdbejax.results.grid_result import GridResult
+from vdbejax.results.stats import (  # noqa: F401  (re-exported: the historical home of these names)
     FRACTION,
     LAST,
     LEVEL,
@@ -33,7 +33,7 @@ from vdbejax.stats import (  # noqa: F401  (re-exported: the historical home of 
     moving_average,
     probability_of_improvement_ci,
 )
-from vdbejax.summary import SUMMARY_COLUMNS, SummaryRow
+from vdbejax.results.summary import SUMMARY_COLUMNS, SummaryRow
 
 
 def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = LAST) -> np.ndarray:
@@ -61,7 +61,7 @@ def summarize(
     statistics: CurveStatistics | None = None,
 ) -> list[SummaryRow]:
     """One row per config: final return and convergence episode, each with its 95%
-    bootstrap CI over seeds, and diagnostics (:class:`~vdbejax.summary.SummaryRow`).
+    bootstrap CI over seeds, and diagnostics (:class:`~vdbejax.results.summary.SummaryRow`).
 
     Args:
       result: the grid.
@@ -71,7 +71,7 @@ def summarize(
         this ``last`` and ``window``), e.g. to share them with Figure 3.
 
     Returns:
-      one :class:`~vdbejax.summary.SummaryRow` per setting, in config order (the columns
+      one :class:`~vdbejax.results.summary.SummaryRow` per setting, in config order (the columns
       of :data:`SUMMARY_COLUMNS`: ``config, learner, explorer, param, final_return,
       final_ci_low, final_ci_high, final_iqm, convergence_episode, convergence_ci_low,
       convergence_ci_high, truncated_fraction, mean_length, nonfinite_agents``; with
@@ -195,7 +195,7 @@ def markdown_table(rows: Sequence[Mapping[str, Any]], columns: Sequence[str],
 
     Args:
       rows: mappings holding at least ``columns`` (dicts, or
-        :class:`~vdbejax.summary.SummaryRow`).
+        :class:`~vdbejax.results.summary.SummaryRow`).
       columns: the columns, in order.
       digits: decimals of float cells.
 

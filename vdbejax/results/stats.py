@@ -20,9 +20,9 @@ Conventions (used everywhere, stated once):
 Array layout: seeds on the first axis, episodes on the last (``[seeds, episodes]``).
 
 The pieces live in one module each and are re-exported here: the statistics of one curve
-(smoothing, final return, convergence episode) in :mod:`vdbejax.curves`; those of one value
+(smoothing, final return, convergence episode) in :mod:`vdbejax.results.curves`; those of one value
 per seed (bootstrap resamples and intervals, IQM, probability of improvement) in
-:mod:`vdbejax.bootstrap`. This module holds the intervals of curves and the per-setting
+:mod:`vdbejax.results.bootstrap`. This module holds the intervals of curves and the per-setting
 statistics of a grid (:func:`curve_statistics`).
 """
 from __future__ import annotations
@@ -33,7 +33,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from vdbejax.bootstrap import (  # noqa: F401  (re-exported)
+from vdbejax.results.bootstrap import (  # noqa: F401  (re-exported)
     IQM_TRIM,
     LEVEL,
     NUM_RESAMPLES,
@@ -46,7 +46,7 @@ from vdbejax.bootstrap import (  # noqa: F401  (re-exported)
     probability_of_improvement,
     probability_of_improvement_ci,
 )
-from vdbejax.curves import (  # noqa: F401  (re-exported)
+from vdbejax.results.curves import (  # noqa: F401  (re-exported)
     FRACTION,
     LAST,
     WINDOW,

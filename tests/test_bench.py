@@ -1,0 +1,104 @@
+"""``vdbejax bench``: the methods' one rule, the tuning on other seeds, the report, resume
+and the command line (the --quick benchmark end to end)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vdbejax import cli
+from vdbejax.methods.agents import make_agent
+from vdbejax.methods.api import EXPLORERS, LEARNERS
+from vdbejax.results.grid_result import GridResult
+from vdbejax.results.regret import cumulative_regret
+from vdbejax.studies import bench
+from vdbejax.studies.bench_methods import METHODS, TaskScale, select_methods
+
+
+def test_every_method_follows_the_one_rule() -> None:
+    scale = TaskScale(r_max=2.0, horizon=10)
+    for method in METHODS:
+        assert method.learner in LEARNERS and method.explorer in EXPLORERS, method.name
+        settings = method.candidates(scale)
+        assert len(settings) == max(1, len(method.grid))
+        for multiple, setting in zip(method.grid, settings, strict=True):
+            values = setting.values
+            assert values[method.tuned] == pytest.approx(multiple * scale.value(method.unit))
+            assert values["gamma"] == (pytest.approx(0.9) if method.discounted else 1.0)
+            if not method.discounted:
+                assert values["horizon"] == 10
+            if method.td:
+                assert values["alpha"] == 0.1
+            make_agent(setting)  # every candidate builds
+
+
+def test_method_names_are_checked() -> None:
+    assert [m.name for m in select_methods("vdbe,egreedy")] == ["egreedy", "vdbe"]
+    for bad in ("nope", "vdbe,vdbe", ""):
+        with pytest.raises(ValueError, match="methods="):
+            select_methods(bad)
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, bench.BenchResult]:
+    out = tmp_path_factory.mktemp("bench")
+    return out, bench.run_bench(out, quick=True, progress=False)
+
+
+def test_quick_benchmark_writes_its_report(quick: tuple[Path, bench.BenchResult]) -> None:
+    out, result = quick
+    for name in ("bench.md", "ranking.csv", "aggregate.csv", "meta.json", "aggregate.png",
+                 *(f"regret_{t.replace(':', '-')}.png" for t in bench.QUICK_TASKS)):
+        assert (out / name).is_file(), name
+    assert len(result.rows) == len(bench.QUICK_TASKS) * len(bench.QUICK_METHODS)
+    for task in bench.QUICK_TASKS:
+        ranks = sorted(r["rank"] for r in result.rows if r["task"] == task)
+        assert ranks == list(range(1, len(bench.QUICK_METHODS) + 1))
+    for row in result.rows:  # a score is a mean normalised return: at most 1 in expectation
+        assert np.isfinite(row["score"]) and row["score"] < 1.2
+        assert row["score_low"] <= row["score"] <= row["score_high"]
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["tuning_budget"]["agent_episodes"] > 0
+    assert {a["method"] for a in result.aggregate} == set(bench.QUICK_METHODS)
+    text = (out / "bench.md").read_text()
+    assert "## Across tasks" in text and "tuning budget" in text
+
+
+def test_tuning_runs_on_other_seeds_and_keeps_the_least_regret(
+        quick: tuple[Path, bench.BenchResult]) -> None:
+    out, result = quick
+    tasks = {t.name: t for t in bench.make_tasks(bench.QUICK_TASKS)}
+    for name, task in tasks.items():
+        tuned = GridResult.load(out / "tune" / task.folder)
+        reported = GridResult.load(out / "runs" / task.folder)
+        assert tuned.meta["seed"] == 1 and reported.meta["seed"] == 0
+        regret = cumulative_regret(tuned.returns, task.best)[..., -1].mean(-1)
+        start = 0
+        for c, method in enumerate(select_methods(bench.QUICK_METHODS)):
+            n = len(method.grid)
+            assert reported.settings[c] == tuned.settings[start + int(np.argmin(
+                regret[start:start + n]))]
+            start += n
+        # the reported numbers are the reported run's, not the tuning run's
+        row = next(r for r in result.rows if r["task"] == name)
+        assert reported.num_seeds == bench.QUICK_SEEDS and row["task"] == name
+
+
+def test_resume_reuses_whole_task_folders(quick: tuple[Path, bench.BenchResult]) -> None:
+    out, result = quick
+    again = bench.run_bench(out, quick=True, progress=False, resume=True, figures=False)
+    assert [r["score"] for r in again.rows] == [r["score"] for r in result.rows]
+    assert not (out / "aggregate.png").exists()  # no figure of the earlier run survives
+
+
+def test_bad_input_is_one_line_before_training(tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    for argv, message in ((["--tasks", "nope"], "nope"), (["--methods", "nope"], "methods="),
+                          (["--quick", "--seeds", "3"], "--quick sets"),
+                          (["--episodes", "0"], "episodes=")):
+        assert cli.main(["bench", "--out", str(tmp_path / "b"), "--quiet", *argv]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "b" / "runs").exists()

@@ -1,0 +1,5 @@
+import sys
+
+from vdbejax.cli import main
+
+sys.exit(main())

@@ -1,0 +1,244 @@
+"""The study commands: ``run`` (any sweep), ``scale`` and ``bench``."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from vdbejax.cli.common import add_run_flags, run_flags, write_long_csv
+from vdbejax.validation import parse_cli_number
+
+
+def add_run(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run", help="run any sweep (learners × explorers × hyperparameter axes) and write its"
+                    " results, summary and figures",
+        description="Flags override the sweep file's keys (vdbejax.studies.sweeps lists them).")
+    number = parse_cli_number
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--config", default=None, help="sweep file, TOML (.toml) or JSON")
+    p.add_argument("--task", default=None,
+                   help="table_cleaning (default), cruz2018 (the authors' published table) or"
+                        " variant:NxK (N sections, K goblets)")
+    p.add_argument("--learners", default=None, help="comma-separated, e.g. qlearning,sarsa")
+    p.add_argument("--explorers", default=None, help="comma-separated, e.g. vdbe,ucb1")
+    p.add_argument("--axis", action="append", default=[], metavar="NAME=V1,V2,...",
+                   help="a sweep axis, e.g. --axis alpha=0.1,0.3,0.8 (repeatable)")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="a value shared by every setting that has it, e.g. --set gamma=0.95")
+    p.add_argument("--plugin", action="append", default=[], metavar="FILE_OR_MODULE",
+                   help="import this file or module first (it registers plug-ins)")
+    p.add_argument("--seeds", type=number, default=None, help="agents per setting (default 20)")
+    p.add_argument("--episodes", type=number, default=None,
+                   help="episodes per agent (default 1000)")
+    p.add_argument("--seed", type=number, default=None, help="root random seed (default 0)")
+    p.add_argument("--max-steps", type=number, default=None,
+                   help="episode truncation (default 100)")
+    p.add_argument("--invalid-action", default=None, help="noop (default) or fail")
+    p.add_argument("--chunk-episodes", type=number, default=None, help="episodes per jitted chunk")
+    add_run_flags(p, "continue from OUT/checkpoint.npz (or reuse OUT's whole result)")
+    p.add_argument("--no-figures", action="store_true", help="no fig3.png / sensitivity.png")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--long-csv", action="store_true",
+                   help="also write returns_long.csv: one row per agent-episode (setting,"
+                        " hyperparameters, seed, episode, return, length)")
+
+
+def _pairs(texts: list[str], flag: str) -> list[tuple[str, str]]:
+    pairs = []
+    for text in texts:
+        name, sep, value = text.partition("=")
+        if not sep or not name or not value:
+            raise ValueError(f"{flag}={text!r} is invalid: must be NAME=VALUE")
+        pairs.append((name, value))
+    return pairs
+
+
+def _value(text: str) -> object:
+    if text in ("random", "first"):
+        return text
+    return parse_cli_number(text)
+
+
+def run_command(args: argparse.Namespace) -> None:
+    from vdbejax.studies.sweeps import read_sweep_file, run_sweep
+
+    spec = read_sweep_file(args.config) if args.config else {}
+    for key in ("task", "seeds", "episodes", "seed", "max_steps", "invalid_action",
+                "chunk_episodes"):
+        if getattr(args, key) is not None:
+            spec[key] = getattr(args, key)
+    for key in ("learners", "explorers"):
+        if getattr(args, key) is not None:
+            spec[key] = [name for name in getattr(args, key).split(",") if name]
+    axes = dict(spec.get("axes", {}))
+    axes.update({name: [_value(v) for v in values.split(",")]
+                 for name, values in _pairs(args.axis, "--axis")})
+    shared = dict(spec.get("shared", {}))
+    shared.update({name: _value(value) for name, value in _pairs(args.set, "--set")})
+    both = sorted(set(axes) & set(shared))
+    if both:  # one would override the other without a word
+        raise ValueError(f"{both[0]} is both a sweep axis and a shared value (--axis, --set or"
+                         " the sweep file's [axes] and [shared]): give it once")
+    spec["axes"], spec["shared"] = axes, shared
+    spec["plugins"] = list(spec.get("plugins", [])) + args.plugin
+    for key in ("learners", "explorers"):
+        if key not in spec:
+            raise ValueError(f"{key} is missing: give --{key} or a sweep file with {key} = [...]")
+    result = run_sweep(args.out, progress=not args.quiet, figures=not args.no_figures,
+                       **run_flags(args), **spec)
+    from vdbejax.results.summary import read_summary
+    from vdbejax.studies.sweeps import SUMMARY_FILE
+
+    # summary.csv: one row per setting of this result, written by run_sweep above.
+    rows = read_summary(Path(args.out) / SUMMARY_FILE)
+    for row, setting in zip(rows, result.settings, strict=True):
+        print(f"{setting.label}: final return {row.final_return:.3f}"
+              f" [{row.final_ci_low:.3f}, {row.final_ci_high:.3f}]")
+    print(f"training {result.meta['elapsed_seconds']:.1f} s → {args.out}")
+    if args.long_csv:
+        print(write_long_csv(result, args.out))
+
+
+def add_scale(sub: argparse._SubParsersAction) -> None:
+    # Nothing of vdbejax.studies.scaling here: building the parser (--help, --version) must not
+    # import JAX.
+    p = sub.add_parser(
+        "scale", help="episodes to solve of every exploration method on growing task variants;"
+                      " writes scaling.csv, scaling.md, scaling.png",
+        description="Each variant trains until every agent has solved it (20-episode moving"
+                    " average >= fraction x the exact best return) or the budget is spent;"
+                    " solved agents leave the batch.")
+    number = parse_cli_number
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--sizes", default=None,
+                   help="variants NxK (N sections, K goblets), comma-separated"
+                        " (default: the study's, vdbejax.studies.scaling.SIZES)")
+    p.add_argument("--seeds", type=number, default=None, help="agents per setting (default 10)")
+    p.add_argument("--episodes", type=number, default=None,
+                   help="smallest episode budget per agent and variant (default 2000)")
+    p.add_argument("--episodes-per-state", type=number, default=None,
+                   help="budget per variant: max(EPISODES, this x reachable states)"
+                        " (default 3; 0: EPISODES for every variant)")
+    p.add_argument("--seconds", type=number, default=None,
+                   help="wall-clock budget per variant (default none; machine-dependent)")
+    p.add_argument("--seed", type=number, default=0, help="root random seed (default 0)")
+    p.add_argument("--learners", default="qlearning,sarsa",
+                   help="comma-separated (default qlearning,sarsa)")
+    p.add_argument("--methods", default=None,
+                   help="comma-separated explorers of vdbejax.studies.scaling.METHODS"
+                        " (default all)")
+    p.add_argument("--fraction", type=number, default=0.9,
+                   help="solved = moving average >= fraction x best return (default 0.9)")
+    p.add_argument("--window", type=number, default=20, help="moving-average window (default 20)")
+    p.add_argument("--chunk-episodes", type=number, default=None,
+                   help="episodes between stop checks (default max(100, budget/100))")
+    p.add_argument("--max-steps", type=number, default=None,
+                   help="episode truncation (default 100)")
+    p.add_argument("--drop-unsolved", action="store_true",
+                   help="skip a setting on larger variants once none of its agents solved one")
+    p.add_argument("--quick", action="store_true", help="2x1 and 3x1, 3 seeds, 1000 episodes")
+    p.add_argument("--no-figure", action="store_true", help="no scaling.png")
+    p.add_argument("--no-runs", action="store_true",
+                   help="do not keep the variants' result folders (runs/NxK/)")
+    add_run_flags(p, "continue an interrupted study: whole variants are loaded, the"
+                      " interrupted one continues from runs/NxK/checkpoint.npz")
+    p.add_argument("--quiet", action="store_true", help="no status lines")
+
+
+#: ``vdbejax scale``'s sizes of the study, which ``--quick`` sets (flag: default).
+SCALE_SIZE_FLAGS = {"sizes": None, "seeds": 10, "episodes": 2000, "episodes_per_state": 3.0}
+
+
+def scale_command(args: argparse.Namespace) -> None:
+    from vdbejax.studies.scaling import SIZES, run_scaling
+
+    given = [name for name in SCALE_SIZE_FLAGS if getattr(args, name) is not None]
+    if args.quick and given:  # --quick would override them without a word
+        raise ValueError(f"--quick sets the study's size: leave out --{given[0].replace('_', '-')}"
+                         " (or --quick)")
+    for name, default in SCALE_SIZE_FLAGS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, ",".join(SIZES) if name == "sizes" else default)
+
+    learners = [n for n in args.learners.split(",") if n]
+    methods = None if args.methods is None else args.methods.split(",")
+    command = (f"vdbejax scale --out {args.out}" + (" --quick" if args.quick else
+               f" --sizes {args.sizes} --seeds {args.seeds} --episodes {args.episodes}"
+               f" --episodes-per-state {args.episodes_per_state}")
+               + "".join(f" --{flag} {value}" for flag, value in (
+                   ("seconds", args.seconds), ("seed", args.seed), ("learners", args.learners),
+                   ("methods", args.methods), ("fraction", args.fraction), ("window", args.window),
+                   ("chunk-episodes", args.chunk_episodes), ("max-steps", args.max_steps))
+                   if value is not None)
+               + (" --drop-unsolved" if args.drop_unsolved else ""))
+    result = run_scaling(
+        args.out, sizes=args.sizes, seeds=args.seeds, episodes=args.episodes,
+        episodes_per_state=None if args.episodes_per_state == 0 else args.episodes_per_state,
+        seconds=args.seconds,
+        seed=args.seed, fraction=args.fraction, window=args.window,
+        chunk_episodes=args.chunk_episodes, max_steps=args.max_steps,
+        drop_unsolved=args.drop_unsolved, quick=args.quick, progress=not args.quiet,
+        figure=not args.no_figure, save_runs=not args.no_runs, command=command,
+        learners=learners, methods=methods, **run_flags(args))
+    for row in result.rows:
+        print(f"{row['size']} {row['method']}: {row['median_text']}"
+              f" ({row['solved']}/{row['agents']} solved)")
+    print(f"elapsed: {result.meta['elapsed_seconds']:.1f} s → {args.out}")
+
+
+def add_bench(sub: argparse._SubParsersAction) -> None:
+    # Nothing of vdbejax.studies.bench here: building the parser must not import JAX.
+    p = sub.add_parser(
+        "bench", help="every exploration method on a suite of tasks, scored by regret against"
+                      " the exact optimum; writes bench.md, ranking.csv, aggregate.csv, figures",
+        description="Per task: each method's one knob tuned on separate seeds, then the chosen"
+                    " candidates run on the reported seeds (docs/BENCHMARK.md).")
+    number = parse_cli_number
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--tasks", default=None,
+                   help="comma-separated task names (default: the suite,"
+                        " vdbejax.envs.suite.DEFAULT_SUITE)")
+    p.add_argument("--methods", default=None,
+                   help="comma-separated names of vdbejax.studies.bench_methods.METHODS"
+                        " (default all)")
+    p.add_argument("--seeds", type=number, default=None,
+                   help="agents per method and task in the reported run (default 10)")
+    p.add_argument("--tune-seeds", type=number, default=None,
+                   help="agents per candidate in tuning (default 3)")
+    p.add_argument("--episodes", type=number, default=None,
+                   help="episodes per agent (default 300)")
+    p.add_argument("--seed", type=number, default=0,
+                   help="root seed of the reported run; tuning uses seed + 1 (default 0)")
+    p.add_argument("--no-tune", action="store_true",
+                   help="no tuning: each method at its middle candidate")
+    p.add_argument("--quick", action="store_true",
+                   help="3 small tasks, 5 methods, 3 agents, 40 episodes (about a minute)")
+    p.add_argument("--no-figures", action="store_true", help="no figures")
+    add_run_flags(p, "continue an interrupted benchmark: whole task folders are reused, the"
+                     " interrupted one continues from its checkpoint")
+    p.add_argument("--quiet", action="store_true", help="no status lines")
+
+
+def bench_command(args: argparse.Namespace) -> None:
+    from vdbejax.studies import bench
+
+    sizes = {"tasks": args.tasks, "methods": args.methods, "seeds": args.seeds,
+             "tune_seeds": args.tune_seeds, "episodes": args.episodes}
+    given = [k for k, v in sizes.items() if v is not None]
+    if args.quick and given:  # --quick would override them without a word
+        raise ValueError(f"--quick sets the benchmark's size: leave out"
+                         f" --{given[0].replace('_', '-')} (or --quick)")
+    defaults = {"seeds": bench.SEEDS, "tune_seeds": bench.TUNE_SEEDS,
+                "episodes": bench.EPISODES}
+    values: dict[str, Any] = {k: (defaults.get(k) if v is None else v) for k, v in sizes.items()}
+    command = "vdbejax bench --out " + args.out + (" --quick" if args.quick else "".join(
+        f" --{k.replace('_', '-')} {v}" for k, v in values.items() if v is not None)) + (
+        f" --seed {args.seed}" + (" --no-tune" if args.no_tune else ""))
+    result = bench.run_bench(args.out, seed=args.seed, tune=not args.no_tune, quick=args.quick,
+                             progress=not args.quiet, figures=not args.no_figures,
+                             command=command, **values, **run_flags(args))
+    for row in result.aggregate:
+        print(f"{row['title']}: IQM score {row['iqm']:.3f} [{row['iqm_low']:.3f},"
+              f" {row['iqm_high']:.3f}], mean rank {row['mean_rank']:.1f}")
+    print(f"elapsed: {result.meta['elapsed_seconds']:.1f} s → {Path(args.out) / 'bench.md'}")

@@ -1,0 +1,15 @@
+"""Results: what a run produced, its files and its statistics (numpy; nothing here trains).
+
+* :mod:`~vdbejax.results.grid_result` — :class:`GridResult`, a grid's returns, lengths and
+  settings, saved to and loaded from a result folder;
+* :mod:`~vdbejax.results.io` — the result files (atomic writes, ``returns.npz``,
+  ``configs.csv``, ``meta.json``);
+* :mod:`~vdbejax.results.folder_lock` — one run's files per folder: writer lock, run marker,
+  leftover cleanup;
+* :mod:`~vdbejax.results.stats`, :mod:`~vdbejax.results.curves`,
+  :mod:`~vdbejax.results.bootstrap` — curve statistics and bootstrap intervals over seeds;
+* :mod:`~vdbejax.results.solving` — episodes to solve (a censored measure);
+* :mod:`~vdbejax.results.summary`, :mod:`~vdbejax.results.analysis` — the summary table
+  and comparisons of a grid;
+* :mod:`~vdbejax.results.plotting` — figures.
+"""

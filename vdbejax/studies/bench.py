@@ -1,0 +1,317 @@
+"""Which exploration method wins where: ``vdbejax bench``, every method on every task.
+
+Per task (:mod:`vdbejax.envs.suite`), two runs on the one run path, each in its own
+result folder through :func:`~vdbejax.studies.train_in_folder` (checkpointed,
+``--resume``): ``tune/<task>/`` runs every method's candidates
+(:mod:`~vdbejax.studies.bench_methods`) on tuning seeds (root seed ``seed + 1``), and
+``runs/<task>/`` runs the chosen candidate of each method on the reported seeds (root seed
+``seed``). The scores (:mod:`vdbejax.results.regret`) and the report
+(:mod:`~vdbejax.studies.bench_report`) come from the reported runs only.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vdbejax.envs.solvers import best_return, uniform_random_return
+from vdbejax.envs.tabular import TabularMDP
+from vdbejax.methods.agents import Setting, make_agent
+from vdbejax.results.folder_lock import FolderLock, check_output_paths, mark, unmark
+from vdbejax.results.grid_result import GridResult
+from vdbejax.results.regret import cumulative_regret, normalised_returns, run_scores
+from vdbejax.results.solving import episodes_to_solve, summarize_solving
+from vdbejax.runs import RunOptions, prepare_grid
+from vdbejax.studies.bench_methods import QUICK_METHODS, BenchMethod, TaskScale, select_methods
+from vdbejax.studies.bench_report import output_files, write_report
+from vdbejax.studies.folder import train_in_folder
+from vdbejax.validation import INT32_MAX, UINT32_MAX, check_bool, check_int, check_writable_dir
+
+#: Agents per method and task in the reported run, and per candidate in tuning.
+SEEDS, TUNE_SEEDS = 10, 3
+#: Episodes per agent on every task (``--episodes``).
+EPISODES = 300
+#: ``--quick``: three small tasks, five methods, a few agents and episodes.
+QUICK_TASKS = ("chain", "deepsea:6", "riverswim")
+QUICK_SEEDS, QUICK_TUNE_SEEDS, QUICK_EPISODES = 3, 2, 40
+#: A run's moving average must reach this share of the way from random to the optimum.
+SOLVED = 0.9
+#: Folders of the two runs per task.
+TUNE_FOLDER, RUNS_FOLDER = "tune", "runs"
+
+
+@dataclasses.dataclass(frozen=True)
+class BenchTask:
+    """A task of the benchmark with its exact references."""
+
+    name: str
+    mdp: TabularMDP
+    best: float
+    baseline: float
+
+    @property
+    def folder(self) -> str:
+        """The task's folder name (``deepsea:10`` → ``deepsea-10``)."""
+        return self.name.replace(":", "-")
+
+    @property
+    def scale(self) -> TaskScale:
+        reward = np.abs(np.asarray(self.mdp.reward, np.float64))
+        mask = np.asarray(self.mdp.probability) > 0
+        return TaskScale(r_max=float(reward[mask].max()) or 1.0,
+                         horizon=int(self.mdp.max_steps))
+
+
+@dataclasses.dataclass
+class BenchResult:
+    """What :func:`run_bench` wrote: one row per (task, method), the aggregate rows, the
+    meta data and the reported runs (``GridResult`` per task)."""
+
+    rows: list[dict[str, Any]]
+    aggregate: list[dict[str, Any]]
+    meta: dict[str, Any]
+    runs: dict[str, GridResult]
+
+
+def make_tasks(names: Sequence[str] | str | None) -> list[BenchTask]:
+    """The benchmark's tasks (the default suite by default), built and solved exactly.
+
+    Raises:
+      ValueError: an unknown or repeated name, a task whose best return does not exceed
+        the random policy's (no room for a normalised score).
+    """
+    from vdbejax.envs.suite import DEFAULT_SUITE, make_suite_task
+
+    if names is None:
+        names = DEFAULT_SUITE
+    if isinstance(names, str):
+        names = [n.strip() for n in names.split(",") if n.strip()]
+    names = list(names)
+    if not names or len(set(names)) != len(names):
+        raise ValueError(f"tasks={','.join(names)!r} is invalid: must be distinct task names")
+    tasks = []
+    for name in names:
+        mdp = make_suite_task(name)
+        best, baseline = best_return(mdp), uniform_random_return(mdp)
+        if not best > baseline + 1e-9:
+            raise ValueError(f"tasks holds {name!r}, whose best return {best:g} does not exceed"
+                             f" the random policy's {baseline:g}: nothing to explore for")
+        tasks.append(BenchTask(name, mdp, best, baseline))
+    return tasks
+
+
+def _train(folder: Path, task: BenchTask, settings: list[Setting], *, seeds: int, episodes: int,
+           seed: int, options: RunOptions, phase: str) -> GridResult:
+    prepared = prepare_grid(task.mdp, settings, num_seeds=seeds, num_episodes=episodes,
+                            seed=seed, run=options)
+    result, _ = train_in_folder(folder, prepared, lambda result, stats: None, files=[],
+                                statistics=False,
+                                annotate=lambda result: result.meta.update(task=task.name,
+                                                                           phase=phase))
+    return result
+
+
+def _mean_regret(result: GridResult, best: float) -> np.ndarray:
+    """Mean final cumulative regret per config."""
+    return cumulative_regret(result.returns, best)[..., -1].mean(-1)
+
+
+def run_bench(
+    out_dir: str | Path,
+    *,
+    tasks: Sequence[str] | str | None = None,
+    methods: Sequence[str] | str | None = None,
+    seeds: int = SEEDS,
+    tune_seeds: int = TUNE_SEEDS,
+    episodes: int = EPISODES,
+    seed: int = 0,
+    tune: bool = True,
+    quick: bool = False,
+    resume: bool = False,
+    memory_budget_bytes: int | str | None = None,
+    devices: int | None = None,
+    progress: bool = True,
+    figures: bool = True,
+    command: str | None = None,
+) -> BenchResult:
+    """Run every method on every task and write the ranking (module docstring).
+
+    Args:
+      out_dir: the benchmark's folder (created).
+      tasks: task names of :mod:`vdbejax.envs.suite` (default its ``DEFAULT_SUITE``).
+      methods: names of :data:`~vdbejax.studies.bench_methods.METHODS` (default all).
+      seeds: agents per method and task in the reported run.
+      tune_seeds: agents per candidate in the tuning run.
+      episodes: episodes per agent (both runs).
+      seed: the reported run's root seed (tuning uses ``seed + 1``).
+      tune: tune each method's knob; ``False`` runs each method's middle candidate (its
+        published default) and reports a tuning budget of 0.
+      quick: the small benchmark of CI: :data:`QUICK_TASKS`, ``QUICK_METHODS``,
+        ``QUICK_SEEDS``, ``QUICK_TUNE_SEEDS``, ``QUICK_EPISODES`` (override those arguments).
+      resume: continue an interrupted benchmark (whole task folders are reused).
+      memory_budget_bytes, devices: as :class:`~vdbejax.runs.RunOptions` (speed only).
+      progress: status lines and the run's progress bar on stderr.
+      figures: write the figures.
+      command: the command line, recorded in ``meta.json`` and ``bench.md``.
+
+    Returns:
+      the :class:`BenchResult` (also written to ``out_dir``).
+
+    Raises:
+      ValueError: any invalid input, before training.
+    """
+    for name, flag in (("tune", tune), ("quick", quick), ("resume", resume),
+                       ("progress", progress), ("figures", figures)):
+        check_bool(name, flag)
+    if quick:
+        tasks, methods = QUICK_TASKS, QUICK_METHODS
+        seeds, tune_seeds, episodes = QUICK_SEEDS, QUICK_TUNE_SEEDS, QUICK_EPISODES
+    seeds = check_int("seeds", seeds, 1, INT32_MAX)
+    tune_seeds = check_int("tune_seeds", tune_seeds, 1, INT32_MAX)
+    episodes = check_int("episodes", episodes, 1, INT32_MAX)
+    seed = check_int("seed", seed, 0, UINT32_MAX - 1)
+    chosen_methods = select_methods(methods)
+    knobs = RunOptions(resume=resume, memory_budget_bytes=memory_budget_bytes, devices=devices,
+                       progress=progress)
+    out = check_writable_dir("out", out_dir)
+    bench_tasks = make_tasks(tasks)
+    candidates = {}
+    for task in bench_tasks:  # every setting checked before anything trains
+        for method in chosen_methods:
+            candidates[task.name, method.name] = method.candidates(task.scale)
+            for setting in candidates[task.name, method.name]:
+                make_agent(setting)
+    check_output_paths(out, output_files([t.name for t in bench_tasks], figures))
+    from vdbejax.runs.grid import version_info
+
+    versions = version_info()  # the code that runs: read before training, not after
+    started = time.perf_counter()
+    with FolderLock(out):
+        runs: dict[str, GridResult] = {}
+        chosen: dict[str, dict[str, Any]] = {}
+        budget = {"agent_episodes": 0, "agent_steps": 0, "seconds": 0.0}
+        timing: dict[str, dict[str, float]] = {}
+        for i, task in enumerate(bench_tasks):
+            pool = [s for m in chosen_methods for s in candidates[task.name, m.name]]
+            if progress:
+                sys.stderr.write(f"[{i + 1}/{len(bench_tasks)}] {task.name}"
+                                 f" ({task.mdp.num_states} states, best {task.best:g}):"
+                                 f" tuning {len(pool)} candidates × {tune_seeds} agents\n")
+            tuned_at = time.perf_counter()
+            picks = _choose(out / TUNE_FOLDER / task.folder, task, chosen_methods, candidates,
+                            tune=tune, seeds=tune_seeds, episodes=episodes, seed=seed + 1,
+                            options=knobs, budget=budget)
+            tuned_seconds = time.perf_counter() - tuned_at
+            chosen[task.name] = {m: dataclasses.asdict(s) for m, s in picks.items()}
+            if progress:
+                sys.stderr.write(f"[{i + 1}/{len(bench_tasks)}] {task.name}: reported run,"
+                                 f" {len(picks)} methods × {seeds} agents\n")
+            run_at = time.perf_counter()
+            runs[task.name] = _train(out / RUNS_FOLDER / task.folder, task, list(picks.values()),
+                                     seeds=seeds, episodes=episodes, seed=seed, options=knobs,
+                                     phase="report")
+            timing[task.name] = {"tuning_seconds": tuned_seconds,
+                                 "report_seconds": time.perf_counter() - run_at,
+                                 "report_agent_steps": float(runs[task.name].lengths.sum())}
+        rows = [row for task in bench_tasks
+                for row in task_rows(task, chosen_methods, runs[task.name])]
+        meta = _meta(command, bench_tasks, chosen_methods, chosen, budget, timing, started,
+                     versions, seeds=seeds, tune_seeds=tune_seeds, episodes=episodes, seed=seed,
+                     tune=tune, quick=quick)
+        mark(out, "results")  # a folder killed while its report is replaced is recognised
+        aggregate = write_report(out, bench_tasks, chosen_methods, runs, rows, meta,
+                                 figures=figures)
+        unmark(out)
+    return BenchResult(rows, aggregate, meta, runs)
+
+
+def _choose(folder: Path, task: BenchTask, methods: list[BenchMethod],
+            candidates: dict[tuple[str, str], list[Setting]], *, tune: bool, seeds: int,
+            episodes: int, seed: int, options: RunOptions,
+            budget: dict[str, Any]) -> dict[str, Setting]:
+    """Each method's chosen candidate: least mean cumulative regret on the tuning seeds."""
+    picks: dict[str, Setting] = {}
+    if not tune:
+        for m in methods:
+            options_of = candidates[task.name, m.name]
+            picks[m.name] = options_of[len(options_of) // 2]
+        return picks
+    pool = [s for m in methods for s in candidates[task.name, m.name]]
+    result = _train(folder, task, pool, seeds=seeds, episodes=episodes, seed=seed,
+                    options=options, phase="tune")
+    budget["agent_episodes"] += int(result.returns.size)
+    budget["agent_steps"] += int(result.lengths.sum())
+    regret = _mean_regret(result, task.best)
+    start = 0
+    for m in methods:
+        options_of = candidates[task.name, m.name]
+        mine = regret[start:start + len(options_of)]
+        mine = np.where(np.isfinite(mine), mine, np.inf)  # a diverged candidate never wins
+        picks[m.name] = options_of[int(np.argmin(mine))]
+        start += len(options_of)
+    return picks
+
+
+def task_rows(task: BenchTask, methods: list[BenchMethod],
+              result: GridResult) -> list[dict[str, Any]]:
+    """One row per method of a task's reported run: score, regret, final return, solving."""
+    from vdbejax.results.bootstrap import bootstrap_ci
+
+    rows = []
+    scores = run_scores(result.returns, task.best, task.baseline)  # [methods, seeds]
+    regret = cumulative_regret(result.returns, task.best)[..., -1]
+    last = max(1, result.num_episodes // 10)
+    solve = episodes_to_solve(normalised_returns(result.returns, task.best, task.baseline), 1.0,
+                              fraction=SOLVED, window=min(20, result.num_episodes))
+    for c, method in enumerate(methods):
+        setting = result.settings[c]
+        score_low, score_high = bootstrap_ci(scores[c])
+        regret_low, regret_high = bootstrap_ci(regret[c])
+        solved = summarize_solving(solve.episodes[c], solve.solved[c])
+        value = (setting.param if method.tuned == setting.parameter
+                 else dict(setting.hyperparameters).get(method.tuned or "", math.nan))
+        rows.append({
+            "task": task.name, "method": method.name, "title": method.title,
+            "family": method.family, "tuned": method.tuned or "", "value": value,
+            "score": float(scores[c].mean()), "score_low": score_low, "score_high": score_high,
+            "regret": float(regret[c].mean()), "regret_low": regret_low,
+            "regret_high": regret_high,
+            "final_return": float(np.nanmean(result.returns[c, :, -last:])),
+            "best_return": task.best, "random_return": task.baseline,
+            "fraction_solved": solved.fraction, "median_episodes": solved.median,
+            "median_text": solved.median_text(),
+            "nonfinite_agents": int(result.nonfinite[c].sum()),
+        })
+    order = sorted(range(len(rows)), key=lambda r: -float(scores[r].mean()))
+    for rank, r in enumerate(order, 1):
+        rows[r]["rank"] = rank
+    return rows
+
+
+def _meta(command: str | None, tasks: list[BenchTask], methods: list[BenchMethod],
+          chosen: dict[str, dict[str, Any]], budget: dict[str, Any],
+          timing: dict[str, dict[str, float]], started: float, versions: dict[str, Any],
+          **options: Any) -> dict[str, Any]:
+    import jax
+
+    return {
+        "command": command, "options": options,
+        "tasks": [{"name": t.name, "states": t.mdp.num_states, "actions": t.mdp.num_actions,
+                   "horizon": int(t.mdp.max_steps), "best_return": t.best,
+                   "random_return": t.baseline, "r_max": t.scale.r_max} for t in tasks],
+        "methods": [dataclasses.asdict(m) for m in methods],
+        "chosen": chosen, "tuning_budget": budget, "timing": timing,
+        "elapsed_seconds": time.perf_counter() - started,
+        "jax_version": jax.__version__, "backend": jax.default_backend(), **versions,
+    }
+
+
+__all__ = ["EPISODES", "QUICK_EPISODES", "QUICK_SEEDS", "QUICK_TASKS", "QUICK_TUNE_SEEDS",
+           "SEEDS", "TUNE_SEEDS", "BenchResult", "BenchTask", "make_tasks", "run_bench",
+           "task_rows"]

@@ -1,0 +1,225 @@
+"""The report of ``vdbejax bench``: ranking tables, regret figures and the aggregate.
+
+Files (in the benchmark's folder): ``ranking.csv`` (one row per task and method),
+``aggregate.csv`` (one row per method, across tasks), ``bench.md`` (both as tables, with the
+rule and the budget), ``meta.json`` (everything needed to rerun it), ``regret_<task>.png``
+(cumulative regret per method, 95 % bootstrap bands) and ``aggregate.png`` (IQM of the
+normalised scores with stratified bootstrap intervals, and the performance profiles).
+"""
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vdbejax.results import io
+from vdbejax.results.grid_result import GridResult
+from vdbejax.results.regret import (
+    aggregate_iqm,
+    cumulative_regret,
+    performance_profile,
+    run_scores,
+    task_probability_of_improvement,
+)
+
+RANKING_CSV, AGGREGATE_CSV, MARKDOWN_FILE = "ranking.csv", "aggregate.csv", "bench.md"
+AGGREGATE_FIGURE = "aggregate.png"
+ROW_COLUMNS = ["task", "rank", "method", "title", "family", "tuned", "value", "score",
+               "score_low", "score_high", "regret", "regret_low", "regret_high", "final_return",
+               "best_return", "random_return", "fraction_solved", "median_episodes",
+               "median_text", "nonfinite_agents"]
+AGGREGATE_COLUMNS = ["method", "title", "family", "iqm", "iqm_low", "iqm_high", "mean_rank",
+                     "p_vs_reference", "p_low", "p_high", "tasks"]
+#: The reference of the probability of improvement: the paper's undirected baseline.
+REFERENCE = "egreedy"
+
+
+def regret_figure_file(task: str) -> str:
+    """``regret_<task>.png`` (``:`` of a parametrised task name as ``-``)."""
+    return f"regret_{task.replace(':', '-')}.png"
+
+
+def output_files(task_names: Sequence[str], figures: bool) -> list[str]:
+    """Every file the report writes."""
+    files = [RANKING_CSV, AGGREGATE_CSV, MARKDOWN_FILE, io.META_FILE]
+    if figures:
+        files += [AGGREGATE_FIGURE, *(regret_figure_file(t) for t in task_names)]
+    return files
+
+
+def aggregate_rows(tasks: Sequence[Any], methods: Sequence[Any], runs: dict[str, GridResult],
+                   rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per method: IQM of its normalised scores over every (task, agent), its mean
+    rank over tasks, and its probability of improving on :data:`REFERENCE`."""
+    scores = {t.name: run_scores(runs[t.name].returns, t.best, t.baseline) for t in tasks}
+    index = {m.name: c for c, m in enumerate(methods)}
+    reference = index.get(REFERENCE)
+    out = []
+    for m in methods:
+        mine = [scores[t.name][index[m.name]] for t in tasks]
+        iqm = aggregate_iqm(mine)
+        ranks = [r["rank"] for r in rows if r["method"] == m.name]
+        p = (task_probability_of_improvement(mine, [scores[t.name][reference] for t in tasks])
+             if reference is not None else None)
+        out.append({"method": m.name, "title": m.title, "family": m.family, "iqm": iqm.value,
+                    "iqm_low": iqm.low, "iqm_high": iqm.high,
+                    "mean_rank": float(np.mean(ranks)),
+                    "p_vs_reference": p.value if p else math.nan,
+                    "p_low": p.low if p else math.nan, "p_high": p.high if p else math.nan,
+                    "tasks": len(tasks)})
+    return sorted(out, key=lambda r: -r["iqm"])
+
+
+def write_report(out: Path, tasks: Sequence[Any], methods: Sequence[Any],
+                 runs: dict[str, GridResult], rows: list[dict[str, Any]], meta: dict[str, Any],
+                 *, figures: bool = True) -> list[dict[str, Any]]:
+    """Write every file of the report (module docstring); returns the aggregate rows."""
+    aggregate = aggregate_rows(tasks, methods, runs, rows)
+    ordered = sorted(rows, key=lambda r: ([t.name for t in tasks].index(r["task"]), r["rank"]))
+    io.write_csv(out / RANKING_CSV, ordered, ROW_COLUMNS)
+    io.write_csv(out / AGGREGATE_CSV, aggregate, AGGREGATE_COLUMNS)
+    io.save_json(out / io.META_FILE, meta)
+    io.atomic_write_text(out / MARKDOWN_FILE, markdown(ordered, aggregate, meta))
+    for stale in [*out.glob("regret_*.png"), out / AGGREGATE_FIGURE]:
+        stale.unlink(missing_ok=True)  # no figure of an earlier run outlives it
+    if figures:
+        import matplotlib.pyplot as plt
+
+        for task in tasks:
+            fig = regret_figure(task, methods, runs[task.name])
+            fig.savefig(out / regret_figure_file(task.name), dpi=110)
+            plt.close(fig)
+        fig = aggregate_figure(tasks, methods, runs)
+        fig.savefig(out / AGGREGATE_FIGURE, dpi=110)
+        plt.close(fig)
+    return aggregate
+
+
+def _interval(value: float, low: float, high: float, digits: int = 3) -> str:
+    return f"{value:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+
+
+def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]],
+             meta: dict[str, Any]) -> str:
+    """``bench.md``: the aggregate table, then one ranking table per task."""
+    options, budget = meta["options"], meta["tuning_budget"]
+    lines = ["# Exploration benchmark", ""]
+    if meta.get("command"):
+        lines += [f"Command: `{meta['command']}`", ""]
+    tuning = (f"one knob per method, its candidates on {options['tune_seeds']} agents each"
+              f" with root seed {options['seed'] + 1}" if options["tune"]
+              else "none (each method at its middle candidate)")
+    lines += [
+        f"{len(meta['tasks'])} tasks, {len(meta['methods'])} methods, {options['seeds']} agents"
+        f" per method and task, {options['episodes']} episodes each (root seed"
+        f" {options['seed']}). Tuning: {tuning}; tuning budget"
+        f" {budget['agent_episodes']:,} agent-episodes ({budget['agent_steps']:,}"
+        f" agent-steps). Elapsed {meta['elapsed_seconds']:.0f} s.",
+        "",
+        "**Score**: mean normalised return over all episodes (0 = uniformly random policy,"
+        " 1 = the exact optimum from the first episode on), 95 % bootstrap interval over"
+        " agents. **Regret**: cumulative regret against the exact optimum after the last"
+        " episode. **Solved**: the share of agents whose 20-episode moving average reached 0.9"
+        " on the normalised scale.", "",
+        "## Across tasks", "",
+        "| method | family | IQM score [95 % CI] | mean rank | P(better than ε-greedy) |",
+        "| --- | --- | --- | --- | --- |"]
+    for a in aggregate:
+        p = ("-" if math.isnan(a["p_vs_reference"])
+             else _interval(a["p_vs_reference"], a["p_low"], a["p_high"], 2))
+        lines.append(f"| {a['title']} | {a['family']} |"
+                     f" {_interval(a['iqm'], a['iqm_low'], a['iqm_high'])} |"
+                     f" {a['mean_rank']:.1f} | {p} |")
+    for task in meta["tasks"]:
+        mine = [r for r in rows if r["task"] == task["name"]]
+        lines += ["", f"## {task['name']}", "",
+                  f"{task['states']} states, {task['actions']} actions, horizon"
+                  f" {task['horizon']}; best return {task['best_return']:.4g}, random policy"
+                  f" {task['random_return']:.4g}.", "",
+                  "| rank | method | tuned | score [95 % CI] | regret [95 % CI] | final return"
+                  " | solved | median episodes |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for r in mine:
+            tuned = f"{r['tuned']} = {r['value']:.3g}" if r["tuned"] else "-"
+            lines.append(
+                f"| {r['rank']} | {r['title']} | {tuned} |"
+                f" {_interval(r['score'], r['score_low'], r['score_high'])} |"
+                f" {r['regret']:.4g} [{r['regret_low']:.4g}, {r['regret_high']:.4g}] |"
+                f" {r['final_return']:.4g} | {r['fraction_solved']:.0%} | {r['median_text']} |")
+    return "\n".join(lines) + "\n"
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    if "ipykernel" not in sys.modules:  # headless, as results.plotting; a notebook keeps its own
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _colors(plt: Any, methods: Sequence[Any]) -> dict[str, Any]:
+    cmap = plt.get_cmap("tab20")
+    return {m.name: cmap(i % 20) for i, m in enumerate(methods)}
+
+
+def regret_figure(task: Any, methods: Sequence[Any], result: GridResult) -> Any:
+    """Cumulative regret per method against episodes, with 95 % bootstrap bands."""
+    from vdbejax.results.stats import mean_curve_ci
+
+    plt = _pyplot()
+    colors = _colors(plt, methods)
+    fig, ax = plt.subplots(figsize=(9, 5.2), layout="constrained")
+    regret = cumulative_regret(result.returns, task.best)
+    episodes = np.arange(1, result.num_episodes + 1)
+    for c, m in enumerate(methods):
+        mean, low, high = mean_curve_ci(regret[c], window=1, num_resamples=500)
+        ax.plot(episodes, mean, color=colors[m.name], label=m.title,
+                linestyle="-" if m.family == "paper" else "--" if c % 2 else ":")
+        ax.fill_between(episodes, low, high, color=colors[m.name], alpha=0.15, linewidth=0)
+    ax.set(xlabel="episode", ylabel="cumulative regret",
+           title=f"{task.name}: cumulative regret ({result.num_seeds} agents per method)")
+    ax.legend(fontsize=7, ncol=2, loc="upper left", frameon=False)
+    return fig
+
+
+def aggregate_figure(tasks: Sequence[Any], methods: Sequence[Any],
+                     runs: dict[str, GridResult]) -> Any:
+    """IQM of the normalised scores per method (stratified bootstrap intervals) beside the
+    performance profiles (fraction of runs scoring above each threshold)."""
+    plt = _pyplot()
+    colors = _colors(plt, methods)
+    scores = {t.name: run_scores(runs[t.name].returns, t.best, t.baseline) for t in tasks}
+    fig, (ax_iqm, ax_profile) = plt.subplots(1, 2, figsize=(13, 0.32 * len(methods) + 2.5),
+                                             layout="constrained")
+    thresholds = np.linspace(-0.5, 1.0, 61)
+    iqms = []
+    for c, m in enumerate(methods):
+        mine = [scores[t.name][c] for t in tasks]
+        iqms.append(aggregate_iqm(mine))
+        fraction, low, high = performance_profile(mine, thresholds, num_resamples=500)
+        ax_profile.plot(thresholds, fraction, color=colors[m.name], label=m.title)
+        ax_profile.fill_between(thresholds, low, high, color=colors[m.name], alpha=0.12,
+                                linewidth=0)
+    order = np.argsort([i.value for i in iqms])
+    for y, c in enumerate(order):
+        i = iqms[c]
+        ax_iqm.errorbar(i.value, y, xerr=[[i.value - i.low], [i.high - i.value]], fmt="o",
+                        color=colors[methods[c].name], capsize=3)
+    ax_iqm.set_yticks(range(len(methods)), [methods[c].title for c in order], fontsize=8)
+    ax_iqm.set(xlabel="IQM of normalised score (95 % CI)",
+               title=f"Across {len(tasks)} tasks")
+    ax_profile.set(xlabel="normalised score τ", ylabel="fraction of runs with score > τ",
+                   title="Performance profiles")
+    ax_profile.legend(fontsize=7, ncol=2, frameon=False)
+    return fig
+
+
+__all__ = ["AGGREGATE_CSV", "AGGREGATE_FIGURE", "MARKDOWN_FILE", "RANKING_CSV",
+           "aggregate_figure", "aggregate_rows", "markdown", "output_files", "regret_figure",
+           "regret_figure_file", "write_report"]
