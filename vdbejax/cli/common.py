@@ -40,6 +40,14 @@ def write_long_csv(result: GridResult, out: str) -> Path:
     return path
 
 
+def refuse_sizes_with_quick(quick: bool, given: list[str], what: str) -> None:
+    """``--quick`` sets the study's size: refuse a size flag beside it (it would be
+    overridden without a word). ``given``: the size options set, as attribute names."""
+    if quick and given:
+        raise ValueError(f"--quick sets the {what}'s size: leave out"
+                         f" --{given[0].replace('_', '-')} (or --quick)")
+
+
 def freeze_imports() -> None:
     """Leave what the imports made (≈ a million objects, JAX's) out of the garbage
     collector's full passes: a command's run then spends no time re-scanning them

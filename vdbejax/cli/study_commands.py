@@ -5,7 +5,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from vdbejax.cli.common import add_run_flags, run_flags, write_long_csv
+from vdbejax.cli.common import add_run_flags, refuse_sizes_with_quick, run_flags, write_long_csv
 from vdbejax.validation import parse_cli_number
 
 
@@ -153,10 +153,8 @@ SCALE_SIZE_FLAGS = {"sizes": None, "seeds": 10, "episodes": 2000, "episodes_per_
 def scale_command(args: argparse.Namespace) -> None:
     from vdbejax.studies.scaling import SIZES, run_scaling
 
-    given = [name for name in SCALE_SIZE_FLAGS if getattr(args, name) is not None]
-    if args.quick and given:  # --quick would override them without a word
-        raise ValueError(f"--quick sets the study's size: leave out --{given[0].replace('_', '-')}"
-                         " (or --quick)")
+    refuse_sizes_with_quick(args.quick, [n for n in SCALE_SIZE_FLAGS
+                                         if getattr(args, n) is not None], "study")
     for name, default in SCALE_SIZE_FLAGS.items():
         if getattr(args, name) is None:
             setattr(args, name, ",".join(SIZES) if name == "sizes" else default)
@@ -225,10 +223,8 @@ def bench_command(args: argparse.Namespace) -> None:
 
     sizes = {"tasks": args.tasks, "methods": args.methods, "seeds": args.seeds,
              "tune_seeds": args.tune_seeds, "episodes": args.episodes}
-    given = [k for k, v in sizes.items() if v is not None]
-    if args.quick and given:  # --quick would override them without a word
-        raise ValueError(f"--quick sets the benchmark's size: leave out"
-                         f" --{given[0].replace('_', '-')} (or --quick)")
+    refuse_sizes_with_quick(args.quick, [k for k, v in sizes.items() if v is not None],
+                            "benchmark")
     defaults = {"seeds": bench.SEEDS, "tune_seeds": bench.TUNE_SEEDS,
                 "episodes": bench.EPISODES}
     values: dict[str, Any] = {k: (defaults.get(k) if v is None else v) for k, v in sizes.items()}

@@ -11,6 +11,7 @@ result folder through :func:`~vdbejax.studies.train_in_folder` (checkpointed,
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import sys
 import time
@@ -60,7 +61,7 @@ class BenchTask:
         """The task's folder name (``deepsea:10`` → ``deepsea-10``)."""
         return self.name.replace(":", "-")
 
-    @property
+    @functools.cached_property
     def scale(self) -> TaskScale:
         reward = np.abs(np.asarray(self.mdp.reward, np.float64))
         mask = np.asarray(self.mdp.probability) > 0
@@ -219,13 +220,16 @@ def run_bench(
             timing[task.name] = {"tuning_seconds": tuned_seconds,
                                  "report_seconds": time.perf_counter() - run_at,
                                  "report_agent_steps": float(runs[task.name].lengths.sum())}
+        # each agent's normalised score, once per task: the rows and the report share it
+        scores = {t.name: run_scores(runs[t.name].returns, t.best, t.baseline)
+                  for t in bench_tasks}
         rows = [row for task in bench_tasks
-                for row in task_rows(task, chosen_methods, runs[task.name])]
+                for row in task_rows(task, chosen_methods, runs[task.name], scores[task.name])]
         meta = _meta(command, bench_tasks, chosen_methods, chosen, budget, timing, started,
                      versions, seeds=seeds, tune_seeds=tune_seeds, episodes=episodes, seed=seed,
                      tune=tune, quick=quick)
         mark(out, "results")  # a folder killed while its report is replaced is recognised
-        aggregate = write_report(out, bench_tasks, chosen_methods, runs, rows, meta,
+        aggregate = write_report(out, bench_tasks, chosen_methods, runs, scores, rows, meta,
                                  figures=figures)
         unmark(out)
     return BenchResult(rows, aggregate, meta, runs)
@@ -258,13 +262,13 @@ def _choose(folder: Path, task: BenchTask, methods: list[BenchMethod],
     return picks
 
 
-def task_rows(task: BenchTask, methods: list[BenchMethod],
-              result: GridResult) -> list[dict[str, Any]]:
-    """One row per method of a task's reported run: score, regret, final return, solving."""
+def task_rows(task: BenchTask, methods: list[BenchMethod], result: GridResult,
+              scores: np.ndarray) -> list[dict[str, Any]]:
+    """One row per method of a task's reported run (``scores``: its agents' normalised
+    scores, ``[methods, seeds]``): score, regret, final return, solving."""
     from vdbejax.results.bootstrap import bootstrap_ci
 
     rows = []
-    scores = run_scores(result.returns, task.best, task.baseline)  # [methods, seeds]
     regret = cumulative_regret(result.returns, task.best)[..., -1]
     last = max(1, result.num_episodes // 10)
     solve = episodes_to_solve(normalised_returns(result.returns, task.best, task.baseline), 1.0,
@@ -274,8 +278,7 @@ def task_rows(task: BenchTask, methods: list[BenchMethod],
         score_low, score_high = bootstrap_ci(scores[c])
         regret_low, regret_high = bootstrap_ci(regret[c])
         solved = summarize_solving(solve.episodes[c], solve.solved[c])
-        value = (setting.param if method.tuned == setting.parameter
-                 else dict(setting.hyperparameters).get(method.tuned or "", math.nan))
+        value = setting.values.get(method.tuned, math.nan) if method.tuned else math.nan
         rows.append({
             "task": task.name, "method": method.name, "title": method.title,
             "family": method.family, "tuned": method.tuned or "", "value": value,

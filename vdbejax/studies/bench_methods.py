@@ -18,7 +18,7 @@ import dataclasses
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from vdbejax.methods.agents import Setting
+from vdbejax.methods.agents import Setting, parameter_name
 
 #: The step size of every TD learner.
 ALPHA = 0.1
@@ -86,7 +86,7 @@ class BenchMethod:
                            else value)
         if self.tuned is None:
             return [Setting(self.learner, self.explorer, None, values)]
-        swept = self.tuned == _explorer_parameter(self.explorer)
+        swept = self.tuned == parameter_name(self.explorer)
         settings = []
         for multiple in self.grid:
             value = float(multiple * scale.value(self.unit))
@@ -96,12 +96,6 @@ class BenchMethod:
                 settings.append(Setting(self.learner, self.explorer, None,
                                         {**values, self.tuned: value}))
         return settings
-
-
-def _explorer_parameter(explorer: str) -> str | None:
-    from vdbejax.methods.agents import parameter_name
-
-    return parameter_name(explorer)
 
 
 _R = "r_max"

@@ -22,7 +22,6 @@ from vdbejax.results.regret import (
     aggregate_iqm,
     cumulative_regret,
     performance_profile,
-    run_scores,
     task_probability_of_improvement,
 )
 
@@ -51,11 +50,12 @@ def output_files(task_names: Sequence[str], figures: bool) -> list[str]:
     return files
 
 
-def aggregate_rows(tasks: Sequence[Any], methods: Sequence[Any], runs: dict[str, GridResult],
+def aggregate_rows(tasks: Sequence[Any], methods: Sequence[Any],
+                   scores: dict[str, np.ndarray],
                    rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """One row per method: IQM of its normalised scores over every (task, agent), its mean
-    rank over tasks, and its probability of improving on :data:`REFERENCE`."""
-    scores = {t.name: run_scores(runs[t.name].returns, t.best, t.baseline) for t in tasks}
+    rank over tasks, and its probability of improving on :data:`REFERENCE` (``scores``:
+    per task, ``[methods, seeds]``)."""
     index = {m.name: c for c, m in enumerate(methods)}
     reference = index.get(REFERENCE)
     out = []
@@ -75,10 +75,12 @@ def aggregate_rows(tasks: Sequence[Any], methods: Sequence[Any], runs: dict[str,
 
 
 def write_report(out: Path, tasks: Sequence[Any], methods: Sequence[Any],
-                 runs: dict[str, GridResult], rows: list[dict[str, Any]], meta: dict[str, Any],
+                 runs: dict[str, GridResult], scores: dict[str, np.ndarray],
+                 rows: list[dict[str, Any]], meta: dict[str, Any],
                  *, figures: bool = True) -> list[dict[str, Any]]:
-    """Write every file of the report (module docstring); returns the aggregate rows."""
-    aggregate = aggregate_rows(tasks, methods, runs, rows)
+    """Write every file of the report (module docstring); returns the aggregate rows.
+    ``scores``: per task, the agents' normalised scores ``[methods, seeds]``."""
+    aggregate = aggregate_rows(tasks, methods, scores, rows)
     ordered = sorted(rows, key=lambda r: ([t.name for t in tasks].index(r["task"]), r["rank"]))
     io.write_csv(out / RANKING_CSV, ordered, ROW_COLUMNS)
     io.write_csv(out / AGGREGATE_CSV, aggregate, AGGREGATE_COLUMNS)
@@ -93,7 +95,7 @@ def write_report(out: Path, tasks: Sequence[Any], methods: Sequence[Any],
             fig = regret_figure(task, methods, runs[task.name])
             fig.savefig(out / regret_figure_file(task.name), dpi=110)
             plt.close(fig)
-        fig = aggregate_figure(tasks, methods, runs)
+        fig = aggregate_figure(tasks, methods, scores, aggregate)
         fig.savefig(out / AGGREGATE_FIGURE, dpi=110)
         plt.close(fig)
     return aggregate
@@ -189,28 +191,28 @@ def regret_figure(task: Any, methods: Sequence[Any], result: GridResult) -> Any:
 
 
 def aggregate_figure(tasks: Sequence[Any], methods: Sequence[Any],
-                     runs: dict[str, GridResult]) -> Any:
-    """IQM of the normalised scores per method (stratified bootstrap intervals) beside the
-    performance profiles (fraction of runs scoring above each threshold)."""
+                     scores: dict[str, np.ndarray], aggregate: Sequence[dict[str, Any]]) -> Any:
+    """The IQM of the normalised scores per method with its stratified bootstrap interval
+    (the :func:`aggregate_rows`), beside the performance profiles (fraction of runs scoring
+    above each threshold)."""
     plt = _pyplot()
     colors = _colors(plt, methods)
-    scores = {t.name: run_scores(runs[t.name].returns, t.best, t.baseline) for t in tasks}
+    by_method = {a["method"]: a for a in aggregate}
     fig, (ax_iqm, ax_profile) = plt.subplots(1, 2, figsize=(13, 0.32 * len(methods) + 2.5),
                                              layout="constrained")
     thresholds = np.linspace(-0.5, 1.0, 61)
-    iqms = []
     for c, m in enumerate(methods):
         mine = [scores[t.name][c] for t in tasks]
-        iqms.append(aggregate_iqm(mine))
         fraction, low, high = performance_profile(mine, thresholds, num_resamples=500)
         ax_profile.plot(thresholds, fraction, color=colors[m.name], label=m.title)
         ax_profile.fill_between(thresholds, low, high, color=colors[m.name], alpha=0.12,
                                 linewidth=0)
-    order = np.argsort([i.value for i in iqms])
+    iqms = [by_method[m.name] for m in methods]
+    order = np.argsort([i["iqm"] for i in iqms])
     for y, c in enumerate(order):
         i = iqms[c]
-        ax_iqm.errorbar(i.value, y, xerr=[[i.value - i.low], [i.high - i.value]], fmt="o",
-                        color=colors[methods[c].name], capsize=3)
+        ax_iqm.errorbar(i["iqm"], y, xerr=[[i["iqm"] - i["iqm_low"]], [i["iqm_high"] - i["iqm"]]],
+                        fmt="o", color=colors[methods[c].name], capsize=3)
     ax_iqm.set_yticks(range(len(methods)), [methods[c].title for c in order], fontsize=8)
     ax_iqm.set(xlabel="IQM of normalised score (95 % CI)",
                title=f"Across {len(tasks)} tasks")
