@@ -407,6 +407,23 @@ def test_table_cleaning_entries_are_the_existing_builders_mdps(built):
     assert int(fail.max_steps) == 50
 
 
+def test_sweep_files_take_every_task_of_the_suite():
+    """sweeps.make_task (a sweep file's task key, vdbejax run --task) is the registry:
+    suite names build there, and its errors name the parameter task."""
+    from vdbejax.studies.sweeps import make_task
+
+    for name in ("deepsea:6", "chain:7", "cliff_walking"):
+        ours, theirs = make_task(name), make_suite_task(name)
+        assert ours.name == theirs.name == name
+        np.testing.assert_array_equal(np.asarray(ours.next_state), np.asarray(theirs.next_state))
+    assert int(make_task("riverswim", max_steps=30).max_steps) == 30
+    with pytest.raises(ValueError, match=r"^task='nope' is invalid") as caught:
+        make_task("nope")
+    assert "\n" not in str(caught.value)
+    with pytest.raises(ValueError, match=r"invalid_action='fail' is invalid with task='chain'"):
+        make_task("chain", invalid_action="fail")
+
+
 def test_registry_names_round_trip():
     tasks = suite_tasks()
     assert tuple(tasks) == DEFAULT_SUITE
