@@ -511,6 +511,18 @@ def test_finite_horizon_methods_keep_their_bits_across_strategies():
     assert vdbejax.engine.native_step_loops() is True
 
 
+
+def test_long_stage_tables_keep_the_step_loop_native():
+    # Four lanes of SixArms' [S, A, 200] stage tables: XLA offloaded their reductions to
+    # YNNPACK, which a native loop cannot hold, and the run fell back to lockstep.
+    from vdbejax.envs.suite import make_suite_task
+    mdp = make_suite_task("sixarms")
+    settings = [Setting("ucb_h", "greedy", None, {"horizon": 200, "bonus_scale": 0.1})]
+    base = grid(mdp, settings, seeds=4, episodes=2, options=AgentOptions())
+    assert vdbejax.engine.native_step_loops() is True
+    other = grid(mdp, settings, seeds=4, episodes=2, options=AgentOptions(), strategy="lockstep")
+    np.testing.assert_array_equal(other.returns, base.returns)
+
 # --- the planning moments, counted ------------------------------------------------------
 
 @pytest.mark.parametrize("moment", ["step", "episode", "every"])

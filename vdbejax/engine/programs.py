@@ -39,6 +39,19 @@ _TABLE_LOCK = threading.Lock()
 _SECONDS = [0.0]
 
 
+#: Per-compilation XLA options of every engine program on a CPU backend. No YNNPACK
+#: fusions: XLA offloads large reductions (a ``[4, 6, 200]`` stage row of UCB-H with
+#: four lanes) to YNNPACK, whose fusions the CPU backend cannot put inside a native
+#: ``while`` loop, so the whole step loop fell back to per-operation dispatch; and both
+#: strategies then reduce with XLA's own loops, in one order.
+CPU_ENGINE_OPTIONS: dict[str, Any] = {"xla_cpu_experimental_ynn_fusion_type": ""}
+
+
+def backend_options() -> dict[str, Any]:
+    """The engine's per-compilation options for the default backend."""
+    return dict(CPU_ENGINE_OPTIONS) if jax.default_backend() == "cpu" else {}
+
+
 class Call:
     """One program to get: a plain function, its arguments and how to jit it.
 
@@ -55,7 +68,7 @@ class Call:
         self.function, self.args = function, args
         self.static = dict(static or {})
         self.donate = tuple(donate)
-        self.options = dict(sorted((options or {}).items()))
+        self.options = dict(sorted({**backend_options(), **(options or {})}.items()))
 
     def signature(self) -> tuple:
         """What fixes the program within one run: the function, its static arguments and
