@@ -511,7 +511,6 @@ def test_finite_horizon_methods_keep_their_bits_across_strategies():
     assert vdbejax.engine.native_step_loops() is True
 
 
-
 def test_long_stage_tables_keep_the_step_loop_native():
     # Four lanes of SixArms' [S, A, 200] stage tables: XLA offloaded their reductions to
     # YNNPACK, which a native loop cannot hold, and the run fell back to lockstep.
@@ -522,6 +521,7 @@ def test_long_stage_tables_keep_the_step_loop_native():
     assert vdbejax.engine.native_step_loops() is True
     other = grid(mdp, settings, seeds=4, episodes=2, options=AgentOptions(), strategy="lockstep")
     np.testing.assert_array_equal(other.returns, base.returns)
+
 
 # --- the planning moments, counted ------------------------------------------------------
 
