@@ -230,3 +230,11 @@ def test_an_option_the_authors_task_ignores_is_refused(tmp_path, capsys):
             "fail", "--learners", "qlearning", "--explorers", "egreedy", "--quiet"]
     assert cli.main(args) == 2
     assert "invalid_action='fail' is invalid with task='cruz2018'" in one_error_line(capsys)
+
+
+def test_a_printed_comparison_shows_why_it_held_or_failed():
+    from vdbejax.paper.claims import _apart
+
+    assert _apart(-1.0651, -1.0739) == ("-1.065", "-1.074")  # not "-1.07 ≤ -1.07"
+    assert _apart(0.81, 0.7) == ("0.81", "0.70")
+    assert _apart(0.5, 0.5) == ("0.500000", "0.500000")  # equal: every digit says so

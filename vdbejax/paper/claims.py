@@ -83,6 +83,17 @@ class ClaimTable:
         return {r.swept_param() for r in rows[:k]}
 
 
+def _apart(a: float, b: float) -> tuple[str, str]:
+    """``a`` and ``b`` with two decimals, or with as many more (up to six) as it takes to
+    tell them apart, so a printed comparison shows why it held or failed (−1.065 against
+    −1.073 is "−1.065 ≤ −1.073", not "−1.07 ≤ −1.07")."""
+    for digits in range(2, 7):
+        x, y = f"{a:.{digits}f}", f"{b:.{digits}f}"
+        if x != y:
+            break
+    return x, y
+
+
 def _finals(rows: list[SummaryRow]) -> str:
     return ", ".join(f"{r.swept_param():g}→{r.final_return:.2f}" for r in rows)
 
@@ -103,8 +114,8 @@ def claim_1(t: ClaimTable) -> ClaimResult:
         measured.append(f"{name} ε→final: {_finals(rows_e)}")
         checks.append(Check(f"{name}: the two best ε are 0.05 and 0.1 (measured {sorted(top)})",
                             top == {0.05, 0.1}))
-        checks.append(Check(f"{name}: best final return {best.final_return:.2f}"
-                            f" < {bounds[learner]}",
+        checks.append(Check(f"{name}: best final return"
+                            f" {_apart(best.final_return, bounds[learner])[0]} < {bounds[learner]}",
                             best.final_return < bounds[learner]))
     return ClaimResult(
         1, "ε-greedy: the best ε are 0.1 and 0.05 for both learners; its final average return "
@@ -170,8 +181,9 @@ def claim_3(t: ClaimTable) -> ClaimResult:
                                 " converges later than the good σ", slow))
         worst[learner] = min(r.final_return for r in rows_v)
     if len(worst) == 2:
+        sarsa, qlearning = _apart(worst["sarsa"], worst["qlearning"])
         checks.append(Check(f"too-low σ is worst with SARSA (worst final SARSA"
-                            f" {worst['sarsa']:.2f} ≤ Q-learning {worst['qlearning']:.2f})",
+                            f" {sarsa} ≤ Q-learning {qlearning})",
                             worst["sarsa"] <= worst["qlearning"]))
     return ClaimResult(
         3, "VDBE: Q-learning does well for σ ≥ 0.1, SARSA for σ ≥ 1; a σ too low converges "
@@ -239,9 +251,10 @@ def claim_5(t: ClaimTable) -> ClaimResult:
             # "About as fast": within 25% of VDBE-Softmax (the paper's others are ~25% slower).
             egreedy_final = found["egreedy"].final_return
             vs_final = found["vdbe_softmax"].final_return
+            shown = _apart(egreedy_final, vs_final)
             checks.append(Check(
                 f"{name}: ε-greedy converges about as fast (episode {conv['egreedy']} ≤ 1.25 × "
-                f"{conv['vdbe_softmax']}) to a worse return ({egreedy_final:.2f} < {vs_final:.2f})",
+                f"{conv['vdbe_softmax']}) to a worse return ({shown[0]} < {shown[1]})",
                 good["vdbe_softmax"] and conv["egreedy"] <= 1.25 * conv["vdbe_softmax"]
                 and egreedy_final < vs_final))
     return ClaimResult(
