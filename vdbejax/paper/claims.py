@@ -85,8 +85,8 @@ class ClaimTable:
 
 def _apart(a: float, b: float) -> tuple[str, str]:
     """``a`` and ``b`` with two decimals, or with as many more (up to six) as it takes to
-    tell them apart, so a printed comparison shows why it held or failed (−1.065 against
-    −1.073 is "−1.065 ≤ −1.073", not "−1.07 ≤ −1.07")."""
+    tell them apart, so a printed comparison shows why it held or failed (−1.0651 against
+    −1.0739 is "−1.065 ≤ −1.074", not "−1.07 ≤ −1.07")."""
     for digits in range(2, 7):
         x, y = f"{a:.{digits}f}", f"{b:.{digits}f}"
         if x != y:
@@ -251,10 +251,10 @@ def claim_5(t: ClaimTable) -> ClaimResult:
             # "About as fast": within 25% of VDBE-Softmax (the paper's others are ~25% slower).
             egreedy_final = found["egreedy"].final_return
             vs_final = found["vdbe_softmax"].final_return
-            shown = _apart(egreedy_final, vs_final)
+            egreedy_shown, vs_shown = _apart(egreedy_final, vs_final)
             checks.append(Check(
                 f"{name}: ε-greedy converges about as fast (episode {conv['egreedy']} ≤ 1.25 × "
-                f"{conv['vdbe_softmax']}) to a worse return ({shown[0]} < {shown[1]})",
+                f"{conv['vdbe_softmax']}) to a worse return ({egreedy_shown} < {vs_shown})",
                 good["vdbe_softmax"] and conv["egreedy"] <= 1.25 * conv["vdbe_softmax"]
                 and egreedy_final < vs_final))
     return ClaimResult(
