@@ -24,7 +24,7 @@ def test_outputs_per_variant(ablated):
     out, raw, _ = ablated
     for name in VARIANTS.split(","):
         assert (raw / name / "returns.npz").exists()  # raw arrays stay in --results
-        for asset in ablation.DOCUMENT_ASSETS:
+        for asset in [*ablation.DOCUMENT_ASSETS, "summary_pooled.csv", "replicates.csv"]:
             assert (out / "ablation" / name / asset).stat().st_size > 0
         assert not (out / "ablation" / name / "returns.npz").exists()
 
@@ -40,7 +40,8 @@ def test_document(ablated):
     assert f"vdbejax ablate --out {out} --results {raw} --variants {VARIANTS} --seeds 2 --episodes 12" in text
     assert "ablation/spec/fig3.png" in text and "ablation/invalid_fail/sensitivity.png" in text
     assert text.rstrip().endswith("Hand-written text.")
-    assert "2 agents × 12 episodes" in text
+    assert "5 replicates × 2 agents (pooled 10) × 12 episodes" in text  # the default 5
+    assert "agree" in text and "unstable" in text  # the cells' legend states the rule
 
 
 def test_reuse_saved_results(ablated):
@@ -51,7 +52,8 @@ def test_reuse_saved_results(ablated):
     assert (raw / "spec" / "returns.npz").stat().st_mtime_ns == before  # not retrained
     table = ablation.claims_table(results)
     assert [row["claim"] for row in table] == [1, 2, 3, 4, 5, 6]
-    assert all(row["spec"] in ("reproduced", "partly", "not reproduced") for row in table)
+    assert all(row["spec"] in ("reproduced", "partly", "not reproduced", "unstable")
+               for row in table)
 
 
 def test_variants_cover_each_open_detail():

@@ -104,7 +104,8 @@ def test_task_document_matches_the_code():
     assert "truncation" in text.lower() and "not* a terminal state" in text
     # The six claims and the second reading.
     assert all(f"{n}. **" in text for n in range(1, 7))
-    assert "not yet implemented" in text.lower()
+    assert "## The authors' code" in text and "`softmax_numerics`" in text
+    assert "not yet implemented" not in text.lower()
 
 
 # ------------------------------------------------------------------------- version

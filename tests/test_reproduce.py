@@ -12,6 +12,8 @@ import vdbejax
 from vdbejax.methods.agents import PAPER_PARAMETERS, paper_settings
 
 SEEDS, EPISODES = 2, 30
+REPLICATES = 5  # reproduce's default
+AGENTS = SEEDS * REPLICATES
 
 
 def run_cli(*args, cwd=None, env=None):
@@ -48,8 +50,8 @@ def test_paper_grid_has_46_settings():
 def test_returns_npz(cli_out):
     out, _ = cli_out
     with np.load(out / "returns.npz") as data:
-        assert data["returns"].shape == (46, SEEDS, EPISODES)
-        assert data["lengths"].shape == (46, SEEDS, EPISODES)
+        assert data["returns"].shape == (46, AGENTS, EPISODES)
+        assert data["lengths"].shape == (46, AGENTS, EPISODES)
         assert np.issubdtype(data["returns"].dtype, np.floating)
         assert np.issubdtype(data["lengths"].dtype, np.integer)
         assert data["lengths"].min() >= 1 and data["lengths"].max() <= 100
@@ -68,15 +70,18 @@ def test_configs_csv(cli_out):
             setting.learner, setting.explorer, setting.param)
 
 
-def test_summary_csv(cli_out):
+@pytest.mark.parametrize("name, agents", [("summary.csv", slice(0, SEEDS)),
+                                          ("summary_pooled.csv", slice(None))])
+def test_summary_csv(cli_out, name, agents):
+    # summary.csv: replicate 0 (the first SEEDS agents); summary_pooled.csv: all agents.
     out, _ = cli_out
-    rows = list(csv.DictReader(open(out / "summary.csv")))
+    rows = list(csv.DictReader(open(out / name)))
     assert len(rows) == 46
     with np.load(out / "returns.npz") as data:
         returns = data["returns"]
     for row in rows:
         c = int(row["config"])
-        final = returns[c, :, -100:].mean()
+        final = returns[c, agents, -100:].mean()
         assert float(row["final_return"]) == pytest.approx(final, abs=1e-4)
         assert float(row["final_ci_low"]) <= float(row["final_return"]) + 1e-6 <= float(row["final_ci_high"]) + 2e-6
         assert 1 <= int(row["convergence_episode"]) <= EPISODES
@@ -99,10 +104,16 @@ def test_report_md(cli_out):
         assert f"## Claim {number}:" in report
     assert "Paper:" in report and "Measured:" in report
     for line in done.stdout.splitlines()[:6]:
-        assert line.split(": ")[1] in {"reproduced", "partly", "not reproduced"}
+        assert line.split(": ")[1] in {"reproduced", "partly", "not reproduced", "unstable"}
     assert "elapsed" in done.stdout
     meta = json.loads((out / "meta.json").read_text())
-    assert meta["num_seeds"] == SEEDS and meta["num_episodes"] == EPISODES
+    assert meta["num_seeds"] == AGENTS and meta["num_episodes"] == EPISODES
+    assert meta["replicates"] == REPLICATES and meta["agents_per_replicate"] == SEEDS
+    assert f"{REPLICATES} replicates × {SEEDS} agents (pooled {AGENTS})" in report
+    assert "holds in" in report and f"of {REPLICATES} replicates" in report
+    rows = list(csv.DictReader(open(out / "replicates.csv")))
+    assert len(rows) == 46 * REPLICATES
+    assert sorted({int(r["replicate"]) for r in rows}) == list(range(REPLICATES))
     assert not (out / "checkpoint.npz").exists()
 
 
@@ -142,3 +153,45 @@ def test_no_figures_writes_the_same_numbers_without_pngs(cli_out, tmp_path, comp
         assert (tmp_path / name).read_bytes() == (out / name).read_bytes(), name
     with np.load(tmp_path / "returns.npz") as a, np.load(out / "returns.npz") as b:
         np.testing.assert_array_equal(a["returns"], b["returns"])
+
+
+def test_one_replicate_is_the_first_replicate_of_five(cli_out, tmp_path, compile_cache):
+    # --replicates 1 writes a single run's files: its agents are, bit for bit, replicate 0
+    # of the default run, and its summary.csv is that run's (replicate 0's) summary.csv.
+    out, _ = cli_out
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["VDBEJAX_CACHE_DIR"] = str(compile_cache)
+    done = run_cli("reproduce", "--out", str(tmp_path), "--seeds", str(SEEDS), "--episodes",
+                   str(EPISODES), "--replicates", "1", "--no-figures", "--quiet", env=env)
+    assert done.returncode == 0, done.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "configs.csv", "meta.json", "report.md", "returns.npz", "summary.csv"]
+    assert (tmp_path / "summary.csv").read_bytes() == (out / "summary.csv").read_bytes()
+    with np.load(tmp_path / "returns.npz") as one, np.load(out / "returns.npz") as five:
+        for name in ("returns", "lengths"):
+            np.testing.assert_array_equal(one[name], five[name][:, :SEEDS])
+    meta = json.loads((tmp_path / "meta.json").read_text())
+    assert "replicates" not in meta and meta["num_seeds"] == SEEDS
+    report = (tmp_path / "report.md").read_text()
+    assert f"{SEEDS} agents × {EPISODES} episodes" in report and "replicates" not in report
+
+
+@pytest.mark.parametrize("root", [1, 2])
+def test_a_new_root_seed_reports_each_verdicts_stability(tmp_path, root):
+    # Another root seed: every claim states how many replicates agree, and each verdict or
+    # check that differs between replicates is named under "Flips between replicates".
+    rep = vdbejax.reproduce(tmp_path, seeds=SEEDS, episodes=EPISODES, seed=root, replicates=3,
+                            progress=False, figures=False)
+    report = (tmp_path / "report.md").read_text()
+    assert f"root seed {root}" in report and "at least 3 of the 3 replicates" in report
+    for claim in rep.claims:
+        assert len(claim.replicate_verdicts) == 3
+        assert f"## Claim {claim.number}: {claim.verdict} (pooled {claim.pooled_verdict};" \
+               f" {claim.agreeing} of 3 replicates agree)" in report
+        flips = len(set(claim.replicate_verdicts)) > 1
+        assert (f"- Claim {claim.number}: its verdict flips" in report) is flips
+        assert claim.verdict == ("unstable" if flips else claim.pooled_verdict)
+        for check in claim.checks:
+            assert f"{check.description} — holds in {check.replicates_passed} of 3" in report
+            if check.flips:
+                assert f"of 3: {check.description}\n" in report

@@ -13,7 +13,11 @@ def add_reproduce(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output folder")
     # Numbers are parsed leniently and checked by reproduce(): one clear error line.
     number = parse_cli_number
-    p.add_argument("--seeds", type=number, default=20, help="agents per setting (default 20)")
+    p.add_argument("--seeds", type=number, default=20,
+                   help="agents per setting and replicate (default 20)")
+    p.add_argument("--replicates", type=number, default=5,
+                   help="independent groups of SEEDS agents, each scored alone and pooled"
+                        " (default 5; 1: a single run's files)")
     p.add_argument("--episodes", type=number, default=1000,
                    help="episodes per agent (default 1000)")
     p.add_argument("--seed", type=number, default=0, help="root random seed (default 0)")
@@ -44,7 +48,8 @@ def reproduce_command(args: argparse.Namespace) -> None:
         freeze_imports()
     rep = reproduce(
         args.out, reading=args.reading, seeds=args.seeds, episodes=args.episodes, seed=args.seed,
-        max_steps=args.max_steps, invalid_action=args.invalid_action, tie_break=args.tie_break,
+        replicates=args.replicates, max_steps=args.max_steps,
+        invalid_action=args.invalid_action, tie_break=args.tie_break,
         q_init=args.q_init, chunk_episodes=args.chunk_episodes, progress=not args.quiet,
         figures=not args.no_figures, **run_flags(args),
     )
@@ -88,7 +93,9 @@ def add_ablate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--results", default=None,
                    help="folder for the raw results of every variant (default: OUT/ablation)")
     p.add_argument("--seeds", type=parse_cli_number, default=20,
-                   help="agents per setting (default 20)")
+                   help="agents per setting and replicate (default 20)")
+    p.add_argument("--replicates", type=parse_cli_number, default=5,
+                   help="independent groups of SEEDS agents per variant (default 5)")
     p.add_argument("--episodes", type=parse_cli_number, default=1000,
                    help="episodes per agent (default 1000)")
     p.add_argument("--seed", type=parse_cli_number, default=0, help="root random seed (default 0)")
@@ -119,7 +126,8 @@ def ablate_command(args: argparse.Namespace) -> None:
     results = ablate(args.out, results_dir=args.results,
                      variants=select_variants(args.variants, args.mode), mode=args.mode,
                      sections=args.sections,
-                     seeds=args.seeds, episodes=args.episodes, seed=args.seed, notes=args.notes,
+                     seeds=args.seeds, episodes=args.episodes, seed=args.seed,
+                     replicates=args.replicates, notes=args.notes,
                      reuse=not args.rerun, progress=not args.quiet, **run_flags(args))
     for result in results:
         print(f"{result.variant.name}: "

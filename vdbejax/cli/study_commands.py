@@ -29,6 +29,9 @@ def add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plugin", action="append", default=[], metavar="FILE_OR_MODULE",
                    help="import this file or module first (it registers plug-ins)")
     p.add_argument("--seeds", type=number, default=None, help="agents per setting (default 20)")
+    p.add_argument("--replicates", type=number, default=None,
+                   help="independent groups of SEEDS agents (default 1; more: summary_pooled.csv"
+                        " and replicates.csv beside summary.csv)")
     p.add_argument("--episodes", type=number, default=None,
                    help="episodes per agent (default 1000)")
     p.add_argument("--seed", type=number, default=None, help="root random seed (default 0)")
@@ -64,8 +67,8 @@ def run_command(args: argparse.Namespace) -> None:
     from vdbejax.studies.sweeps import read_sweep_file, run_sweep
 
     spec = read_sweep_file(args.config) if args.config else {}
-    for key in ("task", "seeds", "episodes", "seed", "max_steps", "invalid_action",
-                "chunk_episodes"):
+    for key in ("task", "seeds", "replicates", "episodes", "seed", "max_steps",
+                "invalid_action", "chunk_episodes"):
         if getattr(args, key) is not None:
             spec[key] = getattr(args, key)
     for key in ("learners", "explorers"):

@@ -53,6 +53,7 @@ from vdbejax.paper.reproduce import (  # noqa: F401  (AUTHORS_DETAILS: re-export
 )
 from vdbejax.results import io
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.replicates import REPLICATE_FILES, check_replicates
 from vdbejax.runs import RunOptions
 from vdbejax.validation import check_writable_dir
 
@@ -60,10 +61,14 @@ DOCUMENT_FILE = "REPRODUCTION.md"
 FIGURES_DIR = "ablation"
 
 
-def _matches(meta: dict[str, Any], variant: Variant, seeds: int, episodes: int, seed: int) -> bool:
+def _matches(meta: dict[str, Any], variant: Variant, seeds: int, episodes: int, seed: int,
+             replicates: int = 1) -> bool:
     """Does a saved result belong to this variant and run size (so it can be reused)?"""
     options = meta.get("options", {})
-    return (meta.get("num_seeds") == seeds and meta.get("num_episodes") == episodes
+    return (meta.get("num_seeds") == seeds * replicates
+            and meta.get("replicates", 1) == replicates
+            and meta.get("agents_per_replicate", seeds) == seeds
+            and meta.get("num_episodes") == episodes
             and meta.get("seed") == seed and meta.get("max_steps") == variant.max_steps
             and meta.get("invalid_action") == variant.invalid_action
             and options.get("tie_break") == variant.tie_break
@@ -75,7 +80,8 @@ def _matches(meta: dict[str, Any], variant: Variant, seeds: int, episodes: int, 
 
 def run_variant(
     variant: Variant, results_dir: str | os.PathLike, *, seeds: int = 20, episodes: int = 1000,
-    seed: int = 0, reuse: bool = True, progress: bool = False, run: RunOptions | None = None,
+    seed: int = 0, replicates: int = 1, reuse: bool = True, progress: bool = False,
+    run: RunOptions | None = None,
 ) -> VariantResult:
     """Run (or reuse) the full grid of one variant and score the claims.
 
@@ -83,6 +89,7 @@ def run_variant(
       variant: the options.
       results_dir: folder for this variant's raw results and outputs.
       seeds, episodes, seed: run size.
+      replicates: independent groups of ``seeds`` agents (:mod:`vdbejax.results.replicates`).
       reuse: load a saved result of the same variant and size instead of rerunning (a
         folder a killed run left half-written is continued from its checkpoint instead).
       progress: progress bar on stderr.
@@ -100,7 +107,7 @@ def run_variant(
         saved = io.load_json(meta_file) if reuse and meta_file.exists() else None
     except (OSError, ValueError):  # unreadable: not a result to reuse
         saved = None
-    if isinstance(saved, dict) and _matches(saved, variant, seeds, episodes, seed):
+    if isinstance(saved, dict) and _matches(saved, variant, seeds, episodes, seed, replicates):
         try:
             result = GridResult.load(folder)
         except ValueError:  # half-written (a killed run): continue it below
@@ -109,7 +116,8 @@ def run_variant(
         best = saved_best_return(result)
         summary, claims = write_outputs(result, folder, best)
     else:
-        rep = reproduce(folder, seeds=seeds, episodes=episodes, seed=seed, progress=progress,
+        rep = reproduce(folder, seeds=seeds, episodes=episodes, seed=seed,
+                        replicates=replicates, progress=progress,
                         resume=run.resume, devices=run.devices,
                         memory_budget_bytes=run.memory_budget_bytes, **variant.options())
         summary, claims, best = rep.summary, rep.claims, rep.best_return
@@ -130,6 +138,7 @@ def ablate(
     seeds: int = 20,
     episodes: int = 1000,
     seed: int = 0,
+    replicates: int = 5,
     notes: str | os.PathLike | None = None,
     reuse: bool = True,
     progress: bool = True,
@@ -150,6 +159,9 @@ def ablate(
         i.e. next to the figures.
       variants: the variants (the first is the baseline).
       seeds, episodes, seed: run size of every variant.
+      replicates: independent groups of ``seeds`` agents per variant (default 5): every
+        verdict is the headline of :mod:`vdbejax.paper.claims` (the pooled verdict when at
+        least 4 of 5 replicates agree, else *unstable*).
       notes: a hand-written markdown file appended as the discussion.
       reuse: reuse saved results of the same variant and size.
       progress: one status line per variant on stderr.
@@ -188,7 +200,8 @@ def ablate(
     raw = check_writable_dir("results_dir", results_dir) if results_dir is not None else figures
     # The options document shows figures; the others link reports only (size).
     assets = DOCUMENT_ASSETS if mode == "options" else REPORT_ASSETS
-    size = (seeds, episodes, seed)
+    check_replicates(replicates, seeds)
+    size = (seeds, episodes, seed, replicates)
     results = [_run_reporting(v, raw, figures, assets, size, reuse, progress, knobs)
                for v in variants]
     extra = []
@@ -201,8 +214,7 @@ def ablate(
                 _run_reporting(v, section_raw, out / section_dir, REPORT_ASSETS, size, reuse,
                                progress, knobs) for v in mode_variants(section_mode)]))
     text = Path(notes).read_text() if notes is not None else None
-    command = _command(out, raw, figures, variants, seeds, episodes, seed, mode, sections,
-                       notes)
+    command = _command(out, raw, figures, variants, size, mode, sections, notes)
     io.atomic_write_text(out / document, render_document(results, figures_dir, command, text,
                                                          figures=mode == "options",
                                                          sections=extra))
@@ -223,16 +235,16 @@ SECTION_INTROS = {
 
 
 def _run_reporting(variant: Variant, raw: Path, reports: Path, assets: Sequence[str],
-                   size: tuple[int, int, int], reuse: bool, progress: bool,
+                   size: tuple[int, int, int, int], reuse: bool, progress: bool,
                    run: RunOptions) -> VariantResult:
     """Run (or reuse) a variant in ``raw``; copy its ``assets`` beside the document (into
     ``reports``) when the raw results live elsewhere; one status line if ``progress``."""
     started = time.perf_counter()
-    seeds, episodes, seed = size
+    seeds, episodes, seed, replicates = size
     result = run_variant(variant, raw / variant.name, seeds=seeds, episodes=episodes, seed=seed,
-                         reuse=reuse, run=run)
+                         replicates=replicates, reuse=reuse, run=run)
     if raw != reports:
-        for name in assets:
+        for name in [*assets, *(REPLICATE_FILES if replicates > 1 else [])]:
             io.atomic_write_bytes(reports / variant.name / name,
                                   (result.folder / name).read_bytes())
     if progress:
@@ -242,8 +254,8 @@ def _run_reporting(variant: Variant, raw: Path, reports: Path, assets: Sequence[
     return result
 
 
-def _command(out: Path, raw: Path, figures: Path, variants: Sequence[Variant], seeds: int,
-             episodes: int, seed: int, mode: str = "options", sections: bool = False,
+def _command(out: Path, raw: Path, figures: Path, variants: Sequence[Variant],
+             size: tuple[int, int, int, int], mode: str = "options", sections: bool = False,
              notes: str | os.PathLike[str] | None = None) -> str:
     """The ``vdbejax ablate`` command line that reproduces this call."""
     parts = ["vdbejax ablate", f"--out {out}"]
@@ -255,8 +267,9 @@ def _command(out: Path, raw: Path, figures: Path, variants: Sequence[Variant], s
         parts.append(f"--results {raw}")
     if [v.name for v in variants] != [v.name for v in mode_variants(mode)]:
         parts.append("--variants " + ",".join(v.name for v in variants))
+    seeds, episodes, seed, replicates = size
     for flag, value, default in (("--seeds", seeds, 20), ("--episodes", episodes, 1000),
-                                 ("--seed", seed, 0)):
+                                 ("--seed", seed, 0), ("--replicates", replicates, 5)):
         if value != default:
             parts.append(f"{flag} {value}")
     if notes is not None:

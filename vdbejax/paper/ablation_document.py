@@ -10,11 +10,15 @@ from typing import Any
 
 from vdbejax.methods.explorers import PAPER_EXPLORERS as EXPLORERS
 from vdbejax.paper.ablation_variants import VariantResult
-from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimTable
+from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimTable, stable_count
 from vdbejax.paper.reproduce import FIGURE_FILE, SENSITIVITY_FILE
 from vdbejax.results import io
+from vdbejax.results.replicates import POOLED_SUMMARY_FILE
+from vdbejax.results.stats import wilson_interval
+from vdbejax.results.summary import SummaryRow, read_summary
 
-VERDICT_MARKS = {"reproduced": "✅ reproduced", "partly": "◐ partly", "not reproduced": "❌ not"}
+VERDICT_MARKS = {"reproduced": "✅ reproduced", "partly": "◐ partly", "not reproduced": "❌ not",
+                 "unstable": "⚠ unstable"}
 
 
 def render_document(
@@ -67,8 +71,12 @@ def render_document(
 
     def cell(r: VariantResult, n: int) -> str:
         claim = next((c for c in r.claims if c.number == n), None)
-        return ("—" if claim is None else f"{VERDICT_MARKS[claim.verdict]}"
-                f" ({sum(k.passed for k in claim.checks)}/{len(claim.checks)})")
+        if claim is None:
+            return "—"
+        agree = (f"; {claim.agreeing}/{len(claim.replicate_verdicts)} agree"
+                 if claim.replicate_verdicts else "")
+        return (f"{VERDICT_MARKS[claim.verdict]}"
+                f" ({sum(k.passed for k in claim.checks)}/{len(claim.checks)}{agree})")
 
     if len(results) <= 10:  # claims as rows, variants as columns
         lines += ["", "## Claims × variants", "",
@@ -86,7 +94,12 @@ def render_document(
     lines += ["", "Claims fully reproduced per variant: " + ", ".join(
         f"`{name}` {count}/{len(first.claims)}" for name, count in reproduced.items())
         + ". Most: " + ", ".join(f"`{n}`" for n, c in reproduced.items() if c == top) + "."]
-    lines += ["", "Cells: verdict (checks passed / checks). The claims:", ""]
+    legend = ("headline verdict (checks passed on the pooled agents / checks; replicates"
+              " whose verdict is the pooled one / replicates: the headline is the pooled"
+              f" verdict when at least {stable_count(5)} of 5 agree, else unstable)"
+              if first.claims and first.claims[0].replicate_verdicts else
+              "verdict (checks passed / checks)")
+    lines += ["", f"Cells: {legend}. The claims:", ""]
     for c in first.claims:
         lines.append(f"{c.number}. {c.claim}")
     for title, intro, reports, section in sections:
@@ -103,7 +116,9 @@ def render_document(
     # Key numbers per variant: best final return of each explorer and how many of its
     # parameters end near the best return.
     lines += ["", "## Key numbers", "",
-              "Best final return of each learner × explorer [95% CI], and how many of its "
+              "Best setting of each learner × explorer (pooled agents; the claims' rule:"
+              " highest IQM, ties to the first to converge): final return [95% CI], and how"
+              " many of its "
               "parameter values end near the best return; last column: fraction of the last 100 "
               "episodes cut off at max_steps, SARSA + VDBE (σ ≥ 0.1).", ""]
     header = (["variant"] + [f"{LEARNER_NAMES[lr]} {e}" for lr in LEARNER_NAMES for e in EXPLORERS]
@@ -111,7 +126,7 @@ def render_document(
     lines += ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
     for r in results:
         near = r.best_return - NEAR
-        table = ClaimTable(r.summary)
+        table = ClaimTable(_pooled_rows(r))
         cells = [f"`{r.variant.name}`"]
         for learner in LEARNER_NAMES:
             for explorer in EXPLORERS:
@@ -128,6 +143,7 @@ def render_document(
         cells.append(f"{sum(stuck) / len(stuck):.2f}" if stuck else "—")
         lines.append("| " + " | ".join(cells) + " |")
 
+    lines += _convergence_table(results) + _loop_table(results)
     lines += ["", "## Figures" if figures else "## Per variant", ""]
     for r in results:
         lines += [f"### `{r.variant.name}`: {r.variant.description}", "",
@@ -147,10 +163,64 @@ def render_document(
     return "\n".join(lines) + "\n"
 
 
+def _convergence_table(results: Sequence[VariantResult]) -> list[str]:
+    """Convergence episodes per method family: the range over each learner × explorer's
+    settings that end near the best return (pooled agents)."""
+    header = ["variant"] + [f"{LEARNER_NAMES[lr]} {e}" for lr in LEARNER_NAMES for e in EXPLORERS]
+    lines = ["", "## Convergence episodes per method family", "",
+             "Per learner × explorer: the lowest and highest convergence episode of its"
+             " settings that end near the best return (pooled agents; in brackets how many"
+             " settings that is); — none ends near it.", "",
+             "| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
+    for r in results:
+        table = ClaimTable(_pooled_rows(r), r.best_return)
+        cells = [f"`{r.variant.name}`"]
+        for learner in LEARNER_NAMES:
+            for explorer in EXPLORERS:
+                good = [x.convergence_episode for x in table.get(learner, explorer)
+                        if x.final_return >= table.near]
+                cells.append(f"{min(good)}–{max(good)} ({len(good)})" if good else "—")
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def _loop_table(results: Sequence[VariantResult]) -> list[str]:
+    """Agents that ran into a task's safety cap (a loop), per setting where any did, with
+    the rate's 95 % Wilson interval: variants on a task without step limit only."""
+    capped = [(r, _pooled_rows(r)) for r in results]
+    capped = [(r, rows) for r, rows in capped if rows and rows[0].agents_cut is not None]
+    if not capped:
+        return []
+    lines = ["", "## Agents caught in a loop", "",
+             "Agents with at least one episode cut at the safety cap (the task has no step"
+             " limit: such an agent looped), per setting where any did (pooled agents), with"
+             " the rate's 95 % Wilson interval.", "",
+             "| variant | setting | agents looping / agents | rate [95 % CI] |",
+             "| --- | --- | --- | --- |"]
+    for r, rows in capped:
+        agents = int(io.load_json(r.folder / io.META_FILE).get("num_seeds", 0))
+        for x in rows:
+            if x.agents_cut and agents:
+                low, high = wilson_interval(x.agents_cut, agents)
+                lines.append(f"| `{r.variant.name}` | {LEARNER_NAMES.get(x.learner, x.learner)}"
+                             f" {x.explorer} {x.swept_param():g} | {x.agents_cut}/{agents} |"
+                             f" {x.agents_cut / agents:.1%} [{low:.1%}, {high:.1%}] |")
+    return lines
+
+
 def _run_size(result: VariantResult) -> str:
     meta = io.load_json(result.folder / io.META_FILE)
-    return (f"{meta.get('num_seeds')} agents × {meta.get('num_episodes')} episodes"
-            f" (root seed {meta.get('seed')})")
+    agents = (f"{meta['replicates']} replicates × {meta.get('agents_per_replicate')} agents"
+              f" (pooled {meta.get('num_seeds')})" if meta.get("replicates", 1) > 1
+              else f"{meta.get('num_seeds')} agents")
+    return f"{agents} × {meta.get('num_episodes')} episodes (root seed {meta.get('seed')})"
+
+
+def _pooled_rows(result: VariantResult) -> list[SummaryRow]:
+    """The variant's pooled summary (``summary_pooled.csv``) if it has replicates, else its
+    summary."""
+    pooled = result.folder / POOLED_SUMMARY_FILE
+    return read_summary(pooled) if pooled.is_file() else result.summary
 
 
 def claims_table(results: Sequence[VariantResult]) -> list[dict[str, Any]]:

@@ -1,19 +1,35 @@
 """The paper's six claims (spec, last section), scored against measured results.
 
 Each claim is split into concrete checks on the summary table (final return = mean of the
-last 100 episodes over seeds; convergence episode as defined in
+last 100 episodes over agents; convergence episode as defined in
 :mod:`vdbejax.results.stats`). A claim is *reproduced* when every check holds, *not
-reproduced* when none does, *partly*
-otherwise. "At or near the best return" means within ``NEAR`` of it. A figure the paper
-states as "about" a value (claim 5's episodes) must lie within ``ABOUT`` (±25 %) of it;
-bounds ("below about 0.6") are checked as stated.
+reproduced* when none does, *partly* otherwise. The rules every check follows:
+
+- "At or near the best return" means within ``NEAR`` (0.05) of it.
+- Every figure the paper states as "about" a value lies within ``ABOUT`` (±25 %) of it:
+  claim 5's episodes and claim 1's "below about 0.6 / 0.7" (read as: ε-greedy's best
+  levels off at about that return, so a collapsed curve far below it does not pass).
+- Two returns within ``TIE`` (0.01) of each other are tied: a tie neither wins nor loses
+  a comparison ("worse", "lower", "worst").
+- The "best" settings of an explorer are ranked by the interquartile mean of the agents'
+  final returns (``final_iqm``; the mean for older summaries without it), so one
+  heavy-tailed agent cannot lift or sink a setting. "The best ε / τ are a and b" holds
+  when a and b rank top two, or no other value ranks above the worse of them by more than
+  ``TIE``. An explorer's *best setting* is, among those whose IQM is within ``TIE`` of the
+  highest, the one that converges first.
+
+With replicates (:mod:`vdbejax.results.replicates`) :func:`evaluate_claims` scores the
+pooled agents and each replicate: a check reports in how many of the R replicates it
+holds, a claim each replicate's verdict, and the headline verdict is the pooled one when at
+least ``STABLE`` (80 %, 4 of 5) of the replicates agree with it, else *unstable*.
 
 Each claim is one function of a :class:`ClaimTable` (``claim_1`` … ``claim_6``, listed in
-:data:`CLAIMS`); :func:`evaluate_claims` maps them over the summary rows.
+:data:`CLAIMS`).
 """
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
@@ -23,30 +39,80 @@ from vdbejax.results.summary import SummaryRow, summary_rows
 NEAR = 0.05
 #: Relative tolerance of a figure the paper gives as "about" a value.
 ABOUT = 0.25
+#: Returns this close are tied.
+TIE = 0.01
+#: The share of replicates that must agree with the pooled verdict for it to be the headline.
+STABLE = 0.8
 #: The paper's learners, with their display names (the plug-ins' titles).
 LEARNER_NAMES = {name: learner_title(name) for name in ("qlearning", "sarsa")}
 
 
 @dataclasses.dataclass
 class Check:
+    """One check of a claim: what it compares, and whether it held on the pooled agents
+    (``passed``) and in how many of the ``replicates`` (``None`` for a single run)."""
+
     description: str
     passed: bool
+    replicates_passed: int | None = None
+    replicates: int | None = None
+
+    @property
+    def flips(self) -> bool:
+        """Some replicates pass it and some do not."""
+        return self.replicates is not None and 0 < (self.replicates_passed or 0) < self.replicates
+
+
+def _verdict(checks: Sequence[bool]) -> str:
+    if all(checks):
+        return "reproduced"
+    return "not reproduced" if not any(checks) else "partly"
+
+
+def stable_count(replicates: int) -> int:
+    """The replicates that must agree with the pooled verdict (``⌈STABLE·R⌉``)."""
+    return math.ceil(STABLE * replicates - 1e-9)
 
 
 @dataclasses.dataclass
 class ClaimResult:
+    """A claim's checks and verdicts.
+
+    Attributes:
+      replicate_verdicts: each replicate's verdict (empty for a single run).
+    """
+
     number: int
     claim: str
     paper: str
     measured: str
     checks: list[Check]
+    replicate_verdicts: list[str] = dataclasses.field(default_factory=list)
+
+    @property
+    def pooled_verdict(self) -> str:
+        """The verdict of the checks on all agents."""
+        return _verdict([c.passed for c in self.checks])
+
+    @property
+    def agreeing(self) -> int:
+        """The replicates whose verdict is the pooled one."""
+        return sum(v == self.pooled_verdict for v in self.replicate_verdicts)
 
     @property
     def verdict(self) -> str:
-        passed = sum(c.passed for c in self.checks)
-        if passed == len(self.checks):
-            return "reproduced"
-        return "not reproduced" if passed == 0 else "partly"
+        """The headline: the pooled verdict, if at least ``⌈STABLE·R⌉`` of the R replicates
+        agree with it; otherwise ``"unstable"``."""
+        count = len(self.replicate_verdicts)
+        if count and self.agreeing < stable_count(count):
+            return "unstable"
+        return self.pooled_verdict
+
+
+def rank_value(row: SummaryRow) -> float:
+    """The return a setting is ranked by: the IQM of its agents' final returns (the mean
+    when the summary has no IQM)."""
+    return row.final_return if row.final_iqm is None else row.final_iqm
 
 
 class ClaimTable:
@@ -73,14 +139,33 @@ class ClaimTable:
                       key=SummaryRow.swept_param)
 
     def best(self, learner: str, explorer: str) -> SummaryRow | None:
-        """The row of one learner × explorer with the highest final return."""
+        """The best setting of one learner × explorer: among the rows whose
+        :func:`rank_value` is within :data:`TIE` of the highest, the first to converge
+        (then the highest ranked)."""
         rows = self.get(learner, explorer)
-        return max(rows, key=lambda r: r.final_return) if rows else None
+        if not rows:
+            return None
+        top = max(rank_value(r) for r in rows)
+        tied = [r for r in rows if rank_value(r) >= top - TIE]
+        return min(tied, key=lambda r: (r.convergence_episode, -rank_value(r)))
 
-    def top_params(self, learner: str, explorer: str, k: int) -> set[float]:
-        """The parameters of the ``k`` rows of one learner × explorer that end highest."""
-        rows = sorted(self.get(learner, explorer), key=lambda r: -r.final_return)
-        return {r.swept_param() for r in rows[:k]}
+    def best_are(self, learner: str, explorer: str, params: set[float]) -> tuple[bool, str]:
+        """Whether ``params`` are the best values of one learner × explorer: they rank top
+        (by :func:`rank_value`), or no other value ranks above the worse of them by more
+        than :data:`TIE`. Returns the verdict and what was measured."""
+        rows = sorted(self.get(learner, explorer), key=lambda r: -rank_value(r))
+        top = {r.swept_param() for r in rows[:len(params)]}
+        chosen = [r for r in rows if r.swept_param() in params]
+        if top == params:
+            return True, f"top two by IQM {sorted(top)}"
+        if len(chosen) < len(params):
+            return False, f"top two by IQM {sorted(top)}; {sorted(params)} not all in the grid"
+        floor = min(rank_value(r) for r in chosen)
+        above = [r for r in rows if r.swept_param() not in params and rank_value(r) > floor + TIE]
+        shown = ", ".join(f"{r.swept_param():g} ({rank_value(r):.3f})" for r in above)
+        return not above, (f"top two by IQM {sorted(top)}; worse of {sorted(params)}"
+                           f" {floor:.3f}, " + (f"above it: {shown}" if above else
+                                                f"every other value within {TIE}: a tie"))
 
 
 def _apart(a: float, b: float) -> tuple[str, str]:
@@ -98,57 +183,51 @@ def _finals(rows: list[SummaryRow]) -> str:
     return ", ".join(f"{r.swept_param():g}→{r.final_return:.2f}" for r in rows)
 
 
+def _about(value: float, stated: float) -> tuple[float, float, bool]:
+    """The ±:data:`ABOUT` interval of a stated figure, and whether ``value`` lies in it."""
+    lo, hi = (1 - ABOUT) * stated, (1 + ABOUT) * stated
+    return lo, hi, lo <= value <= hi
+
+
 def claim_1(t: ClaimTable) -> ClaimResult:
-    """ε-greedy: the best ε are 0.05 and 0.1; its best final return stays below the
-    paper's bounds."""
+    """ε-greedy: the best ε are 0.05 and 0.1; its best final return levels off at about
+    the paper's 0.6 (SARSA) and 0.7 (Q-learning)."""
     measured, checks = [], []
     bounds = {"qlearning": 0.7, "sarsa": 0.6}
     for learner in t.learners:
         rows_e = t.get(learner, "egreedy")
-        if not rows_e:
+        best = t.best(learner, "egreedy")
+        if best is None:
             continue
         name = LEARNER_NAMES[learner]
-        top = t.top_params(learner, "egreedy", 2)
-        best = t.best(learner, "egreedy")
-        assert best is not None  # rows_e is not empty
+        passed, how = t.best_are(learner, "egreedy", {0.05, 0.1})
         measured.append(f"{name} ε→final: {_finals(rows_e)}")
-        checks.append(Check(f"{name}: the two best ε are 0.05 and 0.1 (measured {sorted(top)})",
-                            top == {0.05, 0.1}))
-        checks.append(Check(f"{name}: best final return"
-                            f" {_apart(best.final_return, bounds[learner])[0]} < {bounds[learner]}",
-                            best.final_return < bounds[learner]))
+        checks.append(Check(f"{name}: the best ε are 0.05 and 0.1 ({how})", passed))
+        lo, hi, inside = _about(best.final_return, bounds[learner])
+        checks.append(Check(f"{name}: best ε's final return {best.final_return:.3f} is about"
+                            f" {bounds[learner]} (±{ABOUT:.0%}: {lo:.3g}–{hi:.3g})", inside))
     return ClaimResult(
         1, "ε-greedy: the best ε are 0.1 and 0.05 for both learners; its final average return "
            "stays below about 0.6 (SARSA) and 0.7 (Q-learning).",
-        "best ε ∈ {0.05, 0.1}; final < 0.6 (SARSA), < 0.7 (Q-learning)", "; ".join(measured),
+        "best ε ∈ {0.05, 0.1}; final ≈ 0.6 (SARSA), ≈ 0.7 (Q-learning)", "; ".join(measured),
         checks)
 
 
 def claim_2(t: ClaimTable) -> ClaimResult:
-    """Softmax: the low τ are best (up to noise) and end near the best return."""
+    """Softmax: the low τ are best and end near the best return."""
     measured, checks = [], []
-    lows = (0.0001, 0.001)
+    lows = {0.0001, 0.001}
     for learner in t.learners:
         rows_s = t.get(learner, "softmax")
         if not rows_s:
             continue
         name = LEARNER_NAMES[learner]
-        top = t.top_params(learner, "softmax", 2)
+        passed, how = t.best_are(learner, "softmax", lows)
         low = [r for r in rows_s if r.swept_param() in lows]
         measured.append(f"{name} τ→final: {_finals(rows_s)}")
-        # "Best" up to noise: the two low τ are the top two, or no other τ ends above
-        # the worse of them beyond the bootstrap intervals (τ = 0.01 often ties at 0.86).
-        others = [r for r in rows_s if r.swept_param() not in lows]
-        worst_low = min(low, key=lambda r: r.final_return) if low else None
-        tied = worst_low is not None and all(
-            r.final_ci_low <= worst_low.final_ci_high for r in others)
-        checks.append(Check(f"{name}: the best τ are 0.0001 and 0.001"
-                            f" (measured top two {sorted(top)}"
-                            + ("" if top == {0.0001, 0.001} else
-                               f"; no other τ significantly better: {tied}") + ")",
-                            top == {0.0001, 0.001} or tied))
+        checks.append(Check(f"{name}: the best τ are 0.0001 and 0.001 ({how})", passed))
         checks.append(Check(f"{name}: τ ∈ {{0.0001, 0.001}} end within {NEAR} of"
-                            f" {t.best_return:.2f}",
+                            f" {t.best_return:.2f} ({_finals(low) or 'absent'})",
                             bool(low) and all(r.final_return >= t.near for r in low)))
     return ClaimResult(2, "Softmax: low τ (0.001, 0.0001) are best, ending at or near 0.86.",
                        "best τ ∈ {0.0001, 0.001}, final ≈ 0.86", "; ".join(measured), checks)
@@ -174,17 +253,19 @@ def claim_3(t: ClaimTable) -> ClaimResult:
                             f" of {t.best_return:.2f}",
                             bool(high) and all(r.final_return >= t.near for r in high)))
         if low and high:
+            floor = min(r.final_return for r in high)
             high_conv = max(r.convergence_episode for r in high)
-            slow = all(r.final_return < t.near or r.convergence_episode > high_conv
+            slow = all(r.final_return < floor - TIE or r.convergence_episode > high_conv
                        for r in low)
-            checks.append(Check(f"{name}: every σ < {good_from[learner]:g} ends lower or"
-                                " converges later than the good σ", slow))
+            checks.append(Check(f"{name}: every σ < {good_from[learner]:g} ends lower (below"
+                                f" {floor:.3f} − {TIE}) or converges later (after episode"
+                                f" {high_conv}) than every σ ≥ {good_from[learner]:g}", slow))
         worst[learner] = min(r.final_return for r in rows_v)
     if len(worst) == 2:
         sarsa, qlearning = _apart(worst["sarsa"], worst["qlearning"])
-        checks.append(Check(f"too-low σ is worst with SARSA (worst final SARSA"
-                            f" {sarsa} ≤ Q-learning {qlearning})",
-                            worst["sarsa"] <= worst["qlearning"]))
+        checks.append(Check(f"too-low σ is worst with SARSA (worst final SARSA {sarsa},"
+                            f" Q-learning {qlearning}: SARSA's lower or tied within {TIE})",
+                            worst["sarsa"] <= worst["qlearning"] + TIE))
     return ClaimResult(
         3, "VDBE: Q-learning does well for σ ≥ 0.1, SARSA for σ ≥ 1; a σ too low converges "
            "slowly or not at all, worst with SARSA.",
@@ -211,8 +292,9 @@ def claim_5(t: ClaimTable) -> ClaimResult:
     """Convergence speed: VDBE-Softmax's best setting converges first, after about the
     episodes the paper states.
 
-    A setting that never gets near the best return has not "converged" in the paper's
-    sense, however early its flat curve hits its own level.
+    Each explorer's best setting is :meth:`ClaimTable.best`'s. A setting that never gets
+    near the best return has not "converged" in the paper's sense, however early its flat
+    curve hits its own level.
     """
     measured, checks = [], []
     paper_episode = {"qlearning": 280, "sarsa": 300}
@@ -225,8 +307,8 @@ def claim_5(t: ClaimTable) -> ClaimResult:
         conv = {e: r.convergence_episode for e, r in found.items()}
         good = {e: r.final_return >= t.near for e, r in found.items()}
         measured.append(f"{name} convergence episode of each explorer's best setting: " + ", ".join(
-            f"{e} {conv[e]}" + ("" if good[e] else " (not near best)") for e in conv)
-            + f" (paper: VDBE-Softmax ≈{paper_episode[learner]}, others ≈350)")
+            f"{e} ({found[e].swept_param():g}) {conv[e]}" + ("" if good[e] else " (not near best)")
+            for e in conv) + f" (paper: VDBE-Softmax ≈{paper_episode[learner]}, others ≈350)")
         rivals = [e for e in ("softmax", "vdbe") if e in conv]
         # "No later" up to noise: the lower end of VDBE-Softmax's bootstrap interval (when
         # the summary has one) must not exceed the other's convergence episode.
@@ -242,21 +324,21 @@ def claim_5(t: ClaimTable) -> ClaimResult:
         stated = {"vdbe_softmax": paper_episode[learner], "softmax": 350, "vdbe": 350}
         for explorer, episode in stated.items():
             if explorer in conv:
-                lo, hi = (1 - ABOUT) * episode, (1 + ABOUT) * episode
+                lo, hi, inside = _about(conv[explorer], episode)
                 checks.append(Check(
                     f"{name}: best {explorer} converges after about {episode} episodes"
-                    f" ({conv[explorer]}; ±{ABOUT:.0%}: {lo:g}–{hi:g})",
-                    lo <= conv[explorer] <= hi))
+                    f" ({conv[explorer]}; ±{ABOUT:.0%}: {lo:g}–{hi:g})", inside))
         if learner == "qlearning" and "egreedy" in conv:
-            # "About as fast": within 25% of VDBE-Softmax (the paper's others are ~25% slower).
+            # "About as fast": within ±25 % of VDBE-Softmax or faster; "worse": beyond a tie.
             egreedy_final = found["egreedy"].final_return
             vs_final = found["vdbe_softmax"].final_return
             egreedy_shown, vs_shown = _apart(egreedy_final, vs_final)
             checks.append(Check(
-                f"{name}: ε-greedy converges about as fast (episode {conv['egreedy']} ≤ 1.25 × "
-                f"{conv['vdbe_softmax']}) to a worse return ({egreedy_shown} < {vs_shown})",
-                good["vdbe_softmax"] and conv["egreedy"] <= 1.25 * conv["vdbe_softmax"]
-                and egreedy_final < vs_final))
+                f"{name}: ε-greedy converges about as fast (episode {conv['egreedy']} ≤"
+                f" {1 + ABOUT:g} × {conv['vdbe_softmax']}) to a worse return ({egreedy_shown} <"
+                f" {vs_shown} − {TIE})",
+                good["vdbe_softmax"] and conv["egreedy"] <= (1 + ABOUT) * conv["vdbe_softmax"]
+                and egreedy_final < vs_final - TIE))
     return ClaimResult(
         5, "VDBE-Softmax converges fastest: its best average return after about 280 episodes "
            "(Q-learning) and 300 (SARSA); the others near 350; ε-greedy with Q-learning "
@@ -266,7 +348,7 @@ def claim_5(t: ClaimTable) -> ClaimResult:
 
 
 def claim_6(t: ClaimTable) -> ClaimResult:
-    """Final returns: every explorer but ε-greedy ends near the best return."""
+    """Final returns: every explorer's best setting but ε-greedy's ends near the best return."""
     measured, checks = [], []
     for learner in t.learners:
         name = LEARNER_NAMES[learner]
@@ -275,14 +357,14 @@ def claim_6(t: ClaimTable) -> ClaimResult:
             if best is None:
                 continue
             value = best.final_return
-            measured.append(f"{name} best {explorer} {value:.2f}")
+            measured.append(f"{name} best {explorer} ({best.swept_param():g}) {value:.3f}")
+            shown, near = _apart(value, t.near)
             if explorer == "egreedy":
-                checks.append(Check(f"{name}: ε-greedy's best ({value:.2f}) stays below"
-                                    f" {t.near:.2f}", value < t.near))
+                checks.append(Check(f"{name}: ε-greedy's best ({shown}) stays below {near}",
+                                    value < t.near))
             else:
-                checks.append(Check(f"{name}: best {explorer} ({value:.2f}) ends within {NEAR}"
-                                    f" of {t.best_return:.2f}",
-                                    value >= t.near))
+                checks.append(Check(f"{name}: best {explorer} ({shown}) ends within {NEAR}"
+                                    f" of {t.best_return:.2f} (≥ {near})", value >= t.near))
     return ClaimResult(6, "All methods but ε-greedy end at or near the best return, 0.86.",
                        "softmax, VDBE, VDBE-Softmax ≈ 0.86; ε-greedy lower", "; ".join(measured),
                        checks)
@@ -293,8 +375,15 @@ CLAIMS: list[Callable[[ClaimTable], ClaimResult]] = [
     claim_1, claim_2, claim_3, claim_4, claim_5, claim_6]
 
 
-def evaluate_claims(rows: Iterable[SummaryRow | Mapping[str, Any]],
-                    best_return: float = 0.86) -> list[ClaimResult]:
+def _score(rows: Iterable[SummaryRow | Mapping[str, Any]],
+           best_return: float) -> list[ClaimResult]:
+    table = ClaimTable(rows, best_return)
+    return [result for result in (claim(table) for claim in CLAIMS) if result.checks]
+
+
+def evaluate_claims(rows: Iterable[SummaryRow | Mapping[str, Any]], best_return: float = 0.86,
+                    replicates: Sequence[Iterable[SummaryRow | Mapping[str, Any]]] | None = None,
+                    ) -> list[ClaimResult]:
     """Score the six claims (:data:`CLAIMS`) on summary rows (see
     :func:`vdbejax.results.analysis.summarize`).
 
@@ -302,74 +391,31 @@ def evaluate_claims(rows: Iterable[SummaryRow | Mapping[str, Any]],
 
     Args:
       rows: summary rows (:class:`~vdbejax.results.summary.SummaryRow`, or mappings of their
-        columns to strings or numbers, as read from ``summary.csv``).
+        columns to strings or numbers, as read from ``summary.csv``): the pooled agents'
+        when ``replicates`` are given.
       best_return: the task's best possible return ("near" = within :data:`NEAR` of it).
+      replicates: each replicate's rows (the same settings as ``rows``), or ``None``.
 
     Returns:
-      one :class:`ClaimResult` per claim that has checks, in claim order.
+      one :class:`ClaimResult` per claim that has checks, in claim order; with
+      ``replicates``, each check counts the replicates it holds in and each claim lists
+      their verdicts.
+
+    Raises:
+      ValueError: a replicate's rows give other claims or checks than ``rows``.
     """
-    table = ClaimTable(rows, best_return)
-    return [result for result in (claim(table) for claim in CLAIMS) if result.checks]
-
-
-def cap_message(meta: dict[str, Any]) -> str:
-    """One line on the episodes cut at a task's safety cap (a task without step limit)."""
-    cut, agents = meta.get("truncated_episodes", 0), meta.get("agents_truncated", 0)
-    return (f"{cut:,} episodes of {agents} agents ran into the safety cap of"
-            f" {meta.get('max_steps', '?'):,} steps and were cut there (the published code would"
-            f" never have finished them); longest episode"
-            f" {meta.get('longest_episode', '?'):,} steps")
-
-
-def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_return: float) -> str:
-    """``report.md``: each claim with the paper's and our numbers, checks and verdict.
-
-    Args:
-      claims: the scored claims (:func:`evaluate_claims`).
-      meta: the run's metadata (task, run size, seed, options; missing keys print ``?``).
-      best_return: the task's best possible return.
-
-    Returns:
-      markdown text.
-    """
-    lines = [
-        "# Reproduction report: Cruz et al. (2018), claim by claim",
-        "",
-        f"Task `{meta.get('mdp', '?')}`, {meta.get('num_seeds', '?')} agents × "
-        f"{meta.get('num_episodes', '?')} episodes per setting, root seed {meta.get('seed', '?')}, "
-        f"options {meta.get('options', {})}, max_steps {meta.get('max_steps', '?')}. "
-        f"Best possible return (exact solver): {best_return:.4f}.",
-        "",
-        f"Final return = mean over the last 100 episodes and all agents; \"near\" = within {NEAR} "
-        "of the best return; convergence episode = first episode at which the 20-episode moving "
-        f"average reaches 95% of its final level; a figure the paper gives as \"about\" a value "
-        f"must lie within ±{ABOUT:.0%} of it.",
-        "",
-    ]
-    if meta.get("step_cap"):
-        by_config = meta.get("truncated_episodes_by_config") or []
-        labels = meta.get("config_labels") or []
-        where = [f"{labels[c] if c < len(labels) else f'config {c}'} ({n:,})"
-                 for c, n in enumerate(by_config) if n]
-        lines += [f"**Safety cap.** The task has no step limit: {cap_message(meta)}"
-                  + (f". Per setting: {'; '.join(where)}." if where else "."), ""]
-    lines += [
-        "| # | verdict | checks passed |",
-        "| --- | --- | --- |",
-    ]
-    for c in claims:
-        passed = sum(k.passed for k in c.checks)
-        lines.append(f"| {c.number} | **{c.verdict}** | {passed}/{len(c.checks)} |")
-    for c in claims:
-        lines += [
-            "",
-            f"## Claim {c.number}: {c.verdict}",
-            "",
-            f"> {c.claim}",
-            "",
-            f"- Paper: {c.paper}",
-            f"- Measured: {c.measured}",
-            "- Checks:",
-        ]
-        lines += [f"  - [{'x' if k.passed else ' '}] {k.description}" for k in c.checks]
-    return "\n".join(lines) + "\n"
+    pooled = _score(rows, best_return)
+    if replicates is None:
+        return pooled
+    scored = [_score(r, best_return) for r in replicates]
+    for index, claims in enumerate(scored):
+        shape = [(c.number, len(c.checks)) for c in claims]
+        if shape != [(c.number, len(c.checks)) for c in pooled]:
+            raise ValueError(f"replicates: replicate {index}'s rows give the claims and check"
+                             f" counts {shape}, not the pooled rows' (the same settings needed)")
+    for i, claim in enumerate(pooled):
+        claim.replicate_verdicts = [claims[i].pooled_verdict for claims in scored]
+        for j, check in enumerate(claim.checks):
+            check.replicates = len(scored)
+            check.replicates_passed = sum(claims[i].checks[j].passed for claims in scored)
+    return pooled

@@ -15,10 +15,17 @@ from vdbejax.envs.solvers import best_return
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, owners, paper_settings
 from vdbejax.methods.learners import PAPER_ALPHA
-from vdbejax.paper.claims import ClaimResult, cap_message, evaluate_claims, render_report
+from vdbejax.paper.claims import ClaimResult, evaluate_claims
+from vdbejax.paper.report import cap_message, render_report
 from vdbejax.results import io
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, describe_os_error, unmark
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.replicates import (
+    REPLICATE_FILES,
+    annotate_replicates,
+    check_replicates,
+    replicate_count,
+)
 from vdbejax.results.stats import CurveStatistics
 from vdbejax.results.summary import SummaryRow
 from vdbejax.runs import RunOptions, prepare_grid
@@ -61,21 +68,27 @@ def write_outputs(
       statistics: the returns' statistics, if already computed (see
         :func:`vdbejax.studies.sweeps.write_outputs`).
 
+    With replicates (:mod:`vdbejax.results.replicates`) the claims are scored on the pooled
+    agents and on each replicate (:func:`~vdbejax.paper.claims.evaluate_claims`).
+
     Returns:
-      the summary rows (:class:`~vdbejax.results.summary.SummaryRow`) and the scored claims.
+      the summary rows (:class:`~vdbejax.results.summary.SummaryRow`; replicate 0's) and
+      the scored claims.
     """
     out = Path(out_dir)
-    summary = sweeps.write_outputs(result, out, best, bands=bands, figures=figures,
-                                   statistics=statistics)
+    summaries = sweeps.write_outputs(result, out, best, bands=bands, figures=figures,
+                                     statistics=statistics)
     if figures and result.meta.get("reading") == "authors":
         from vdbejax.results.plotting import figure3  # matplotlib only when plotting
 
         # Figure 3 as the first author's code draws it (np.convolve "full", from episode 20).
         io.save_figure(figure3(result, best_return=best, smoothing="authors"),
                        out / AUTHORS_FIGURE_FILE)
-    claims = evaluate_claims(summary, best)
+    several = replicate_count(result) > 1
+    claims = evaluate_claims(summaries.pooled, best,
+                             replicates=summaries.replicates if several else None)
     io.atomic_write_text(out / REPORT_FILE, render_report(claims, result.meta, best))
-    return summary, claims
+    return summaries.replicates[0], claims
 
 
 def is_paper_grid(result: GridResult) -> bool:
@@ -130,6 +143,7 @@ def reproduce(
     seeds: int = 20,
     episodes: int = 1000,
     seed: int = 0,
+    replicates: int = 5,
     max_steps: int | None = None,
     invalid_action: str = "noop",
     tie_break: str | None = None,
@@ -142,14 +156,16 @@ def reproduce(
     devices: int | None = None,
     figures: bool = True,
 ) -> Reproduction:
-    """Run the paper's 46 settings × ``seeds`` agents × ``episodes`` and write all outputs.
+    """Run the paper's 46 settings × ``replicates`` × ``seeds`` agents × ``episodes`` and
+    write all outputs.
 
     Writes into ``out_dir``: ``returns.npz``, ``configs.csv``, ``meta.json``,
     ``summary.csv``, ``fig3.png`` (with bootstrap bands), ``sensitivity.png``,
     ``report.md`` (and, for the authors' reading, ``fig3_authors.png``: Figure 3 smoothed
-    as their code plots it). A checkpoint (``checkpoint.npz`` and its episode log
-    ``checkpoint.npz.episodes``) is written after every chunk and removed once the
-    results are saved.
+    as their code plots it); with more than one replicate, ``summary_pooled.csv`` and
+    ``replicates.csv`` (:mod:`vdbejax.results.replicates`). A checkpoint
+    (``checkpoint.npz`` and its episode log ``checkpoint.npz.episodes``) is written after
+    every chunk and removed once the results are saved.
 
     Args:
       out_dir: output folder (created if needed).
@@ -159,9 +175,13 @@ def reproduce(
       details: the agent details to apply (names and values as in
         :data:`AUTHORS_DETAILS`; default: none for the textbook, all for the authors) —
         :mod:`vdbejax.paper.ablation` switches them one at a time.
-      seeds: agents per setting.
+      seeds: agents per setting and replicate (the paper's 20).
       episodes: episodes per agent.
       seed: root random seed.
+      replicates: independent groups of ``seeds`` agents (default 5): ``summary.csv`` and
+        the figures are the first's, the claims are scored on the pooled agents and on each
+        replicate, and the report's headline verdict says how stable each is
+        (:mod:`vdbejax.paper.claims`). ``replicates=1`` writes the files of a single run.
       max_steps: episode truncation length (textbook default 100; authors: the task's
         safety cap, 10,000).
       invalid_action: ``"noop"`` or ``"fail"`` (the textbook reading's option).
@@ -206,15 +226,17 @@ def reproduce(
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
     check_int("seeds", seeds, 1, INT32_MAX)  # named as the caller knows them
     check_int("episodes", episodes, 1, INT32_MAX)
+    check_replicates(replicates, seeds)
     check_bool("progress", progress)
     check_bool("figures", figures)
     run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
                      memory_budget_bytes=memory_budget_bytes, devices=devices)
-    prepared = prepare_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes, seed=seed,
-                            options=options, run=run)
+    prepared = prepare_grid(mdp, settings, num_seeds=seeds * replicates, num_episodes=episodes,
+                            seed=seed, options=options, run=run)
     best = best_return(mdp)
 
     def annotate(result: GridResult) -> None:
+        annotate_replicates(result.meta, replicates, seeds)
         if result.meta.get("nonfinite_message"):
             print(f"warning: {result.meta['nonfinite_message']}", file=sys.stderr)
         if capped and result.meta["truncated_episodes"]:
@@ -236,11 +258,12 @@ def reproduce(
         lambda result, stats: write_outputs(result, out_dir, best, figures=figures,
                                             statistics=stats),
         files=[*sweeps.RUN_FILES, REPORT_FILE, AUTHORS_FIGURE_FILE], annotate=annotate,
-        bands=figures)
+        bands=figures and replicates == 1)
     elapsed = time.perf_counter() - started
     out = Path(out_dir)
     if progress:
-        print(f"{len(result.settings)} settings × {seeds} agents × {episodes} episodes: "
+        agents = f"{replicates} × {seeds}" if replicates > 1 else f"{seeds}"
+        print(f"{len(result.settings)} settings × {agents} agents × {episodes} episodes: "
               f"training {result.meta['elapsed_seconds']:.1f} s, total {elapsed:.1f} s "
               f"→ {out}", file=sys.stderr)
     return Reproduction(result, summary, claims, best, out, elapsed)
@@ -296,8 +319,11 @@ def replot(
     except (OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, csv.Error) as error:
         raise ValueError(f"cannot read results in {str(results_dir)!r}: {error}") from None
     out = check_writable_dir("out", results_dir if out_dir is None else out_dir)
-    check_output_paths(out, [FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE, REPORT_FILE])
+    check_output_paths(out, [FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE, REPORT_FILE,
+                             *REPLICATE_FILES])
     written = [out / name for name in (FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE)]
+    if replicate_count(result) > 1:
+        written += [out / name for name in REPLICATE_FILES]
     paper = is_paper_grid(result)
     with FolderLock(out):
         try:

@@ -222,3 +222,20 @@ def curve_statistics(
         band_low=np.array(lows).reshape(-1, episodes) if bands else None,
         band_high=np.array(highs).reshape(-1, episodes) if bands else None,
     )
+
+
+def wilson_interval(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
+    """The Wilson score interval of a rate ``successes / trials`` (95 % for ``z = 1.96``):
+    unlike the normal approximation it stays inside [0, 1] and is not empty at 0 or n.
+
+    Raises:
+      ValueError: ``trials`` < 1 or ``successes`` outside 0 … ``trials``.
+    """
+    if trials < 1 or not 0 <= successes <= trials:
+        raise ValueError(f"successes={successes}, trials={trials}: need 0 ≤ successes ≤ trials"
+                         " and trials ≥ 1")
+    rate = successes / trials
+    centre = (rate + z * z / (2 * trials)) / (1 + z * z / trials)
+    half = (z / (1 + z * z / trials)) * np.sqrt(rate * (1 - rate) / trials
+                                                + z * z / (4 * trials * trials))
+    return max(0.0, float(centre - half)), min(1.0, float(centre + half))

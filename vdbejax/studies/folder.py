@@ -75,7 +75,7 @@ def train_in_folder(
       write: writes the outputs: ``write(result, statistics)`` with the returns'
         :class:`~vdbejax.results.stats.CurveStatistics` (``None`` with ``statistics=False``).
       files: the files the outputs write (none may be a folder: checked before training).
-      annotate: adds to the result's ``meta`` before it is saved.
+      annotate: adds to the result's ``meta`` before it is saved (a reused one's too).
       bands: compute Figure 3's bootstrap bands with the statistics.
       statistics: compute the statistics.
       name: the folder's parameter name in error messages.
@@ -100,8 +100,8 @@ def train_in_folder(
         result = saved_result(out, prepared.fingerprint) if prepared.run.resume else None
         if result is None:
             result = run_prepared(prepared.with_checkpoint(checkpoint))
-            if annotate is not None:
-                annotate(result)
+        if annotate is not None:  # a reused result too: 100 agents may now be 5 × 20
+            annotate(result)
         if not lock.held():
             raise ValueError(f"{name}={str(out)!r}: its lock file was deleted during the run, so"
                              f" another run may be writing there; {rescue(result)}")

@@ -3,13 +3,15 @@
 :func:`run_sweep` trains the product of :func:`~vdbejax.methods.agents.sweep` on a task
 and writes the same result folder as :func:`~vdbejax.reproduce` (minus the paper's
 claims report): ``returns.npz``, ``configs.csv``, ``meta.json``, ``summary.csv`` and,
-unless ``figures=False``, ``fig3.png`` and ``sensitivity.png``. ``vdbejax run`` is its
-command line; a sweep file (TOML or JSON) holds the same keys::
+unless ``figures=False``, ``fig3.png`` and ``sensitivity.png`` (with ``replicates``:
+``summary_pooled.csv`` and ``replicates.csv`` too, :mod:`vdbejax.results.replicates`).
+``vdbejax run`` is its command line; a sweep file (TOML or JSON) holds the same keys::
 
     task = "table_cleaning"          # or "cruz2018", "variant:4x2" (4 sections, 2 goblets)
     learners = ["qlearning", "sarsa"]
     explorers = ["vdbe", "ucb1"]
     seeds = 20
+    replicates = 1                   # independent groups of `seeds` agents
     episodes = 1000
     plugins = ["examples/custom_explorer.py"]   # files or modules that register plug-ins
 
@@ -36,8 +38,18 @@ from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import sweep
 from vdbejax.results import io
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.replicates import (
+    REPLICATE_FILES,
+    ReplicateSummaries,
+    annotate_replicates,
+    check_replicates,
+    replicate,
+    replicate_count,
+    summarize_replicates,
+    write_replicates,
+)
 from vdbejax.results.stats import CurveStatistics
-from vdbejax.results.summary import SummaryRow, write_summary
+from vdbejax.results.summary import write_summary
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.studies import train_in_folder
 from vdbejax.validation import INT32_MAX, check_bool, check_int
@@ -47,7 +59,7 @@ FIGURE_FILE = "fig3.png"
 SENSITIVITY_FILE = "sensitivity.png"
 #: Keys a sweep file may hold.
 SWEEP_KEYS = ("task", "learners", "explorers", "axes", "shared", "seeds", "episodes", "seed",
-              "max_steps", "invalid_action", "chunk_episodes", "plugins")
+              "max_steps", "invalid_action", "chunk_episodes", "plugins", "replicates")
 
 
 def make_task(task: str, *, max_steps: int | None = None,
@@ -124,14 +136,16 @@ def read_sweep_file(path: str | os.PathLike) -> dict[str, Any]:
 
 #: Files a run writes into its folder (checked before training: none may be a folder).
 RUN_FILES = [io.RETURNS_FILE, io.CONFIGS_FILE, io.META_FILE, SUMMARY_FILE, FIGURE_FILE,
-             SENSITIVITY_FILE]
+             SENSITIVITY_FILE, *REPLICATE_FILES]
 
 
 def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | None,
                   bands: bool = True, figures: bool = True,
-                  statistics: CurveStatistics | None = None) -> list[SummaryRow]:
+                  statistics: CurveStatistics | None = None) -> ReplicateSummaries:
     """Write ``summary.csv`` and (unless ``figures=False``) ``fig3.png`` and
-    ``sensitivity.png`` for a grid of any kinds.
+    ``sensitivity.png`` for a grid of any kinds; with replicates, these are replicate 0's
+    and ``summary_pooled.csv`` and ``replicates.csv`` come beside them
+    (:mod:`vdbejax.results.replicates`).
 
     Args:
       result: the grid.
@@ -139,30 +153,42 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
       best: the task's best return (reference lines), if known.
       bands: Figure 3 with 95% bootstrap bands over agents.
       figures: draw the figures.
-      statistics: :func:`~vdbejax.results.stats.curve_statistics` of the returns, if already
-        computed (with bands when ``figures and bands``).
+      statistics: :func:`~vdbejax.results.stats.curve_statistics` of the returns (all
+        agents), if already computed (with bands when ``figures and bands`` and the
+        result has one replicate).
 
     Returns:
-      the summary rows (:class:`~vdbejax.results.summary.SummaryRow`).
+      the summary rows (:class:`~vdbejax.results.replicates.ReplicateSummaries`: pooled
+      and per replicate; one replicate: both are ``summary.csv``'s rows).
     """
     from vdbejax.results.analysis import summarize, summary_columns
     from vdbejax.results.stats import curve_statistics
 
     out = Path(out_dir)
+    count = replicate_count(result)
+    first = result if count == 1 else replicate(result, 0)
     # One pass over the returns serves the summary and Figure 3's curves and bands.
-    if statistics is None:
-        statistics = curve_statistics(result.returns, bands=figures and bands)
-    summary = summarize(result, statistics=statistics)
-    write_summary(out / SUMMARY_FILE, summary, summary_columns(result))
+    first_statistics = statistics if count == 1 else None
+    if first_statistics is None:
+        first_statistics = curve_statistics(first.returns, bands=figures and bands)
+    summary = summarize(first, statistics=first_statistics)
+    columns = summary_columns(first)
+    write_summary(out / SUMMARY_FILE, summary, columns)
     if figures:
         from vdbejax.results.plotting import figure3, sensitivity  # matplotlib only when plotting
 
-        io.save_figure(figure3(result, best_return=best, bands=bands, statistics=statistics),
-                       out / FIGURE_FILE)
+        io.save_figure(figure3(first, best_return=best, bands=bands,
+                               statistics=first_statistics), out / FIGURE_FILE)
         names = {s.explorer: s.parameter for s in result.settings}
         io.save_figure(sensitivity(summary, best_return=best, parameter_names=names),
                        out / SENSITIVITY_FILE)
-    return summary
+    if count == 1:
+        for name in REPLICATE_FILES:  # an earlier run's with replicates would go stale
+            (out / name).unlink(missing_ok=True)
+        return ReplicateSummaries(summary, [summary])
+    summaries = summarize_replicates(result, summary, statistics)
+    write_replicates(out, summaries, columns)
+    return summaries
 
 
 def run_sweep(
@@ -176,6 +202,7 @@ def run_sweep(
     seeds: int = 20,
     episodes: int = 1000,
     seed: int = 0,
+    replicates: int = 1,
     max_steps: int | None = None,
     invalid_action: str = "noop",
     chunk_episodes: int = 100,
@@ -195,9 +222,12 @@ def run_sweep(
       axes: ``{hyperparameter: values}`` (see :func:`~vdbejax.methods.agents.sweep`).
       shared: ``{hyperparameter: value}`` for every setting that has the field.
       task: ``table_cleaning``, ``cruz2018`` or ``variant:NxK`` (:func:`make_task`).
-      seeds: agents per setting.
+      seeds: agents per setting (per replicate).
       episodes: episodes per agent.
       seed: root seed.
+      replicates: independent groups of ``seeds`` agents (:mod:`vdbejax.results.replicates`):
+        ``summary.csv`` and the figures are the first's; with more than one,
+        ``summary_pooled.csv`` and ``replicates.csv`` come beside them.
       max_steps: episode truncation length (default: the task's, :func:`make_task`).
       invalid_action: ``noop`` or ``fail``.
       chunk_episodes: episodes per jitted chunk.
@@ -224,15 +254,17 @@ def run_sweep(
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
     check_int("seeds", seeds, 1, INT32_MAX)
     check_int("episodes", episodes, 1, INT32_MAX)
+    check_replicates(replicates, seeds)
     check_bool("progress", progress)
     check_bool("figures", figures)
     run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
                      memory_budget_bytes=memory_budget_bytes, devices=devices)
-    prepared = prepare_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes, seed=seed,
-                            run=run)
+    prepared = prepare_grid(mdp, settings, num_seeds=seeds * replicates, num_episodes=episodes,
+                            seed=seed, run=run)
     best = best_return(mdp)
 
     def annotate(result: GridResult) -> None:
+        annotate_replicates(result.meta, replicates, seeds)
         result.meta.update(best_return=best, invalid_action=invalid_action, task=task,
                            sweep={"learners": list(learners), "explorers": list(explorers),
                                   "axes": {k: list(v) for k, v in (axes or {}).items()},
@@ -242,5 +274,5 @@ def run_sweep(
         out_dir, prepared,
         lambda result, stats: write_outputs(result, out_dir, best, figures=figures,
                                             statistics=stats),
-        files=RUN_FILES, annotate=annotate, bands=figures)
+        files=RUN_FILES, annotate=annotate, bands=figures and replicates == 1)
     return result

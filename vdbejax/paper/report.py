@@ -1,0 +1,129 @@
+"""``report.md``: the scored claims (:mod:`vdbejax.paper.claims`) as a document.
+
+One run's report lists each claim's verdict and checks. A run with replicates
+(:mod:`vdbejax.results.replicates`) also states the headline rule, gives each claim's
+pooled verdict and how many replicates agree with it, each check's "k of R replicates",
+and names every check and claim whose outcome flips between replicates.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from vdbejax.paper.claims import ABOUT, NEAR, STABLE, TIE, ClaimResult, stable_count
+
+
+def cap_message(meta: dict[str, Any]) -> str:
+    """One line on the episodes cut at a task's safety cap (a task without step limit)."""
+    cut, agents = meta.get("truncated_episodes", 0), meta.get("agents_truncated", 0)
+    return (f"{cut:,} episodes of {agents} agents ran into the safety cap of"
+            f" {meta.get('max_steps', '?'):,} steps and were cut there (the published code would"
+            f" never have finished them); longest episode"
+            f" {meta.get('longest_episode', '?'):,} steps")
+
+
+def headline_rule(replicates: int) -> str:
+    """The rule that turns the pooled and the replicates' verdicts into the headline."""
+    need = stable_count(replicates)
+    return (f"a claim's headline verdict is its pooled verdict when at least {need} of the"
+            f" {replicates} replicates ({STABLE:.0%}) give the same verdict, otherwise"
+            " **unstable**")
+
+
+def _flips(claims: Sequence[ClaimResult]) -> list[str]:
+    """One item per claim whose verdict or some check differs between replicates."""
+    lines = []
+    for c in claims:
+        flipping = [(j, k) for j, k in enumerate(c.checks, 1) if k.flips]
+        verdicts = dict.fromkeys(c.replicate_verdicts)
+        if len(verdicts) == 1 and not flipping:
+            continue
+        lines.append(f"- Claim {c.number}: " + (
+            "its verdict flips: " + ", ".join(f"{v} in {c.replicate_verdicts.count(v)}"
+                                              for v in verdicts) if len(verdicts) > 1 else
+            f"its verdict is {c.pooled_verdict} in every replicate") + ".")
+        lines += [f"  - check {j} holds in {k.replicates_passed} of {k.replicates}:"
+                  f" {k.description}" for j, k in flipping]
+    return lines
+
+
+def _summary_table(claims: Sequence[ClaimResult], replicates: int) -> list[str]:
+    if not replicates:
+        lines = ["| # | verdict | checks passed |", "| --- | --- | --- |"]
+        return lines + [f"| {c.number} | **{c.verdict}** |"
+                        f" {sum(k.passed for k in c.checks)}/{len(c.checks)} |" for c in claims]
+    lines = ["| # | headline | pooled | checks passed (pooled) | replicates agreeing |"
+             " replicates' verdicts |", "| --- | --- | --- | --- | --- | --- |"]
+    for c in claims:
+        counts = ", ".join(f"{c.replicate_verdicts.count(v)} {v}"
+                           for v in dict.fromkeys(c.replicate_verdicts))
+        lines.append(f"| {c.number} | **{c.verdict}** | {c.pooled_verdict} |"
+                     f" {sum(k.passed for k in c.checks)}/{len(c.checks)} |"
+                     f" {c.agreeing} of {replicates} | {counts} |")
+    return lines
+
+
+def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_return: float) -> str:
+    """``report.md``: each claim with the paper's and our numbers, checks and verdict.
+
+    Args:
+      claims: the scored claims (:func:`~vdbejax.paper.claims.evaluate_claims`).
+      meta: the run's metadata (task, run size, seed, options; missing keys print ``?``;
+        ``replicates`` and ``agents_per_replicate`` for a run with replicates).
+      best_return: the task's best possible return.
+
+    Returns:
+      markdown text.
+    """
+    replicates = max((len(c.replicate_verdicts) for c in claims), default=0)
+    if replicates:
+        per = meta.get("agents_per_replicate", "?")
+        agents = (f"{replicates} replicates × {per} agents (pooled"
+                  f" {meta.get('num_seeds', '?')})")
+    else:
+        agents = f"{meta.get('num_seeds', '?')} agents"
+    lines = [
+        "# Reproduction report: Cruz et al. (2018), claim by claim",
+        "",
+        f"Task `{meta.get('mdp', '?')}`, {agents} × "
+        f"{meta.get('num_episodes', '?')} episodes per setting, root seed {meta.get('seed', '?')}, "
+        f"options {meta.get('options', {})}, max_steps {meta.get('max_steps', '?')}. "
+        f"Best possible return (exact solver): {best_return:.4f}.",
+        "",
+        f"Final return = mean over the last 100 episodes and all agents; \"near\" = within {NEAR} "
+        "of the best return; convergence episode = first episode at which the 20-episode moving "
+        f"average reaches 95% of its final level; a figure the paper gives as \"about\" a value "
+        f"must lie within ±{ABOUT:.0%} of it; returns within {TIE} are tied; settings are "
+        "ranked by the IQM of their agents' final returns, an explorer's best setting being "
+        f"the first to converge among those within {TIE} of the highest IQM.",
+        "",
+    ]
+    if meta.get("step_cap"):
+        by_config = meta.get("truncated_episodes_by_config") or []
+        labels = meta.get("config_labels") or []
+        where = [f"{labels[c] if c < len(labels) else f'config {c}'} ({n:,})"
+                 for c, n in enumerate(by_config) if n]
+        lines += [f"**Safety cap.** The task has no step limit: {cap_message(meta)}"
+                  + (f". Per setting: {'; '.join(where)}." if where else "."), ""]
+    if replicates:
+        flips = _flips(claims)
+        lines += [f"**Replicates.** Every claim is scored on the pooled agents and on each of"
+                  f" the {replicates} replicates (agents {per}·r … {per}·r + {per} − 1 of each"
+                  f" setting, r = 0 … {replicates - 1}; `summary.csv` and the figures are"
+                  f" replicate 0's, `summary_pooled.csv` the pooled agents'); "
+                  f"{headline_rule(replicates)}.", ""]
+        lines += (["**Flips between replicates.**", "", *flips, ""] if flips else
+                  ["**Flips between replicates.** None: every check holds in all replicates"
+                   " or in none.", ""])
+    lines += _summary_table(claims, replicates)
+    for c in claims:
+        title = c.verdict if not replicates else (
+            f"{c.verdict} (pooled {c.pooled_verdict}; {c.agreeing} of {replicates} replicates"
+            " agree)")
+        lines += ["", f"## Claim {c.number}: {title}", "", f"> {c.claim}", "",
+                  f"- Paper: {c.paper}", f"- Measured: {c.measured}", "- Checks:"]
+        lines += [f"  - [{'x' if k.passed else ' '}] {k.description}"
+                  + ("" if k.replicates is None else
+                     f" — holds in {k.replicates_passed} of {k.replicates} replicates")
+                  for k in c.checks]
+    return "\n".join(lines) + "\n"
