@@ -1,5 +1,7 @@
 """`vdbejax ablate` with tiny settings: per-variant outputs, the claims × variants table,
 reuse of saved results, and one-line errors."""
+import json
+
 import pytest
 
 from vdbejax import cli
@@ -42,14 +44,17 @@ def test_document(ablated):
     assert text.rstrip().endswith("Hand-written text.")
     assert "5 replicates × 2 agents (pooled 10) × 12 episodes" in text  # the default 5
     assert "agree" in text and "unstable" in text  # the cells' legend states the rule
+    assert "## Convergence episodes per method family" in text
+    assert "## Agents caught in a loop" not in text  # the textbook task has a step limit
 
 
 def test_reuse_saved_results(ablated):
     out, raw, _ = ablated
-    before = (raw / "spec" / "returns.npz").stat().st_mtime_ns
+    before = json.loads((raw / "spec" / "meta.json").read_text())
     results = ablation.ablate(out, results_dir=raw, variants=ablation.select_variants("spec"),
                               seeds=2, episodes=12, progress=False)
-    assert (raw / "spec" / "returns.npz").stat().st_mtime_ns == before  # not retrained
+    after = json.loads((raw / "spec" / "meta.json").read_text())
+    assert after["elapsed_seconds"] == before["elapsed_seconds"]  # reused, not retrained
     table = ablation.claims_table(results)
     assert [row["claim"] for row in table] == [1, 2, 3, 4, 5, 6]
     assert all(row["spec"] in ("reproduced", "partly", "not reproduced", "unstable")
@@ -169,3 +174,26 @@ def test_a_variant_left_half_written_by_a_killed_run_is_continued(tmp_path):
         assert not (folder / MARKER_FILE).exists(), damage
         assert [c.verdict for c in again.claims] == [c.verdict for c in first.claims]
         assert (GridResult.load(folder).returns == whole.returns).all(), damage
+
+
+def test_loop_table_gives_each_looping_setting_its_rate_and_interval(tmp_path):
+    import dataclasses
+
+    from vdbejax.paper.ablation_document import _loop_table
+    from vdbejax.results import io
+    from vdbejax.results.stats import wilson_interval
+    from vdbejax.results.summary import SummaryRow
+
+    io.save_json(tmp_path / "meta.json", {"num_seeds": 100})
+    row = SummaryRow(config=0, learner="sarsa", explorer="softmax", param=0.0001,
+                     final_return=-3.0, final_ci_low=-5.0, final_ci_high=0.8,
+                     convergence_episode=5, truncated_fraction=0.1, mean_length=900.0,
+                     nonfinite_agents=0, episodes_cut=800, agents_cut=11)
+    quiet = dataclasses.replace(row, config=1, param=0.001, agents_cut=0)
+    result = ablation.VariantResult(ablation.VARIANTS[1], [row, quiet], [], 0.86, tmp_path)
+    low, high = wilson_interval(11, 100)
+    lines = _loop_table([result])
+    assert f"| `authors` | SARSA softmax 0.0001 | 11/100 | 11.0% [{low:.1%}, {high:.1%}] |" in lines
+    assert not any("0.001 |" in line for line in lines)
+    assert _loop_table([dataclasses.replace(result, summary=[
+        dataclasses.replace(row, agents_cut=None, episodes_cut=None)])]) == []

@@ -181,3 +181,15 @@ def test_bootstrap_weights_are_shared_and_read_only():
     assert w is stats.bootstrap_weights(7, 30, seed=2)
     with pytest.raises(ValueError):
         w[0, 0] = 1.0
+
+
+def test_wilson_interval():
+    from vdbejax.results.stats import wilson_interval
+
+    # Textbook values (Wilson 1927; e.g. Brown, Cai & DasGupta 2001): 5/10 and 0/10.
+    assert wilson_interval(5, 10) == pytest.approx((0.2366, 0.7634), abs=1e-4)
+    low, high = wilson_interval(0, 10)
+    assert low == 0.0 and high == pytest.approx(0.2775, abs=1e-4)
+    assert wilson_interval(10, 10)[1] == 1.0
+    with pytest.raises(ValueError, match="successes=11, trials=10"):
+        wilson_interval(11, 10)

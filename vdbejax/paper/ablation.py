@@ -52,7 +52,6 @@ from vdbejax.paper.reproduce import (  # noqa: F401  (AUTHORS_DETAILS: re-export
     write_outputs,
 )
 from vdbejax.results import io
-from vdbejax.results.grid_result import GridResult
 from vdbejax.results.replicates import REPLICATE_FILES, check_replicates
 from vdbejax.runs import RunOptions
 from vdbejax.validation import check_writable_dir
@@ -102,26 +101,18 @@ def run_variant(
     run = RunOptions() if run is None else run
     folder = Path(results_dir)
     meta_file = folder / io.META_FILE
-    result = None
     try:
         saved = io.load_json(meta_file) if reuse and meta_file.exists() else None
     except (OSError, ValueError):  # unreadable: not a result to reuse
         saved = None
     if isinstance(saved, dict) and _matches(saved, variant, seeds, episodes, seed, replicates):
-        try:
-            result = GridResult.load(folder)
-        except ValueError:  # half-written (a killed run): continue it below
-            run = run.replace(resume=True)
-    if result is not None:
-        best = saved_best_return(result)
-        summary, claims = write_outputs(result, folder, best)
-    else:
-        rep = reproduce(folder, seeds=seeds, episodes=episodes, seed=seed,
-                        replicates=replicates, progress=progress,
-                        resume=run.resume, devices=run.devices,
-                        memory_budget_bytes=run.memory_budget_bytes, **variant.options())
-        summary, claims, best = rep.summary, rep.claims, rep.best_return
-    return VariantResult(variant, summary, claims, best, folder)
+        # Reused (or, half-written by a killed run, continued) through reproduce, whose
+        # fingerprint check retrains a result of other code and which annotates it afresh.
+        run = run.replace(resume=True)
+    rep = reproduce(folder, seeds=seeds, episodes=episodes, seed=seed, replicates=replicates,
+                    progress=progress, resume=run.resume, devices=run.devices,
+                    memory_budget_bytes=run.memory_budget_bytes, **variant.options())
+    return VariantResult(variant, rep.summary, rep.claims, rep.best_return, folder)
 
 
 #: Files of a variant's folder copied next to the document (small; no raw arrays).

@@ -214,7 +214,7 @@ def reproduce(
             raise ValueError(f"invalid_action={invalid_action!r} is invalid with reading="
                              "'authors': the published table decides every action's effect")
         mdp = make_authors_mdp(STEP_CAP if max_steps is None else max_steps)
-        capped = max_steps is None
+        capped = True  # the published task has no step limit: any max_steps is a cap
     else:
         mdp = make_mdp(max_steps=100 if max_steps is None else max_steps,
                        invalid_action=invalid_action)
