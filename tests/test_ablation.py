@@ -192,8 +192,8 @@ def test_loop_table_gives_each_looping_setting_its_rate_and_interval(tmp_path):
     quiet = dataclasses.replace(row, config=1, param=0.001, agents_cut=0)
     result = ablation.VariantResult(ablation.VARIANTS[1], [row, quiet], [], 0.86, tmp_path)
     low, high = wilson_interval(11, 100)
-    lines = _loop_table([result])
+    lines = _loop_table([result], [result.summary])
     assert f"| `authors` | SARSA softmax 0.0001 | 11/100 | 11.0% [{low:.1%}, {high:.1%}] |" in lines
     assert not any("0.001 |" in line for line in lines)
-    assert _loop_table([dataclasses.replace(result, summary=[
-        dataclasses.replace(row, agents_cut=None, episodes_cut=None)])]) == []
+    assert _loop_table([result], [[dataclasses.replace(row, agents_cut=None,
+                                                       episodes_cut=None)]]) == []

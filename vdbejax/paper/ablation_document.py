@@ -94,11 +94,11 @@ def render_document(
     lines += ["", "Claims fully reproduced per variant: " + ", ".join(
         f"`{name}` {count}/{len(first.claims)}" for name, count in reproduced.items())
         + ". Most: " + ", ".join(f"`{n}`" for n, c in reproduced.items() if c == top) + "."]
+    count = len(first.claims[0].replicate_verdicts) if first.claims else 0
     legend = ("headline verdict (checks passed on the pooled agents / checks; replicates"
               " whose verdict is the pooled one / replicates: the headline is the pooled"
-              f" verdict when at least {stable_count(5)} of 5 agree, else unstable)"
-              if first.claims and first.claims[0].replicate_verdicts else
-              "verdict (checks passed / checks)")
+              f" verdict when at least {stable_count(count)} of {count} agree, else unstable)"
+              if count else "verdict (checks passed / checks)")
     lines += ["", f"Cells: {legend}. The claims:", ""]
     for c in first.claims:
         lines.append(f"{c.number}. {c.claim}")
@@ -124,9 +124,11 @@ def render_document(
     header = (["variant"] + [f"{LEARNER_NAMES[lr]} {e}" for lr in LEARNER_NAMES for e in EXPLORERS]
               + ["SARSA+VDBE truncated"])
     lines += ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
-    for r in results:
+    # Read once: the key numbers, convergence and loop tables all use the pooled agents.
+    pooled = [_pooled_rows(r) for r in results]
+    for r, rows in zip(results, pooled, strict=True):
         near = r.best_return - NEAR
-        table = ClaimTable(_pooled_rows(r))
+        table = ClaimTable(rows)
         cells = [f"`{r.variant.name}`"]
         for learner in LEARNER_NAMES:
             for explorer in EXPLORERS:
@@ -143,7 +145,7 @@ def render_document(
         cells.append(f"{sum(stuck) / len(stuck):.2f}" if stuck else "—")
         lines.append("| " + " | ".join(cells) + " |")
 
-    lines += _convergence_table(results) + _loop_table(results)
+    lines += _convergence_table(results, pooled) + _loop_table(results, pooled)
     lines += ["", "## Figures" if figures else "## Per variant", ""]
     for r in results:
         lines += [f"### `{r.variant.name}`: {r.variant.description}", "",
@@ -163,17 +165,18 @@ def render_document(
     return "\n".join(lines) + "\n"
 
 
-def _convergence_table(results: Sequence[VariantResult]) -> list[str]:
+def _convergence_table(results: Sequence[VariantResult],
+                       pooled: Sequence[list[SummaryRow]]) -> list[str]:
     """Convergence episodes per method family: the range over each learner × explorer's
-    settings that end near the best return (pooled agents)."""
+    settings that end near the best return (``pooled``: each variant's pooled rows)."""
     header = ["variant"] + [f"{LEARNER_NAMES[lr]} {e}" for lr in LEARNER_NAMES for e in EXPLORERS]
     lines = ["", "## Convergence episodes per method family", "",
              "Per learner × explorer: the lowest and highest convergence episode of its"
              " settings that end near the best return (pooled agents; in brackets how many"
              " settings that is); — none ends near it.", "",
              "| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
-    for r in results:
-        table = ClaimTable(_pooled_rows(r), r.best_return)
+    for r, rows in zip(results, pooled, strict=True):
+        table = ClaimTable(rows, r.best_return)
         cells = [f"`{r.variant.name}`"]
         for learner in LEARNER_NAMES:
             for explorer in EXPLORERS:
@@ -184,11 +187,13 @@ def _convergence_table(results: Sequence[VariantResult]) -> list[str]:
     return lines
 
 
-def _loop_table(results: Sequence[VariantResult]) -> list[str]:
+def _loop_table(results: Sequence[VariantResult],
+                pooled: Sequence[list[SummaryRow]]) -> list[str]:
     """Agents that ran into a task's safety cap (a loop), per setting where any did, with
-    the rate's 95 % Wilson interval: variants on a task without step limit only."""
-    capped = [(r, _pooled_rows(r)) for r in results]
-    capped = [(r, rows) for r, rows in capped if rows and rows[0].agents_cut is not None]
+    the rate's 95 % Wilson interval (``pooled``: each variant's pooled rows): variants on a
+    task without step limit only."""
+    capped = [(r, rows) for r, rows in zip(results, pooled, strict=True)
+              if rows and rows[0].agents_cut is not None]
     if not capped:
         return []
     lines = ["", "## Agents caught in a loop", "",
