@@ -24,9 +24,11 @@ from vdbejax.cli.study_commands import (
     add_bench,
     add_run,
     add_scale,
+    add_sweep_file,
     bench_command,
     run_command,
     scale_command,
+    sweep_file_command,
 )
 
 #: ``vdbejax --help``'s description (plain text: argparse prints it as is).
@@ -37,6 +39,7 @@ DESCRIPTION = ("Exploration strategies in tabular RL: 'vdbejax reproduce --out D
 COMMANDS = {
     "reproduce": (add_reproduce, reproduce_command),
     "run": (add_run, run_command),
+    "sweep-file": (add_sweep_file, sweep_file_command),
     "plot": (add_plot, plot_command),
     "ablate": (add_ablate, ablate_command),
     "scale": (add_scale, scale_command),

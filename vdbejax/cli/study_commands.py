@@ -16,16 +16,26 @@ def add_run(sub: argparse._SubParsersAction) -> None:
         description="Flags override the sweep file's keys (vdbejax.studies.sweeps lists them).")
     number = parse_cli_number
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--config", default=None, help="sweep file, TOML (.toml) or JSON")
+    p.add_argument("--config", default=None,
+                   help="sweep file, TOML (.toml) or JSON (docs/sweeps.md), or a finished"
+                        " run's folder (trains its sweep again)")
     p.add_argument("--task", default=None,
-                   help="table_cleaning (default), cruz2018 (the authors' published table) or"
-                        " variant:NxK (N sections, K goblets)")
+                   help="a task name: table_cleaning (default), cruz2018 (the authors'"
+                        " published table), variant:NxK, riverswim, chain:N, deepsea:N, …"
+                        " (vdbejax.envs.suite.NAMES), gym:<id>, module:function or"
+                        " file.py:function (returns a TabularMDP)")
     p.add_argument("--learners", default=None, help="comma-separated, e.g. qlearning,sarsa")
     p.add_argument("--explorers", default=None, help="comma-separated, e.g. vdbe,ucb1")
     p.add_argument("--axis", action="append", default=[], metavar="NAME=V1,V2,...",
                    help="a sweep axis, e.g. --axis alpha=0.1,0.3,0.8 (repeatable)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="a value shared by every setting that has it, e.g. --set gamma=0.95")
+    p.add_argument("--exclude", action="append", default=[], metavar="NAME=V,NAME=V,...",
+                   help="leave out the settings of the product that match every NAME=V, e.g."
+                        " --exclude learner=sarsa,alpha=0.8 (repeatable)")
+    p.add_argument("--setting", action="append", default=[],
+                   metavar="learner=L,explorer=E,NAME=V,...",
+                   help="an explicit setting, run after the product (repeatable)")
     p.add_argument("--plugin", action="append", default=[], metavar="FILE_OR_MODULE",
                    help="import this file or module first (it registers plug-ins)")
     p.add_argument("--seeds", type=number, default=None, help="agents per setting (default 20)")
@@ -63,8 +73,18 @@ def _value(text: str) -> object:
     return parse_cli_number(text)
 
 
+def _table(text: str, flag: str) -> dict[str, object]:
+    """``learner=sarsa,alpha=0.8`` as ``{"learner": "sarsa", "alpha": 0.8}``."""
+    pairs = _pairs([part for part in text.split(",") if part], flag)
+    if not pairs:
+        raise ValueError(f"{flag}={text!r} is invalid: must be NAME=VALUE,NAME=VALUE,...")
+    return {name: value if name in ("learner", "explorer") else _value(value)
+            for name, value in pairs}
+
+
 def run_command(args: argparse.Namespace) -> None:
-    from vdbejax.studies.sweeps import read_sweep_file, run_sweep
+    from vdbejax.studies.sweep_file import read_sweep_file
+    from vdbejax.studies.sweeps import run_sweep
 
     spec = read_sweep_file(args.config) if args.config else {}
     for key in ("task", "seeds", "replicates", "episodes", "seed", "max_steps",
@@ -85,9 +105,14 @@ def run_command(args: argparse.Namespace) -> None:
                          " the sweep file's [axes] and [shared]): give it once")
     spec["axes"], spec["shared"] = axes, shared
     spec["plugins"] = list(spec.get("plugins", [])) + args.plugin
+    spec["exclude"] = list(spec.get("exclude", [])) + [_table(t, "--exclude")
+                                                       for t in args.exclude]
+    spec["settings"] = list(spec.get("settings", [])) + [_table(t, "--setting")
+                                                         for t in args.setting]
     for key in ("learners", "explorers"):
-        if key not in spec:
-            raise ValueError(f"{key} is missing: give --{key} or a sweep file with {key} = [...]")
+        if key not in spec and not spec["settings"]:
+            raise ValueError(f"{key} is missing: give --{key} or a sweep file with {key} = [...]"
+                             " (or explicit settings: --setting, settings = [...])")
     result = run_sweep(args.out, progress=not args.quiet, figures=not args.no_figures,
                        **run_flags(args), **spec)
     from vdbejax.results.summary import read_summary
@@ -101,6 +126,30 @@ def run_command(args: argparse.Namespace) -> None:
     print(f"training {result.meta['elapsed_seconds']:.1f} s → {args.out}")
     if args.long_csv:
         print(write_long_csv(result, args.out))
+
+
+def add_sweep_file(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "sweep-file", help="write the sweep file that trains a finished run again",
+        description="From RESULTS/meta.json (a vdbejax run folder): 'vdbejax run --config FILE"
+                    " --out NEW' then gives the same results.")
+    p.add_argument("--results", required=True, help="a folder written by vdbejax run")
+    p.add_argument("--out", default=None, help="the sweep file to write, *.json (default:"
+                                               " print it)")
+
+
+def sweep_file_command(args: argparse.Namespace) -> None:
+    import json
+
+    from vdbejax.studies.sweep_file import read_sweep_file, write_sweep_file
+
+    if not Path(args.results).is_dir():
+        raise ValueError(f"results={args.results!r} is invalid: must be a result folder")
+    spec = read_sweep_file(args.results)
+    if args.out is None:
+        print(json.dumps(spec, indent=2))
+    else:
+        print(write_sweep_file(spec, args.out))
 
 
 def add_scale(sub: argparse._SubParsersAction) -> None:

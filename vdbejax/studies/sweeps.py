@@ -1,41 +1,21 @@
 """Any sweep, from Python or a file: learners × explorers × hyperparameter axes on a task.
 
-:func:`run_sweep` trains the product of :func:`~vdbejax.methods.agents.sweep` on a task
-and writes the same result folder as :func:`~vdbejax.reproduce` (minus the paper's
-claims report): ``returns.npz``, ``configs.csv``, ``meta.json``, ``summary.csv`` and,
-unless ``figures=False``, ``fig3.png`` and ``sensitivity.png`` (with ``replicates``:
+:func:`run_sweep` trains a sweep (:func:`~vdbejax.studies.sweep_file.sweep_settings`: the
+product of the axes less its exclusions, then explicit settings) on a task and writes the
+same result folder as :func:`~vdbejax.reproduce` (minus the paper's claims report):
+``returns.npz``, ``configs.csv``, ``meta.json``, ``summary.csv`` and, unless
+``figures=False``, ``fig3.png`` and ``sensitivity.png`` (with ``replicates``:
 ``summary_pooled.csv`` and ``replicates.csv`` too, :mod:`vdbejax.results.replicates`).
-``vdbejax run`` is its command line; a sweep file (TOML or JSON) holds the same keys::
-
-    task = "table_cleaning"          # or "cruz2018", "variant:4x2" (4 sections, 2 goblets)
-    learners = ["qlearning", "sarsa"]
-    explorers = ["vdbe", "ucb1"]
-    seeds = 20
-    replicates = 1                   # independent groups of `seeds` agents
-    episodes = 1000
-    plugins = ["examples/custom_explorer.py"]   # files or modules that register plug-ins
-
-    [axes]
-    alpha = [0.1, 0.3, 0.8]
-    sigma = [0.01, 1, 100]
-
-    [shared]
-    gamma = 0.9
+``vdbejax run`` is its command line; a sweep file (TOML or JSON) holds the same keys
+(:mod:`vdbejax.studies.sweep_file`).
 """
 from __future__ import annotations
 
-import importlib
-import importlib.util
-import json
 import os
-import sys
-import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from vdbejax.envs.tabular import TabularMDP
-from vdbejax.methods.agents import sweep
 from vdbejax.results import io
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.replicates import (
@@ -52,86 +32,20 @@ from vdbejax.results.stats import CurveStatistics
 from vdbejax.results.summary import write_summary
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.studies import train_in_folder
+from vdbejax.studies.sweep_file import (  # noqa: F401 (the sweep file's names, here since 0.1)
+    SWEEP_KEYS,
+    absolute_plugins,
+    absolute_task,
+    load_plugins,
+    make_task,
+    read_sweep_file,
+    sweep_settings,
+)
 from vdbejax.validation import INT32_MAX, check_bool, check_int
 
 SUMMARY_FILE = "summary.csv"
 FIGURE_FILE = "fig3.png"
 SENSITIVITY_FILE = "sensitivity.png"
-#: Keys a sweep file may hold.
-SWEEP_KEYS = ("task", "learners", "explorers", "axes", "shared", "seeds", "episodes", "seed",
-              "max_steps", "invalid_action", "chunk_episodes", "plugins", "replicates")
-
-
-def make_task(task: str, *, max_steps: int | None = None,
-              invalid_action: str = "noop") -> TabularMDP:
-    """A task by name: any of the task suite (:func:`vdbejax.envs.suite.make_suite_task`):
-    ``table_cleaning`` (the paper's text), ``cruz2018`` (the first author's published
-    table), ``variant:NxK`` (N sections, K goblets), ``riverswim``, ``sixarms``,
-    ``chain:N``, ``deepsea:N``, ``windy_gridworld``, ``cliff_walking``, ``frozenlake4``, …
-
-    Args:
-      task: the name.
-      max_steps: truncation length (default: the task's horizon; the table-cleaning
-        tasks: 100; ``cruz2018``: its safety cap).
-      invalid_action: ``noop`` or ``fail`` (the table-cleaning tasks of the paper's text).
-
-    Raises:
-      ValueError: an unknown name or a bad option, in one line naming ``task``.
-    """
-    from vdbejax.envs.suite import make_suite_task
-
-    try:
-        return make_suite_task(task, max_steps=max_steps, invalid_action=invalid_action)
-    except ValueError as error:
-        raise ValueError(str(error).replace(f"name={task!r}", f"task={task!r}", 1)) from None
-
-
-def load_plugins(plugins: Sequence[str]) -> None:
-    """Import files (``path/to/file.py``) or modules that register plug-ins.
-
-    Raises:
-      ValueError: a file or module that cannot be imported.
-    """
-    for plugin in plugins:
-        try:
-            if str(plugin).endswith(".py"):
-                path = Path(plugin)
-                spec = importlib.util.spec_from_file_location(f"vdbejax_plugin_{path.stem}", path)
-                if spec is None or not path.is_file():
-                    raise FileNotFoundError(f"no file {str(path)!r}")
-                module = importlib.util.module_from_spec(spec)
-                sys.modules[spec.name] = module
-                assert spec.loader is not None  # a .py path gets a source loader
-                spec.loader.exec_module(module)
-            else:
-                importlib.import_module(plugin)
-        except ValueError:
-            raise
-        except Exception as error:
-            raise ValueError(f"plugin={plugin!r} is invalid: cannot import it"
-                             f" ({type(error).__name__}: {error})") from None
-
-
-def read_sweep_file(path: str | os.PathLike) -> dict[str, Any]:
-    """The keys of a TOML (``.toml``) or JSON sweep file.
-
-    Raises:
-      ValueError: unreadable, not a table/object, or an unknown key.
-    """
-    path = Path(path)
-    try:
-        text = path.read_text()
-        data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
-    except (OSError, ValueError) as error:
-        raise ValueError(f"sweep file {str(path)!r} is unreadable: {error}") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"sweep file {str(path)!r} must hold a table of keys, not"
-                         f" {type(data).__name__}")
-    unknown = sorted(set(data) - set(SWEEP_KEYS))
-    if unknown:
-        raise ValueError(f"sweep file {str(path)!r} has unknown key {unknown[0]!r}: allowed are"
-                         f" {', '.join(SWEEP_KEYS)}")
-    return data
 
 
 #: Files a run writes into its folder (checked before training: none may be a folder).
@@ -194,10 +108,12 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
 def run_sweep(
     out_dir: str | os.PathLike,
     *,
-    learners: Sequence[str],
-    explorers: Sequence[str],
+    learners: Sequence[str] = (),
+    explorers: Sequence[str] = (),
     axes: Mapping[str, Sequence[Any]] | None = None,
     shared: Mapping[str, Any] | None = None,
+    exclude: Sequence[Mapping[str, Any]] = (),
+    settings: Sequence[Mapping[str, Any]] = (),
     task: str = "table_cleaning",
     seeds: int = 20,
     episodes: int = 1000,
@@ -213,15 +129,19 @@ def run_sweep(
     memory_budget_bytes: int | str | None = None,
     devices: int | None = None,
 ) -> GridResult:
-    """Train ``learners × explorers × axes`` on a task and write the result folder.
+    """Train a sweep on a task and write the result folder.
 
     Args:
       out_dir: output folder (created if needed).
-      learners: learner names.
+      learners: learner names of the product (none: ``settings`` only).
       explorers: explorer names (built-in or registered by ``plugins``).
       axes: ``{hyperparameter: values}`` (see :func:`~vdbejax.methods.agents.sweep`).
       shared: ``{hyperparameter: value}`` for every setting that has the field.
-      task: ``table_cleaning``, ``cruz2018`` or ``variant:NxK`` (:func:`make_task`).
+      exclude: settings of the product to leave out, as tables of values they match
+        (:func:`~vdbejax.studies.sweep_file.sweep_settings`).
+      settings: explicit settings, ``{"learner": …, "explorer": …, field: value}``.
+      task: a task name (:func:`~vdbejax.studies.sweep_file.make_task`: the suite's,
+        ``gym:<id>``, ``module:function`` or ``file.py:function``).
       seeds: agents per setting (per replicate).
       episodes: episodes per agent.
       seed: root seed.
@@ -250,7 +170,7 @@ def run_sweep(
 
     load_plugins(list(plugins))
     mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)
-    settings = sweep(learners, explorers, axes, shared)
+    grid_settings = sweep_settings(learners, explorers, axes, shared, exclude, settings)
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
     check_int("seeds", seeds, 1, INT32_MAX)
     check_int("episodes", episodes, 1, INT32_MAX)
@@ -259,16 +179,21 @@ def run_sweep(
     check_bool("figures", figures)
     run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
                      memory_budget_bytes=memory_budget_bytes, devices=devices)
-    prepared = prepare_grid(mdp, settings, num_seeds=seeds * replicates, num_episodes=episodes,
+    prepared = prepare_grid(mdp, grid_settings, num_seeds=seeds * replicates, num_episodes=episodes,
                             seed=seed, run=run)
     best = best_return(mdp)
 
     def annotate(result: GridResult) -> None:
         annotate_replicates(result.meta, replicates, seeds)
-        result.meta.update(best_return=best, invalid_action=invalid_action, task=task,
+        # Files as absolute paths: the folder's sweep file (sweep_from_meta) runs anywhere.
+        result.meta.update(best_return=best, invalid_action=invalid_action,
+                           task=absolute_task(task),
                            sweep={"learners": list(learners), "explorers": list(explorers),
                                   "axes": {k: list(v) for k, v in (axes or {}).items()},
-                                  "shared": dict(shared or {}), "plugins": list(plugins)})
+                                  "shared": dict(shared or {}),
+                                  "exclude": [dict(rule) for rule in exclude],
+                                  "settings": [dict(entry) for entry in settings],
+                                  "plugins": absolute_plugins(plugins)})
 
     result, _ = train_in_folder(
         out_dir, prepared,

@@ -1,0 +1,388 @@
+"""The sweep file: what ``vdbejax run`` trains, as data (TOML or JSON).
+
+Every key, with its default (``docs/sweeps.md`` is the user's page;
+``examples/sweep.toml`` a file that runs)::
+
+    task = "table_cleaning"   # a suite name ("riverswim", "chain:8", "variant:4x2", …),
+                              # "gym:FrozenLake-v1", "module:function" or "file.py:function"
+    learners = ["qlearning", "sarsa"]      # the product: learners × explorers × axes
+    explorers = ["vdbe", "ucb1"]
+    plugins = ["my_plugins.py"]            # files or modules that register plug-ins
+    seeds = 20                             # agents per setting and replicate
+    replicates = 1
+    episodes = 1000
+    seed = 0
+    max_steps = 100                        # default: the task's own
+    invalid_action = "noop"                # the table-cleaning tasks: "noop" or "fail"
+    chunk_episodes = 100                   # episodes per compiled chunk (speed only)
+
+    [axes]                                 # every axis applies where a field has its name
+    alpha = [0.1, 0.3, 0.8]
+    sigma = [0.01, 1, 100]
+
+    [shared]                               # one value for every setting with the field
+    gamma = 0.9
+
+    [[exclude]]                            # settings of the product left out: all keys match
+    learner = "sarsa"
+    alpha = 0.8
+
+    [[settings]]                           # explicit settings, run after the product
+    learner = "qlearning"
+    explorer = "egreedy"
+    epsilon = 0.05
+
+Paths in a sweep file (``plugins`` files, a ``file.py:function`` task) are relative to the
+sweep file's folder; paths given as command-line flags are relative to the working
+directory. :func:`sweep_from_meta` gives back the sweep file of a finished run (``vdbejax
+sweep-file RESULTS``), so that a result folder says how to rerun it.
+"""
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import importlib.util
+import json
+import os
+import sys
+import tomllib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from vdbejax.envs.tabular import TabularMDP
+from vdbejax.methods.agents import Setting, owners, sweep
+from vdbejax.methods.explorers import explorer_class
+from vdbejax.methods.learners import learner_class
+from vdbejax.validation import INT32_MAX, check_int
+
+#: Keys a sweep file may hold.
+SWEEP_KEYS = ("task", "learners", "explorers", "axes", "shared", "exclude", "settings",
+              "seeds", "episodes", "seed", "max_steps", "invalid_action", "chunk_episodes",
+              "plugins", "replicates")
+#: The keys of a run's ``meta.json`` ``sweep`` record (the rest come from the run's meta).
+SPEC_KEYS = ("learners", "explorers", "axes", "shared", "exclude", "settings", "plugins")
+
+
+def _import_file(path: Path) -> Any:
+    """Import a ``.py`` file as a module."""
+    spec = importlib.util.spec_from_file_location(f"vdbejax_plugin_{path.stem}", path)
+    if spec is None or not path.is_file():
+        raise FileNotFoundError(f"no file {str(path)!r}")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    assert spec.loader is not None  # a .py path gets a source loader
+    spec.loader.exec_module(module)
+    return module
+
+
+def load_plugins(plugins: Sequence[str]) -> None:
+    """Import files (``path/to/file.py``) or modules that register plug-ins.
+
+    Raises:
+      ValueError: a file or module that cannot be imported.
+    """
+    for plugin in plugins:
+        try:
+            if str(plugin).endswith(".py"):
+                _import_file(Path(plugin))
+            else:
+                importlib.import_module(plugin)
+        except ValueError:
+            raise
+        except Exception as error:
+            raise ValueError(f"plugin={plugin!r} is invalid: cannot import it"
+                             f" ({type(error).__name__}: {error})") from None
+
+
+def _user_task(task: str) -> TabularMDP:
+    """``module:function`` or ``file.py:function``: the function's MDP (called without
+    arguments)."""
+    where, _, name = task.rpartition(":")
+    try:
+        module = (_import_file(Path(where)) if where.endswith(".py")
+                  else importlib.import_module(where))
+        function = getattr(module, name)
+        mdp = function()
+    except ValueError:
+        raise
+    except Exception as error:
+        raise ValueError(f"task={task!r} is invalid: cannot build it"
+                         f" ({type(error).__name__}: {error})") from None
+    if not isinstance(mdp, TabularMDP):
+        raise ValueError(f"task={task!r} is invalid: {name}() returned"
+                         f" {type(mdp).__name__}, must return a TabularMDP"
+                         " (vdbejax.envs.make_tabular_mdp)")
+    return mdp
+
+
+def _is_user_task(task: str) -> bool:
+    where, colon, name = task.rpartition(":")
+    return bool(colon and where and not task.startswith("gym:") and name.isidentifier()
+                and (where.endswith(".py") or all(p.isidentifier() for p in where.split("."))))
+
+
+def make_task(task: str, *, max_steps: int | None = None,
+              invalid_action: str = "noop") -> TabularMDP:
+    """A task by name.
+
+    Args:
+      task: a name of the task suite (:func:`vdbejax.envs.suite.make_suite_task`:
+        ``table_cleaning`` (the paper's text), ``cruz2018`` (the first author's published
+        table), ``variant:NxK``, ``riverswim``, ``chain:N``, ``deepsea:N``,
+        ``cliff_walking``, ``frozenlake4``, …); ``gym:<id>``, a gymnasium toy-text
+        environment (:func:`vdbejax.envs.gymnasium_adapter.from_gymnasium`; the ``gym`` extra); or
+        ``module:function`` / ``path/to/file.py:function``, a function of no arguments that
+        returns a :class:`~vdbejax.envs.TabularMDP`.
+      max_steps: truncation length (default: the task's horizon; the table-cleaning
+        tasks: 100; ``cruz2018``: its safety cap; ``gym:``: its time limit; a function's
+        MDP: its own).
+      invalid_action: ``noop`` or ``fail`` (the table-cleaning tasks of the paper's text).
+
+    Raises:
+      ValueError: an unknown name, a task that cannot be built, or a bad option, in one
+        line naming ``task``.
+    """
+    from vdbejax.envs.suite import make_suite_task
+
+    if not isinstance(task, str):
+        raise ValueError(f"task={task!r} is invalid: must be a task name (a string)")
+    if max_steps is not None:
+        check_int("max_steps", max_steps, 1, INT32_MAX)
+    if (task.startswith("gym:") or _is_user_task(task)) and invalid_action != "noop":
+        raise ValueError(f"invalid_action={invalid_action!r} is invalid with task={task!r}:"
+                         " only table_cleaning and variant:NxK have invalid actions")
+    try:
+        if task.startswith("gym:"):
+            from vdbejax.envs.gymnasium_adapter import from_gymnasium
+
+            return from_gymnasium(task[len("gym:"):], max_steps=max_steps, name=task)
+        if _is_user_task(task):
+            mdp = _user_task(task)
+            if max_steps is None:
+                return mdp
+            return dataclasses.replace(mdp, max_steps=jax.device_put(np.int32(max_steps)))
+        return make_suite_task(task, max_steps=max_steps, invalid_action=invalid_action)
+    except ImportError as error:  # gymnasium missing: the extra to install, in one line
+        raise ValueError(f"task={task!r} needs gymnasium: pip install 'vdbejax[gym]'"
+                         f" ({error})") from None
+    except ValueError as error:
+        raise ValueError(str(error).replace(f"name={task!r}", f"task={task!r}", 1)) from None
+    except Exception as error:  # gymnasium's own errors: an unknown id, …
+        raise ValueError(f"task={task!r} is invalid: cannot build it"
+                         f" ({type(error).__name__}: {error})") from None
+
+
+def _same(a: Any, b: Any) -> bool:
+    numbers = (int, float)
+    if isinstance(a, numbers) and isinstance(b, numbers) and not isinstance(a, bool) \
+            and not isinstance(b, bool):
+        return float(a) == float(b)
+    return bool(a == b)
+
+
+def _matches(setting: Setting, rule: Mapping[str, Any]) -> bool:
+    values = setting.values
+    for key, value in rule.items():
+        if key in ("learner", "explorer"):
+            if getattr(setting, key) != value:
+                return False
+        elif key not in values or not _same(values[key], value):
+            return False
+    return True
+
+
+def _tables(entries: Any, key: str) -> list[dict[str, Any]]:
+    if isinstance(entries, Mapping) or not isinstance(entries, Sequence) \
+            or isinstance(entries, str):
+        raise ValueError(f"{key}={entries!r} is invalid: must be a list of tables"
+                         " {name: value}")
+    for i, entry in enumerate(entries):
+        if not isinstance(entry, Mapping) or not entry:
+            raise ValueError(f"{key}[{i}]={entry!r} is invalid: must be a non-empty table"
+                             " {name: value}")
+    return [dict(entry) for entry in entries]
+
+
+def _explicit(i: int, entry: dict[str, Any], shared: Mapping[str, Any]) -> Setting:
+    """One ``[[settings]]`` entry as a :class:`Setting` (shared values where it has them)."""
+    learner, explorer = entry.pop("learner", None), entry.pop("explorer", None)
+    if not isinstance(learner, str) or not isinstance(explorer, str):
+        raise ValueError(f"settings[{i}] is invalid: needs learner = \"…\" and"
+                         " explorer = \"…\" (names)")
+    learner_class(learner)  # an unknown name: the registry's one-line error
+    parameter = explorer_class(explorer).parameter
+    for name in entry:
+        if not owners(name, learner, explorer):
+            raise ValueError(f"settings[{i}] is invalid: neither learner {learner!r} nor"
+                             f" explorer {explorer!r} has a field {name!r}")
+    values = {name: value for name, value in shared.items() if owners(name, learner, explorer)}
+    values.update(entry)
+    param = values.pop(parameter, None) if parameter else None
+    return Setting(learner, explorer, param, values)
+
+
+def sweep_settings(learners: Sequence[str] = (), explorers: Sequence[str] = (),
+                   axes: Mapping[str, Sequence[Any]] | None = None,
+                   shared: Mapping[str, Any] | None = None,
+                   exclude: Sequence[Mapping[str, Any]] = (),
+                   settings: Sequence[Mapping[str, Any]] = ()) -> list[Setting]:
+    """The settings of a sweep: the product (:func:`~vdbejax.methods.sweep`) less its
+    exclusions, then the explicit settings.
+
+    Args:
+      learners: learner names of the product (none: explicit settings only).
+      explorers: explorer names of the product.
+      axes: ``{hyperparameter: values}`` of the product.
+      shared: ``{hyperparameter: value}`` for every setting (product or explicit) that has
+        the field; an explicit setting's own value wins.
+      exclude: tables ``{key: value}``; a setting of the product whose every key matches
+        (``learner``, ``explorer`` or a value of its hyperparameters, as named in the
+        axes) is left out. Each must leave out at least one setting.
+      settings: tables ``{"learner": …, "explorer": …, field: value, …}``.
+
+    Returns:
+      the settings, the product's first (learner-major), in order.
+
+    Raises:
+      ValueError: an exclusion that matches nothing, an explicit setting with an unknown
+        field or twice the same setting, a shared value no setting has, or no settings.
+    """
+    shared = dict(shared or {})
+    product: list[Setting] = []
+    if learners or explorers or axes:
+        pairs = [(learner, explorer) for learner in learners for explorer in explorers]
+        mine = {name: value for name, value in shared.items()
+                if any(owners(name, *pair) for pair in pairs)}
+        product = sweep(learners, explorers, axes, mine)
+    for i, rule in enumerate(_tables(exclude, "exclude")):
+        kept = [s for s in product if not _matches(s, rule)]
+        if len(kept) == len(product):
+            raise ValueError(f"exclude[{i}]={rule!r} is invalid: it matches no setting of the"
+                             " product (keys: learner, explorer or an axis as named in axes)")
+        product = kept
+    explicit = [_explicit(i, entry, shared)
+                for i, entry in enumerate(_tables(settings, "settings"))]
+    unused = [name for name in shared
+              if not any(owners(name, s.learner, s.explorer) for s in product + explicit)]
+    if unused:
+        raise ValueError(f"shared {unused[0]!r} is invalid: no setting of the sweep has that"
+                         " field")
+    every = product + explicit
+    for i, setting in enumerate(explicit):
+        if every.count(setting) > 1:
+            raise ValueError(f"settings[{i}] is invalid: {setting.label} is already in the"
+                             " sweep; give each setting once")
+    if not every:
+        raise ValueError("the sweep has no settings: give learners and explorers, or"
+                         " settings = [...]")
+    return every
+
+
+def _resolve(path: str, folder: Path) -> str:
+    return path if os.path.isabs(path) else str((folder / path).resolve())
+
+
+def _task_file(task: str) -> bool:
+    return _is_user_task(task) and task.rpartition(":")[0].endswith(".py")
+
+
+def absolute_plugins(plugins: Sequence[str], folder: str | os.PathLike = ".") -> list[str]:
+    """``plugins`` with each ``.py`` file's path made absolute from ``folder``."""
+    return [_resolve(p, Path(folder)) if str(p).endswith(".py") else p for p in plugins]
+
+
+def absolute_task(task: str, folder: str | os.PathLike = ".") -> str:
+    """``task`` with a ``file.py:function`` file's path made absolute from ``folder``."""
+    if not isinstance(task, str) or not _task_file(task):
+        return task
+    where, _, name = task.rpartition(":")
+    return f"{_resolve(where, Path(folder))}:{name}"
+
+
+def read_sweep_file(path: str | os.PathLike) -> dict[str, Any]:
+    """The keys of a TOML (``.toml``) or JSON sweep file, or of a finished run's folder
+    (its ``meta.json``, :func:`sweep_from_meta`); file paths in it made absolute from the
+    file's folder.
+
+    Raises:
+      ValueError: unreadable, not a table/object, or an unknown key.
+    """
+    path = Path(path)
+    if path.is_dir():
+        meta_file = path / "meta.json"
+        try:
+            return sweep_from_meta(json.loads(meta_file.read_text()))
+        except (OSError, ValueError) as error:
+            raise ValueError(f"config={str(path)!r} is a folder without a run's meta.json:"
+                             f" {error}") from None
+    try:
+        text = path.read_text()
+        data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
+    except (OSError, ValueError) as error:
+        raise ValueError(f"sweep file {str(path)!r} is unreadable: {error}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"sweep file {str(path)!r} must hold a table of keys, not"
+                         f" {type(data).__name__}")
+    unknown = sorted(set(data) - set(SWEEP_KEYS))
+    if unknown:
+        raise ValueError(f"sweep file {str(path)!r} has unknown key {unknown[0]!r}: allowed are"
+                         f" {', '.join(SWEEP_KEYS)}")
+    folder = path.resolve().parent
+    if isinstance(data.get("plugins"), list):
+        data["plugins"] = absolute_plugins([str(p) for p in data["plugins"]], folder)
+    if "task" in data:
+        data["task"] = absolute_task(data["task"], folder)
+    return data
+
+
+def sweep_from_meta(meta: Mapping[str, Any]) -> dict[str, Any]:
+    """The sweep file of a finished ``vdbejax run`` (from its ``meta.json``): training it
+    again gives the same results.
+
+    Raises:
+      ValueError: the meta has no sweep record (not written by ``vdbejax run``).
+    """
+    record = meta.get("sweep")
+    if not isinstance(record, Mapping) or "task" not in meta:
+        raise ValueError("meta.json has no sweep record: only vdbejax run's result folders"
+                         " can be rerun from their folder")
+    spec: dict[str, Any] = {"task": meta["task"]}
+    spec.update({key: record[key] for key in SPEC_KEYS if record.get(key)})
+    replicates = int(meta.get("replicates", 1))
+    spec.update(seeds=int(meta["num_seeds"]) // replicates, replicates=replicates,
+                episodes=int(meta["num_episodes"]), seed=int(meta["seed"]),
+                max_steps=int(meta["max_steps"]),
+                invalid_action=meta.get("invalid_action", "noop"))
+    return spec
+
+
+def write_sweep_file(spec: Mapping[str, Any], path: str | os.PathLike) -> Path:
+    """Write a sweep file as JSON (a sweep file ``vdbejax run --config`` reads), its
+    plug-in files relative to the file's folder.
+
+    Raises:
+      ValueError: a name that is not ``.json``.
+    """
+    path = Path(path)
+    if path.suffix != ".json":
+        raise ValueError(f"out={str(path)!r} is invalid: the sweep file is written as JSON,"
+                         " name it *.json")
+    folder = path.resolve().parent
+    spec = dict(spec)
+
+    def relative(file: str) -> str:
+        return os.path.relpath(file, folder) if os.path.isabs(file) else file
+
+    spec["plugins"] = [relative(p) if p.endswith(".py") else p for p in spec.get("plugins", [])]
+    if not spec["plugins"]:
+        del spec["plugins"]
+    task = spec.get("task", "")
+    if _task_file(task):
+        where, _, name = task.rpartition(":")
+        spec["task"] = f"{relative(where)}:{name}"
+    path.write_text(json.dumps(spec, indent=2) + "\n")
+    return path
