@@ -9,7 +9,7 @@ and (if given) a hand-written discussion.
 
 Regenerate the committed document with::
 
-    vdbejax ablate --out docs --results out/ablation
+    vdbejax ablate --out docs --results out --replicates 10 --notes docs/reproduction_notes.md
 
 (the document quotes the exact command that produced it).
 
