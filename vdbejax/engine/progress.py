@@ -2,6 +2,11 @@
 in place; in a pipe or log plain lines (no carriage returns), one per tenth of the run or
 per half minute; in a Jupyter notebook one line updated in place (no stderr block per
 chunk). No dependency: the conventions of ``tqdm.auto``, in a few lines.
+
+The run's first report comes before anything is compiled and says so ("compiling"); the
+first chunk's time includes compiling the programs (seconds to tens of seconds in a cold
+process), so the rate and the ETA are measured from the end of the first chunk on (the
+warm-up), never from the start.
 """
 from __future__ import annotations
 
@@ -18,15 +23,51 @@ REDRAW_SECONDS = 0.1
 LOG_SECONDS = 30.0
 
 
-def format_progress(done: int, total: int, elapsed: float, width: int = 24) -> str:
-    """``[#####.......]  42.0%  386,400/920,000 agent-episodes  210k/s  ETA 0:02``."""
+def format_progress(done: int, total: int, elapsed: float, width: int = 24, *,
+                    rate: float | None = None, status: str | None = None) -> str:
+    """``[#####.......]  42.0%  386,400/920,000 agent-episodes  210k/s  ETA 0:02``.
+
+    Args:
+      done, total: agent-episodes.
+      elapsed: seconds since the start.
+      width: the bar's characters.
+      rate: agent-episodes per second for the ETA (default: ``done / elapsed``).
+      status: shown instead of the rate and ETA (``compiling …``, ``warming up …``).
+    """
     fraction = done / total if total > 0 else 1.0
     filled = int(width * min(max(fraction, 0.0), 1.0))
-    rate = done / elapsed if elapsed > 0 else 0.0
-    eta = f"ETA {_clock((total - done) / rate)}" if rate > 0 and done < total else (
-        f"in {_clock(elapsed)}" if done >= total else "ETA ?")
-    return (f"[{'#' * filled}{'.' * (width - filled)}] {100 * fraction:5.1f}%  "
-            f"{done:,}/{total:,} agent-episodes  {_rate(rate)}/s  {eta}")
+    head = (f"[{'#' * filled}{'.' * (width - filled)}] {100 * fraction:5.1f}%  "
+            f"{done:,}/{total:,} agent-episodes")
+    if done >= total:
+        overall = done / elapsed if elapsed > 0 else 0.0
+        return f"{head}  {_rate(overall)}/s  in {_clock(elapsed)}"
+    if status is not None:
+        return f"{head}  {status}"
+    rate = (done / elapsed if elapsed > 0 else 0.0) if rate is None else rate
+    eta = f"ETA {_clock((total - done) / rate)}" if rate > 0 else "ETA ?"
+    return f"{head}  {_rate(rate)}/s  {eta}"
+
+
+class _Meter:
+    """What a display shows at each report: "compiling" before the first chunk, then the
+    rate and ETA measured from the end of the first chunk (which includes compiling)."""
+
+    def __init__(self) -> None:
+        self.start: tuple[int, float] | None = None   # the first report: nothing run yet
+        self.warm: tuple[int, float] | None = None    # the first chunk's end
+
+    def text(self, done: int, total: int, elapsed: float) -> str:
+        if self.start is None or (done == self.start[0] and self.warm is None):
+            self.start = self.start or (done, elapsed)
+            return format_progress(done, total, elapsed,
+                                   status="compiling the programs (first chunk) …")
+        if self.warm is None:
+            self.warm = (done, elapsed)
+            return format_progress(done, total, elapsed, status=(
+                f"first chunk in {_clock(elapsed)} (compiling included)  ETA ?"))
+        ran, seconds = done - self.warm[0], elapsed - self.warm[1]
+        return format_progress(done, total, elapsed,
+                               rate=ran / seconds if seconds > 0 and ran > 0 else 0.0)
 
 
 def _clock(seconds: float) -> str:
@@ -62,20 +103,23 @@ def text_progress(stream: Any = None, *, clock: Callable[[], float] = time.monot
     stream = sys.stderr if stream is None else stream
     interactive = bool(getattr(stream, "isatty", lambda: False)())
     last = {"time": -float("inf"), "tenth": -1}
+    meter = _Meter()
 
     def show(done: int, total: int, elapsed: float) -> None:
         now = clock()
         finished = done >= total
+        phase_changes = meter.warm is None  # the compile status and the first chunk: shown
+        text = meter.text(done, total, elapsed)
         if interactive:
-            if finished or now - last["time"] >= REDRAW_SECONDS:
-                stream.write("\r" + format_progress(done, total, elapsed)
-                             + ("\n" if finished else ""))
+            if finished or phase_changes or now - last["time"] >= REDRAW_SECONDS:
+                stream.write("\r\033[K" + text + ("\n" if finished else ""))
                 stream.flush()
                 last["time"] = now
             return
         tenth = int(10 * done / total) if total > 0 else 10
-        if finished or tenth > last["tenth"] or now - last["time"] >= LOG_SECONDS:
-            stream.write(format_progress(done, total, elapsed) + "\n")
+        if (finished or phase_changes or tenth > last["tenth"]
+                or now - last["time"] >= LOG_SECONDS):
+            stream.write(text + "\n")
             stream.flush()
             last["time"], last["tenth"] = now, tenth
 
@@ -89,12 +133,15 @@ def _notebook_display() -> ProgressCallback | None:
     except ImportError:
         return None
     handle: dict[str, Any] = {"display": None, "time": -float("inf")}
+    meter = _Meter()
 
     def show(done: int, total: int, elapsed: float) -> None:
         now = time.monotonic()
-        if done < total and now - handle["time"] < REDRAW_SECONDS:
+        phase_changes = meter.warm is None
+        line = meter.text(done, total, elapsed)
+        if done < total and not phase_changes and now - handle["time"] < REDRAW_SECONDS:
             return
-        text = _PlainText(format_progress(done, total, elapsed))
+        text = _PlainText(line)
         if handle["display"] is None:
             handle["display"] = display(text, display_id=True)
         else:
