@@ -4,6 +4,7 @@ imports included)."""
 from __future__ import annotations
 
 import ast
+import sys
 from pathlib import Path
 
 import pytest
@@ -83,6 +84,8 @@ def test_old_import_paths_give_the_moved_module_itself() -> None:
     from vdbejax._moved import MOVED
 
     for old, new in MOVED.items():
-        moved = importlib.import_module(old)
+        sys.modules.pop(old, None)
+        with pytest.warns(DeprecationWarning, match=f"{old} moved to {new}: import {new}"):
+            moved = importlib.import_module(old)
         assert moved is importlib.import_module(new)
         assert moved.__name__ == new and moved.__spec__.name == new

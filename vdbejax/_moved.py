@@ -1,7 +1,8 @@
 """Old import paths of modules that moved, kept importable (CHANGELOG.md lists the moves).
 
 ``import vdbejax.stats`` gives the module object of ``vdbejax.results.stats`` itself (the
-same object, so a patch through either name reaches both).
+same object, so a patch through either name reaches both), with a ``DeprecationWarning``
+naming the new import: the old names are kept for one release.
 """
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import importlib
 import importlib.abc
 import importlib.machinery
 import sys
+import warnings
 from types import ModuleType
 
 #: old module name -> its home now.
@@ -53,7 +55,10 @@ class _MovedFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     def exec_module(self, module: ModuleType) -> None:
         # The import system returns whatever sys.modules holds under the name after this
         # call; the moved module's own __spec__ and __name__ stay untouched.
-        sys.modules[module.__name__] = importlib.import_module(MOVED[module.__name__])
+        new = MOVED[module.__name__]
+        warnings.warn(f"{module.__name__} moved to {new}: import {new} (the old name is kept"
+                      " for one release; CHANGELOG.md)", DeprecationWarning, stacklevel=2)
+        sys.modules[module.__name__] = importlib.import_module(new)
 
 
 def install() -> None:

@@ -14,8 +14,12 @@ object is data").
 
 Write one with :func:`explorer` / :func:`learner`::
 
-    @vdbejax.methods.explorer("count_bonus", parameter="beta")
-    class CountBonus(vdbejax.methods.Explorer):
+    import jax.numpy as jnp
+    import vdbejax
+    from vdbejax.methods import Explorer, Setting, Table, explorer, greedy
+
+    @explorer("my_count_bonus", parameter="beta")   # count_bonus is a built-in's name
+    class CountBonus(Explorer):
         beta: float = 0.1
         def tables(self):                        # N(s, a), starts at 0
             return {"counts": Table("pair", 0.0)}
@@ -23,7 +27,12 @@ Write one with :func:`explorer` / :func:`learner`::
             bonus = self.beta / jnp.sqrt(tables["counts"] + 1.0)
             return greedy(q + bonus, uniforms[0])
         def update(self, tables, action, delta_q, context):
-            return {"counts": tables["counts"] + (jnp.arange(q.shape[0]) == action)}
+            counts = tables["counts"]
+            return {"counts": counts + (jnp.arange(counts.shape[0]) == action)}
+
+    from vdbejax.envs.table_cleaning import make_mdp
+
+    grid = vdbejax.run_grid(make_mdp(), [Setting("qlearning", "my_count_bonus", 0.5)])
 
 Contract (checked by :func:`check_plugin` before any training, one-line ``ValueError``):
 
