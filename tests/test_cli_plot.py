@@ -51,3 +51,18 @@ def test_plot_bad_input(tmp_path, capsys, setup, message):
     assert cli.main(["plot", "--results", str(folder)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error:") and message in err[0]
+
+
+def test_plot_without_flags_redraws_the_figure_the_run_wrote(tmp_path, capsys):
+    # One figure definition: `vdbejax plot` draws what `vdbejax run` (and reproduce) drew.
+    out = tmp_path / "run"
+    assert cli.main(["run", "--out", str(out), "--learners", "qlearning", "--explorers",
+                     "vdbe,softmax", "--seeds", "3", "--episodes", "30", "--quiet"]) == 0
+    written = {name: (out / name).read_bytes() for name in ("fig3.png", "sensitivity.png")}
+    assert cli.main(["plot", "--results", str(out), "--out", str(tmp_path / "again")]) == 0
+    for name, data in written.items():
+        assert (tmp_path / "again" / name).read_bytes() == data, name
+    assert cli.main(["plot", "--results", str(out), "--out", str(tmp_path / "plain"),
+                     "--no-bands"]) == 0
+    assert (tmp_path / "plain" / "fig3.png").read_bytes() != written["fig3.png"]
+    capsys.readouterr()

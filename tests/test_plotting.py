@@ -102,3 +102,86 @@ def test_figure3_as_the_authors_plot_it(grid):
         plotting.figure3(grid, smoothing="median")
     with pytest.raises(ValueError, match="no bands"):
         plotting.figure3(grid, smoothing="authors", bands=True)
+
+
+# ------------------------------------------------------------------ layout of any grid
+def _grid_of(settings, seeds=3, episodes=60):
+    from vdbejax.experiment import GridResult
+
+    rng = np.random.default_rng(1)
+    t = np.arange(episodes)
+    levels = np.linspace(-0.8, BEST, len(settings))
+    returns = (-1.0 + (levels[:, None, None] + 1.0) * (1.0 - np.exp(-t / 15.0))
+               + rng.normal(0, 0.05, (len(settings), seeds, episodes))).astype(np.float32)
+    lengths = np.full(returns.shape, 20, np.int32)
+    meta = {"mdp": "a_user_task_with_a_rather_long_name", "num_seeds": seeds,
+            "num_episodes": episodes, "seed": 0, "max_steps": 100, "options": {}}
+    return GridResult(settings, returns, lengths, np.zeros(returns.shape[:2], bool), meta)
+
+
+def _grids():
+    from vdbejax.methods import Setting, sweep
+    from vdbejax.methods.agents import paper_settings
+
+    nine = sweep(["qlearning"], ["vdbe"], {"alpha": [0.1, 0.3, 0.8],
+                                          "sigma": [0.01, 1.0, 100.0]}, {"gamma": 0.95})
+    four = [Setting(learner, explorer, 0.1) for learner in ("qlearning", "sarsa")
+            for explorer in ("egreedy", "softmax")]
+    twelve = sweep(["sarsa"], ["softmax"], {"alpha": [0.1, 0.5, 0.8],
+                                           "tau": [0.001, 0.01, 0.1, 1.0]})
+    return {"1": [Setting("qlearning", "vdbe_softmax", 1.0)], "4": four, "9": nine,
+            "12": twelve, "46": paper_settings()}
+
+
+def _assert_laid_out(fig):
+    """No visible text outside the canvas, no legend over any axes' data region."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    # Everything drawn (titles, labels, the ticks in view, legends), in inches.
+    drawn = fig.get_tightbbox(renderer)
+    width, height = fig.get_size_inches()
+    assert drawn.x0 >= -0.01 and drawn.y0 >= -0.01, drawn
+    assert drawn.x1 <= width + 0.01 and drawn.y1 <= height + 0.01, (drawn, width, height)
+    legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+    assert legends
+    for legend in legends:
+        box = legend.get_window_extent(renderer)
+        for ax in fig.axes:
+            data = ax.get_window_extent(renderer)
+            overlap_x = min(box.x1, data.x1) - max(box.x0, data.x0)
+            overlap_y = min(box.y1, data.y1) - max(box.y0, data.y0)
+            assert overlap_x <= 1 or overlap_y <= 1, ("legend over the data of", ax.get_title())
+
+
+@pytest.mark.parametrize("name", ["1", "4", "9", "12", "46"])
+def test_figures_of_any_grid_keep_text_on_the_canvas_and_legends_off_the_data(name):
+    settings = _grids()[name]
+    grid = _grid_of(settings)
+    fig = plotting.figure3(grid, best_return=BEST, bands=True)
+    _assert_laid_out(fig)
+    plt.close(fig)
+    fig = plotting.sensitivity(summarize(grid), best_return=BEST)
+    _assert_laid_out(fig)
+    plt.close(fig)
+
+
+def test_curves_of_a_panel_are_told_apart_and_labelled_by_what_varies():
+    grid = _grid_of(_grids()["12"])
+    fig = plotting.figure3(grid)
+    ax = fig.axes[0]
+    curves = [line for line in ax.get_lines() if line.get_label().startswith("τ=")]
+    assert len(curves) == 12
+    styles = {(line.get_color(), str(line.get_linestyle())) for line in curves}
+    assert len(styles) == 12  # no two curves alike
+    assert curves[0].get_label() == "τ=0.001, α=0.1"  # the swept parameter first
+    plt.close(fig)
+    nine = _grid_of(_grids()["9"])
+    fig = plotting.figure3(nine)
+    labels = [line.get_label() for line in fig.axes[0].get_lines()]
+    assert "σ=1, α=0.3" in labels and not any("γ" in label for label in labels)
+    plt.close(fig)
+    # The sensitivity plot's legend: readable values, only those that vary (not γ, no JSON).
+    fig = plotting.sensitivity(summarize(nine))
+    texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert texts == ["Q-learning α=0.1", "Q-learning α=0.3", "Q-learning α=0.8"], texts
+    plt.close(fig)

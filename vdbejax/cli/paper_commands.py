@@ -67,7 +67,9 @@ def add_plot(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--results", required=True,
                    help="folder with returns.npz, configs.csv, meta.json")
     p.add_argument("--out", default=None, help="output folder (default: the results folder)")
-    p.add_argument("--bands", action="store_true", help="95%% bootstrap bands on Figure 3")
+    p.add_argument("--bands", action=argparse.BooleanOptionalAction, default=True,
+                   help="95%% bootstrap bands on Figure 3 (default: on, the figure reproduce and"
+                        " run draw)")
     p.add_argument("--long-csv", action="store_true",
                    help="also write returns_long.csv: one row per agent-episode")
 

@@ -295,7 +295,7 @@ def saved_best_return(result: GridResult) -> float:
 
 
 def replot(
-    results_dir: str | os.PathLike, out_dir: str | os.PathLike | None = None, bands: bool = False
+    results_dir: str | os.PathLike, out_dir: str | os.PathLike | None = None, bands: bool = True
 ) -> list[Path]:
     """Redraw Figure 3, the sensitivity plot and the summary from saved results, and the
     claims report for the paper's grid (:func:`is_paper_grid`; other grids get none).
@@ -306,7 +306,8 @@ def replot(
       results_dir: a folder written by :func:`reproduce`, ``vdbejax run`` or
         :meth:`GridResult.save`.
       out_dir: where to write (default: ``results_dir``).
-      bands: 95% bootstrap bands on Figure 3.
+      bands: 95% bootstrap bands on Figure 3 (the default, as ``reproduce`` and ``vdbejax
+        run`` draw it: the same figure as the run wrote).
 
     Returns:
       the files written.

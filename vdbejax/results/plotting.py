@@ -1,12 +1,18 @@
 """Figures: the paper's Figure 3 (one panel per learner × explorer, optional bootstrap
 bands), the parameter-sensitivity plot, and ε(s) heatmaps.
 
-Every function returns the matplotlib figure and, given ``path``, saves it as PNG.
+Every function returns the matplotlib figure and, given ``path``, saves it as PNG. The
+figures serve any grid: titles wrap to the figure's width, legends sit outside the data
+(right of each panel), curves get one of :data:`COLORS` (Okabe–Ito, colour-blind safe) and,
+past seven in a panel, a line style of :data:`LINE_STYLES` as well (21 distinct curves),
+and a legend shows only the values that vary within its panel.
 """
 from __future__ import annotations
 
+import json
 import os
 import sys
+import textwrap
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -30,6 +36,34 @@ PARAMETER_SYMBOLS = {"epsilon": "ε", "tau": "τ", "sigma": "σ", "alpha": "α",
                      "delta": "δ"}
 
 
+#: Curve colours: the Okabe–Ito palette without its yellow (too pale on white).
+COLORS = ("#0072B2", "#E69F00", "#009E73", "#CC79A7", "#56B4E9", "#D55E00", "#000000")
+#: Line styles that extend the colours past seven curves in one panel.
+LINE_STYLES = ("-", "--", ":")
+#: The reference line of the best possible return (grey, so that it is no curve's colour).
+BEST_STYLE = {"color": "0.45", "ls": (0, (6, 3)), "lw": 1.0}
+#: Characters per inch of a title at its size (for wrapping; a little conservative).
+_TITLE_CHARS_PER_INCH = {12: 9.0, 10: 11.0}
+
+
+def curve_style(index: int) -> dict[str, Any]:
+    """Colour and line style of a panel's ``index``-th curve (distinct for 21 curves)."""
+    return {"color": COLORS[index % len(COLORS)],
+            "ls": LINE_STYLES[(index // len(COLORS)) % len(LINE_STYLES)]}
+
+
+def _wrap(text: str, width_inches: float, size: int) -> str:
+    return "\n".join(textwrap.wrap(text, max(int(width_inches * _TITLE_CHARS_PER_INCH[size]),
+                                              12), break_long_words=False))
+
+
+def _legend_outside(ax: plt.Axes) -> None:
+    """The axes' legend right of its data region (the layout makes room for it)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0,
+                  frameon=False)
+
+
 def _symbol(name: str) -> str:
     return PARAMETER_SYMBOLS.get(name, name)
 
@@ -37,7 +71,7 @@ def _symbol(name: str) -> str:
 def curve_label(setting: Any, varying: Sequence[str]) -> str:
     """A curve's legend: the values that vary within its panel (its parameter by default)."""
     values = setting.values
-    names = [n for n in varying if n in values] or list(values)
+    names = [n for n in varying if n in values] or list(values)[:1]
     return ", ".join(f"{_symbol(n)}={_fmt(values[n])}" for n in names) or setting.label
 
 
@@ -86,9 +120,10 @@ def figure3(
                          f"{len(result.settings)} settings")
     learners = list(dict.fromkeys(s.learner for s in result.settings))
     explorers = list(dict.fromkeys(s.explorer for s in result.settings))
+    width = 5.6 * len(explorers)  # a panel and its legend
     fig, axes = plt.subplots(
-        len(learners), len(explorers), figsize=(4.2 * len(explorers), 3.4 * len(learners)),
-        sharex=True, sharey=True, squeeze=False,
+        len(learners), len(explorers), figsize=(width, 3.4 * len(learners) + 0.6),
+        sharex=True, sharey=True, squeeze=False, layout="constrained",
     )
     episodes = np.arange(1, result.num_episodes + 1)
     if smoothing == "authors":  # full convolution, shown from episode `window` on
@@ -97,29 +132,27 @@ def figure3(
         for col, explorer in enumerate(explorers):
             ax = axes[row, col]
             indices = result.select(learner, explorer)
-            colors = plt.cm.viridis(np.linspace(0, 0.9, max(len(indices), 1)))
             varying = _varying([result.settings[c] for c in indices])
-            for color, c in zip(colors, indices, strict=False):  # colors: at least one
+            for k, c in enumerate(indices):
+                style = curve_style(k)
                 if bands:
                     # curve_statistics(bands=True) has both bands (checked above)
                     assert statistics.band_low is not None and statistics.band_high is not None
                     ax.fill_between(episodes, statistics.band_low[c], statistics.band_high[c],
-                                    color=color, alpha=0.25, lw=0)
+                                    color=style["color"], alpha=0.18, lw=0)
                 curve = statistics.curves[c] if smoothing == "trailing" else convolve_full(
                     result.returns[c].mean(0), window)[window - 1:]
-                ax.plot(episodes, curve, color=color, lw=1.2,
-                        label=curve_label(result.settings[c], varying))
+                ax.plot(episodes, curve, lw=1.2, label=curve_label(result.settings[c], varying),
+                        **style)
             if best_return is not None:
-                ax.axhline(best_return, color="crimson", ls="--", lw=1,
-                           label=f"best {best_return:.2f}")
-            ax.set_title(f"{learner_title(learner)}"
-                         f" — {explorer_title(explorer)}")
+                ax.axhline(best_return, label=f"best {best_return:.2f}", **BEST_STYLE)
+            ax.set_title(_wrap(f"{learner_title(learner)} — {explorer_title(explorer)}", 4.0,
+                               10), fontsize=10)
             ax.grid(alpha=0.3)
             if not indices:
                 ax.text(0.5, 0.5, "not in this grid", ha="center", va="center",
                         transform=ax.transAxes, color="gray")
-            if ax.get_legend_handles_labels()[0]:
-                ax.legend(fontsize=7, loc="lower right")
+            _legend_outside(ax)
             if row == len(learners) - 1:
                 ax.set_xlabel("episode")
             if col == 0:
@@ -127,11 +160,8 @@ def figure3(
     band_note = " (bands: 95% bootstrap CI over agents)" if bands else ""
     if smoothing == "authors":
         band_note = f" (smoothed as the authors plot it: np.convolve 'full', from episode {window})"
-    fig.suptitle(
-        f"{result.meta.get('mdp', 'task')}: {result.num_seeds} agents"
-        f" × {result.num_episodes} episodes"
-        + band_note
-    )
+    fig.suptitle(_wrap(f"{result.meta.get('mdp', 'task')}: {result.num_seeds} agents"
+                       f" × {result.num_episodes} episodes" + band_note, width, 12))
     return _finish(fig, path)
 
 
@@ -142,13 +172,35 @@ def _varying(settings: Sequence[Any]) -> list[str]:
 
 
 def _finish(fig: plt.Figure, path: str | os.PathLike | None) -> plt.Figure:
-    fig.tight_layout()
-    # tight_layout leaves a placeholder layout engine, which makes savefig lay out and
-    # draw the whole figure once more before drawing it; the pixels are the same without.
-    fig.set_layout_engine(None)
+    if fig.get_layout_engine() is None:  # figures made without a layout (heatmaps)
+        fig.tight_layout()
+        # tight_layout leaves a placeholder layout engine, which makes savefig lay out and
+        # draw the whole figure once more; the pixels are the same without.
+        fig.set_layout_engine(None)
     if path is not None:
         fig.savefig(path, dpi=110)
     return fig
+
+
+def _extra_values(hyperparameters: str, varying: Sequence[str]) -> str:
+    """``α=0.1, γ=0.9`` of a summary row's hyperparameters (JSON), only the ``varying`` ones."""
+    try:
+        values = json.loads(hyperparameters) if hyperparameters else {}
+    except ValueError:
+        return hyperparameters
+    return ", ".join(f"{_symbol(k)}={_fmt(v)}" for k, v in values.items() if k in varying)
+
+
+def _varying_extras(rows: Sequence[SummaryRow]) -> list[str]:
+    """The hyperparameter names whose values differ between summary rows."""
+    parsed = []
+    for row in rows:
+        try:
+            parsed.append(json.loads(row.hyperparameters) if row.hyperparameters else {})
+        except ValueError:
+            parsed.append({"": row.hyperparameters})
+    names = list(dict.fromkeys(n for values in parsed for n in values))
+    return [n for n in names if len({repr(values.get(n)) for values in parsed}) > 1]
 
 
 def _final_return(row: SummaryRow) -> tuple[float, float | None, float | None]:
@@ -199,14 +251,19 @@ def sensitivity(
     explorers = known + list(dict.fromkeys(r.explorer for r in swept if r.explorer not in known))
     # One line per learner and per combination of the other hyperparameters.
     lines = list(dict.fromkeys((r.learner, r.hyperparameters) for r in swept))
-    fig, axes = plt.subplots(len(SENSITIVITY_METRICS), max(len(explorers), 1), squeeze=False,
-                             figsize=(3.6 * max(len(explorers), 1), 6.0), sharey="row")
+    columns = max(len(explorers), 1)
+    fig, axes = plt.subplots(len(SENSITIVITY_METRICS), columns, squeeze=False,
+                             figsize=(5.4 * columns, 6.4), sharey="row", layout="constrained")
     if not explorers:
         axes[0, 0].text(0.5, 0.5, "no swept parameter in these settings", ha="center")
     for col, explorer in enumerate(explorers):
+        mine = [r for r in swept if r.explorer == explorer]
+        varying = _varying_extras(mine)
         for row, (key, label, metric) in enumerate(SENSITIVITY_METRICS):
             ax = axes[row, col]
-            for learner, extra in lines:
+            for k, (learner, extra) in enumerate(
+                    (learner, extra) for learner, extra in lines
+                    if any(r.learner == learner and r.hyperparameters == extra for r in mine)):
                 points = sorted((r for r in swept
                                  if r.learner == learner and r.explorer == explorer
                                  and r.hyperparameters == extra),
@@ -222,26 +279,27 @@ def sensitivity(
                 has_ci = all(v is not None for v in lows + highs)
                 yerr = (np.abs(np.array([lows, highs], np.float64) - y) if has_ci else None)
                 color, marker = LEARNER_STYLES.get(learner, (None, "o"))
-                # The values beside the parameter show only where they tell lines apart.
-                several = len({r.hyperparameters for r in swept
-                               if r.learner == learner and r.explorer == explorer}) > 1
-                name = learner_title(learner) + (f" {extra}" if several else "")
-                ax.errorbar(x, y, yerr=yerr, color=None if several else color,
-                            marker=marker, ms=4, capsize=3, lw=1.2, label=name)
+                # The values beside the learner show only those that vary in the column.
+                values = _extra_values(extra, varying)
+                name = learner_title(learner) + (f" {values}" if values else "")
+                style = curve_style(k) if varying else {"color": color, "ls": "-"}
+                ax.errorbar(x, y, yerr=yerr, marker=marker, ms=4, capsize=3, lw=1.2,
+                            label=name, **style)
             ax.set_xscale("log")
             if key == "final_return" and best_return is not None:
-                ax.axhline(best_return, color="crimson", ls="--", lw=1,
-                           label=f"best {best_return:.2f}")
+                ax.axhline(best_return, label=f"best {best_return:.2f}", **BEST_STYLE)
             if row == 0:
-                ax.set_title(explorer_title(explorer))
+                ax.set_title(_wrap(explorer_title(explorer), 4.0, 10), fontsize=10)
             if row == len(SENSITIVITY_METRICS) - 1:
                 name = (parameter_names or {}).get(explorer) or parameter_name(explorer)
                 ax.set_xlabel(_symbol(name) + " (log scale)")
             if col == 0:
                 ax.set_ylabel(label)
             ax.grid(alpha=0.3, which="both")
-            ax.legend(fontsize=7)
-    fig.suptitle(title or "Sensitivity to the exploration parameter (95% bootstrap CI over agents)")
+            if row == 0:  # one legend per column: the rows show the same lines
+                _legend_outside(ax)
+    fig.suptitle(_wrap(title or "Sensitivity to the exploration parameter (95% bootstrap CI"
+                       " over agents)", 5.4 * columns, 12))
     return _finish(fig, path)
 
 
