@@ -280,8 +280,8 @@ def sensitivity(
                 yerr = (np.abs(np.array([lows, highs], np.float64) - y) if has_ci else None)
                 color, marker = LEARNER_STYLES.get(learner, (None, "o"))
                 # The values beside the learner show only those that vary in the column.
-                values = _extra_values(extra, varying)
-                name = learner_title(learner) + (f" {values}" if values else "")
+                shown = _extra_values(extra, varying)
+                name = learner_title(learner) + (f" {shown}" if shown else "")
                 style = curve_style(k) if varying else {"color": color, "ls": "-"}
                 ax.errorbar(x, y, yerr=yerr, marker=marker, ms=4, capsize=3, lw=1.2,
                             label=name, **style)
