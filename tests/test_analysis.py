@@ -68,13 +68,27 @@ def test_epsilon_snapshots_follow_vdbe():
     assert np.all((epsilon >= 0) & (epsilon <= 1))
     assert epsilon.min() < 1.0  # visited states have moved away from ε = 1
     # ε-greedy keeps no ε(s) table; UCB-1's counts can be watched the same way.
-    with pytest.raises(ValueError, match="keeps no tables"):
+    with pytest.raises(ValueError, match="keeps q and no tables of its own"):
         snapshots.epsilon_snapshots(mdp, Setting("qlearning", "egreedy", 0.1),
                                    num_seeds=1, num_episodes=2, every=1)
     _, counts, _ = snapshots.epsilon_snapshots(mdp, Setting("qlearning", "ucb1", 1.0), num_seeds=1,
                                               num_episodes=4, every=2, table="counts")
     assert counts.shape == (2, 1, mdp.num_states, mdp.num_actions)
     assert counts[1].sum() > counts[0].sum() > 0
+
+
+def test_the_final_q_of_a_setting_is_that_of_the_same_agents_in_a_grid():
+    from vdbejax.experiment import run_grid
+
+    mdp = make_mdp(max_steps=30)
+    setting = Setting("sarsa", "vdbe", 1.0)
+    episodes, q, returns = snapshots.table_snapshots(mdp, setting, num_seeds=3,
+                                                     num_episodes=8, every=8, table="q")
+    assert episodes.tolist() == [8] and q.shape == (1, 3, mdp.num_states, mdp.num_actions)
+    grid = run_grid(mdp, [Setting("qlearning", "egreedy", 0.1), setting], num_seeds=3,
+                    num_episodes=8)
+    np.testing.assert_array_equal(returns, grid.returns[1])  # the same agents, bit for bit
+    assert np.any(q[0] != 0)  # learned something
 
 
 @pytest.mark.parametrize("explorer, param", [("softmax", 1e-4), ("vdbe_softmax", 100.0)])

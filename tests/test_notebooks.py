@@ -19,6 +19,25 @@ def small_settings(monkeypatch):
 def test_notebooks_exist():
     names = [p.name for p in NOTEBOOKS]
     assert "01_reproduce_paper.ipynb" in names and "02_explorers_up_close.ipynb" in names
+    assert "05_your_own_method.ipynb" in names  # the engine: a plug-in on a task of its own
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_a_notebook_uses_the_public_api_only(path):
+    """No private name, no engine internals: what a notebook needs, the public API gives."""
+    import re
+
+    notebook = nbformat.read(path, as_version=4)
+    code = "\n".join(c.source for c in notebook.cells if c.cell_type == "code")
+    imports = re.findall(r"^\s*from (vdbejax[\w.]*) import \(?([^)\n]*)", code, re.M)
+    imports += [(module, "") for module in re.findall(r"^\s*import (vdbejax[\w.]*)", code, re.M)]
+    assert imports, "a notebook on vdbejax imports it"
+    for module, names in imports:
+        assert not module.startswith("vdbejax.engine"), (module, "engine internals")
+        assert not any(part.startswith("_") for part in module.split(".")), module
+        assert not any(n.strip().startswith("_") for n in names.split(",")), (module, names)
+    private = re.findall(r"\b(?:vdbejax|[a-z_]+)\.(_[a-z]\w*)", code)
+    assert not [p for p in private if not p.startswith("__")], private
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)

@@ -57,7 +57,7 @@ from vdbejax.studies.scaling_report import (
 from vdbejax.studies.scaling_report import FIGURE_FILE as FIGURE_FILE
 from vdbejax.studies.scaling_report import MARKDOWN_FILE as MARKDOWN_FILE
 from vdbejax.studies.scaling_report import VARIANT_COLUMNS as VARIANT_COLUMNS
-from vdbejax.studies.scaling_report import _param_text as _param_text
+from vdbejax.studies.scaling_report import param_text as param_text
 from vdbejax.studies.scaling_study import (
     EPISODES,
     EPISODES_PER_STATE,

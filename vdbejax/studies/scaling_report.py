@@ -177,7 +177,7 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
     pivot: dict[Setting, dict[str, str]] = {}
     for r in rows:
         setting = _row_setting(r)
-        cells = pivot.setdefault(setting, {"method": f"{r['method']} ({_param_text(setting)})"})
+        cells = pivot.setdefault(setting, {"method": f"{r['method']} ({param_text(setting)})"})
         cells[f"{r['size']} ({r['states']})"] = (
             "-" if r["status"] != "run" else f"{r['median_text']} ({r['solved']}/{r['agents']})")
     for setting, cells in pivot.items():
@@ -188,7 +188,7 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
     return "\n".join(lines)
 
 
-def _param_text(setting: Setting) -> str:
+def param_text(setting: Setting) -> str:
     """``ε = 0.01`` or ``ε = 1, decay = 0.99``: the values the setting sets."""
     symbols = {"epsilon": "ε", "tau": "τ", "sigma": "σ", "beta": "β"}
     values = setting.values
@@ -237,7 +237,7 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
             if not mine:
                 continue
             label = (method_label(_row_setting(mine[0])).split(" ", 1)[1]
-                     + f" ({_param_text(_row_setting(mine[0]))})")
+                     + f" ({param_text(_row_setting(mine[0]))})")
             spread = 1.0 + 0.015 * (j - (len(explorers) - 1) / 2)
             x = column(mine, "states") * spread
             median, low, budget = (column(mine, k) for k in ("median_episodes", "median_low",

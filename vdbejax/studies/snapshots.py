@@ -1,5 +1,6 @@
 """Watching an agent's tables evolve: train one setting and record a table (VDBE's ε(s),
-UCB-1's counts, …) every few episodes.
+UCB-1's counts, the action values Q, …) every few episodes (:func:`table_snapshots`; with
+``every = num_episodes``, the agents' final tables).
 
 A study on the engine's run path (its ``on_chunk`` callback), not a statistic: it trains.
 """
@@ -12,7 +13,7 @@ from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents, table_layout
 
 
-def epsilon_snapshots(
+def table_snapshots(
     mdp: TabularMDP,
     setting: Setting,
     *,
@@ -24,7 +25,7 @@ def epsilon_snapshots(
     table: str = "epsilon",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Train one setting and record one of the agents' tables (VDBE's per-state ε(s) by
-    default, UCB-1's ``"counts"``, …) every ``every`` episodes.
+    default, UCB-1's ``"counts"``, the action values ``"q"``, …) every ``every`` episodes.
 
     Uses the engine's ``on_chunk`` callback, so the learning itself is the ordinary run
     (bit-identical to the same agents inside any grid).
@@ -37,7 +38,8 @@ def epsilon_snapshots(
       every: episodes between snapshots (the chunk size).
       seed: root seed.
       options: :class:`~vdbejax.methods.agents.AgentOptions` (spec defaults if None).
-      table: the table to record.
+      table: the table to record: ``"q"`` (every agent's ``[S, A]`` action values) or a
+        table of the setting's explorer or learner.
 
     Returns:
       ``(episodes, snapshots, returns)``: ``[k]`` episode counts of the snapshots,
@@ -50,17 +52,21 @@ def epsilon_snapshots(
     options = AgentOptions() if options is None else options
     params = broadcast_agents(stack_agents([make_agent(setting, options)]), num_seeds)
     kept = table_layout(params)
-    if table not in kept:
+    if table != "q" and table not in kept:
         raise ValueError(f"table={table!r} is invalid: {setting.label} keeps"
-                         f" {', '.join(kept) or 'no tables'}")
+                         f" q and {', '.join(kept) or 'no tables of its own'}")
     episodes, snapshots = [], []
 
     def record(done: int, agents: AgentState | None, returns: np.ndarray,
                lengths: np.ndarray) -> None:
         assert agents is not None  # chunk states are on by default
         episodes.append(done)
-        snapshots.append(np.array(agents.tables[table]))
+        snapshots.append(np.array(agents.q if table == "q" else agents.tables[table]))
 
     run = run_agents(mdp, params, agent_keys(seed, num_seeds), num_episodes,
                      chunk_episodes=every, on_chunk=record)
     return np.asarray(episodes), np.stack(snapshots), run.returns
+
+
+#: The former name (ε(s) is the default table).
+epsilon_snapshots = table_snapshots
