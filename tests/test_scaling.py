@@ -242,7 +242,7 @@ def test_every_name_of_the_parts_is_importable_from_vdbejax_scaling():
             assert getattr(scaling, name) is getattr(module, name), (module.__name__, name)
     assert set(scaling.__all__) <= {n for m in MODULES for n in m.__all__} | {"ScalingResult",
                                                                               "run_scaling"}
-    assert scaling._param_text is scaling_report._param_text  # notebook 03 uses it
+    assert scaling.param_text is scaling_report.param_text  # notebook 03 uses it
 
 
 def test_no_module_of_the_study_is_past_400_lines():
