@@ -193,3 +193,22 @@ def test_wilson_interval():
     assert wilson_interval(10, 10)[1] == 1.0
     with pytest.raises(ValueError, match="successes=11, trials=10"):
         wilson_interval(11, 10)
+
+
+def test_long_runs_are_resampled_in_blocks_with_the_same_statistics(monkeypatch):
+    # 2000 resamples × 10⁷ episodes would be 149 GiB at once: long runs go block by block.
+    from vdbejax.results import stats as statistics
+
+    rng = np.random.default_rng(3)
+    returns = np.cumsum(rng.normal(0.01, 0.1, (6, 700)), axis=1)
+    whole = statistics.curve_statistics(returns[None], bands=True)
+    # The paper's run size stays in one block: its numbers are computed exactly as before.
+    assert statistics._block(1000) >= statistics.NUM_RESAMPLES
+    assert statistics._block(statistics.NUM_RESAMPLES) >= 1000
+    monkeypatch.setattr(statistics, "BLOCK_BYTES", 8 * 700 * 37)  # 37 resamples, 7 episodes
+    blocked = statistics.curve_statistics(returns[None], bands=True)
+    assert blocked.convergence.tolist() == whole.convergence.tolist()
+    np.testing.assert_allclose(blocked.convergence_low, whole.convergence_low)
+    np.testing.assert_allclose(blocked.convergence_high, whole.convergence_high)
+    np.testing.assert_allclose(blocked.band_low, whole.band_low, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(blocked.band_high, whole.band_high, rtol=0, atol=1e-12)

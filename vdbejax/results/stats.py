@@ -82,10 +82,28 @@ def mean_curve_ci(
     mean = moving_average(returns.mean(0), window)
     # Smoothing is linear, so smoothing each seed once and then resampling equals
     # resampling then smoothing every resample, at a fraction of the cost.
-    resampled = (bootstrap_weights(len(returns), num_resamples, seed)
-                 @ moving_average(returns, window))
-    low, high = _interval(resampled, level)
-    return mean, low, high
+    weights = bootstrap_weights(len(returns), num_resamples, seed)
+    smoothed = moving_average(returns, window)
+    columns = _block(num_resamples)  # episodes per block, each a column of resamples
+    if columns >= smoothed.shape[-1]:
+        low, high = _interval(weights @ smoothed, level)
+        return mean, low, high
+    # A long run: the band episode block by episode block (its memory stays bounded).
+    edges = [_interval(weights @ smoothed[:, i:i + columns], level)
+             for i in range(0, smoothed.shape[-1], columns)]
+    return (mean, np.concatenate([lo for lo, _ in edges]),
+            np.concatenate([hi for _, hi in edges]))
+
+
+#: Largest bootstrap temporary (resamples × episodes float64) made at once: longer runs
+#: are resampled in blocks, so their statistics fit in memory (2000 resamples × 10⁷
+#: episodes would be 149 GiB at once). Runs below it compute exactly as in one block.
+BLOCK_BYTES = 1 << 27
+
+
+def _block(length: int) -> int:
+    """How many float64 vectors of ``length`` fit in :data:`BLOCK_BYTES` (at least one)."""
+    return max(1, BLOCK_BYTES // (8 * max(length, 1)))
 
 
 def final_return_ci(
@@ -126,9 +144,13 @@ def convergence_ci(
     """
     returns = np.asarray(returns, np.float64)
     point = convergence_episode(returns.mean(0), window, last, fraction)
-    resampled = bootstrap_weights(len(returns), num_resamples, seed) @ returns
-    low, high = _interval(
-        convergence_episodes(resampled, window, last, fraction).astype(np.float64), level)
+    weights = bootstrap_weights(len(returns), num_resamples, seed)
+    rows = _block(returns.shape[-1])  # resamples per block
+    episodes = np.concatenate([
+        convergence_episodes(weights[i:i + rows] @ returns, window, last, fraction)
+        for i in range(0, num_resamples, rows)]) if rows < num_resamples else (
+        convergence_episodes(weights @ returns, window, last, fraction))
+    low, high = _interval(episodes.astype(np.float64), level)
     return point, float(low), float(high)
 
 
