@@ -247,3 +247,24 @@ def test_sweep_file_refuses_what_it_cannot_write(tmp_path, capsys):
                                                str(tmp_path / "paper"))
     with pytest.raises(ValueError, match=r"name it \*\.json"):
         write_sweep_file({"learners": ["qlearning"]}, tmp_path / "sweep.toml")
+
+
+@pytest.mark.parametrize("text, message", [
+    ('axes = ["alpha"]', "axes=['alpha'] is invalid: must be a table"),
+    ('axes = {alpha = 0.1}', "axes={'alpha': 0.1} is invalid"),
+    ('shared = [1]', "shared=[1] is invalid"),
+    ('plugins = "mine.py"', "plugins='mine.py' is invalid: must be a list"),
+    ('learners = "qlearning"', "learners='qlearning' is invalid: must be a list of names"),
+    ('seeds = 2.5', "seeds=2.5 is invalid: must be an integer"),
+    ('seeds = "20"', "seeds='20' is invalid"),
+    ('exclude = {learner = "sarsa"}', "exclude={'learner': 'sarsa'} is invalid"),
+    ('task = 3', "task=3 is invalid"),
+    ('colour = "red"', "unknown key 'colour'"),
+])
+def test_a_sweep_file_key_of_the_wrong_type_is_one_line(tmp_path, capsys, text, message):
+    learners = "" if text.startswith("learners") else 'learners = ["qlearning"]\n'
+    (tmp_path / "sweep.toml").write_text(f'{learners}explorers = ["vdbe"]\n{text}\n')
+    line = one_line_error(capsys, "run", "--config", str(tmp_path / "sweep.toml"), "--out",
+                          str(tmp_path / "out"))
+    assert message in line and "sweep file" in line
+    assert not (tmp_path / "out").exists()  # refused before any folder is made

@@ -282,6 +282,53 @@ def sweep_settings(learners: Sequence[str] = (), explorers: Sequence[str] = (),
     return every
 
 
+def _names(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(v, str) for v in value)
+
+
+def _scalar(value: Any) -> bool:
+    return isinstance(value, (int, float, str, bool))
+
+
+#: The type of every sweep-file key: ``(check, what is allowed)``.
+_KEY_TYPES: dict[str, tuple[Any, str]] = {
+    "task": (lambda v: isinstance(v, str), "a task name (a string)"),
+    "learners": (_names, "a list of names"),
+    "explorers": (_names, "a list of names"),
+    "plugins": (_names, "a list of files or module names"),
+    "axes": (lambda v: isinstance(v, dict) and all(
+        isinstance(x, list) and x and all(map(_scalar, x)) for x in v.values()),
+        "a table {name: [values]} of non-empty lists of numbers or strings"),
+    "shared": (lambda v: isinstance(v, dict) and all(map(_scalar, v.values())),
+               "a table {name: value} of numbers or strings"),
+    "exclude": (lambda v: isinstance(v, list) and all(
+        isinstance(x, dict) and x and all(map(_scalar, x.values())) for x in v),
+        "a list of tables {name: value}"),
+    "settings": (lambda v: isinstance(v, list) and all(
+        isinstance(x, dict) and x and all(map(_scalar, x.values())) for x in v),
+        "a list of tables {learner: …, explorer: …, name: value}"),
+    "invalid_action": (lambda v: isinstance(v, str), "noop or fail"),
+    **{key: (lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer")
+       for key in ("seeds", "episodes", "seed", "max_steps", "chunk_episodes", "replicates")},
+}
+
+
+def check_sweep_keys(data: Mapping[str, Any], source: str) -> None:
+    """Refuse unknown keys and keys of the wrong type, in one line naming the key.
+
+    Raises:
+      ValueError: the first unknown or mistyped key of ``data``.
+    """
+    unknown = sorted(set(data) - set(SWEEP_KEYS))
+    if unknown:
+        raise ValueError(f"{source} has unknown key {unknown[0]!r}: allowed are"
+                         f" {', '.join(SWEEP_KEYS)}")
+    for key in SWEEP_KEYS:
+        if key in data and not _KEY_TYPES[key][0](data[key]):
+            raise ValueError(f"{source}: {key}={data[key]!r} is invalid: must be"
+                             f" {_KEY_TYPES[key][1]}")
+
+
 def _resolve(path: str, folder: Path) -> str:
     return path if os.path.isabs(path) else str((folder / path).resolve())
 
@@ -327,13 +374,10 @@ def read_sweep_file(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ValueError(f"sweep file {str(path)!r} must hold a table of keys, not"
                          f" {type(data).__name__}")
-    unknown = sorted(set(data) - set(SWEEP_KEYS))
-    if unknown:
-        raise ValueError(f"sweep file {str(path)!r} has unknown key {unknown[0]!r}: allowed are"
-                         f" {', '.join(SWEEP_KEYS)}")
+    check_sweep_keys(data, f"sweep file {str(path)!r}")
     folder = path.resolve().parent
-    if isinstance(data.get("plugins"), list):
-        data["plugins"] = absolute_plugins([str(p) for p in data["plugins"]], folder)
+    if "plugins" in data:
+        data["plugins"] = absolute_plugins(data["plugins"], folder)
     if "task" in data:
         data["task"] = absolute_task(data["task"], folder)
     return data
