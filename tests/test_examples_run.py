@@ -65,3 +65,30 @@ def test_the_docstring_examples_are_found():
 def test_a_docstring_example_runs_as_written(tmp_path, where, code):
     done = run_script(code, tmp_path)
     assert done.returncode == 0, f"{where}: {done.stderr[-3000:]}"
+
+
+def test_the_readme_sweep_file_is_an_excerpt_of_the_example_that_runs():
+    import tomllib
+
+    blocks = re.findall(r"^```toml\n(.*?)^```", (ROOT / "README.md").read_text("utf-8"),
+                        re.S | re.M)
+    example = tomllib.loads((ROOT / "examples" / "sweep.toml").read_text("utf-8"))
+    assert blocks
+    for block in blocks:
+        excerpt = tomllib.loads(block)
+        for key, value in excerpt.items():
+            if isinstance(value, list) and value and isinstance(value[0], dict):
+                assert all(entry in example[key] for entry in value), key
+            elif isinstance(value, dict):
+                assert value.items() <= example[key].items(), key
+            else:
+                assert example[key] == value, key
+
+
+def test_the_sweep_page_shows_the_example_file_as_it_is():
+    import tomllib
+
+    page = (ROOT / "docs" / "sweeps.md").read_text("utf-8")
+    (block,) = re.findall(r"^```toml\n(.*?)^```", page, re.S | re.M)
+    assert tomllib.loads(block) == tomllib.loads(
+        (ROOT / "examples" / "sweep.toml").read_text("utf-8"))
