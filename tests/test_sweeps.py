@@ -30,10 +30,13 @@ def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
 
 def test_sweep_builds_the_product_of_the_axes_that_apply():
     settings = sweep(["qlearning", "sarsa"], ["vdbe", "egreedy"], AXES)
-    # vdbe: 3 α × 3 σ; ε-greedy has no σ: 3 α (its ε stays at its default).
+    # vdbe: 3 α × 3 σ; ε-greedy has no σ: 3 α, its ε at its default, stated as its param
+    # (the label and configs.csv say what runs).
     assert len(settings) == 2 * (9 + 3)
     assert Setting("sarsa", "vdbe", 100.0, {"alpha": 0.8}) in settings
-    assert Setting("qlearning", "egreedy", None, {"alpha": 0.3}) in settings
+    assert Setting("qlearning", "egreedy", 0.1, {"alpha": 0.3}) in settings
+    assert Setting("qlearning", "egreedy", 0.1, {"alpha": 0.3}).label == (
+        "qlearning/egreedy/epsilon=0.1,alpha=0.3")
     with pytest.raises(ValueError, match="axis 'omega'"):
         sweep(["qlearning"], ["vdbe"], {"omega": [1.0]})
     with pytest.raises(ValueError, match="learners"):
@@ -136,7 +139,7 @@ def test_vdbejax_run_takes_user_plugins(tmp_path):
                    "omega=5,50", "--seeds", "2", "--episodes", "15", "--quiet", "--no-figures")
     assert done.returncode == 0, done.stderr
     grid = GridResult.load(tmp_path)
-    assert [s.label for s in grid.settings] == [
-        "mellow_q/visit_epsilon/omega=5", "mellow_q/visit_epsilon/omega=50",
-        "mellow_q/vdbe_softmax/omega=5", "mellow_q/vdbe_softmax/omega=50"]
+    assert [s.label for s in grid.settings] == [  # the explorers' defaults stated
+        "mellow_q/visit_epsilon/epsilon0=0.5,omega=5", "mellow_q/visit_epsilon/epsilon0=0.5,omega=50",
+        "mellow_q/vdbe_softmax/sigma=1,omega=5", "mellow_q/vdbe_softmax/sigma=1,omega=50"]
     assert np.all(np.isfinite(grid.returns))

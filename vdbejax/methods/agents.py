@@ -256,6 +256,15 @@ def paper_settings(
     ]
 
 
+def stated_default(cls: Any) -> Any:
+    """The default of an explorer class's swept parameter (``None`` if it has none): what a
+    setting that does not set it runs with, written into its label and ``configs.csv``."""
+    for f in dataclasses.fields(cls):
+        if f.name == cls.parameter and f.default is not dataclasses.MISSING:
+            return f.default
+    return None
+
+
 def sweep(learners: Sequence[str], explorers: Sequence[str],
           axes: Mapping[str, Sequence[Any]] | None = None,
           shared: Mapping[str, Any] | None = None) -> list[Setting]:
@@ -263,8 +272,10 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
 
     An axis applies to a learner × explorer pair when one of them has a field of that
     name (``learner.``/``explorer.`` prefixes allowed); the explorer's swept parameter
-    becomes the settings' ``param``. E.g. ``sweep(["qlearning", "sarsa"], ["vdbe"],
-    {"alpha": [0.1, 0.3, 0.8], "sigma": [0.01, 1, 100]})`` gives 2 × 3 × 3 = 18 settings.
+    becomes the settings' ``param`` (its class default where no axis or shared value sets
+    it, so that the label and ``configs.csv`` state the value that runs). E.g.
+    ``sweep(["qlearning", "sarsa"], ["vdbe"], {"alpha": [0.1, 0.3, 0.8], "sigma": [0.01, 1,
+    100]})`` gives 2 × 3 × 3 = 18 settings.
 
     Args:
       learners: learner names.
@@ -300,6 +311,8 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
             for combination in itertools.product(*(axes[name] for name in mine)):
                 chosen = dict(fixed, **dict(zip(mine, combination, strict=True)))
                 param = chosen.pop(cls.parameter, None) if cls.parameter else None
+                if param is None and cls.parameter:  # stated, not hidden: in labels, configs
+                    param = stated_default(cls)
                 settings.append(Setting(learner, explorer, param, chosen))
     unused = [name for name in list(axes) + list(shared) if name not in used]
     if unused:

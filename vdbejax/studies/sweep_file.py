@@ -54,7 +54,7 @@ import jax
 import numpy as np
 
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.methods.agents import Setting, owners, sweep
+from vdbejax.methods.agents import Setting, owners, stated_default, sweep
 from vdbejax.methods.explorers import explorer_class
 from vdbejax.methods.learners import learner_class
 from vdbejax.validation import INT32_MAX, check_int
@@ -222,6 +222,8 @@ def _explicit(i: int, entry: dict[str, Any], shared: Mapping[str, Any]) -> Setti
     values = {name: value for name, value in shared.items() if owners(name, learner, explorer)}
     values.update(entry)
     param = values.pop(parameter, None) if parameter else None
+    if param is None and parameter:  # the default that runs, stated
+        param = stated_default(explorer_class(explorer))
     return Setting(learner, explorer, param, values)
 
 
