@@ -197,3 +197,15 @@ def test_loop_table_gives_each_looping_setting_its_rate_and_interval(tmp_path):
     assert not any("0.001 |" in line for line in lines)
     assert _loop_table([result], [[dataclasses.replace(row, agents_cut=None,
                                                        episodes_cut=None)]]) == []
+
+
+@pytest.mark.parametrize("flags", [["--seeds", "0"], ["--episodes", "0"], ["--seed", "-1"],
+                                   ["--replicates", "0"], ["--memory-budget", "1Q"]])
+def test_a_refused_ablate_leaves_no_folder_behind(tmp_path, capsys, flags):
+    from vdbejax import cli
+
+    out = tmp_path / "doc"
+    assert cli.main(["ablate", "--out", str(out), *flags]) == 2
+    line = capsys.readouterr().err.strip()
+    assert line.startswith("error:") and "\n" not in line
+    assert not out.exists()

@@ -54,7 +54,7 @@ from vdbejax.paper.reproduce import (  # noqa: F401  (AUTHORS_DETAILS: re-export
 from vdbejax.results import io
 from vdbejax.results.replicates import REPLICATE_FILES, check_replicates
 from vdbejax.runs import RunOptions
-from vdbejax.validation import check_writable_dir
+from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int, check_writable_dir
 
 DOCUMENT_FILE = "REPRODUCTION.md"
 FIGURES_DIR = "ablation"
@@ -185,13 +185,17 @@ def ablate(
         raise ValueError(f"mode={mode!r} is invalid: must be one of {', '.join(MODES)}")
     document, figures_dir = MODES[mode]
     knobs = RunOptions(resume=resume, devices=devices, memory_budget_bytes=memory_budget_bytes)
+    # The run's size is checked before any folder is made (a refusal leaves nothing behind).
+    check_int("seeds", seeds, 1, INT32_MAX)
+    check_replicates(replicates, seeds)
+    check_int("episodes", episodes, 1, INT32_MAX)
+    check_int("seed", seed, 0, UINT32_MAX)
     # Every folder written must be writable before the first variant trains.
     out = check_writable_dir("out", out_dir)
     figures = check_writable_dir("out", out / figures_dir)
     raw = check_writable_dir("results_dir", results_dir) if results_dir is not None else figures
     # The options document shows figures; the others link reports only (size).
     assets = DOCUMENT_ASSETS if mode == "options" else REPORT_ASSETS
-    check_replicates(replicates, seeds)
     size = (seeds, episodes, seed, replicates)
     results = [_run_reporting(v, raw, figures, assets, size, reuse, progress, knobs)
                for v in variants]
