@@ -392,3 +392,19 @@ def test_loading_a_grid_of_unregistered_plugins_keeps_the_process_state(tmp_path
     named = with_parameter_names([plain], {"never_imported": "eps0"})[0]
     assert named == plain and named.label == "qlearning/never_imported/eps0=0.5"
     assert len(grid.settings) == len(loaded.settings)
+
+
+def test_a_broken_meta_or_a_bad_config_index_is_one_line_naming_it(tmp_path):
+    from synthetic_grid import synthetic_grid
+
+    from vdbejax.results.grid_result import GridResult
+
+    grid = synthetic_grid(seeds=2, episodes=10)
+    grid.save(tmp_path)
+    with pytest.raises(ValueError, match=r"config=99 is invalid: must be a config index in"
+                                         r" \[0, 45\]"):
+        grid.hyperparameters(99)
+    (tmp_path / "meta.json").write_text("{broken")
+    with pytest.raises(ValueError, match="meta.json' is unreadable: JSONDecodeError") as error:
+        GridResult.load(tmp_path)
+    assert "\n" not in str(error.value)

@@ -51,6 +51,10 @@ class GridResult:
         """Every hyperparameter of a config's agents (``learner.alpha``, ``explorer.sigma``,
         …), as recorded by :func:`run_grid` in ``meta["hyperparameters"]`` (or resolved
         from the setting with spec defaults for results without it)."""
+        if isinstance(config, bool) or not isinstance(config, (int, np.integer)) or not (
+                0 <= config < len(self.settings)):
+            raise ValueError(f"config={config!r} is invalid: must be a config index in"
+                             f" [0, {len(self.settings) - 1}]")
         recorded = self.meta.get("hyperparameters")
         if isinstance(recorded, list) and len(recorded) == len(self.settings):
             return dict(recorded[config])
@@ -180,7 +184,11 @@ class GridResult:
         except Exception as error:
             raise ValueError(f"results file {str(returns_path)!r} is unreadable:"
                              f" {type(error).__name__}: {error}") from None
-        meta = io.load_json(out / io.META_FILE) if (out / io.META_FILE).exists() else {}
+        try:
+            meta = io.load_json(out / io.META_FILE) if (out / io.META_FILE).exists() else {}
+        except (OSError, ValueError) as error:  # ValueError: not JSON
+            raise ValueError(f"results file {str(out / io.META_FILE)!r} is unreadable:"
+                             f" {type(error).__name__}: {error}") from None
         if not isinstance(meta, dict):
             raise ValueError(f"results file {str(out / io.META_FILE)!r} is invalid: must hold a"
                              f" JSON object, not {type(meta).__name__}")
