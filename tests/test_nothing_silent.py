@@ -238,3 +238,47 @@ def test_a_printed_comparison_shows_why_it_held_or_failed():
     assert _apart(-1.0651, -1.0739) == ("-1.065", "-1.074")  # not "-1.07 ≤ -1.07"
     assert _apart(0.81, 0.7) == ("0.81", "0.70")
     assert _apart(0.5, 0.5) == ("0.500000", "0.500000")  # equal: every digit says so
+
+
+def _greedy_plugin(pick):
+    """The same plug-in class (one module and qualified name), its select() given."""
+    @explorer("nothing_silent_edited", replace=True)
+    class Edited(Explorer):
+        def select(self, q, tables, context, uniforms):
+            return pick(q)
+
+    return Edited
+
+
+def test_resume_after_editing_a_plug_in_is_refused(tmp_path):
+    from vdbejax.runs import RunOptions, prepare_grid
+
+    mdp, settings = make_mdp(max_steps=20), [Setting("qlearning", "nothing_silent_edited")]
+    _greedy_plugin(jnp.argmax)
+    first = prepare_grid(mdp, settings, num_seeds=2, num_episodes=4)
+    assert prepare_grid(mdp, settings, num_seeds=2, num_episodes=4).fingerprint == (
+        first.fingerprint)  # unchanged code: the same run
+    assert "qlearning/nothing_silent_edited" in first.description["plugin_code"]
+    # Built-ins only: the fingerprint has no plug-in code (earlier runs keep theirs).
+    assert "plugin_code" not in prepare_grid(mdp, [Setting("qlearning", "vdbe", 1.0)],
+                                             num_seeds=2, num_episodes=4).description
+
+    checkpoint = tmp_path / "run.npz"
+    calls = []
+
+    def stop_after_first_chunk(done, total, elapsed):
+        calls.append(done)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_grid(mdp, settings, num_seeds=2, num_episodes=4, run=RunOptions(
+            checkpoint=checkpoint, chunk_episodes=2, progress=stop_after_first_chunk))
+    assert checkpoint.exists()
+    _greedy_plugin(jnp.argmin)  # the plug-in edited between the run and its resume
+    assert prepare_grid(mdp, settings, num_seeds=2, num_episodes=4).fingerprint != (
+        first.fingerprint)
+    with pytest.raises(ValueError, match="belongs to a different run") as error:
+        run_grid(mdp, settings, num_seeds=2, num_episodes=4,
+                 run=RunOptions(checkpoint=checkpoint, resume=True, chunk_episodes=2))
+    assert "\n" not in str(error.value)

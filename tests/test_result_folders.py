@@ -408,3 +408,21 @@ def test_a_broken_meta_or_a_bad_config_index_is_one_line_naming_it(tmp_path):
     with pytest.raises(ValueError, match="meta.json' is unreadable: JSONDecodeError") as error:
         GridResult.load(tmp_path)
     assert "\n" not in str(error.value)
+
+
+def test_a_stop_while_a_temporary_file_is_created_arrives_after_it_is_named():
+    # atomic_write_bytes creates its temporary under _signals_deferred: a SIGTERM there is
+    # held until the file has a name its cleanup can remove.
+    from vdbejax.results.io import _signals_deferred
+
+    arrived = []
+    previous = signal.signal(signal.SIGTERM, lambda *_: arrived.append("now"))
+    try:
+        with _signals_deferred():
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.05)
+            arrived.append("inside")
+        time.sleep(0.05)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert arrived == ["inside", "now"]

@@ -256,12 +256,18 @@ def compile_seconds() -> float:
     return _compile_seconds()
 
 
-def check_params(params: Any, num_actions: int) -> None:
+def check_params(params: Any, num_actions: int) -> dict[str, str]:
     """Check a batch's hyperparameters: an :class:`AgentParams` whose every kind's
-    plug-ins trace on one agent (:func:`~vdbejax.methods.api.check_plugin`)."""
+    plug-ins trace on one agent (:func:`~vdbejax.methods.api.check_plugin`).
+
+    Returns:
+      ``{"learner/explorer": digest}`` of every kind with a user plug-in (its traced
+      programs, :func:`~vdbejax.methods.api.check_plugin`); built-ins are the package's.
+    """
     if not isinstance(params, AgentParams):
         raise ValueError(f"params={type(params).__name__} is invalid: must be an AgentParams"
                          " (see vdbejax.methods.stack_agents)")
+    digests: dict[str, str] = {}
     for agent in params.kinds:
         builtin = all(type(p).__module__.startswith("vdbejax.")
                       for p in (agent.learner, agent.explorer))
@@ -270,4 +276,6 @@ def check_params(params: Any, num_actions: int) -> None:
         # Checked at every call, not remembered: a plug-in edited or patched since its
         # last check is checked as it is now (a trace on one agent: milliseconds).
         one = jax.tree.map(lambda leaf: np.asarray(leaf)[0], agent)
-        check_plugin(one.learner, one.explorer, num_actions)
+        digests[f"{one.learner.name}/{one.explorer.name}"] = check_plugin(
+            one.learner, one.explorer, num_actions)
+    return digests

@@ -4,6 +4,7 @@ effect is a one-line ``ValueError`` rather than an error deep inside the engine'
 """
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -24,7 +25,7 @@ from vdbejax.methods.contract import (
 from vdbejax.methods.model import Model
 
 
-def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: int = 3) -> None:
+def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: int = 3) -> str:
     """Trace one agent's plug-in functions on abstract inputs; a one-line ``ValueError``
     for wrong shapes or dtypes, a failing function, or side effects.
 
@@ -32,7 +33,13 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
       agent_learner: one learner instance (scalar leaves).
       agent_explorer: one explorer instance.
       num_actions: actions of the task.
+
+    Returns:
+      the digest of the traced programs (their equations, not the hyperparameters'
+      values): an edited plug-in gets another one, so a run's fingerprint, and hence its
+      checkpoint and saved results, tell the code they were made with.
     """
+    programs: list[str] = []
     name = f"explorer {agent_explorer.name!r}"
     A = num_actions
     f32 = jnp.float32
@@ -76,6 +83,7 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
         if closed.effects:
             raise ValueError(f"{what} has side effects ({sorted(map(str, closed.effects))}):"
                              " plug-in functions must be pure")
+        programs.append(f"{what}\n{closed.jaxpr}")
         return jax.eval_shape(fn, *args)
 
     action = traced(f"{name} select()", agent_explorer.select, row, tables, context, uniforms)
@@ -112,6 +120,17 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
         _check_declared_inputs(lname, agent_learner, transition)
     if agent_learner.plan_at is not None:
         _check_plan(lname, agent_learner, A, context, traced)
+    # What the engine reads besides the programs: the tables' specifications and the flags.
+    declared = [repr(plugin.tables()) + repr([getattr(plugin, flag, None) for flag in _FLAGS])
+                for plugin in (agent_explorer, agent_learner)]
+    text = "\n".join([*declared, *programs])
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+#: The contract's flags, part of a plug-in's code digest (:func:`check_plugin`).
+_FLAGS = ("num_uniforms", "uses_next_action", "uses_next_probabilities", "redraws_next_action",
+          "behaviour_uses_context", "uses_model", "updates_whole_table", "plan_at",
+          "plan_uniforms")
 
 
 #: States and listed successors of the abstract task a whole-table plug-in is traced on.

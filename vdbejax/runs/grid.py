@@ -161,7 +161,9 @@ def prepare_grid(
         raise ValueError(f"window={window} is invalid with num_episodes={num_episodes}: no"
                          " agent could ever solve the task (a window needs that many episodes)")
     params, keys = grid_agents(settings, num_seeds, seed, options)
-    check_params(params, mdp.num_actions)  # a bad plug-in: one line before anything runs
+    # A bad plug-in: one line before anything runs; a user plug-in's code digest enters the
+    # fingerprint, so that a checkpoint or a saved result of other code is never taken.
+    plugin_code = check_params(params, mdp.num_actions)
     plan = make_plan(mdp, params, len(settings) * num_seeds, num_episodes, run)
     description = {
         "mdp": mdp.name,
@@ -174,6 +176,8 @@ def prepare_grid(
     }
     if stop.checks_chunks:  # a fixed budget leaves the fingerprint of earlier runs as it was
         description["stop"] = stop.describe()
+    if plugin_code:  # built-ins only: the fingerprint of earlier runs, as it was
+        description["plugin_code"] = dict(sorted(plugin_code.items()))
     return PreparedGrid(mdp, settings, num_seeds, num_episodes, seed, options, run, stop,
                         params, keys, plan, description)
 
