@@ -410,19 +410,29 @@ def test_a_broken_meta_or_a_bad_config_index_is_one_line_naming_it(tmp_path):
     assert "\n" not in str(error.value)
 
 
-def test_a_stop_while_a_temporary_file_is_created_arrives_after_it_is_named():
-    # atomic_write_bytes creates its temporary under _signals_deferred: a SIGTERM there is
-    # held until the file has a name its cleanup can remove.
-    from vdbejax.results.io import _signals_deferred
 
-    arrived = []
-    previous = signal.signal(signal.SIGTERM, lambda *_: arrived.append("now"))
-    try:
-        with _signals_deferred():
-            os.kill(os.getpid(), signal.SIGTERM)
-            time.sleep(0.05)
-            arrived.append("inside")
-        time.sleep(0.05)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    assert arrived == ["inside", "now"]
+def test_a_stop_at_any_moment_of_an_atomic_write_leaves_no_temporary(tmp_path, monkeypatch):
+    # The temporary is named before it is created: a stop (here: os.open's caller
+    # interrupted right after the file exists) finds it and removes it.
+    from vdbejax.results import io as result_io
+
+    real_open = os.open
+
+    def open_then_stop(*args, **kwargs):
+        real_open(*args, **kwargs)
+        raise KeyboardInterrupt  # as SIGINT would, between creating and naming the file
+
+    monkeypatch.setattr(result_io.os, "open", open_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        result_io.atomic_write_bytes(tmp_path / "x.bin", b"data")
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.setattr(result_io.os, "open", real_open)
+    result_io.atomic_write_bytes(tmp_path / "x.bin", b"data")
+    assert (tmp_path / "x.bin").read_bytes() == b"data"
+    assert (tmp_path / "x.bin").stat().st_mode & 0o777 == 0o666 & ~_current_umask()
+
+
+def _current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask

@@ -5,15 +5,11 @@ run killed at any moment never leaves a half-written result.
 """
 from __future__ import annotations
 
-import contextlib
 import csv
 import io
 import json
 import os
-import signal
-import tempfile
-import threading
-from collections.abc import Iterator
+import secrets
 from pathlib import Path
 from typing import Any
 
@@ -36,11 +32,13 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     # (vdbejax.results.folder_lock.remove_stale_temporaries).
     tmp = None
     try:
-        with _signals_deferred():  # a stop between creating the file and naming it: none left
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp",
-                                       dir=path.parent)
-        # mkstemp creates 0600 files: give the result the usual umask-based permissions.
-        os.chmod(tmp, 0o666 & ~_umask())
+        while True:  # named before it exists: a stop at any moment leaves no file unnamed
+            tmp = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
+            try:  # the umask applies to 0o666, as for any file the user writes
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+                break
+            except FileExistsError:
+                continue
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
@@ -51,22 +49,6 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
         raise
-
-
-@contextlib.contextmanager
-def _signals_deferred() -> Iterator[None]:
-    """SIGINT and SIGTERM held back while the body runs (main thread, POSIX); they arrive
-    as it ends, when the caller's cleanup is in place."""
-    if (not hasattr(signal, "pthread_sigmask")
-            or threading.current_thread() is not threading.main_thread()):
-        yield
-        return
-    held = {signal.SIGINT, signal.SIGTERM}
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -80,12 +62,6 @@ def _fsync_dir(folder: Path) -> None:
         pass
     finally:
         os.close(fd)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
