@@ -256,13 +256,23 @@ def paper_settings(
     ]
 
 
-def stated_default(cls: Any) -> Any:
-    """The default of an explorer class's swept parameter (``None`` if it has none): what a
-    setting that does not set it runs with, written into its label and ``configs.csv``."""
-    for f in dataclasses.fields(cls):
-        if f.name == cls.parameter and f.default is not dataclasses.MISSING:
-            return f.default
-    return None
+def setting_of(learner: str, explorer: str, values: Mapping[str, Any]) -> Setting:
+    """The :class:`Setting` of ``values`` (the explorer's swept parameter among them, by
+    name): where they do not set that parameter, its class default is stated as ``param``,
+    so that the label and ``configs.csv`` show the value that runs.
+
+    Raises:
+      ValueError: an unknown explorer.
+    """
+    cls: Any = explorer_class(explorer)  # a dataclass (the registry's classes are)
+    values = dict(values)
+    if not cls.parameter:
+        return Setting(learner, explorer, None, values)
+    param = values.pop(cls.parameter, None)
+    if param is None:
+        param = next((f.default for f in dataclasses.fields(cls) if f.name == cls.parameter
+                      and f.default is not dataclasses.MISSING), None)
+    return Setting(learner, explorer, param, values)
 
 
 def sweep(learners: Sequence[str], explorers: Sequence[str],
@@ -303,17 +313,14 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
     settings = []
     for learner in learners:
         for explorer in explorers:
-            cls = explorer_class(explorer)
+            explorer_class(explorer)  # an unknown name: its one-line error before any other
             mine = [name for name in axes if owners(name, learner, explorer)]
             fixed = {name: value for name, value in shared.items()
                      if owners(name, learner, explorer)}
             used.update(mine, fixed)
             for combination in itertools.product(*(axes[name] for name in mine)):
                 chosen = dict(fixed, **dict(zip(mine, combination, strict=True)))
-                param = chosen.pop(cls.parameter, None) if cls.parameter else None
-                if param is None and cls.parameter:  # stated, not hidden: in labels, configs
-                    param = stated_default(cls)
-                settings.append(Setting(learner, explorer, param, chosen))
+                settings.append(setting_of(learner, explorer, chosen))
     unused = [name for name in list(axes) + list(shared) if name not in used]
     if unused:
         raise ValueError(f"axis {unused[0]!r} is invalid: no learner in {list(learners)} or"

@@ -46,7 +46,7 @@ import json
 import os
 import sys
 import tomllib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,7 +54,7 @@ import jax
 import numpy as np
 
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.methods.agents import Setting, owners, stated_default, sweep
+from vdbejax.methods.agents import Setting, owners, setting_of, sweep
 from vdbejax.methods.explorers import explorer_class
 from vdbejax.methods.learners import learner_class
 from vdbejax.validation import INT32_MAX, check_int
@@ -214,17 +214,14 @@ def _explicit(i: int, entry: dict[str, Any], shared: Mapping[str, Any]) -> Setti
         raise ValueError(f"settings[{i}] is invalid: needs learner = \"…\" and"
                          " explorer = \"…\" (names)")
     learner_class(learner)  # an unknown name: the registry's one-line error
-    parameter = explorer_class(explorer).parameter
+    explorer_class(explorer)
     for name in entry:
         if not owners(name, learner, explorer):
             raise ValueError(f"settings[{i}] is invalid: neither learner {learner!r} nor"
                              f" explorer {explorer!r} has a field {name!r}")
     values = {name: value for name, value in shared.items() if owners(name, learner, explorer)}
     values.update(entry)
-    param = values.pop(parameter, None) if parameter else None
-    if param is None and parameter:  # the default that runs, stated
-        param = stated_default(explorer_class(explorer))
-    return Setting(learner, explorer, param, values)
+    return setting_of(learner, explorer, values)
 
 
 def sweep_settings(learners: Sequence[str] = (), explorers: Sequence[str] = (),
@@ -292,6 +289,11 @@ def _scalar(value: Any) -> bool:
     return isinstance(value, (int, float, str, bool))
 
 
+def _scalar_tables(value: Any) -> bool:
+    return isinstance(value, list) and all(
+        isinstance(x, dict) and x and all(map(_scalar, x.values())) for x in value)
+
+
 #: The type of every sweep-file key: ``(check, what is allowed)``.
 _KEY_TYPES: dict[str, tuple[Any, str]] = {
     "task": (lambda v: isinstance(v, str), "a task name (a string)"),
@@ -303,12 +305,8 @@ _KEY_TYPES: dict[str, tuple[Any, str]] = {
         "a table {name: [values]} of non-empty lists of numbers or strings"),
     "shared": (lambda v: isinstance(v, dict) and all(map(_scalar, v.values())),
                "a table {name: value} of numbers or strings"),
-    "exclude": (lambda v: isinstance(v, list) and all(
-        isinstance(x, dict) and x and all(map(_scalar, x.values())) for x in v),
-        "a list of tables {name: value}"),
-    "settings": (lambda v: isinstance(v, list) and all(
-        isinstance(x, dict) and x and all(map(_scalar, x.values())) for x in v),
-        "a list of tables {learner: …, explorer: …, name: value}"),
+    "exclude": (_scalar_tables, "a list of tables {name: value}"),
+    "settings": (_scalar_tables, "a list of tables {learner: …, explorer: …, name: value}"),
     "invalid_action": (lambda v: isinstance(v, str), "noop or fail"),
     **{key: (lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer")
        for key in ("seeds", "episodes", "seed", "max_steps", "chunk_episodes", "replicates")},
@@ -335,21 +333,24 @@ def _resolve(path: str, folder: Path) -> str:
     return path if os.path.isabs(path) else str((folder / path).resolve())
 
 
-def _task_file(task: str) -> bool:
-    return _is_user_task(task) and task.rpartition(":")[0].endswith(".py")
+def map_files(spec: Mapping[str, Any], path: Callable[[str], str]) -> dict[str, Any]:
+    """``spec`` with ``path`` applied to every file it names: each ``.py`` of its
+    ``plugins`` and the file of a ``file.py:function`` task (made absolute when read,
+    relative to the written file when written back)."""
+    spec = dict(spec)
+    if "plugins" in spec:
+        spec["plugins"] = [path(str(p)) if str(p).endswith(".py") else p
+                           for p in spec["plugins"]]
+    task = spec.get("task")
+    if isinstance(task, str) and _is_user_task(task) and task.rpartition(":")[0].endswith(".py"):
+        where, _, name = task.rpartition(":")
+        spec["task"] = f"{path(where)}:{name}"
+    return spec
 
 
-def absolute_plugins(plugins: Sequence[str], folder: str | os.PathLike = ".") -> list[str]:
-    """``plugins`` with each ``.py`` file's path made absolute from ``folder``."""
-    return [_resolve(p, Path(folder)) if str(p).endswith(".py") else p for p in plugins]
-
-
-def absolute_task(task: str, folder: str | os.PathLike = ".") -> str:
-    """``task`` with a ``file.py:function`` file's path made absolute from ``folder``."""
-    if not isinstance(task, str) or not _task_file(task):
-        return task
-    where, _, name = task.rpartition(":")
-    return f"{_resolve(where, Path(folder))}:{name}"
+def absolute_files(spec: Mapping[str, Any], folder: str | os.PathLike = ".") -> dict[str, Any]:
+    """``spec`` with the files it names made absolute from ``folder``."""
+    return map_files(spec, lambda file: _resolve(file, Path(folder)))
 
 
 def read_sweep_file(path: str | os.PathLike) -> dict[str, Any]:
@@ -377,12 +378,7 @@ def read_sweep_file(path: str | os.PathLike) -> dict[str, Any]:
         raise ValueError(f"sweep file {str(path)!r} must hold a table of keys, not"
                          f" {type(data).__name__}")
     check_sweep_keys(data, f"sweep file {str(path)!r}")
-    folder = path.resolve().parent
-    if "plugins" in data:
-        data["plugins"] = absolute_plugins(data["plugins"], folder)
-    if "task" in data:
-        data["task"] = absolute_task(data["task"], folder)
-    return data
+    return absolute_files(data, path.resolve().parent)
 
 
 def sweep_from_meta(meta: Mapping[str, Any]) -> dict[str, Any]:
@@ -418,17 +414,7 @@ def write_sweep_file(spec: Mapping[str, Any], path: str | os.PathLike) -> Path:
         raise ValueError(f"out={str(path)!r} is invalid: the sweep file is written as JSON,"
                          " name it *.json")
     folder = path.resolve().parent
-    spec = dict(spec)
-
-    def relative(file: str) -> str:
-        return os.path.relpath(file, folder) if os.path.isabs(file) else file
-
-    spec["plugins"] = [relative(p) if p.endswith(".py") else p for p in spec.get("plugins", [])]
-    if not spec["plugins"]:
-        del spec["plugins"]
-    task = spec.get("task", "")
-    if _task_file(task):
-        where, _, name = task.rpartition(":")
-        spec["task"] = f"{relative(where)}:{name}"
+    spec = map_files(spec, lambda file: os.path.relpath(file, folder) if os.path.isabs(file)
+                     else file)
     path.write_text(json.dumps(spec, indent=2) + "\n")
     return path

@@ -34,8 +34,7 @@ from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.studies import train_in_folder
 from vdbejax.studies.sweep_file import (  # noqa: F401 (the sweep file's names, here since 0.1)
     SWEEP_KEYS,
-    absolute_plugins,
-    absolute_task,
+    absolute_files,
     load_plugins,
     make_task,
     read_sweep_file,
@@ -186,14 +185,14 @@ def run_sweep(
     def annotate(result: GridResult) -> None:
         annotate_replicates(result.meta, replicates, seeds)
         # Files as absolute paths: the folder's sweep file (sweep_from_meta) runs anywhere.
-        result.meta.update(best_return=best, invalid_action=invalid_action,
-                           task=absolute_task(task),
+        files = absolute_files({"task": task, "plugins": list(plugins)})
+        result.meta.update(best_return=best, invalid_action=invalid_action, task=files["task"],
                            sweep={"learners": list(learners), "explorers": list(explorers),
                                   "axes": {k: list(v) for k, v in (axes or {}).items()},
                                   "shared": dict(shared or {}),
                                   "exclude": [dict(rule) for rule in exclude],
                                   "settings": [dict(entry) for entry in settings],
-                                  "plugins": absolute_plugins(plugins)})
+                                  "plugins": files["plugins"]})
 
     result, _ = train_in_folder(
         out_dir, prepared,
