@@ -53,12 +53,13 @@ class _Meter:
     rate and ETA measured from the end of the first chunk (which includes compiling)."""
 
     def __init__(self) -> None:
-        self.start: tuple[int, float] | None = None   # the first report: nothing run yet
-        self.warm: tuple[int, float] | None = None    # the first chunk's end
+        self.start: int | None = None                 # done at the first report (resumed)
+        self.warm: tuple[int, float] | None = None    # done and elapsed at the first chunk
 
     def text(self, done: int, total: int, elapsed: float) -> str:
-        if self.start is None or (done == self.start[0] and self.warm is None):
-            self.start = self.start or (done, elapsed)
+        if self.start is None:
+            self.start = done
+        if self.warm is None and done == self.start:
             return format_progress(done, total, elapsed,
                                    status="compiling the programs (first chunk) …")
         if self.warm is None:

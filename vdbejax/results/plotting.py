@@ -167,8 +167,13 @@ def figure3(
 
 def _varying(settings: Sequence[Any]) -> list[str]:
     """Names of the values that differ between ``settings``."""
-    names = list(dict.fromkeys(n for s in settings for n in s.values))
-    return [n for n in names if len({repr(s.values.get(n)) for s in settings}) > 1]
+    return _differing([s.values for s in settings])
+
+
+def _differing(values: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Names whose value is not the same in all of ``values`` (in order of appearance)."""
+    names = list(dict.fromkeys(n for v in values for n in v))
+    return [n for n in names if len({repr(v.get(n)) for v in values}) > 1]
 
 
 def _finish(fig: plt.Figure, path: str | os.PathLike | None) -> plt.Figure:
@@ -184,23 +189,18 @@ def _finish(fig: plt.Figure, path: str | os.PathLike | None) -> plt.Figure:
 
 def _extra_values(hyperparameters: str, varying: Sequence[str]) -> str:
     """``α=0.1, γ=0.9`` of a summary row's hyperparameters (JSON), only the ``varying`` ones."""
-    try:
-        values = json.loads(hyperparameters) if hyperparameters else {}
-    except ValueError:
+    values = _parsed(hyperparameters)
+    if "" in values:  # not JSON: shown as written
         return hyperparameters
     return ", ".join(f"{_symbol(k)}={_fmt(v)}" for k, v in values.items() if k in varying)
 
 
-def _varying_extras(rows: Sequence[SummaryRow]) -> list[str]:
-    """The hyperparameter names whose values differ between summary rows."""
-    parsed = []
-    for row in rows:
-        try:
-            parsed.append(json.loads(row.hyperparameters) if row.hyperparameters else {})
-        except ValueError:
-            parsed.append({"": row.hyperparameters})
-    names = list(dict.fromkeys(n for values in parsed for n in values))
-    return [n for n in names if len({repr(values.get(n)) for values in parsed}) > 1]
+def _parsed(hyperparameters: str) -> dict[str, Any]:
+    """A summary row's hyperparameters (``configs.csv``'s JSON); ``{"": text}`` if not JSON."""
+    try:
+        return json.loads(hyperparameters) if hyperparameters else {}
+    except ValueError:
+        return {"": hyperparameters}
 
 
 def _final_return(row: SummaryRow) -> tuple[float, float | None, float | None]:
@@ -258,7 +258,7 @@ def sensitivity(
         axes[0, 0].text(0.5, 0.5, "no swept parameter in these settings", ha="center")
     for col, explorer in enumerate(explorers):
         mine = [r for r in swept if r.explorer == explorer]
-        varying = _varying_extras(mine)
+        varying = _differing([_parsed(r.hyperparameters) for r in mine])
         for row, (key, label, metric) in enumerate(SENSITIVITY_METRICS):
             ax = axes[row, col]
             for k, (learner, extra) in enumerate(

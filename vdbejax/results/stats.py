@@ -84,11 +84,8 @@ def mean_curve_ci(
     # resampling then smoothing every resample, at a fraction of the cost.
     weights = bootstrap_weights(len(returns), num_resamples, seed)
     smoothed = moving_average(returns, window)
-    columns = _block(num_resamples)  # episodes per block, each a column of resamples
-    if columns >= smoothed.shape[-1]:
-        low, high = _interval(weights @ smoothed, level)
-        return mean, low, high
-    # A long run: the band episode block by episode block (its memory stays bounded).
+    # Episode block by episode block (one block unless the run is long: memory bounded).
+    columns = _block(num_resamples)
     edges = [_interval(weights @ smoothed[:, i:i + columns], level)
              for i in range(0, smoothed.shape[-1], columns)]
     return (mean, np.concatenate([lo for lo, _ in edges]),
@@ -145,11 +142,10 @@ def convergence_ci(
     returns = np.asarray(returns, np.float64)
     point = convergence_episode(returns.mean(0), window, last, fraction)
     weights = bootstrap_weights(len(returns), num_resamples, seed)
-    rows = _block(returns.shape[-1])  # resamples per block
+    rows = _block(returns.shape[-1])  # resamples per block (all of them unless long)
     episodes = np.concatenate([
         convergence_episodes(weights[i:i + rows] @ returns, window, last, fraction)
-        for i in range(0, num_resamples, rows)]) if rows < num_resamples else (
-        convergence_episodes(weights @ returns, window, last, fraction))
+        for i in range(0, num_resamples, rows)])
     low, high = _interval(episodes.astype(np.float64), level)
     return point, float(low), float(high)
 
