@@ -20,14 +20,39 @@ def test_convergence_episode_step_curve():
     # step at episode 11 (index 10) reaches 0.95 once 4 ones are in the window: episode 14.
     curve = np.r_[np.zeros(10), np.ones(20)]
     assert stats.convergence_episode(curve, window=4, last=10) == 14
-    # Batched form gives the same per row, and a never-reaching row gets the length.
+    # Batched form gives the same per row.
     batch = np.stack([curve, curve])
     np.testing.assert_array_equal(stats.convergence_episodes(batch, window=4, last=10), [14, 14])
 
 
-def test_convergence_episode_negative_level():
-    # L = −1: the threshold is −1 − 0.05 = −1.05, met at once by a flat curve.
-    assert stats.convergence_episode(-np.ones(50), window=5, last=10) == 1
+def test_a_setting_that_never_learns_has_no_convergence_episode():
+    # L = −1: the threshold is −1 − 0.05 = −1.05, met at once by a flat curve. It used to
+    # "converge" at episode 1, which read as the fastest: it is censored (+∞) instead.
+    assert stats.convergence_episode(-np.ones(50), window=5, last=10) == np.inf
+    # So is a curve that starts at its final level and only falls away and back.
+    assert stats.convergence_episode(np.r_[np.ones(5), np.zeros(5), np.ones(40)],
+                                     window=5, last=10) == np.inf
+    # One that starts below its level and climbs does converge, even at a negative level.
+    curve = np.r_[np.full(10, -5.0), -np.ones(40)]
+    assert stats.convergence_episode(curve, window=5, last=10) == 15
+
+
+def test_a_censored_convergence_has_open_interval_ends():
+    rng = np.random.default_rng(0)
+    flat = -1 + 0.01 * rng.normal(size=(20, 200))
+    assert stats.convergence_ci(flat, window=5, last=20) == (np.inf, np.inf, np.inf)
+    # Half the agents learn at episode 50, half never: the mean curve converges, but the
+    # resamples with few learners may not; the finite ends are whole episodes.
+    learners = np.r_[np.full(50, -5.0), -np.ones(150)]
+    mixed = np.concatenate([np.tile(learners, (2, 1)), np.full((18, 200), -1.0)])
+    point, low, high = stats.convergence_ci(mixed, window=5, last=20)
+    assert np.isfinite(point) and high == np.inf and low <= point
+    # Without censored resamples the interval is numpy's linear percentile interval.
+    steady = np.concatenate([np.tile(learners, (20, 1))]) + 0.1 * rng.normal(size=(20, 200))
+    point, low, high = stats.convergence_ci(steady, window=5, last=20)
+    weights = stats.bootstrap_weights(20, stats.NUM_RESAMPLES, 0)
+    episodes = stats.convergence_episodes(weights @ steady, window=5, last=20)
+    assert (low, high) == tuple(np.quantile(episodes, [0.025, 0.975]))
 
 
 def test_bootstrap_weights_match_indices():
@@ -135,11 +160,14 @@ def test_percentile_interval_equals_numpy_quantile_bit_for_bit():
 
 
 def _reference_convergence(curves, window, last, fraction=0.95):
-    """The convergence rule written out over the whole moving average (no early exit)."""
+    """The convergence rule written out over the whole moving average (no early exit),
+    censored (+∞) where the first window's mean is already in the band, or never."""
     curves = np.asarray(curves, np.float64)
     level = curves[..., -last:].mean(-1, keepdims=True)
-    reached = stats.moving_average(curves, window) >= level - (1 - fraction) * np.abs(level) - 1e-12
-    return np.where(reached.any(-1), np.argmax(reached, axis=-1) + 1, curves.shape[-1])
+    threshold = level - (1 - fraction) * np.abs(level) - 1e-12
+    reached = stats.moving_average(curves, window) >= threshold
+    flat = curves[..., :window].mean(-1) >= threshold[..., 0]
+    return np.where(reached.any(-1) & ~flat, np.argmax(reached, axis=-1) + 1.0, np.inf)
 
 
 def test_block_scan_equals_the_whole_moving_average():

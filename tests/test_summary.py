@@ -34,7 +34,9 @@ def rows(grid):
 def test_summarize_builds_typed_rows(rows):
     assert all(isinstance(r, SummaryRow) for r in rows)
     r = rows[0]
-    assert isinstance(r.config, int) and isinstance(r.convergence_episode, int)
+    assert isinstance(r.config, int) and isinstance(r.convergence_episode, float)
+    assert all(x.convergence_episode == np.inf or x.convergence_episode.is_integer()
+               for x in rows)
     assert isinstance(r.nonfinite_agents, int)
     assert all(isinstance(v, float) for v in (r.final_return, r.final_ci_low, r.final_ci_high,
                                               r.final_iqm, r.convergence_ci_low,
@@ -111,7 +113,7 @@ def test_parsing_strings_numbers_and_older_summaries(rows):
 
 @pytest.mark.parametrize("change, message", [
     ({"final_return": ""}, "column 'final_return' is missing"),
-    ({"convergence_episode": "12.5"}, "convergence_episode='12.5' must be a whole number"),
+    ({"convergence_episode": "12.5"}, "convergence_episode='12.5' must be a whole number or inf"),
     ({"final_ci_low": "low"}, "final_ci_low='low' must be a number"),
 ])
 def test_invalid_rows_are_refused(rows, change, message):
@@ -151,7 +153,7 @@ def test_claim_5_falls_back_to_the_point_without_an_interval(rows):
     first = claim.checks[0].description
     vs = max((r for r in rows if r.learner == "qlearning" and r.explorer == "vdbe_softmax"),
              key=lambda r: r.final_return)
-    assert f"({vs.convergence_episode}, CI from {vs.convergence_episode:g})" in first
+    assert f"({vs.convergence_episode:g}, CI from {vs.convergence_episode:g})" in first
 
 
 def test_sensitivity_without_convergence_intervals(rows):
@@ -170,3 +172,29 @@ def test_best_parameters_reads_typed_and_csv_rows(rows):
     assert set(chosen) == {"egreedy", "softmax", "vdbe", "vdbe_softmax"}
     with pytest.raises(ValueError, match="no param"):
         scaling.best_parameters([dataclasses.replace(rows[0], param=None)])
+
+
+def test_a_setting_that_never_learns_is_censored_in_summary_claims_and_plot(grid, rows,
+                                                                            tmp_path):
+    censored = [r for r in rows if r.convergence_episode == math.inf]
+    assert censored and len(censored) < len(rows)
+    for r in censored:  # its mean curve starts within the band of its final level
+        curve = grid.returns[r.config].astype(np.float64).mean(0)
+        level = curve[-100:].mean()
+        assert curve[:20].mean() >= level - 0.05 * abs(level) - 1e-12
+    path = tmp_path / "summary.csv"
+    write_summary(path, rows, summary_columns(grid))
+    text = {line.split(",")[0]: line for line in path.read_text().splitlines()[1:]}
+    assert all(",inf," in text[str(r.config)] for r in censored)
+    assert [r.config for r in read_summary(path) if r.convergence_episode == math.inf] == [
+        r.config for r in censored]
+    never = [dataclasses.replace(r, convergence_episode=math.inf)
+             if r.explorer == "vdbe" and r.learner == "qlearning" else r for r in rows]
+    claim_3 = next(c for c in claims.evaluate_claims(never, BEST) if c.number == 3)
+    assert "0.01→" in claim_3.measured and "(never)" in claim_3.measured
+    swept = [r for r in censored if r.param is not None]
+    fig = plotting.sensitivity(rows, best_return=BEST)
+    labels = [t.get_text() for ax in fig.axes[len(fig.axes) // 2:] if ax.get_legend()
+              for t in ax.get_legend().get_texts()]
+    assert bool(swept) == any(plotting.CENSORED_LABEL in label for label in labels)
+    plt.close(fig)

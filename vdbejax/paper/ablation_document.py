@@ -13,9 +13,10 @@ from vdbejax.paper.ablation_variants import VariantResult
 from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimTable, stable_count
 from vdbejax.paper.reproduce import FIGURE_FILE, SENSITIVITY_FILE
 from vdbejax.results import io
+from vdbejax.results.curves import CONVERGENCE_TEXT
 from vdbejax.results.replicates import POOLED_SUMMARY_FILE
 from vdbejax.results.stats import wilson_interval
-from vdbejax.results.summary import SummaryRow, read_summary
+from vdbejax.results.summary import SummaryRow, episode_text, read_summary
 
 VERDICT_MARKS = {"reproduced": "✅ reproduced", "partly": "◐ partly", "not reproduced": "❌ not",
                  "unstable": "⚠ unstable"}
@@ -56,9 +57,7 @@ def render_document(
         "",
         f"Run size: {meta_line}. Final return = mean of the last 100 episodes over agents; "
         f"\"near\" = within {NEAR} of the best possible return (exact solver, per variant); "
-        "convergence episode = first episode at which the 20-episode moving average of the "
-        "agents' mean reaches 95% of its final level (bracketed: 95% bootstrap interval over"
-        " agents).",
+        f"{CONVERGENCE_TEXT} (bracketed: 95% bootstrap interval over agents).",
         "",
         "## Variants",
         "",
@@ -182,7 +181,8 @@ def _convergence_table(results: Sequence[VariantResult],
             for explorer in EXPLORERS:
                 good = [x.convergence_episode for x in table.get(learner, explorer)
                         if x.final_return >= table.near]
-                cells.append(f"{min(good)}–{max(good)} ({len(good)})" if good else "—")
+                cells.append(f"{episode_text(min(good))}–{episode_text(max(good))}"
+                             f" ({len(good)})" if good else "—")
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 

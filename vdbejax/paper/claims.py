@@ -46,7 +46,7 @@ from vdbejax.paper.claim_table import (
     rank_value,
     stable_count,
 )
-from vdbejax.results.summary import SummaryRow
+from vdbejax.results.summary import SummaryRow, episode_text
 
 __all__ = ["ABOUT", "CLAIMS", "LEARNER_NAMES", "NEAR", "STABLE", "TIE", "Check", "ClaimResult",
            "ClaimTable", "evaluate_claims", "rank_value", "stable_count"]
@@ -111,7 +111,7 @@ def claim_3(t: ClaimTable) -> ClaimResult:
         high = [r for r in rows_v if r.swept_param() >= good_from[learner]]
         low = [r for r in rows_v if r.swept_param() < good_from[learner]]
         measured.append(f"{name} σ→final (convergence ep.): " + ", ".join(
-            f"{r.swept_param():g}→{r.final_return:.2f} ({r.convergence_episode})"
+            f"{r.swept_param():g}→{r.final_return:.2f} ({episode_text(r.convergence_episode)})"
             for r in rows_v))
         checks.append(Check(f"{name}: every σ ≥ {good_from[learner]:g} ends within {NEAR}"
                             f" of {t.best_return:.2f}",
@@ -122,8 +122,9 @@ def claim_3(t: ClaimTable) -> ClaimResult:
             slow = all(r.final_return < floor - TIE or r.convergence_episode > high_conv
                        for r in low)
             checks.append(Check(f"{name}: every σ < {good_from[learner]:g} ends lower (below"
-                                f" {floor:.3f} − {TIE}) or converges later (after episode"
-                                f" {high_conv}) than every σ ≥ {good_from[learner]:g}", slow))
+                                f" {floor:.3f} − {TIE}) or converges later than every σ ≥"
+                                f" {good_from[learner]:g} (their latest convergence episode:"
+                                f" {episode_text(high_conv)})", slow))
         worst[learner] = min(r.final_return for r in rows_v)
     if len(worst) == 2:
         sarsa, qlearning = _apart(worst["sarsa"], worst["qlearning"])
@@ -171,16 +172,19 @@ def claim_5(t: ClaimTable) -> ClaimResult:
         conv = {e: r.convergence_episode for e, r in found.items()}
         good = {e: r.final_return >= t.near for e, r in found.items()}
         measured.append(f"{name} convergence episode of each explorer's best setting: " + ", ".join(
-            f"{e} ({found[e].swept_param():g}) {conv[e]}" + ("" if good[e] else " (not near best)")
-            for e in conv) + f" (paper: VDBE-Softmax ≈{paper_episode[learner]}, others ≈350)")
+            f"{e} ({found[e].swept_param():g}) {episode_text(conv[e])}"
+            + ("" if good[e] else " (not near best)") for e in conv)
+            + f" (paper: VDBE-Softmax ≈{paper_episode[learner]}, others ≈350)")
         rivals = [e for e in ("softmax", "vdbe") if e in conv]
         # "No later" up to noise: the lower end of VDBE-Softmax's bootstrap interval (when
         # the summary has one) must not exceed the other's convergence episode.
         vs_ci_low = found["vdbe_softmax"].convergence_ci_low
         vs_low = float(conv["vdbe_softmax"]) if vs_ci_low is None else vs_ci_low
         checks.append(Check(f"{name}: VDBE-Softmax ends near the best return and converges "
-                            f"({conv['vdbe_softmax']}, CI from {vs_low:g}) no later than "
-                            + ", ".join(f"{e} ({conv[e]}{'' if good[e] else ', never near best'})"
+                            f"({episode_text(conv['vdbe_softmax'])}, CI from"
+                            f" {episode_text(vs_low)}) no later than "
+                            + ", ".join(f"{e} ({episode_text(conv[e])}"
+                                        f"{'' if good[e] else ', never near best'})"
                                         for e in rivals),
                             good["vdbe_softmax"] and all(
                                 not good[e] or vs_low <= conv[e] for e in rivals)))
@@ -191,15 +195,16 @@ def claim_5(t: ClaimTable) -> ClaimResult:
                 lo, hi, inside = _about(conv[explorer], episode)
                 checks.append(Check(
                     f"{name}: best {explorer} converges after about {episode} episodes"
-                    f" ({conv[explorer]}; ±{ABOUT:.0%}: {lo:g}–{hi:g})", inside))
+                    f" ({episode_text(conv[explorer])}; ±{ABOUT:.0%}: {lo:g}–{hi:g})", inside))
         if learner == "qlearning" and "egreedy" in conv:
             # "About as fast": within ±25 % of VDBE-Softmax or faster; "worse": beyond a tie.
             egreedy_final = found["egreedy"].final_return
             vs_final = found["vdbe_softmax"].final_return
             egreedy_shown, vs_shown = _apart(egreedy_final, vs_final)
             checks.append(Check(
-                f"{name}: ε-greedy converges about as fast (episode {conv['egreedy']} ≤"
-                f" {1 + ABOUT:g} × {conv['vdbe_softmax']}) to a worse return ({egreedy_shown} <"
+                f"{name}: ε-greedy converges about as fast (episode"
+                f" {episode_text(conv['egreedy'])} ≤ {1 + ABOUT:g} ×"
+                f" {episode_text(conv['vdbe_softmax'])}) to a worse return ({egreedy_shown} <"
                 f" {vs_shown} − {TIE})",
                 good["vdbe_softmax"] and conv["egreedy"] <= (1 + ABOUT) * conv["vdbe_softmax"]
                 and egreedy_final < vs_final - TIE))

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from vdbejax.paper.claims import ABOUT, NEAR, STABLE, TIE, ClaimResult, stable_count
+from vdbejax.results.curves import CONVERGENCE_TEXT
 
 
 def cap_message(meta: dict[str, Any]) -> str:
@@ -91,8 +92,7 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
         f"Best possible return (exact solver): {best_return:.4f}.",
         "",
         f"Final return = mean over the last 100 episodes and all agents; \"near\" = within {NEAR} "
-        "of the best return; convergence episode = first episode at which the 20-episode moving "
-        f"average reaches 95% of its final level; a figure the paper gives as \"about\" a value "
+        f"of the best return; {CONVERGENCE_TEXT}; a figure the paper gives as \"about\" a value "
         f"must lie within ±{ABOUT:.0%} of it; returns within {TIE} are tied; settings are "
         "ranked by the IQM of their agents' final returns, an explorer's best setting being "
         f"the first to converge among those within {TIE} of the highest IQM.",

@@ -102,7 +102,7 @@ def summarize(
             final_ci_low=float(statistics.final_low[c]),
             final_ci_high=float(statistics.final_high[c]),
             final_iqm=float(statistics.final_iqm[c]),
-            convergence_episode=int(statistics.convergence[c]),
+            convergence_episode=float(statistics.convergence[c]),
             convergence_ci_low=float(statistics.convergence_low[c]),
             convergence_ci_high=float(statistics.convergence_high[c]),
             # Fraction over all seeds of the last episodes cut off at max_steps.

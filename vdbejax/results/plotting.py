@@ -57,11 +57,15 @@ def _wrap(text: str, width_inches: float, size: int) -> str:
                                               12), break_long_words=False))
 
 
-def _legend_outside(ax: plt.Axes) -> None:
-    """The axes' legend right of its data region (the layout makes room for it)."""
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0,
-                  frameon=False)
+def _legend_outside(ax: plt.Axes, containing: str = "") -> None:
+    """The axes' legend right of its data region (the layout makes room for it), of the
+    entries whose label contains ``containing`` (all by default)."""
+    entries = [(handle, label) for handle, label in zip(*ax.get_legend_handles_labels(),
+                                                        strict=True) if containing in label]
+    if entries:
+        handles, labels = zip(*entries, strict=True)
+        ax.legend(handles, labels, fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0),
+                  borderaxespad=0.0, frameon=False)
 
 
 def _symbol(name: str) -> str:
@@ -217,6 +221,8 @@ SENSITIVITY_METRICS: tuple[tuple[str, str, Callable[[SummaryRow], tuple[float, f
     ("final_return", "final return (last 100 ep.)", _final_return),
     ("convergence_episode", "convergence episode", _convergence_episode),
 )
+#: The legend of a sensitivity plot's censored marks (no convergence episode).
+CENSORED_LABEL = "never converges (censored)"
 LEARNER_STYLES = {"qlearning": ("tab:blue", "o"), "sarsa": ("tab:orange", "s")}
 
 
@@ -277,14 +283,25 @@ def sensitivity(
                 lows = [low for _, low, _ in values]
                 highs = [high for _, _, high in values]
                 has_ci = all(v is not None for v in lows + highs)
-                yerr = (np.abs(np.array([lows, highs], np.float64) - y) if has_ci else None)
+                # Censored values (+∞, "never") are not drawn as numbers: a point is marked
+                # at the top edge instead, and an open upper end has no bar.
+                censored = np.isinf(y)
+                yerr = None
+                if has_ci:
+                    edges = np.array([lows, highs], np.float64)
+                    yerr = np.abs(np.where(np.isinf(edges) | censored, np.nan, edges) - y)
                 color, marker = LEARNER_STYLES.get(learner, (None, "o"))
                 # The values beside the learner show only those that vary in the column.
                 shown = _extra_values(extra, varying)
                 name = learner_title(learner) + (f" {shown}" if shown else "")
                 style = curve_style(k) if varying else {"color": color, "ls": "-"}
-                ax.errorbar(x, y, yerr=yerr, marker=marker, ms=4, capsize=3, lw=1.2,
-                            label=name, **style)
+                drawn = ax.errorbar(x, np.where(censored, np.nan, y), yerr=yerr, marker=marker,
+                                    ms=4, capsize=3, lw=1.2, label=name, **style)
+                if censored.any():
+                    ax.plot(x[censored], np.ones(int(censored.sum())), ls="none", marker="^",
+                            ms=7, fillstyle="none", clip_on=False,
+                            color=drawn.lines[0].get_color(), transform=ax.get_xaxis_transform(),
+                            label=f"{name}: {CENSORED_LABEL}")
             ax.set_xscale("log")
             if key == "final_return" and best_return is not None:
                 ax.axhline(best_return, label=f"best {best_return:.2f}", **BEST_STYLE)
@@ -298,6 +315,8 @@ def sensitivity(
             ax.grid(alpha=0.3, which="both")
             if row == 0:  # one legend per column: the rows show the same lines
                 _legend_outside(ax)
+            else:  # except for the censored marks, which only this row has
+                _legend_outside(ax, containing=CENSORED_LABEL)
     fig.suptitle(_wrap(title or "Sensitivity to the exploration parameter (95% bootstrap CI"
                        " over agents)", 5.4 * columns, 12))
     return _finish(fig, path)

@@ -125,11 +125,13 @@ def final_return_ci(
 def convergence_ci(
     returns: np.ndarray, window: int = WINDOW, last: int = LAST, fraction: float = FRACTION,
     level: float = LEVEL, num_resamples: int = NUM_RESAMPLES, seed: int = 0,
-) -> tuple[int, float, float]:
+) -> tuple[float, float, float]:
     """Convergence episode of the seed-mean curve, with a bootstrap interval.
 
     Each resample of seeds gives a mean curve and hence a convergence episode; the
-    interval is the percentile interval of those episodes.
+    interval is the percentile interval of those episodes. A censored curve (no learning
+    to time, :func:`convergence_episodes`) is +∞, and so is an end of the interval that
+    falls among censored resamples (reported as "never").
 
     Args:
       returns: ``[seeds, episodes]`` episode returns.
@@ -137,7 +139,7 @@ def convergence_ci(
       level, num_resamples, seed: bootstrap settings.
 
     Returns:
-      ``(episode, low, high)``.
+      ``(episode, low, high)``, +∞ where censored.
     """
     returns = np.asarray(returns, np.float64)
     point = convergence_episode(returns.mean(0), window, last, fraction)
@@ -146,8 +148,18 @@ def convergence_ci(
     episodes = np.concatenate([
         convergence_episodes(weights[i:i + rows] @ returns, window, last, fraction)
         for i in range(0, num_resamples, rows)])
-    low, high = _interval(episodes.astype(np.float64), level)
-    return point, float(low), float(high)
+    censored = np.isinf(episodes)
+    # Censored resamples rank after every episode; an end interpolated towards one of
+    # them (beyond the run's episodes) is censored too.
+    beyond = float(returns.shape[-1] + 1)
+    low, high = _interval(np.where(censored, _CENSORED_RANK, episodes), level)
+    return (point, float(low) if low < beyond else np.inf,
+            float(high) if high < beyond else np.inf)
+
+
+#: The order value a censored resample takes in :func:`convergence_ci`'s interval: finite,
+#: so that numpy's linear interpolation stays defined, and beyond any episode count.
+_CENSORED_RANK = 1e300
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,8 +171,8 @@ class CurveStatistics:
       window, last: the smoothing window and the final-return episodes used.
       final, final_low, final_high: final return and its 95% bootstrap interval, ``[C]``.
       final_iqm: interquartile mean of the seeds' final returns, ``[C]``.
-      convergence, convergence_low, convergence_high: convergence episode (int) and its
-        interval, ``[C]``.
+      convergence, convergence_low, convergence_high: convergence episode and its
+        interval, ``[C]`` float64 (whole numbers; +∞ where censored).
       curves: smoothed seed-mean learning curves, ``[C, episodes]``.
       band_low, band_high: pointwise bootstrap band of ``curves`` (``None`` unless asked).
     """
@@ -234,7 +246,7 @@ def curve_statistics(
         window=window, last=last,
         final=finals[:, 0], final_low=finals[:, 1], final_high=finals[:, 2],
         final_iqm=np.array(iqms, np.float64),
-        convergence=convergences[:, 0].astype(np.int64),
+        convergence=convergences[:, 0],
         convergence_low=convergences[:, 1], convergence_high=convergences[:, 2],
         curves=np.array(curves, np.float64).reshape(-1, episodes),
         band_low=np.array(lows).reshape(-1, episodes) if bands else None,

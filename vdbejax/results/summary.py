@@ -14,6 +14,7 @@ Columns that older summaries lack (``final_iqm``, the convergence interval,
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
@@ -60,7 +61,9 @@ class SummaryRow(Mapping[str, Any]):
         its 95% bootstrap interval.
       final_iqm: interquartile mean of the agents' final returns.
       convergence_episode, convergence_ci_low, convergence_ci_high: convergence episode
-        of the agents' mean curve and its 95% bootstrap interval.
+        of the agents' mean curve and its 95% bootstrap interval (whole numbers as floats;
+        +∞, ``inf`` in ``summary.csv``, where censored: the setting shows no learning to
+        time, :func:`~vdbejax.results.curves.convergence_episodes`; :func:`episode_text`).
       truncated_fraction: fraction of the last episodes cut off at ``max_steps`` (NaN
         when it is unknown).
       mean_length: mean episode length.
@@ -77,7 +80,7 @@ class SummaryRow(Mapping[str, Any]):
     final_ci_low: float
     final_ci_high: float
     final_iqm: float | None = None
-    convergence_episode: int
+    convergence_episode: float
     convergence_ci_low: float | None = None
     convergence_ci_high: float | None = None
     truncated_fraction: float | None = None
@@ -128,7 +131,7 @@ class SummaryRow(Mapping[str, Any]):
 
 
 _FIELDS = {field.name: field for field in dataclasses.fields(SummaryRow)}
-_INTEGERS = {"config", "convergence_episode", "nonfinite_agents", "episodes_cut", "agents_cut"}
+_INTEGERS = {"config", "nonfinite_agents", "episodes_cut", "agents_cut"}
 _TEXTS = {"learner", "explorer", "hyperparameters"}
 
 
@@ -157,12 +160,29 @@ def summary_row(row: SummaryRow | Mapping[str, Any]) -> SummaryRow:
             continue
         try:
             values[name] = (str(raw) if name in _TEXTS else int(raw) if name in _INTEGERS
-                            else float(raw))
+                            else _episode(raw) if name == "convergence_episode" else float(raw))
         except (TypeError, ValueError):
-            kind = "a whole number" if name in _INTEGERS else "a number"
+            kind = ("a whole number" if name in _INTEGERS else "a whole number or inf"
+                    if name == "convergence_episode" else "a number")
             raise ValueError(f"summary row {dict(row)!r} is invalid: {name}={raw!r} must be"
                              f" {kind}") from None
     return SummaryRow(**values)
+
+
+def _episode(raw: Any) -> float:
+    """A convergence episode's value: a whole number ≥ 1, or +∞ (censored)."""
+    value = float(raw)
+    if not (math.isinf(value) and value > 0) and not (value.is_integer() and value >= 1):
+        raise ValueError(raw)
+    return value
+
+
+def episode_text(episode: float | None) -> str:
+    """A convergence episode (or an end of its interval) as text: ``"never"`` where
+    censored (+∞), else the whole number."""
+    if episode is None:
+        return "?"
+    return "never" if math.isinf(episode) else f"{episode:g}"
 
 
 def summary_rows(rows: Iterable[SummaryRow | Mapping[str, Any]]) -> list[SummaryRow]:
