@@ -1,10 +1,13 @@
 """Copies of a saved result folder with one kind of damage (for `vdbejax plot` tests)."""
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
 import numpy as np
+
+from vdbejax.results.manifest import file_digest
 
 
 def _rewrite_npz(folder: Path, **changes) -> None:
@@ -14,8 +17,30 @@ def _rewrite_npz(folder: Path, **changes) -> None:
     np.savez(folder / "returns.npz", **arrays)
 
 
-def damaged_copy(saved: Path, folder: Path, damage: str) -> Path:
-    """``saved`` copied to ``folder``, then damaged as ``damage`` says."""
+def damaged_copy(saved: Path, folder: Path, damage: str, manifest: bool = False) -> Path:
+    """``saved`` copied to ``folder``, then damaged as ``damage`` says.
+
+    Unless ``manifest``, the folder's manifest is made to match the damaged files (as an
+    edit that also rewrote it would, or a folder written before manifests): what is then
+    tested are the checks beyond the manifest. With ``manifest`` it is left as the run
+    wrote it, so that it must refuse the damage first.
+    """
+    _damage(saved, folder, damage)
+    if not manifest:
+        refresh_manifest(folder)
+    return folder
+
+
+def refresh_manifest(folder: Path) -> None:
+    """Make ``folder``'s manifest list the sha256 its result files have now."""
+    if (folder / "manifest.json").exists():
+        listed = json.loads((folder / "manifest.json").read_text())
+        for name in ("returns.npz", "configs.csv", "meta.json"):
+            listed["files"][name] = file_digest(folder / name)
+        (folder / "manifest.json").write_text(json.dumps(listed))
+
+
+def _damage(saved: Path, folder: Path, damage: str) -> None:
     shutil.copytree(saved, folder)
     configs = folder / "configs.csv"
     if damage == "empty returns":
@@ -46,8 +71,9 @@ def damaged_copy(saved: Path, folder: Path, damage: str) -> Path:
         head, row = lines[0].split(","), lines[1].split(",")
         row[head.index("param")] = "abc"
         configs.write_text("\n".join([lines[0], ",".join(row), *lines[2:]]) + "\n")
-    elif damage == "unknown explorer":
-        configs.write_text(configs.read_text().replace("egreedy", "my_plugin"))
+    elif damage == "unknown explorer":  # the results of a plug-in not registered here
+        for name in ("configs.csv", "meta.json"):
+            (folder / name).write_text((folder / name).read_text().replace("egreedy",
+                                                                           "my_plugin"))
     else:
         raise ValueError(f"unknown damage {damage!r}")
-    return folder

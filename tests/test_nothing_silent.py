@@ -282,3 +282,19 @@ def test_resume_after_editing_a_plug_in_is_refused(tmp_path):
         run_grid(mdp, settings, num_seeds=2, num_episodes=4,
                  run=RunOptions(checkpoint=checkpoint, resume=True, chunk_episodes=2))
     assert "\n" not in str(error.value)
+
+
+def test_a_sweep_of_a_hundred_million_settings_is_refused_before_making_them():
+    from vdbejax.methods import sweep
+
+    values = [0.1] * 10_000  # 10⁴ × 10⁴ settings: building them used to take minutes
+    with pytest.raises(ValueError, match="100,000,000 settings, more than the 1,000,000"):
+        sweep(["qlearning"], ["egreedy"], {"epsilon": values, "alpha": values})
+
+
+@pytest.mark.parametrize("option", ["--seeds", "--episodes"])
+def test_a_scale_study_too_large_to_fit_is_refused_before_its_folder_exists(tmp_path, capsys,
+                                                                           option):
+    out = tmp_path / "scale"  # a billion seeds or episodes used to meet the OOM killer
+    assert cli.main(["scale", "--out", str(out), option, "1000000000", "--quiet"]) == 2
+    assert "need ≈" in one_error_line(capsys) and not out.exists()

@@ -86,9 +86,10 @@ def test_the_command_lines_own_handler_is_restored_on_exit(monkeypatch, tmp_path
                                       "--episodes", "2", "--quiet", "--no-figures"])
     original = cli.COMMANDS["run"]
     monkeypatch.setitem(cli.COMMANDS, "run", (original[0], lambda args: (
-        seen.append(signal.getsignal(signal.SIGTERM)), original[1](args))))
-    before = signal.getsignal(signal.SIGTERM)
+        seen.append((signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT))),
+        original[1](args))))
+    before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
     monkeypatch.setattr("vdbejax.cli.paper_commands.freeze_imports", lambda: None)
     assert cli.main() == 0
-    assert seen == [cli._terminate]  # installed while the command ran
-    assert signal.getsignal(signal.SIGTERM) is before
+    assert seen == [(cli._stop, cli._stop)]  # installed while the command ran
+    assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before

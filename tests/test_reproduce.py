@@ -166,7 +166,7 @@ def test_one_replicate_is_the_first_replicate_of_five(cli_out, tmp_path, compile
                    str(EPISODES), "--replicates", "1", "--no-figures", "--quiet", env=env)
     assert done.returncode == 0, done.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "configs.csv", "meta.json", "report.md", "returns.npz", "summary.csv"]
+        "configs.csv", "manifest.json", "meta.json", "report.md", "returns.npz", "summary.csv"]
     assert (tmp_path / "summary.csv").read_bytes() == (out / "summary.csv").read_bytes()
     with np.load(tmp_path / "returns.npz") as one, np.load(out / "returns.npz") as five:
         for name in ("returns", "lengths"):

@@ -2,9 +2,11 @@
 folders (issue 14, defects 2, 7, 8, 9 and 10): each test fails without its fix."""
 from __future__ import annotations
 
+import dataclasses
 import errno
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -20,6 +22,7 @@ from vdbejax import cli
 from vdbejax.experiment import GridResult
 from vdbejax.results import folder_lock, io
 from vdbejax.results.folder_lock import FolderLock
+from vdbejax.runs.checkpoint import CHECKSUM_KEY, contents_digest, log_path
 from vdbejax.studies import folder as studies_folder
 from vdbejax.studies import sweeps
 
@@ -232,13 +235,18 @@ def checkpoint(tmp_path_factory) -> Path:
     return path
 
 
-def crafted(checkpoint: Path, tmp_path: Path, **changes) -> Path:
+def crafted(checkpoint: Path, tmp_path: Path, checksum: bool = True, **changes) -> Path:
+    """A copy of ``checkpoint`` with ``changes`` applied and (by default) its checksum
+    recomputed, as a deliberate edit would: the range and type checks must catch it."""
     with np.load(checkpoint) as data:
         arrays = {k: data[k] for k in data.files}
     for key, change in changes.items():
         arrays[key] = change(arrays[key])
+    if checksum:
+        arrays[CHECKSUM_KEY] = np.asarray(contents_digest(arrays))
     path = tmp_path / "ckpt.npz"
     np.savez(path, **arrays)
+    shutil.copy(log_path(checkpoint), log_path(path))
     return path
 
 
@@ -248,12 +256,56 @@ def crafted(checkpoint: Path, tmp_path: Path, **changes) -> Path:
     ("agent_state", lambda s: s + 10_000, "agent states must lie"),
     ("state_rows", lambda r: np.r_[r, r[:1]], "state_rows"),
     ("agent_table_epsilon", lambda t: t[:, :3], "table 'epsilon'"),
+    ("agent_q", lambda q: q.astype(np.int32), "agent q must be float32, not int32"),
+    ("agent_table_epsilon", lambda t: t.astype(np.float64), "table 'epsilon' must be float32"),
+    ("agent_key", lambda k: k ^ np.uint32(1), "random keys are not those of this run"),
 ])
 def test_a_crafted_checkpoint_is_refused_naming_it(checkpoint, tmp_path, key, change, message):
     path = crafted(checkpoint, tmp_path, **{key: change})
     with pytest.raises(ValueError, match=message) as caught:
         run_small(checkpoint=path, resume=True)
     assert str(path) in str(caught.value)
+
+
+@pytest.mark.parametrize("key, change", [
+    ("agent_q", lambda q: q * 2),  # Q scaled by 2
+    ("agent_counter", lambda c: c + np.uint32(1)),  # the random stream moved on
+    ("agent_table_epsilon", lambda t: np.full_like(t, 5.0)),  # ε tables set to 5.0
+    ("episodes_done", lambda d: d),  # unchanged values, but one flipped bit below
+])
+def test_a_changed_bit_in_a_checkpoint_is_refused(checkpoint, tmp_path, key, change):
+    path = crafted(checkpoint, tmp_path, checksum=False, **{key: change})
+    if key == "episodes_done":  # a flipped bit in the stored bytes of Q
+        raw = bytearray(path.read_bytes())
+        with np.load(path) as data:
+            q = data["agent_q"]
+        at = bytes(raw).index(q.tobytes()) + q.nbytes // 2
+        raw[at] ^= 0x10
+        path.write_bytes(bytes(raw))
+    # An edit saved as a new file fails our checksum; a flipped bit in the file, the zip
+    # member's own CRC-32 first.
+    match = "Bad CRC-32" if key == "episodes_done" else "do not match its checksum"
+    with pytest.raises(ValueError, match=match) as caught:
+        run_small(checkpoint=path, resume=True)
+    assert str(path) in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_a_changed_bit_in_the_episode_log_is_refused(checkpoint, tmp_path):
+    path = crafted(checkpoint, tmp_path)
+    raw = bytearray(log_path(path).read_bytes())
+    raw[-20] ^= 0x01  # inside the last record's lengths
+    log_path(path).write_bytes(bytes(raw))
+    with pytest.raises(ValueError, match="does not match its checksum") as caught:
+        run_small(checkpoint=path, resume=True)
+    assert str(log_path(path)) in str(caught.value)
+
+
+def test_an_untouched_copy_of_a_checkpoint_resumes(checkpoint, tmp_path):
+    # The fixtures above are not vacuous: the same copy without a change resumes, and equals
+    # the run without interruption.
+    path = crafted(checkpoint, tmp_path)
+    assert np.array_equal(run_small(checkpoint=path, resume=True).returns,
+                          run_small().returns)
 
 
 def test_a_garbage_checkpoint_error_names_the_file(tmp_path):
@@ -375,13 +427,14 @@ def test_loading_a_grid_of_unregistered_plugins_keeps_the_process_state(tmp_path
     the loaded settings (meta.json), not from a process-wide table that loading fills."""
     from vdbejax.methods.agents import Setting, parameter_name, with_parameter_names
 
-    grid = run_small()
-    grid.save(tmp_path)
-    meta = json.loads((tmp_path / io.META_FILE).read_text())
-    configs = (tmp_path / io.CONFIGS_FILE).read_text().replace("egreedy", "never_imported")
-    (tmp_path / io.CONFIGS_FILE).write_text(configs)
-    meta["parameter_names"]["never_imported"] = "eps0"
-    (tmp_path / io.META_FILE).write_text(json.dumps(meta))
+    grid = run_small()  # saved as the results of an explorer this process never imported
+    settings = [dataclasses.replace(s, explorer="never_imported") if s.explorer == "egreedy"
+                else s for s in grid.settings]
+    meta = dict(grid.meta, parameter_names=dict(grid.meta["parameter_names"],
+                                                never_imported="eps0"),
+                settings=json.loads(json.dumps([(s.learner, s.explorer, s.param,
+                                                 s.hyperparameters) for s in settings])))
+    GridResult(settings, grid.returns, grid.lengths, grid.nonfinite, meta).save(tmp_path)
     loaded = GridResult.load(tmp_path)
     renamed = [s for s in loaded.settings if s.explorer == "never_imported"]
     assert renamed and all(s.label.startswith(f"{s.learner}/never_imported/eps0=")

@@ -6,12 +6,14 @@ Bad input prints one ``error: …`` line and exits with status 2 (no traceback).
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
 from collections.abc import Sequence
 
 from vdbejax import __version__
+from vdbejax import _interrupts as interrupts
 from vdbejax.cli.paper_commands import (
     ablate_command,
     add_ablate,
@@ -77,31 +79,37 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     args.own_process = argv is None
     # SIGTERM stops a command as Ctrl-C does, in the command line's own process only (a
-    # caller's handler is not replaced), and the previous handler comes back at the end.
-    previous = (signal.signal(signal.SIGTERM, _terminate)
-                if args.own_process and threading.current_thread() is threading.main_thread()
-                else None)
+    # caller's handlers are not replaced), and the previous handlers come back at the end.
+    # Both are also recorded (vdbejax.runs.interrupts), so that one swallowed inside a
+    # garbage-collector callback still stops the run after its chunk.
+    handled = args.own_process and threading.current_thread() is threading.main_thread()
+    previous = ({number: signal.signal(number, _stop) for number in (signal.SIGINT,
+                                                                     signal.SIGTERM)}
+                if handled else {})
+    interrupts.clear()
     try:
         COMMANDS[args.command][1](args)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    except (KeyboardInterrupt, _Terminated) as stop:
+    except (KeyboardInterrupt, interrupts.Terminated) as stop:
         hint = (": rerun with --resume to continue from the last checkpoint"
                 if args.command in ("reproduce", "run", "scale", "ablate", "bench") else "")
         print(f"interrupted{hint}", file=sys.stderr)
-        return 143 if isinstance(stop, _Terminated) else 130
+        code = 143 if isinstance(stop, interrupts.Terminated) else 130
+        if handled:  # XLA's threads may still compile: tearing the interpreter down under
+            sys.stdout.flush()  # them crashed it (rc −11) after the message
+            sys.stderr.flush()
+            os._exit(code)
+        return code
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        interrupts.clear()
+        for number, handler in previous.items():
+            signal.signal(number, handler)
     return 0
 
 
-class _Terminated(BaseException):
-    """SIGTERM, raised where the process is, so that pending writes clean up after
-    themselves (a temporary file is removed, a checkpoint is whole or absent)."""
-
-
-def _terminate(signum: int, frame: object) -> None:
-    raise _Terminated()
-
+def _stop(signum: int, frame: object) -> None:
+    kind = interrupts.Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+    interrupts.request(kind)
+    raise kind()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import json
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -275,6 +276,11 @@ def setting_of(learner: str, explorer: str, values: Mapping[str, Any]) -> Settin
     return Setting(learner, explorer, param, values)
 
 
+#: Most settings one grid holds (:func:`sweep`): each costs host memory before training
+#: (its agent, label and summary row), and a grid's config index is int32 in the engine.
+MAX_SETTINGS = 1_000_000
+
+
 def sweep(learners: Sequence[str], explorers: Sequence[str],
           axes: Mapping[str, Sequence[Any]] | None = None,
           shared: Mapping[str, Any] | None = None) -> list[Setting]:
@@ -309,11 +315,17 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
         if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or not values:
             raise ValueError(f"axis {name}={values!r} is invalid: must be a non-empty list"
                              " of values")
+    count = sum(math.prod(len(axes[name]) for name in axes if owners(name, learner, explorer))
+                for learner in learners for explorer in explorers if explorer_class(explorer))
+    if count > MAX_SETTINGS:  # counted before any is made: 10⁸ would take minutes and GBs
+        sizes = ", ".join(f"{name} ({len(values)})" for name, values in axes.items())
+        raise ValueError(f"the sweep is too large: {len(learners)} learners × {len(explorers)}"
+                         f" explorers × the axes {sizes} make {count:,} settings, more than"
+                         f" the {MAX_SETTINGS:,} one grid holds: split it into several runs")
     used: set[str] = set()
     settings = []
     for learner in learners:
         for explorer in explorers:
-            explorer_class(explorer)  # an unknown name: its one-line error before any other
             mine = [name for name in axes if owners(name, learner, explorer)]
             fixed = {name: value for name, value in shared.items()
                      if owners(name, learner, explorer)}

@@ -20,6 +20,7 @@ from vdbejax.paper.report import cap_message, render_report
 from vdbejax.results import io
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, describe_os_error, unmark
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.manifest import write_manifest
 from vdbejax.results.replicates import (
     REPLICATE_FILES,
     annotate_replicates,
@@ -338,5 +339,8 @@ def replot(
             raise ValueError(f"cannot write the outputs in {str(out)!r}:"
                              f" {describe_os_error(error)}") from None
         if Path(out).resolve() == Path(results_dir).resolve():
-            unmark(out)  # summary, figures and report now belong to the saved results
+            # Summary, figures and report now belong to the saved results.
+            write_manifest(out, result.meta, [p.name for p in written] + [REPORT_FILE],
+                           keep=True)
+            unmark(out)
     return written + ([out / REPORT_FILE] if paper else [])

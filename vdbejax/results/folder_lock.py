@@ -23,7 +23,7 @@ import errno
 import json
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import ModuleType
@@ -201,6 +201,7 @@ def save_run(
     bands: bool,
     on_saved: Callable[[], None] | None = None,
     statistics: bool = True,
+    outputs: Sequence[str] = (),
 ) -> T:
     """Save a trained grid into ``out`` and write its outputs, marking the folder.
 
@@ -217,6 +218,8 @@ def save_run(
       bands: compute Figure 3's bootstrap bands too.
       on_saved: called after the save.
       statistics: compute the statistics (``False``: ``write(None)``).
+      outputs: the files ``write`` may write: those it did are added to the folder's
+        manifest (:mod:`vdbejax.results.manifest`).
 
     Returns:
       what ``write`` returns.
@@ -226,6 +229,7 @@ def save_run(
         folder, permissions): one line naming the path; the computed results are kept,
         in ``out`` if they were saved there, else in a rescue folder the message names.
     """
+    from vdbejax.results.manifest import write_manifest
     from vdbejax.results.stats import curve_statistics
 
     out = Path(out)
@@ -248,6 +252,7 @@ def save_run(
     try:
         mark(out, "outputs")
         value = write(computed)
+        write_manifest(out, result.meta, outputs, keep=True)
         unmark(out)
     except OSError as error:
         raise ValueError(f"cannot write the outputs in {str(out)!r}:"

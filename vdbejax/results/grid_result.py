@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 from pathlib import Path
 from typing import Any
@@ -14,7 +15,7 @@ from vdbejax.methods.agents import (
     make_agent,
     with_parameter_names,
 )
-from vdbejax.results import io
+from vdbejax.results import io, manifest
 
 
 @dataclasses.dataclass
@@ -144,15 +145,18 @@ class GridResult:
         return [i for i in range(len(self.settings)) if matches(i)]
 
     def save(self, out_dir: str | os.PathLike) -> None:
-        """Write ``returns.npz``, ``configs.csv`` and ``meta.json`` into ``out_dir``."""
+        """Write ``returns.npz``, ``configs.csv`` and ``meta.json`` into ``out_dir``, and
+        their sha256 into ``manifest.json`` (:mod:`vdbejax.results.manifest`)."""
         out = Path(out_dir)
         arrays: dict[str, Any] = {"returns": self.returns, "lengths": self.lengths,
                                   "nonfinite": self.nonfinite}
         if self.episodes_run is not None:
             arrays["episodes_run"] = self.episodes_run
+        meta = dict(self.meta, **{manifest.META_KEY: manifest.MANIFEST_FILE})
         io.atomic_savez(out / io.RETURNS_FILE, **arrays)
         io.save_settings(out / io.CONFIGS_FILE, self.settings)
-        io.save_json(out / io.META_FILE, self.meta)
+        io.save_json(out / io.META_FILE, meta)
+        manifest.write_manifest(out, meta, io.RESULT_FILES)
 
     @classmethod
     def load(cls, out_dir: str | os.PathLike) -> GridResult:
@@ -192,10 +196,12 @@ class GridResult:
         if not isinstance(meta, dict):
             raise ValueError(f"results file {str(out / io.META_FILE)!r} is invalid: must hold a"
                              f" JSON object, not {type(meta).__name__}")
+        manifest.verify_manifest(out, meta, io.RESULT_FILES)
         settings = io.load_settings(out / io.CONFIGS_FILE)
         _check_saved_arrays(returns_path, len(settings), returns, lengths, nonfinite,
                             episodes_run)
         settings = with_parameter_names(settings, meta.get("parameter_names", {}))
+        _check_against_meta(out, meta, settings, returns, lengths, nonfinite, episodes_run)
         return cls(settings, returns, lengths, nonfinite, meta, episodes_run)
 
 
@@ -234,6 +240,93 @@ def _check_saved_arrays(path: Path, num_settings: int, returns: np.ndarray, leng
              " nonfinite flags do not account for")
     if lengths.size and lengths[ran].size and lengths[ran].min() < 1:
         fail("episode lengths must be at least 1")
+
+
+#: Standard errors by which a setting's mean final return may exceed the task's best
+#: expected return before the folder is refused (noise of a stochastic task: a false alarm
+#: has a probability below 1e-6 per setting).
+PLAUSIBLE_SE = 5.0
+
+
+def _check_against_meta(out: Path, meta: dict[str, Any], settings: list[Setting],
+                        returns: np.ndarray, lengths: np.ndarray, nonfinite: np.ndarray,
+                        episodes_run: np.ndarray | None) -> None:
+    """One-line errors for result files that cannot hold the run ``meta.json`` describes:
+    the shapes, the settings, lengths within ``max_steps``, mean returns within the best
+    possible, the flagged agents (each check only where ``meta`` records the value)."""
+    def fail(file: str, what: str) -> None:
+        raise ValueError(f"results file {str(out / file)!r} does not match {io.META_FILE}:"
+                         f" {what}")
+
+    expected = (meta.get("num_seeds"), meta.get("num_episodes"))
+    if None not in expected and tuple(returns.shape[1:]) != expected:
+        fail(io.RETURNS_FILE, f"it holds {returns.shape[1]} agents × {returns.shape[2]}"
+             f" episodes per setting, meta.json {expected[0]} × {expected[1]}")
+    recorded = meta.get("settings")
+    if isinstance(recorded, list):
+        if len(recorded) != len(settings):
+            fail(io.CONFIGS_FILE, f"it has {len(settings)} configs, meta.json {len(recorded)}")
+        for c, (setting, entry) in enumerate(zip(settings, recorded, strict=True)):
+            if not _same_setting(setting, entry):
+                fail(io.CONFIGS_FILE, f"config {c} is {setting.label}, meta.json says"
+                     f" {json.dumps(entry)}")
+    max_steps = meta.get("max_steps")
+    ran = (np.ones(returns.shape, bool) if episodes_run is None
+           else np.arange(returns.shape[2]) < episodes_run[..., None])
+    if isinstance(max_steps, int) and lengths[ran].size and lengths[ran].max() > max_steps:
+        fail(io.RETURNS_FILE, f"an episode lasts {int(lengths[ran].max())} steps, beyond"
+             f" max_steps={max_steps}")
+    if isinstance(meta.get("nonfinite_agents"), int) and int(nonfinite.sum()) != meta[
+            "nonfinite_agents"]:
+        fail(io.RETURNS_FILE, f"{int(nonfinite.sum())} agents are flagged non-finite,"
+             f" meta.json says {meta['nonfinite_agents']}")
+    best = meta.get("best_return")
+    if isinstance(best, (int, float)) and episodes_run is None and returns.size:
+        _check_below_best(out / io.RETURNS_FILE, float(best), returns, nonfinite, settings)
+
+
+def _check_below_best(path: Path, best: float, returns: np.ndarray, nonfinite: np.ndarray,
+                      settings: list[Setting]) -> None:
+    """Refuse a setting whose agents' mean final return exceeds the task's best expected
+    return by more than :data:`PLAUSIBLE_SE` standard errors (+ float32 slack)."""
+    last = min(100, returns.shape[2])
+    for c in range(returns.shape[0]):
+        finals = np.asarray(returns[c, ~nonfinite[c], -last:], np.float64).mean(-1)
+        if finals.size == 0:
+            continue
+        error = finals.std(ddof=1) / np.sqrt(finals.size) if finals.size > 1 else 0.0
+        if finals.mean() > best + PLAUSIBLE_SE * error + 1e-5 * max(1.0, abs(best)):
+            raise ValueError(f"results file {str(path)!r} is implausible: setting {c}"
+                             f" ({settings[c].label}) averages {finals.mean():.6g} over its last"
+                             f" {last} episodes, above the task's best possible {best:.6g}")
+
+
+def _same_setting(setting: Setting, entry: Any) -> bool:
+    """Whether a ``configs.csv`` setting is ``meta.json``'s ``[learner, explorer, param,
+    [[name, value], …]]`` (values as written there: 6 significant digits)."""
+    if not isinstance(entry, list) or len(entry) != 4:
+        return False
+    learner, explorer, param, pairs = entry
+    if (setting.learner, setting.explorer) != (learner, explorer):
+        return False
+    if (param is None) != (setting.param is None) or (
+            param is not None and not _close(setting.param, param)):
+        return False
+    try:
+        values = dict(pairs)
+    except (TypeError, ValueError):
+        return False
+    mine = dict(setting.hyperparameters)
+    return mine.keys() == values.keys() and all(
+        _close(mine[k], values[k]) if isinstance(values[k], (int, float)) else mine[k] == values[k]
+        for k in mine)
+
+
+def _close(value: Any, wanted: Any) -> bool:
+    try:
+        return bool(np.isclose(float(value), float(wanted), rtol=1e-5, atol=0.0))
+    except (TypeError, ValueError):
+        return False
 
 
 def _same(value: Any, wanted: Any) -> bool:

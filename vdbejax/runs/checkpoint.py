@@ -14,16 +14,21 @@ A checkpoint is two files:
   how many bytes of the log it covers: bytes a killed run appended after that are
   ignored (and cut off) on resume.
 
-On resume both are checked before anything trains: the fingerprint, the layout version,
-array shapes, ranges (episode counts, states, actions), that the log covers exactly the
-episodes each agent has done, and that the log belongs to the small file (a random id).
+Both carry checksums: the small file the sha256 of all its arrays (:func:`contents_digest`),
+every record of the log the CRC-32 of its bytes. On resume both are checked before anything
+trains: the fingerprint, the layout version, the checksums (a flipped bit or an edited value
+is refused), array shapes, types and ranges (episode counts, states, actions, the agents'
+random keys), that the log covers exactly the episodes each agent has done, and that the
+log belongs to the small file (a random id).
 """
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 import secrets
 import struct
+import zlib
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -36,12 +41,27 @@ from vdbejax.results import io
 from vdbejax.runs.state import RunState
 
 #: Version of the checkpoint layout (a checkpoint of another version is refused).
-CHECKPOINT_VERSION = 5
+CHECKPOINT_VERSION = 6
 LOG_SUFFIX = ".episodes"
-_LOG_MAGIC = b"vdbejax-episode-log-5\n"
+_LOG_MAGIC = b"vdbejax-episode-log-6\n"
 _HEADER = struct.Struct("<16s16s")  # fingerprint, log id (ASCII)
 _RECORD = struct.Struct("<qqq")  # agents in the record, first episode, end episode
+_CRC = struct.Struct("<I")  # after each record: CRC-32 of its header and arrays
+CHECKSUM_KEY = "checksum"
 HINT = "delete it or use a new output folder"
+
+
+def contents_digest(arrays: dict[str, np.ndarray]) -> str:
+    """sha256 of a checkpoint's arrays (every key but :data:`CHECKSUM_KEY`): names, types,
+    shapes and bytes, in name order."""
+    digest = hashlib.sha256()
+    for name in sorted(arrays):
+        if name == CHECKSUM_KEY:
+            continue
+        value = np.ascontiguousarray(arrays[name])
+        digest.update(f"{name}|{value.dtype.str}|{value.shape}|".encode())
+        digest.update(value.tobytes())
+    return digest.hexdigest()
 
 
 def log_path(path: str | os.PathLike) -> Path:
@@ -103,10 +123,11 @@ class CheckpointWriter:
                  else np.zeros((0, 2), np.int64))
         for start, stop in np.unique(spans, axis=0):
             rows = changed[(spans[:, 0] == start) & (spans[:, 1] == stop)]
-            log.write(_RECORD.pack(len(rows), int(start), int(stop)))
-            log.write(rows.astype("<i8").tobytes())
-            log.write(np.ascontiguousarray(sweep.returns[rows, start:stop], "<f4").tobytes())
-            log.write(np.ascontiguousarray(sweep.lengths[rows, start:stop], "<i4").tobytes())
+            record = b"".join((
+                _RECORD.pack(len(rows), int(start), int(stop)), rows.astype("<i8").tobytes(),
+                np.ascontiguousarray(sweep.returns[rows, start:stop], "<f4").tobytes(),
+                np.ascontiguousarray(sweep.lengths[rows, start:stop], "<i4").tobytes()))
+            log.write(record + _CRC.pack(zlib.crc32(record)))
         log.flush()
         os.fsync(log.fileno())  # the log before the small file that vouches for it
         leaves = {}
@@ -115,14 +136,17 @@ class CheckpointWriter:
                       for f in dataclasses.fields(AgentState) if f.name != "tables"}
             leaves.update({f"agent_table_{name}": np.asarray(table)
                            for name, table in sweep.state.tables.items()})
-        io.atomic_savez(
-            self.path, compressed=False, fingerprint=np.asarray(self.fingerprint),
+        arrays = dict(
+            fingerprint=np.asarray(self.fingerprint),
             version=np.asarray(CHECKPOINT_VERSION), log_id=np.asarray(self.log_id),
             log_bytes=np.asarray(log.tell(), np.int64), num_episodes=np.asarray(
                 sweep.num_episodes, np.int64),
-            episodes_done=done, stopped=sweep.stopped, nonfinite=sweep.nonfinite,
-            state_rows=sweep.state_rows, **leaves,
+            episodes_done=done, stopped=np.asarray(sweep.stopped),
+            nonfinite=np.asarray(sweep.nonfinite), state_rows=np.asarray(sweep.state_rows),
+            **leaves,
         )
+        io.atomic_savez(self.path, compressed=False, **arrays,
+                        **{CHECKSUM_KEY: np.asarray(contents_digest(arrays))})
         self.written = done.copy()
 
     def close(self) -> None:
@@ -132,8 +156,8 @@ class CheckpointWriter:
 
 
 def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
-                    mdp: TabularMDP | None = None, layout: dict[str, str] | None = None
-                    ) -> tuple[RunState, int, str]:
+                    mdp: TabularMDP | None = None, layout: dict[str, str] | None = None,
+                    keys: np.ndarray | None = None) -> tuple[RunState, int, str]:
     """Read a checkpoint of this run and check it (module docstring).
 
     Args:
@@ -142,6 +166,7 @@ def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
       shape: ``(agents, episodes)`` of the run.
       mdp: the task (checks Q, table, state and action ranges), if known.
       layout: the agents' table layout (:func:`~vdbejax.methods.agents.table_layout`).
+      keys: uint32 ``[agents, 2]``: the random keys of the run's agents, in row order.
 
     Returns:
       ``(progress, log_bytes, log_id)``.
@@ -151,28 +176,32 @@ def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
     """
     try:
         with np.load(path) as data:
-            found = str(data["fingerprint"])
-            if found != fingerprint:
-                raise ValueError(
-                    f"checkpoint {str(path)!r} belongs to a different run (fingerprint {found},"
-                    f" expected {fingerprint}): use the same settings, seeds and options, or {HINT}"
-                )
-            version = int(data["version"]) if "version" in data else 1
-            if version != CHECKPOINT_VERSION:
-                raise ValueError(f"checkpoint {str(path)!r} has layout version {version},"
-                                 f" expected {CHECKPOINT_VERSION}: {HINT}")
-            state = None
-            if "agent_q" in data:
-                tables = {key.removeprefix("agent_table_"): data[key] for key in data.files
-                          if key.startswith("agent_table_")}
-                state = AgentState(tables=tables, **{
-                    f.name: data[f"agent_{f.name}"] for f in dataclasses.fields(AgentState)
-                    if f.name != "tables"})
-            episodes_done = np.asarray(data["episodes_done"], np.int64)
-            nonfinite, state_rows = data["nonfinite"], np.asarray(data["state_rows"])
-            stopped = np.asarray(data["stopped"])
-            log_bytes, log_id = int(data["log_bytes"]), str(data["log_id"])
-            num_episodes = int(data["num_episodes"])
+            stored = {key: data[key] for key in data.files}
+        version = int(stored["version"]) if "version" in stored else 1
+        if version != CHECKPOINT_VERSION:
+            raise ValueError(f"checkpoint {str(path)!r} has layout version {version},"
+                             f" expected {CHECKPOINT_VERSION}: {HINT}")
+        if str(stored.get(CHECKSUM_KEY, "")) != contents_digest(stored):
+            raise ValueError(f"checkpoint {str(path)!r} is damaged: its contents do not match"
+                             f" its checksum (a changed bit or an edited value); {HINT}")
+        found = str(stored["fingerprint"])
+        if found != fingerprint:
+            raise ValueError(
+                f"checkpoint {str(path)!r} belongs to a different run (fingerprint {found},"
+                f" expected {fingerprint}): use the same settings, seeds and options, or {HINT}"
+            )
+        state = None
+        if "agent_q" in stored:
+            tables = {key.removeprefix("agent_table_"): stored[key] for key in stored
+                      if key.startswith("agent_table_")}
+            state = AgentState(tables=tables, **{
+                f.name: stored[f"agent_{f.name}"] for f in dataclasses.fields(AgentState)
+                if f.name != "tables"})
+        episodes_done = np.asarray(stored["episodes_done"], np.int64)
+        nonfinite, state_rows = stored["nonfinite"], np.asarray(stored["state_rows"])
+        stopped = np.asarray(stored["stopped"])
+        log_bytes, log_id = int(stored["log_bytes"]), str(stored["log_id"])
+        num_episodes = int(stored["num_episodes"])
     except Exception as error:  # a damaged file: zip, pickle, EOF or key errors
         if isinstance(error, ValueError) and str(error).startswith(f"checkpoint {str(path)!r}"):
             raise  # ours: another run's or another layout's checkpoint
@@ -182,7 +211,7 @@ def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
         raise ValueError(f"checkpoint {str(path)!r} is of {len(episodes_done)} agents ×"
                          f" {num_episodes} episodes, expected {shape[0]} × {shape[1]}: {HINT}")
     problem = _check_progress(episodes_done, stopped, nonfinite, state_rows, state, shape, mdp,
-                              layout)
+                              layout, None if keys is None else np.asarray(keys, np.uint32))
     if problem:
         raise ValueError(f"checkpoint {str(path)!r} is damaged: {problem}; {HINT}")
     returns, lengths = _read_log(path, fingerprint, log_id, log_bytes, episodes_done, shape)
@@ -223,12 +252,18 @@ def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
         if offset + _RECORD.size > log_bytes:
             raise damaged("a record is cut short")
         count, start, stop = _RECORD.unpack_from(data, offset)
-        offset += _RECORD.size
         width = stop - start
         size = count * 8 + 2 * count * max(width, 0) * 4
-        if count < 1 or not 0 <= start < stop <= episodes or offset + size > log_bytes:
+        if count < 1 or not 0 <= start < stop <= episodes or (
+                offset + _RECORD.size + size + _CRC.size > log_bytes):
             raise damaged(f"a record of {count} agents × episodes [{start}, {stop})"
                           " is out of range")
+        end = offset + _RECORD.size + size
+        (crc,) = _CRC.unpack_from(data, end)
+        if zlib.crc32(data[offset:end]) != crc:
+            raise damaged(f"a record (agents × episodes [{start}, {stop})) does not match its"
+                          " checksum (a changed bit or an edited value)")
+        offset += _RECORD.size
         rows = np.frombuffer(data, "<i8", count, offset)
         offset += count * 8
         if rows.min() < 0 or rows.max() >= agents or (covered[rows] != start).any():
@@ -237,17 +272,24 @@ def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
         returns[rows, start:stop] = np.frombuffer(data, "<f4", block, offset).reshape(count, width)
         offset += block * 4
         lengths[rows, start:stop] = np.frombuffer(data, "<i4", block, offset).reshape(count, width)
-        offset += block * 4
+        offset += block * 4 + _CRC.size
         covered[rows] = stop
     if not np.array_equal(covered, episodes_done):
         raise damaged("it does not cover exactly the episodes its checkpoint says were done")
     return returns, lengths
 
 
+#: The type of every agent-state array a run keeps (:func:`vdbejax.engine.state.init_agent`).
+STATE_DTYPES = {"q": np.float32, "state": np.int32, "action": np.int32,
+                "pending_reset": np.bool_, "episode": np.int32, "episode_return": np.float32,
+                "episode_length": np.int32, "counter": np.uint32, "key": np.uint32,
+                "nonfinite": np.bool_}
+
+
 def _check_progress(done: np.ndarray, stopped: np.ndarray, nonfinite: Any, rows: np.ndarray,
                     state: AgentState | None,
                     shape: tuple[int, int], mdp: TabularMDP | None,
-                    layout: dict[str, str] | None) -> str | None:
+                    layout: dict[str, str] | None, keys: np.ndarray | None) -> str | None:
     """What in a checkpoint's arrays cannot come from this run (``None``: nothing)."""
     agents, episodes = shape
     if np.shape(nonfinite) != (agents,):
@@ -266,6 +308,15 @@ def _check_progress(done: np.ndarray, stopped: np.ndarray, nonfinite: Any, rows:
     if any(np.shape(getattr(state, f.name))[:1] != (m,) for f in dataclasses.fields(AgentState)
            if f.name != "tables"):
         return f"every agent-state array must have {m} rows (one per state_rows entry)"
+    for name, dtype in STATE_DTYPES.items():
+        if np.asarray(getattr(state, name)).dtype != dtype:
+            return (f"agent {name} must be {np.dtype(dtype).name}, not"
+                    f" {np.asarray(getattr(state, name)).dtype}")
+    for name, table in state.tables.items():
+        if np.asarray(table).dtype != np.float32:
+            return f"table {name!r} must be float32, not {np.asarray(table).dtype}"
+    if keys is not None and not np.array_equal(np.asarray(state.key), keys[rows]):
+        return "the agents' random keys are not those of this run's agents"
     if not np.array_equal(np.asarray(state.episode), done[rows]):
         return "the agents' episode counters disagree with episodes_done"
     if mdp is None:

@@ -21,6 +21,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from vdbejax import _interrupts as interrupts
 from vdbejax.engine import AgentState
 from vdbejax.engine.distributed import take_agents
 from vdbejax.engine.programs import Programs
@@ -85,6 +86,7 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
         if checkpoint is not None:
             checkpoint(state)
         report()
+        interrupts.raise_pending()  # a Ctrl-C or SIGTERM swallowed during the chunk
 
     report()
     while (batch := state.next_batch(plan.batch_size)).size:

@@ -231,7 +231,8 @@ def _resume_state(prepared: PreparedGrid, fingerprint: str
     shape = (len(prepared.plan.rows), prepared.num_episodes)
     if run.resume and path.exists():
         state, log_bytes, log_id = load_checkpoint(path, fingerprint, shape, prepared.mdp,
-                                                   table_layout(prepared.params))
+                                                   table_layout(prepared.params),
+                                                   prepared.keys[prepared.plan.rows])
         return state, CheckpointWriter(path, fingerprint, state, log_bytes, log_id)
     remove_checkpoint(path)  # a fresh run: an older checkpoint must not outlive its log
     return None, CheckpointWriter(path, fingerprint)

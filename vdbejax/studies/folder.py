@@ -110,6 +110,6 @@ def train_in_folder(
         for stale in {*files, io.LONG_CSV_FILE} - set(io.RESULT_FILES):
             (out / stale).unlink(missing_ok=True)
         value = save_run(result, out, lambda stats: write(result, stats), bands=bands,
-                         statistics=statistics, on_saved=lambda: remove_checkpoint(
+                         statistics=statistics, outputs=files, on_saved=lambda: remove_checkpoint(
                              process_checkpoint_path(checkpoint)))
     return result, value

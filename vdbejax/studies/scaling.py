@@ -39,6 +39,7 @@ from vdbejax.results import io
 from vdbejax.results.folder_lock import FolderLock, mark, unmark
 from vdbejax.results.solving import FRACTION, WINDOW, solve_threshold, summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved, prepare_grid
+from vdbejax.runs.batching import check_run_size
 from vdbejax.studies import train_in_folder
 from vdbejax.studies.scaling_adaptive import AdaptiveRun, adaptive_run, run_until_solved
 from vdbejax.studies.scaling_report import (
@@ -201,17 +202,20 @@ def run_scaling(
     for setting in settings:  # unknown learners: one line before anything runs
         make_agent(setting)
     knobs = RunOptions(resume=resume, memory_budget_bytes=memory_budget_bytes, devices=devices)
+    tasks = []
+    for sections, goblets in parsed:  # every task built and solved before any folder or run
+        size = f"{sections}x{goblets}"
+        mdp = make_task(f"variant:{size}", max_steps=max_steps)
+        best = best_return(mdp)
+        threshold = solve_threshold(best, fraction)
+        shortest = int(steps_to_goal(mdp)[start_states(mdp)].max())
+        tasks.append((size, mdp, best, threshold, shortest))
+    tasks.sort(key=lambda task: task[1].num_states)
+    # The largest variant's results must fit: refused here, before the folder is made.
+    check_run_size(len(settings) * seeds, max(variant_budget(
+        task[1].num_states, episodes, episodes_per_state) for task in tasks))
     out = check_writable_dir("out", out_dir)
     with FolderLock(out):  # the study's folder, held to its last file
-        tasks = []
-        for sections, goblets in parsed:  # every task built and solved before any training
-            size = f"{sections}x{goblets}"
-            mdp = make_task(f"variant:{size}", max_steps=max_steps)
-            best = best_return(mdp)
-            threshold = solve_threshold(best, fraction)
-            shortest = int(steps_to_goal(mdp)[start_states(mdp)].max())
-            tasks.append((size, mdp, best, threshold, shortest))
-        tasks.sort(key=lambda task: task[1].num_states)
 
         versions = version_info()  # the code that runs: read before training, not after
         rows: list[dict[str, Any]] = []

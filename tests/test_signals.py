@@ -1,0 +1,53 @@
+"""Ctrl-C and SIGTERM stop a run at any moment (issue "Nothing silent", point 9): during
+compilation and training, one line and the usual exit status, never a crash, and an
+interrupt swallowed on its way (inside a garbage-collector callback) still stops the run,
+its checkpoint kept."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from small_grid import run_small
+
+from vdbejax import _interrupts
+from vdbejax.results import folder_lock
+
+
+def test_a_swallowed_interrupt_stops_the_run_after_its_chunk(tmp_path):
+    checkpoint = tmp_path / "ckpt.npz"
+    _interrupts.request(KeyboardInterrupt)  # as if the handler's exception had been lost
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_small(checkpoint=checkpoint, chunk_episodes=5)
+    finally:
+        _interrupts.clear()
+    with np.load(checkpoint) as data:  # stopped after one chunk, its checkpoint written
+        assert 0 < data["episodes_done"].max() < run_small().num_episodes
+    resumed = run_small(checkpoint=checkpoint, resume=True, chunk_episodes=5)
+    assert np.array_equal(resumed.returns, run_small().returns)
+
+
+@pytest.mark.parametrize("number, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_while_the_programs_compile_stops_the_run_cleanly(tmp_path, number, status):
+    env = dict(os.environ, VDBEJAX_CACHE_DIR=str(tmp_path / "cache"))  # a cold cache: compiling
+    for trial, delay in enumerate((0.0, 0.5)):
+        out = tmp_path / f"out{trial}"
+        run = subprocess.Popen([sys.executable, "-m", "vdbejax", "run", "--out", str(out),
+                                "--learners", "qlearning,sarsa", "--explorers",
+                                "egreedy,softmax,vdbe", "--seeds", "2", "--episodes", "200000",
+                                "--chunk-episodes", "100", "--quiet"],
+                               env=env, stderr=subprocess.PIPE, text=True)
+        deadline = time.time() + 120
+        while not (out / folder_lock.LOCK_FILE).exists() and time.time() < deadline:
+            time.sleep(0.02)
+        time.sleep(delay)  # the lock is taken just before the programs are built
+        run.send_signal(number)
+        _, err = run.communicate(timeout=120)
+        assert run.returncode == status, (delay, run.returncode, err)
+        assert "interrupted" in err and "Traceback" not in err, err
+        assert not (out / folder_lock.LOCK_FILE).exists()  # and no lock stays behind
