@@ -298,3 +298,18 @@ def test_a_scale_study_too_large_to_fit_is_refused_before_its_folder_exists(tmp_
     out = tmp_path / "scale"  # a billion seeds or episodes used to meet the OOM killer
     assert cli.main(["scale", "--out", str(out), option, "1000000000", "--quiet"]) == 2
     assert "need ≈" in one_error_line(capsys) and not out.exists()
+
+
+@explorer("nothing_silent_ten_million_uniforms")
+class _ManyUniforms(Explorer):  # asks for more random numbers than any step could use
+    num_uniforms = 10_000_000
+
+    def select(self, ctx, uniforms):
+        return jnp.argmax(ctx.q_row)
+
+
+def test_a_plug_in_asking_for_millions_of_uniforms_is_refused_before_tracing():
+    with pytest.raises(ValueError, match="num_uniforms=10000000 is invalid: must be an integer"
+                                         " in \\[0, 4096\\]"):
+        run_grid(make_mdp(), [Setting("qlearning", "nothing_silent_ten_million_uniforms")],
+                 num_seeds=1, num_episodes=2)

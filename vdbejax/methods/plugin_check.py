@@ -232,9 +232,17 @@ def _abstract(shape: tuple[int, ...], dtype: Any) -> Any:
     return jax.ShapeDtypeStruct(shape, dtype)
 
 
+#: Most uniforms a plug-in may draw per step (and per planning call): each is its own
+#: operation in the compiled step, so a million would trace and compile for hours.
+MAX_UNIFORMS = 4096
+
+
 def _count(name: str, value: Any) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
-        raise ValueError(f"{name} num_uniforms={value!r} is invalid: must be an integer >= 0")
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not (
+            0 <= value <= MAX_UNIFORMS):
+        raise ValueError(f"{name} num_uniforms={value!r} is invalid: must be an integer in"
+                         f" [0, {MAX_UNIFORMS}] (each uniform is an operation of the compiled"
+                         " step)")
     return int(value)
 
 
