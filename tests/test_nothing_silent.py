@@ -292,11 +292,12 @@ def test_a_sweep_of_a_hundred_million_settings_is_refused_before_making_them():
         sweep(["qlearning"], ["egreedy"], {"epsilon": values, "alpha": values})
 
 
+@pytest.mark.parametrize("command", ["scale", "bench"])
 @pytest.mark.parametrize("option", ["--seeds", "--episodes"])
-def test_a_scale_study_too_large_to_fit_is_refused_before_its_folder_exists(tmp_path, capsys,
-                                                                           option):
-    out = tmp_path / "scale"  # a billion seeds or episodes used to meet the OOM killer
-    assert cli.main(["scale", "--out", str(out), option, "1000000000", "--quiet"]) == 2
+def test_a_study_too_large_to_fit_is_refused_before_its_folder_exists(tmp_path, capsys,
+                                                                     command, option):
+    out = tmp_path / command  # a billion seeds or episodes used to meet the OOM killer
+    assert cli.main([command, "--out", str(out), option, "1000000000", "--quiet"]) == 2
     assert "need ≈" in one_error_line(capsys) and not out.exists()
 
 

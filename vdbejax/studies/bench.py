@@ -29,6 +29,7 @@ from vdbejax.results.grid_result import GridResult
 from vdbejax.results.regret import cumulative_regret, normalised_returns, run_scores
 from vdbejax.results.solving import episodes_to_solve, summarize_solving
 from vdbejax.runs import RunOptions, prepare_grid
+from vdbejax.runs.batching import check_run_size
 from vdbejax.studies.bench_methods import QUICK_METHODS, BenchMethod, TaskScale, select_methods
 from vdbejax.studies.bench_report import output_files, write_report
 from vdbejax.studies.folder import train_in_folder
@@ -180,7 +181,6 @@ def run_bench(
     chosen_methods = select_methods(methods)
     knobs = RunOptions(resume=resume, memory_budget_bytes=memory_budget_bytes, devices=devices,
                        progress=progress)
-    out = check_writable_dir("out", out_dir)
     bench_tasks = make_tasks(tasks)
     candidates = {}
     for task in bench_tasks:  # every setting checked before anything trains
@@ -188,6 +188,12 @@ def run_bench(
             candidates[task.name, method.name] = method.candidates(task.scale)
             for setting in candidates[task.name, method.name]:
                 make_agent(setting)
+    # The largest grid (a task's tuning pool or its reported run) must fit: refused before
+    # the folder is made.
+    pools = [sum(len(candidates[t.name, m.name]) for m in chosen_methods) for t in bench_tasks]
+    check_run_size(max(max(pools) * tune_seeds if tune else 0, len(chosen_methods) * seeds),
+                   episodes)
+    out = check_writable_dir("out", out_dir)
     check_output_paths(out, output_files([t.name for t in bench_tasks], figures))
     from vdbejax.runs.grid import version_info
 
