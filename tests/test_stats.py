@@ -225,18 +225,45 @@ def test_wilson_interval():
 
 def test_long_runs_are_resampled_in_blocks_with_the_same_statistics(monkeypatch):
     # 2000 resamples × 10⁷ episodes would be 149 GiB at once: long runs go block by block.
+    from vdbejax.results import bootstrap
     from vdbejax.results import stats as statistics
 
     rng = np.random.default_rng(3)
     returns = np.cumsum(rng.normal(0.01, 0.1, (6, 700)), axis=1)
     whole = statistics.curve_statistics(returns[None], bands=True)
     # The paper's run size stays in one block: its numbers are computed exactly as before.
-    assert statistics._block(1000) >= statistics.NUM_RESAMPLES
-    assert statistics._block(statistics.NUM_RESAMPLES) >= 1000
-    monkeypatch.setattr(statistics, "BLOCK_BYTES", 8 * 700 * 37)  # 37 resamples, 7 episodes
+    assert bootstrap.rows_per_block(1000) >= statistics.NUM_RESAMPLES
+    assert bootstrap.rows_per_block(statistics.NUM_RESAMPLES) >= 1000
+    assert bootstrap.rows_per_block(200) >= statistics.NUM_RESAMPLES  # 10 × 20 agents
+    monkeypatch.setattr(bootstrap, "BLOCK_BYTES", 8 * 700 * 37)  # 37 resamples, 7 episodes
     blocked = statistics.curve_statistics(returns[None], bands=True)
     assert blocked.convergence.tolist() == whole.convergence.tolist()
     np.testing.assert_allclose(blocked.convergence_low, whole.convergence_low)
     np.testing.assert_allclose(blocked.convergence_high, whole.convergence_high)
     np.testing.assert_allclose(blocked.band_low, whole.band_low, rtol=0, atol=1e-12)
     np.testing.assert_allclose(blocked.band_high, whole.band_high, rtol=0, atol=1e-12)
+
+
+def test_many_seeds_are_resampled_in_blocks_with_the_same_statistics(monkeypatch):
+    # 2000 resamples × 10⁵ seeds made 1.6 GB arrays (a 100,000-agent run peaked at 5 GB in
+    # its summary): wide runs go resample block by resample block, the same resamples.
+    from vdbejax.results import bootstrap
+    from vdbejax.results import stats as statistics
+
+    rng = np.random.default_rng(5)
+    returns = np.cumsum(rng.normal(0.01, 0.1, (50, 120)), axis=1)
+    whole = statistics.curve_statistics(returns[None], bands=True)
+    indices = bootstrap.bootstrap_indices(50)
+    monkeypatch.setattr(bootstrap, "BLOCK_BYTES", 8 * 50 * 7)  # 7 resamples of 50 seeds
+    assert np.array_equal(np.concatenate(list(bootstrap.resample_blocks(50))), indices)
+    weights = np.concatenate(list(bootstrap.weight_blocks(50)))
+    np.testing.assert_array_equal(weights, bootstrap.bootstrap_weights(50))
+    blocked = statistics.curve_statistics(returns[None], bands=True)
+    for name in ("final", "final_low", "final_high", "final_iqm", "convergence",
+                 "convergence_low", "convergence_high"):
+        np.testing.assert_array_equal(getattr(blocked, name), getattr(whole, name), name)
+    np.testing.assert_allclose(blocked.band_low, whole.band_low, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(blocked.band_high, whole.band_high, rtol=0, atol=1e-12)
+    iqm = statistics.interquartile_mean_ci(returns[:, -1])
+    monkeypatch.undo()
+    assert iqm == statistics.interquartile_mean_ci(returns[:, -1])

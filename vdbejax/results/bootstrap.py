@@ -5,12 +5,47 @@ of the probability of improvement, with the conventions of :mod:`vdbejax.results
 from __future__ import annotations
 
 import functools
+from collections.abc import Iterator
 
 import numpy as np
 
 LEVEL = 0.95
 NUM_RESAMPLES = 2000
 IQM_TRIM = 0.25
+
+
+#: Largest bootstrap temporary (resamples × seeds, or resamples × episodes, float64 or
+#: int64) made at once: bigger ones are made in blocks, so that the statistics of any run
+#: that trains fit in memory (2000 resamples × 10⁵ seeds would be 1.6 GB per array, × 10⁷
+#: episodes 149 GiB). Runs below it compute exactly as in one block.
+BLOCK_BYTES = 1 << 27
+
+
+def rows_per_block(width: int) -> int:
+    """How many 8-byte vectors of ``width`` fit in :data:`BLOCK_BYTES` (at least one)."""
+    return max(1, BLOCK_BYTES // (8 * max(width, 1)))
+
+
+def resample_blocks(num_seeds: int, num_resamples: int = NUM_RESAMPLES,
+                    seed: int = 0) -> Iterator[np.ndarray]:
+    """:func:`bootstrap_indices`, block of resamples by block (each within
+    :data:`BLOCK_BYTES`): the same numbers in the same order, drawn from one generator in
+    turn (numpy's bounded integers consume its stream element by element)."""
+    rows = rows_per_block(num_seeds)
+    rng = np.random.default_rng(seed)
+    for start in range(0, num_resamples, rows):
+        yield rng.integers(0, num_seeds, size=(min(rows, num_resamples - start), num_seeds))
+
+
+def weight_blocks(num_seeds: int, num_resamples: int = NUM_RESAMPLES,
+                  seed: int = 0) -> Iterator[np.ndarray]:
+    """:func:`bootstrap_weights`, block of resamples by block (the whole, cached matrix
+    when it fits in :data:`BLOCK_BYTES`)."""
+    if rows_per_block(num_seeds) >= num_resamples:
+        yield bootstrap_weights(num_seeds, num_resamples, seed)
+        return
+    for indices in resample_blocks(num_seeds, num_resamples, seed):
+        yield _counts(indices, num_seeds) / num_seeds
 
 
 def bootstrap_indices(num_seeds: int, num_resamples: int = NUM_RESAMPLES,
@@ -49,12 +84,16 @@ def bootstrap_weights(num_seeds: int, num_resamples: int = NUM_RESAMPLES,
 
 @functools.lru_cache(maxsize=16)
 def _weights(num_seeds: int, num_resamples: int, seed: int) -> np.ndarray:
-    indices = bootstrap_indices(num_seeds, num_resamples, seed)
-    counts = np.zeros((num_resamples, num_seeds))
-    np.add.at(counts, (np.arange(num_resamples)[:, None], indices), 1.0)
-    weights = counts / num_seeds
+    weights = _counts(bootstrap_indices(num_seeds, num_resamples, seed), num_seeds) / num_seeds
     weights.flags.writeable = False
     return weights
+
+
+def _counts(indices: np.ndarray, num_seeds: int) -> np.ndarray:
+    """How often each seed appears in each resample: float64 ``[resamples, num_seeds]``."""
+    counts = np.zeros((len(indices), num_seeds))
+    np.add.at(counts, (np.arange(len(indices))[:, None], indices), 1.0)
+    return counts
 
 
 def _interval(values: np.ndarray, level: float, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -99,7 +138,8 @@ def bootstrap_ci(
       ``(low, high)``.
     """
     samples = np.asarray(samples, np.float64)
-    means = samples[bootstrap_indices(len(samples), num_resamples, seed)].mean(-1)
+    means = np.concatenate([samples[indices].mean(-1) for indices in
+                            resample_blocks(len(samples), num_resamples, seed)])
     low, high = _interval(means, level)
     return float(low), float(high)
 
@@ -133,7 +173,8 @@ def interquartile_mean_ci(
       ``(iqm, low, high)``.
     """
     values = np.asarray(values, np.float64)
-    resampled = interquartile_mean(values[bootstrap_indices(len(values), num_resamples, seed)])
+    resampled = np.concatenate([interquartile_mean(values[indices]) for indices in
+                                resample_blocks(len(values), num_resamples, seed)])
     low, high = _interval(resampled, level)
     return float(interquartile_mean(values)), float(low), float(high)
 

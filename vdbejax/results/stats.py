@@ -45,6 +45,8 @@ from vdbejax.results.bootstrap import (  # noqa: F401  (re-exported)
     interquartile_mean_ci,
     probability_of_improvement,
     probability_of_improvement_ci,
+    rows_per_block,
+    weight_blocks,
 )
 from vdbejax.results.curves import (  # noqa: F401  (re-exported)
     FRACTION,
@@ -82,25 +84,16 @@ def mean_curve_ci(
     mean = moving_average(returns.mean(0), window)
     # Smoothing is linear, so smoothing each seed once and then resampling equals
     # resampling then smoothing every resample, at a fraction of the cost.
-    weights = bootstrap_weights(len(returns), num_resamples, seed)
     smoothed = moving_average(returns, window)
-    # Episode block by episode block (one block unless the run is long: memory bounded).
-    columns = _block(num_resamples)
-    edges = [_interval(weights @ smoothed[:, i:i + columns], level)
-             for i in range(0, smoothed.shape[-1], columns)]
+    # Episode block by episode block, and resample block by resample block for many seeds
+    # (one block each unless the run is long or wide: memory bounded).
+    columns = rows_per_block(num_resamples)
+    edges = [_interval(np.concatenate([
+        weights @ smoothed[:, i:i + columns]
+        for weights in weight_blocks(len(returns), num_resamples, seed)]), level)
+        for i in range(0, smoothed.shape[-1], columns)]
     return (mean, np.concatenate([lo for lo, _ in edges]),
             np.concatenate([hi for _, hi in edges]))
-
-
-#: Largest bootstrap temporary (resamples × episodes float64) made at once: longer runs
-#: are resampled in blocks, so their statistics fit in memory (2000 resamples × 10⁷
-#: episodes would be 149 GiB at once). Runs below it compute exactly as in one block.
-BLOCK_BYTES = 1 << 27
-
-
-def _block(length: int) -> int:
-    """How many float64 vectors of ``length`` fit in :data:`BLOCK_BYTES` (at least one)."""
-    return max(1, BLOCK_BYTES // (8 * max(length, 1)))
 
 
 def final_return_ci(
@@ -143,11 +136,11 @@ def convergence_ci(
     """
     returns = np.asarray(returns, np.float64)
     point = convergence_episode(returns.mean(0), window, last, fraction)
-    weights = bootstrap_weights(len(returns), num_resamples, seed)
-    rows = _block(returns.shape[-1])  # resamples per block (all of them unless long)
+    rows = rows_per_block(returns.shape[-1])  # resamples at once (all of them unless long)
     episodes = np.concatenate([
         convergence_episodes(weights[i:i + rows] @ returns, window, last, fraction)
-        for i in range(0, num_resamples, rows)])
+        for weights in weight_blocks(len(returns), num_resamples, seed)
+        for i in range(0, len(weights), rows)])
     censored = np.isinf(episodes)
     # Censored resamples rank after every episode; an end interpolated towards one of
     # them (beyond the run's episodes) is censored too.
