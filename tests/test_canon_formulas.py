@@ -2,7 +2,7 @@
 under ``jax.vmap`` (a batch whose rows differ; every row must equal its own unbatched
 call), in the manner of rlax's ``chex.variants``: MBIE-EB's and R-max's optimistic backup,
 UCBVI's Hoeffding and Bernstein bonuses, UCB-H's learning rate and bonus, Dyna-Q+'s
-κ·√τ bonus and Dyna's simulated update."""
+κ·√τ bonus, Dyna's simulated update and Delayed Q-learning's attempted update."""
 from __future__ import annotations
 
 import math
@@ -191,3 +191,46 @@ def test_dyna_simulated_update_is_q_learning_on_a_drawn_outcome():
         np.testing.assert_allclose(np.asarray(got).reshape(S, A), want, rtol=1e-5, atol=1e-6)
         checked += 1
     assert checked >= 2
+
+
+def test_delayed_q_attempts_its_update_after_m_targets():
+    m, gamma, eps1 = 2.0, 0.9, 0.05
+    learner = make_learner("delayed_q", updates=m, gamma=gamma, epsilon1=eps1)
+    q0 = jnp.full((S, A), 10.0, F)
+    q_next = jnp.asarray([1.0, 2.0], F)
+
+    def case(s, a, reward, collected):  # (s, a) holds `collected` targets summing to 0.5 each
+        tables = {name: jnp.zeros((S, A), F) for name in learner.tables()}
+        tables["learning"] = jnp.ones((S, A), F)
+        tables["targets"] = tables["targets"].at[s, a].set(collected)
+        tables["target_sum"] = tables["target_sum"].at[s, a].set(0.5 * collected)
+        q = q0.at[s, a].set(2.5)
+        t = Transition(q=q[s, a], tables={}, reward=jnp.float32(reward),
+                       discount=jnp.float32(gamma), q_next=q_next, tables_next={},
+                       next_action=jnp.int32(0), next_probabilities=jnp.zeros(A, F),
+                       uniforms=(), terminal=jnp.bool_(False), step=jnp.int32(1),
+                       time=jnp.int32(7), state=jnp.int32(s), action=jnp.int32(a))
+        return q, tables, t
+
+    batch = [case(1, 0, 0.0, 1.0),  # 2nd target: mean (0.5 + 1.8)/2 = 1.15, 2.5 − 1.15 ≥ 0.1
+             case(2, 1, 2.6, 1.0),  # 2nd target: mean (0.5 + 4.4)/2 = 2.45: not 0.1 below
+             case(3, 1, 0.0, 0.0)]  # 1st target: collected, no attempt
+    results = variants(lambda q, tables, t: learner.update_table(q, tables, t), batch)
+    for (q, tables, t), got in zip(batch, results, strict=True):
+        s, a = int(t.state), int(t.action)
+        target = float(t.reward) + gamma * float(q_next.max())
+        collected = float(tables["targets"][s, a])
+        want = np.asarray(q).copy()
+        if collected + 1 >= m:  # the attempted update: mean + ε₁ if ≥ 2ε₁ below Q(s, a)
+            mean = (float(tables["target_sum"][s, a]) + target) / m
+            if float(q[s, a]) - mean >= 2 * eps1:
+                want[s, a] = mean + eps1
+            assert float(got.tables["targets"][s, a]) == 0.0  # the collection starts again
+            assert float(got.tables["attempted"][s, a]) == 8.0  # t = time + 1
+        else:
+            assert float(got.tables["targets"][s, a]) == collected + 1
+            assert float(got.tables["target_sum"][s, a]) == pytest.approx(
+                float(tables["target_sum"][s, a]) + target)
+        np.testing.assert_allclose(got.q, want, rtol=1e-6)
+    assert float(results[0].q[1, 0]) == pytest.approx(1.2)  # 1.15 + ε₁: the paper's rule
+    assert float(results[1].q[2, 1]) == 2.5  # a failed attempt changes nothing
