@@ -305,12 +305,45 @@ def test_a_study_too_large_to_fit_is_refused_before_its_folder_exists(tmp_path, 
 class _ManyUniforms(Explorer):  # asks for more random numbers than any step could use
     num_uniforms = 10_000_000
 
-    def select(self, ctx, uniforms):
-        return jnp.argmax(ctx.q_row)
+    def select(self, q, tables, context, uniforms):
+        return jnp.argmax(q)
 
 
 def test_a_plug_in_asking_for_millions_of_uniforms_is_refused_before_tracing():
     with pytest.raises(ValueError, match="num_uniforms=10000000 is invalid: must be an integer"
                                          " in \\[0, 4096\\]"):
         run_grid(make_mdp(), [Setting("qlearning", "nothing_silent_ten_million_uniforms")],
+                 num_seeds=1, num_episodes=2)
+
+
+@learner("nothing_silent_wrong_initial_q")
+class _WrongInitialQ(Learner):  # one state too many
+    gamma: float = 0.9
+
+    def initial_q(self, key, num_states, num_actions):
+        return jnp.zeros((num_states + 1, num_actions))
+
+    def update(self, t):
+        return LearnerUpdate(t.q, {}, jnp.zeros_like(t.q))
+
+
+def test_a_wrong_initial_q_names_the_learner_and_the_shape():
+    # It used to say "Incompatible shapes for broadcasting: (109, 7), (108, 7)".
+    with pytest.raises(ValueError, match="learner 'nothing_silent_wrong_initial_q' initial_q\\(\\)"
+                                         " returned float32\\[109, 7\\]: must be the task's"
+                                         " \\[108, 7\\]"):
+        run_grid(make_mdp(), [Setting("nothing_silent_wrong_initial_q", "egreedy", 0.1)],
+                 num_seeds=1, num_episodes=2)
+
+
+@explorer("nothing_silent_no_probabilities")
+class _NoProbabilities(Explorer):
+    def select(self, q, tables, context, uniforms):
+        return jnp.argmax(q)
+
+
+def test_an_explorer_without_probabilities_names_the_learner_that_reads_them():
+    with pytest.raises(ValueError, match="does not define probabilities\\(\\) \\(learner"
+                                         " 'expected_sarsa' reads them"):
+        run_grid(make_mdp(), [Setting("expected_sarsa", "nothing_silent_no_probabilities")],
                  num_seeds=1, num_episodes=2)

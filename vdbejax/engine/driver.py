@@ -256,9 +256,11 @@ def compile_seconds() -> float:
     return _compile_seconds()
 
 
-def check_params(params: Any, num_actions: int) -> dict[str, str]:
+def check_params(params: Any, num_actions: int,
+                 num_states: int | None = None) -> dict[str, str]:
     """Check a batch's hyperparameters: an :class:`AgentParams` whose every kind's
-    plug-ins trace on one agent (:func:`~vdbejax.methods.api.check_plugin`).
+    plug-ins trace on one agent (:func:`~vdbejax.methods.api.check_plugin`; with
+    ``num_states``, their initial Q has the task's shape).
 
     Returns:
       ``{"learner/explorer": digest}`` of every kind with a user plug-in (its traced
@@ -277,5 +279,5 @@ def check_params(params: Any, num_actions: int) -> dict[str, str]:
         # last check is checked as it is now (a trace on one agent: milliseconds).
         one = jax.tree.map(lambda leaf: np.asarray(leaf)[0], agent)
         digests[f"{one.learner.name}/{one.explorer.name}"] = check_plugin(
-            one.learner, one.explorer, num_actions)
+            one.learner, one.explorer, num_actions, num_states)
     return digests

@@ -25,7 +25,8 @@ from vdbejax.methods.contract import (
 from vdbejax.methods.model import Model
 
 
-def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: int = 3) -> str:
+def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: int = 3,
+                 num_states: int | None = None) -> str:
     """Trace one agent's plug-in functions on abstract inputs; a one-line ``ValueError``
     for wrong shapes or dtypes, a failing function, or side effects.
 
@@ -33,6 +34,8 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
       agent_learner: one learner instance (scalar leaves).
       agent_explorer: one explorer instance.
       num_actions: actions of the task.
+      num_states: states of the task, if known: the learner's ``initial_q`` must give
+        ``[num_states, num_actions]``.
 
     Returns:
       the digest of the traced programs (their equations, not the hyperparameters'
@@ -95,10 +98,24 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
     _check_same(f"{name} update()", new, tables)
     uses_probabilities = agent_learner.uses_next_probabilities
     if uses_probabilities:
-        probs = traced(f"{name} probabilities()", agent_explorer.probabilities, row, tables,
-                       context)
+        try:
+            probs = traced(f"{name} probabilities()", agent_explorer.probabilities, row,
+                           tables, context)
+        except ValueError as error:  # name the learner that asks for them
+            raise ValueError(f"{error} (learner {agent_learner.name!r} reads them:"
+                             " uses_next_probabilities)") from None
         _check_same(f"{name} probabilities()", probs, row)
     lname = f"learner {agent_learner.name!r}"
+    if num_states is not None:  # not part of the digest: the programs stay as they were
+        try:
+            first = jax.eval_shape(lambda key: agent_learner.initial_q(key, num_states, A),
+                                   _abstract((2,), jnp.uint32))
+        except Exception as error:
+            raise ValueError(f"{lname} initial_q() fails on one agent's inputs:"
+                             f" {type(error).__name__}: {error}") from None
+        if getattr(first, "shape", None) != (num_states, A):
+            raise ValueError(f"{lname} initial_q() returned {_describe(first)}: must be the"
+                             f" task's [{num_states}, {A}] (states × actions) Q table")
     behaviour = traced(f"{lname} behaviour()", agent_learner.behaviour, row, ltables,
                        *((context,) if agent_learner.behaviour_uses_context else ()))
     _check_same(f"{lname} behaviour()", behaviour, row)

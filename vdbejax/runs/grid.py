@@ -163,7 +163,7 @@ def prepare_grid(
     params, keys = grid_agents(settings, num_seeds, seed, options)
     # A bad plug-in: one line before anything runs; a user plug-in's code digest enters the
     # fingerprint, so that a checkpoint or a saved result of other code is never taken.
-    plugin_code = check_params(params, mdp.num_actions)
+    plugin_code = check_params(params, mdp.num_actions, mdp.num_states)
     plan = make_plan(mdp, params, len(settings) * num_seeds, num_episodes, run)
     description = {
         "mdp": mdp.name,
