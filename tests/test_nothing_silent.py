@@ -347,3 +347,36 @@ def test_an_explorer_without_probabilities_names_the_learner_that_reads_them():
                                          " 'expected_sarsa' reads them"):
         run_grid(make_mdp(), [Setting("expected_sarsa", "nothing_silent_no_probabilities")],
                  num_seeds=1, num_episodes=2)
+
+
+def test_gymnasium_and_array_inputs_are_one_line_or_plain_numbers(tmp_path):
+    from vdbejax.envs.gymnasium_adapter import from_gymnasium
+    from vdbejax.experiment import GridResult
+
+    with pytest.raises(ValueError, match="env=42 is invalid: must be a gymnasium environment"):
+        from_gymnasium(42)  # was AttributeError: 'int' object has no attribute 'unwrapped'
+    # A 0-d numpy or JAX array is a number (was: "ArrayImpl is not JSON serializable").
+    assert Setting("qlearning", "egreedy", jnp.asarray(0.5)).param == 0.5
+    assert Setting("qlearning", "egreedy", np.array(0.1)) == Setting("qlearning", "egreedy", 0.1)
+    result = run_grid(make_mdp(), [Setting("qlearning", "egreedy", jnp.asarray(0.5))],
+                      num_seeds=1, num_episodes=2)
+    (tmp_path / "file").touch()  # a parent that is a file: was FileNotFoundError
+    with pytest.raises(ValueError, match="out_dir=.* is invalid: must be a writable folder"):
+        result.save(tmp_path / "file" / "below")
+    assert not list(tmp_path.glob("file*/**"))
+
+
+@explorer("nothing_silent_callback")
+class _Callback(Explorer):  # a host function at every step of every agent
+    def select(self, q, tables, context, uniforms):
+        import jax
+
+        host = jax.pure_callback(lambda v: np.asarray(v), jax.ShapeDtypeStruct((), jnp.float32),
+                                 q[0], vmap_method="sequential")
+        return jnp.argmax(q + 0.0 * host)
+
+
+def test_a_plug_in_calling_back_into_python_is_refused_before_training():
+    with pytest.raises(ValueError, match="select\\(\\) calls back into Python"):
+        run_grid(make_mdp(), [Setting("qlearning", "nothing_silent_callback")], num_seeds=2,
+                 num_episodes=2)

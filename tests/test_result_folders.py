@@ -76,7 +76,7 @@ def test_a_run_stopped_while_saving_leaves_a_marker_that_loading_refuses(tmp_pat
         io.atomic_write_bytes(Path(out) / io.RETURNS_FILE, b"new")
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(GridResult, "save", killed)
+    monkeypatch.setattr(GridResult, "write_files", killed)
     with pytest.raises(KeyboardInterrupt):
         sweeps.run_sweep(tmp_path, **SWEEP)
     assert folder_lock.marked_stage(tmp_path) == "results"

@@ -31,6 +31,9 @@ from vdbejax.envs.tabular import TabularMDP, make_tabular_mdp
 
 def _make(env: Any) -> Any:
     if not isinstance(env, str):
+        if not hasattr(env, "unwrapped"):
+            raise ValueError(f"env={env!r} is invalid: must be a gymnasium environment or an"
+                             " environment id such as 'FrozenLake-v1'")
         return env
     try:
         import gymnasium
@@ -38,7 +41,12 @@ def _make(env: Any) -> Any:
         raise ImportError(
             "from_gymnasium needs gymnasium: pip install 'vdbejax[gym]'"
         ) from err
-    return gymnasium.make(env)
+    try:
+        return gymnasium.make(env)
+    except Exception as error:  # unknown, deprecated or unversioned ids: gymnasium's errors
+        message = str(error).strip().splitlines()[0] if str(error).strip() else ""
+        raise ValueError(f"env={env!r} is invalid: gymnasium cannot make it"
+                         f" ({type(error).__name__}: {message})") from None
 
 
 def _max_episode_steps(env: Any) -> int | None:

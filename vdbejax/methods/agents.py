@@ -64,7 +64,10 @@ def with_parameter_names(settings: Sequence[Setting], names: Any) -> list[Settin
 
 
 def _plain(value: Any) -> Any:
-    """numpy scalars as Python numbers (hashable, JSON-serialisable)."""
+    """numpy and JAX scalars (0-d arrays too) as Python numbers (hashable,
+    JSON-serialisable); anything else as it is (its validation names it)."""
+    if getattr(value, "shape", None) == () and hasattr(value, "dtype"):
+        value = np.asarray(value)[()]
     if isinstance(value, (np.bool_, bool)):
         return bool(value)
     if isinstance(value, np.integer):

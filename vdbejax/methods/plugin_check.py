@@ -86,6 +86,10 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
         if closed.effects:
             raise ValueError(f"{what} has side effects ({sorted(map(str, closed.effects))}):"
                              " plug-in functions must be pure")
+        if _calls_back(closed.jaxpr):
+            raise ValueError(f"{what} calls back into Python (jax.pure_callback): the engine"
+                             " runs plug-ins in compiled, vmapped loops, where a host callback"
+                             " would run at every step of every agent; write it in jax.numpy")
         programs.append(f"{what}\n{closed.jaxpr}")
         return jax.eval_shape(fn, *args)
 
@@ -241,6 +245,20 @@ def _check_declared_inputs(lname: str, agent_learner: Learner, transition: Trans
         if needed:
             raise ValueError(f"{lname} update() reads t.{field} but the learner does not"
                              f" declare {flag} = True: the engine would pass zeros")
+
+
+def _calls_back(jaxpr: Any) -> bool:
+    """Whether ``jaxpr`` (or one nested in it: a cond's branches, a loop's body) calls a
+    host function (``jax.pure_callback``; other callbacks are effects)."""
+    for eqn in jaxpr.eqns:
+        if "callback" in eqn.primitive.name:
+            return True
+        for value in eqn.params.values():
+            for sub in value if isinstance(value, (tuple, list)) else (value,):
+                inner = getattr(sub, "jaxpr", sub)  # a ClosedJaxpr's, or a Jaxpr itself
+                if hasattr(inner, "eqns") and _calls_back(inner):
+                    return True
+    return False
 
 
 def _abstract(shape: tuple[int, ...], dtype: Any) -> Any:

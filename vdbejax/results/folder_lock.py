@@ -236,7 +236,7 @@ def save_run(
     try:
         mark(out, "results")
         with ThreadPoolExecutor(1) as pool:
-            saved = pool.submit(result.save, out)
+            saved = pool.submit(result.write_files, out)
             try:
                 computed = (curve_statistics(result.returns, bands=bands) if statistics
                             else None)

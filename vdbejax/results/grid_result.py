@@ -16,6 +16,7 @@ from vdbejax.methods.agents import (
     with_parameter_names,
 )
 from vdbejax.results import io, manifest
+from vdbejax.validation import check_writable_dir
 
 
 @dataclasses.dataclass
@@ -146,8 +147,17 @@ class GridResult:
 
     def save(self, out_dir: str | os.PathLike) -> None:
         """Write ``returns.npz``, ``configs.csv`` and ``meta.json`` into ``out_dir``, and
-        their sha256 into ``manifest.json`` (:mod:`vdbejax.results.manifest`)."""
-        out = Path(out_dir)
+        their sha256 into ``manifest.json`` (:mod:`vdbejax.results.manifest`).
+
+        Raises:
+          ValueError: ``out_dir`` cannot be created or written (before any file is);
+            OSError: a write fails on the way (a full disk).
+        """
+        self.write_files(check_writable_dir("out_dir", out_dir))
+
+    def write_files(self, out: Path) -> None:
+        """:meth:`save` into an existing folder, without checking it first (an operating
+        system error is raised as it is: the result-folder pipeline rescues the results)."""
         arrays: dict[str, Any] = {"returns": self.returns, "lengths": self.lengths,
                                   "nonfinite": self.nonfinite}
         if self.episodes_run is not None:

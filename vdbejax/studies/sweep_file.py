@@ -169,8 +169,11 @@ def make_task(task: str, *, max_steps: int | None = None,
     except ImportError as error:  # gymnasium missing: the extra to install, in one line
         raise ValueError(f"task={task!r} needs gymnasium: pip install 'vdbejax[gym]'"
                          f" ({error})") from None
-    except ValueError as error:
-        raise ValueError(str(error).replace(f"name={task!r}", f"task={task!r}", 1)) from None
+    except ValueError as error:  # named as the sweep names it
+        text = str(error).replace(f"name={task!r}", f"task={task!r}", 1)
+        if task.startswith("gym:"):
+            text = text.replace(f"env={task[len('gym:'):]!r}", f"task={task!r}", 1)
+        raise ValueError(text) from None
     except Exception as error:  # gymnasium's own errors: an unknown id, …
         raise ValueError(f"task={task!r} is invalid: cannot build it"
                          f" ({type(error).__name__}: {error})") from None
