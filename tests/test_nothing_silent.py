@@ -22,6 +22,12 @@ def sweep_args(out, *extra):
             "--seeds", "2", "--episodes", "10", "--quiet", *extra]
 
 
+def refused_before_training(setting: Setting, match: str) -> None:
+    """A one-agent, two-episode run of ``setting`` is refused with ``match``."""
+    with pytest.raises(ValueError, match=match):
+        run_grid(make_mdp(), [setting], num_seeds=1, num_episodes=2)
+
+
 def one_error_line(capsys) -> str:
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: "), lines
@@ -301,19 +307,20 @@ def test_a_study_too_large_to_fit_is_refused_before_its_folder_exists(tmp_path, 
     assert "need ≈" in one_error_line(capsys) and not out.exists()
 
 
-@explorer("nothing_silent_ten_million_uniforms")
-class _ManyUniforms(Explorer):  # asks for more random numbers than any step could use
-    num_uniforms = 10_000_000
-
+class _Greedy(Explorer):  # no probabilities(): the plug-ins below change one thing each
     def select(self, q, tables, context, uniforms):
         return jnp.argmax(q)
 
 
+@explorer("nothing_silent_ten_million_uniforms")
+class _ManyUniforms(_Greedy):  # asks for more random numbers than any step could use
+    num_uniforms = 10_000_000
+
+
 def test_a_plug_in_asking_for_millions_of_uniforms_is_refused_before_tracing():
-    with pytest.raises(ValueError, match="num_uniforms=10000000 is invalid: must be an integer"
-                                         " in \\[0, 4096\\]"):
-        run_grid(make_mdp(), [Setting("qlearning", "nothing_silent_ten_million_uniforms")],
-                 num_seeds=1, num_episodes=2)
+    refused_before_training(Setting("qlearning", "nothing_silent_ten_million_uniforms"),
+                            "num_uniforms=10000000 is invalid: must be an integer in"
+                            " \\[0, 4096\\]")
 
 
 @learner("nothing_silent_wrong_initial_q")
@@ -329,24 +336,18 @@ class _WrongInitialQ(Learner):  # one state too many
 
 def test_a_wrong_initial_q_names_the_learner_and_the_shape():
     # It used to say "Incompatible shapes for broadcasting: (109, 7), (108, 7)".
-    with pytest.raises(ValueError, match="learner 'nothing_silent_wrong_initial_q' initial_q\\(\\)"
-                                         " returned float32\\[109, 7\\]: must be the task's"
-                                         " \\[108, 7\\]"):
-        run_grid(make_mdp(), [Setting("nothing_silent_wrong_initial_q", "egreedy", 0.1)],
-                 num_seeds=1, num_episodes=2)
+    refused_before_training(Setting("nothing_silent_wrong_initial_q", "egreedy", 0.1),
+                            "learner 'nothing_silent_wrong_initial_q' initial_q\\(\\) returned"
+                            " float32\\[109, 7\\]: must be the task's \\[108, 7\\]")
 
 
-@explorer("nothing_silent_no_probabilities")
-class _NoProbabilities(Explorer):
-    def select(self, q, tables, context, uniforms):
-        return jnp.argmax(q)
+explorer("nothing_silent_no_probabilities")(_Greedy)
 
 
 def test_an_explorer_without_probabilities_names_the_learner_that_reads_them():
-    with pytest.raises(ValueError, match="does not define probabilities\\(\\) \\(learner"
-                                         " 'expected_sarsa' reads them"):
-        run_grid(make_mdp(), [Setting("expected_sarsa", "nothing_silent_no_probabilities")],
-                 num_seeds=1, num_episodes=2)
+    refused_before_training(Setting("expected_sarsa", "nothing_silent_no_probabilities"),
+                            "does not define probabilities\\(\\) \\(learner 'expected_sarsa'"
+                            " reads them")
 
 
 def test_gymnasium_and_array_inputs_are_one_line_or_plain_numbers(tmp_path):
