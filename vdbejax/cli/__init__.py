@@ -80,7 +80,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.own_process = argv is None
     # SIGTERM stops a command as Ctrl-C does, in the command line's own process only (a
     # caller's handlers are not replaced), and the previous handlers come back at the end.
-    # Both are also recorded (vdbejax.runs.interrupts), so that one swallowed inside a
+    # Both are also recorded (vdbejax._interrupts), so that one swallowed inside a
     # garbage-collector callback still stops the run after its chunk.
     handled = args.own_process and threading.current_thread() is threading.main_thread()
     previous = ({number: signal.signal(number, _stop) for number in (signal.SIGINT,

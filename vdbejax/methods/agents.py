@@ -318,8 +318,10 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
         if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or not values:
             raise ValueError(f"axis {name}={values!r} is invalid: must be a non-empty list"
                              " of values")
+    for explorer in explorers:
+        explorer_class(explorer)  # an unknown name: its one-line error before any other
     count = sum(math.prod(len(axes[name]) for name in axes if owners(name, learner, explorer))
-                for learner in learners for explorer in explorers if explorer_class(explorer))
+                for learner in learners for explorer in explorers)
     if count > MAX_SETTINGS:  # counted before any is made: 10⁸ would take minutes and GBs
         sizes = ", ".join(f"{name} ({len(values)})" for name, values in axes.items())
         raise ValueError(f"the sweep is too large: {len(learners)} learners × {len(explorers)}"

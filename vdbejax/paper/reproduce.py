@@ -327,6 +327,8 @@ def replot(
     if replicate_count(result) > 1:
         written += [out / name for name in REPLICATE_FILES]
     paper = is_paper_grid(result)
+    if paper:
+        written.append(out / REPORT_FILE)
     with FolderLock(out):
         try:
             if paper:
@@ -340,7 +342,6 @@ def replot(
                              f" {describe_os_error(error)}") from None
         if Path(out).resolve() == Path(results_dir).resolve():
             # Summary, figures and report now belong to the saved results.
-            write_manifest(out, result.meta, [p.name for p in written] + [REPORT_FILE],
-                           keep=True)
+            write_manifest(out, result.meta, [p.name for p in written], keep=True)
             unmark(out)
-    return written + ([out / REPORT_FILE] if paper else [])
+    return written

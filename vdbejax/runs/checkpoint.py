@@ -127,7 +127,8 @@ class CheckpointWriter:
                 _RECORD.pack(len(rows), int(start), int(stop)), rows.astype("<i8").tobytes(),
                 np.ascontiguousarray(sweep.returns[rows, start:stop], "<f4").tobytes(),
                 np.ascontiguousarray(sweep.lengths[rows, start:stop], "<i4").tobytes()))
-            log.write(record + _CRC.pack(zlib.crc32(record)))
+            log.write(record)
+            log.write(_CRC.pack(zlib.crc32(record)))
         log.flush()
         os.fsync(log.fileno())  # the log before the small file that vouches for it
         leaves = {}
