@@ -4,6 +4,7 @@ interrupt swallowed on its way (inside a garbage-collector callback) still stops
 its checkpoint kept."""
 from __future__ import annotations
 
+import gc
 import os
 import signal
 import subprocess
@@ -14,7 +15,7 @@ import numpy as np
 import pytest
 from small_grid import run_small
 
-from vdbejax import _interrupts
+from vdbejax import _interrupts, cli
 from vdbejax.results import folder_lock
 
 
@@ -30,6 +31,34 @@ def test_a_swallowed_interrupt_stops_the_run_after_its_chunk(tmp_path):
         assert 0 < data["episodes_done"].max() < run_small().num_episodes
     resumed = run_small(checkpoint=checkpoint, resume=True, chunk_episodes=5)
     assert np.array_equal(resumed.returns, run_small().returns)
+
+
+def test_a_signal_during_a_garbage_collection_is_recorded_not_raised_there():
+    # Raised inside a gc callback (JAX installs one), Python prints "Exception ignored" with
+    # a traceback and goes on: the handler records the stop there, the driver raises it.
+    seen = []
+
+    def callback(phase, info):
+        if phase == "start" and not seen:
+            try:
+                cli._stop(signal.SIGINT, sys._getframe())
+                seen.append("recorded")
+            except KeyboardInterrupt:
+                seen.append("raised")
+
+    gc.callbacks.append(callback)
+    try:
+        gc.collect()
+    finally:
+        gc.callbacks.remove(callback)
+    try:
+        assert seen == ["recorded"]
+        with pytest.raises(KeyboardInterrupt):
+            _interrupts.raise_pending()
+        with pytest.raises(KeyboardInterrupt):  # anywhere else: raised at once
+            cli._stop(signal.SIGINT, sys._getframe())
+    finally:
+        _interrupts.clear()
 
 
 @pytest.mark.parametrize("number, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])

@@ -11,6 +11,7 @@ import signal
 import sys
 import threading
 from collections.abc import Sequence
+from typing import Any
 
 from vdbejax import __version__
 from vdbejax import _interrupts as interrupts
@@ -89,6 +90,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     interrupts.clear()
     try:
         COMMANDS[args.command][1](args)
+        interrupts.raise_pending()  # a stop that came after the last chunk
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -109,7 +111,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def _stop(signum: int, frame: object) -> None:
+def _stop(signum: int, frame: Any) -> None:
     kind = interrupts.Terminated if signum == signal.SIGTERM else KeyboardInterrupt
     interrupts.request(kind)
-    raise kind()
+    if not interrupts.in_gc_callback(frame):  # there Python would print it and go on
+        raise kind()
