@@ -170,17 +170,20 @@ def _plan(agent: Agent, q: Array, tables: dict, moment: Array, step: LearnedStep
 
     names = own + model_names
     if _unrolled(step.pair_base):  # one lane at a time: a lane that does not plan copies nothing
-        flags = []
-        for k in range(step.pair_base.shape[0]):
-            def run(buffers: tuple, k: int = k) -> tuple:
+        # A loop over the lanes, not an unrolled one: the plan (a posterior draw, a backward
+        # induction) is traced and compiled once, not once per lane.
+        def lane_plan(k: Array, carry: tuple) -> tuple:
+            q, tables, flags = carry
+
+            def run(buffers: tuple) -> tuple:
                 q, tables = buffers
                 base = step.pair_base[k]
                 q_block = jax.lax.dynamic_slice(q, (base,), (size,)).reshape(S, A)
                 blocks = {n: jax.lax.dynamic_slice(
                     tables[n], (base * (width(n) // size),), (width(n),)).reshape(shape(n))
                     for n in names}
-                lane = jax.tree.map(lambda x, k=k: x[k], (agent, step.select_context,
-                                                          step.plan_uniforms))
+                lane = jax.tree.map(lambda x: x[k], (agent, step.select_context,
+                                                     step.plan_uniforms))
                 new_q, new_tables, ok = planned(lane[0], q_block, blocks, lane[1], lane[2])
                 q = jax.lax.dynamic_update_slice(q, new_q.reshape(-1), (base,))
                 tables = dict(tables)
@@ -193,8 +196,12 @@ def _plan(agent: Agent, q: Array, tables: dict, moment: Array, step: LearnedStep
                 return buffers, jnp.asarray(True)
 
             (q, tables), ok = jax.lax.cond(moment[k], run, skip, (q, tables))
-            flags.append(ok)
-        return q, tables, jnp.stack(flags)
+            return q, tables, flags.at[k].set(ok)
+
+        lanes = step.pair_base.shape[0]
+        q, tables, flags = jax.lax.fori_loop(0, lanes, lane_plan,
+                                             (q, tables, jnp.ones(lanes, bool)))
+        return q, tables, flags
     # wide batches (the lockstep strategy): every lane plans, the moment masks the writes
     q_blocks = take_row(q, step.pair_base, size).reshape(-1, S, A)
     blocks = {n: take_row(tables[n], step.pair_base * (width(n) // size), width(n)).reshape(
