@@ -497,6 +497,17 @@ def test_ucb_h_matches_numpy():
     np.testing.assert_allclose(result.returns[0, 0], want_returns, atol=1e-5)
 
 
+def test_ucb_h_takes_a_horizon_whose_cube_exceeds_int32():
+    # H = 10,000 (the gridworlds' and cruz2018's step limit): H³ = 10¹² once overflowed
+    # JAX's int32 in the bonus, a traceback in the middle of `vdbejax bench`.
+    mdp = chain(max_steps=30)
+    values = {"horizon": 10_000, "bonus_scale": 0.01, "gamma": 1.0}
+    result = grid(mdp, [Setting("ucb_h", "greedy", None, values)], seeds=1, episodes=8)
+    want_returns, want_lengths = _np_ucb_h(mdp, 8, 10_000)
+    np.testing.assert_array_equal(result.lengths[0, 0], want_lengths)
+    np.testing.assert_allclose(result.returns[0, 0], want_returns, atol=1e-5)
+
+
 def test_finite_horizon_methods_keep_their_bits_across_strategies():
     mdp = stochastic_chain()
     settings = [Setting("ucbvi", "greedy", None, {"horizon": 25}),

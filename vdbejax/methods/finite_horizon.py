@@ -231,7 +231,7 @@ class UCBH(_StageLearner):
         here = jnp.arange(H) == stage
         visits = at_stage(t.tables["visits_stage"], stage) + 1.0
         rate = (H + 1.0) / (H + visits)
-        bonus = rounded(self.bonus_scale * jnp.sqrt(H ** 3 * self.iota / visits),
+        bonus = rounded(self.bonus_scale * jnp.sqrt(float(H) ** 3 * self.iota / visits),
                         self.bonus_scale)
         later = at_stage(t.tables_next["q_stage"], jnp.minimum(stage + 1, H - 1))
         value_next = jnp.where(stage + 1 < H, jnp.minimum(self.v_max(), jnp.max(later)), 0.0)
