@@ -172,7 +172,7 @@ def test_scale_cli_bad_input_is_one_line_before_training(tmp_path, capsys, monke
     def no_training(*_args, **_kwargs):
         raise AssertionError("training started")
 
-    monkeypatch.setattr(scaling, "_run_variant", no_training)
+    monkeypatch.setattr(scaling, "train_until_solved", no_training)
     code = cli.main(["scale", "--out", str(tmp_path / "bad"), "--quiet", *args])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].startswith("error: "), err

@@ -25,10 +25,12 @@ from vdbejax.cli.paper_commands import (
 )
 from vdbejax.cli.study_commands import (
     add_bench,
+    add_depth,
     add_run,
     add_scale,
     add_sweep_file,
     bench_command,
+    depth_command,
     run_command,
     scale_command,
     sweep_file_command,
@@ -47,6 +49,7 @@ COMMANDS = {
     "ablate": (add_ablate, ablate_command),
     "scale": (add_scale, scale_command),
     "bench": (add_bench, bench_command),
+    "depth": (add_depth, depth_command),
 }
 
 
@@ -87,8 +90,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     previous = ({number: signal.signal(number, _stop) for number in (signal.SIGINT,
                                                                      signal.SIGTERM)}
                 if handled else {})
-    interrupts.clear()
+    if not handled:  # a stop recorded before this command belongs to no command of it
+        interrupts.clear()
     try:
+        interrupts.raise_pending()  # a stop while the command line imported (vdbejax._console)
         COMMANDS[args.command][1](args)
         interrupts.raise_pending()  # a stop that came after the last chunk
     except ValueError as error:

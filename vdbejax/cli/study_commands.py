@@ -1,4 +1,4 @@
-"""The study commands: ``run`` (any sweep), ``scale`` and ``bench``."""
+"""The study commands: ``run`` (any sweep), ``scale``, ``bench`` and ``depth``."""
 from __future__ import annotations
 
 import argparse
@@ -290,3 +290,56 @@ def bench_command(args: argparse.Namespace) -> None:
         print(f"{row['title']}: IQM score {row['iqm']:.3f} [{row['iqm_low']:.3f},"
               f" {row['iqm_high']:.3f}], mean rank {row['mean_rank']:.1f}")
     print(f"elapsed: {result.meta['elapsed_seconds']:.1f} s → {Path(args.out) / 'bench.md'}")
+
+
+def add_depth(sub: argparse._SubParsersAction) -> None:
+    # Nothing of vdbejax.studies.depth here: building the parser must not import JAX.
+    p = sub.add_parser(
+        "depth", help="episodes to solve against the depth N of DeepSea and the chain, per"
+                      " method, with growth slopes; writes depth.md, depth.csv, depth.png",
+        description="Every benchmark method at its untuned middle candidate, each agent until"
+                    " solved or out of budget, on DeepSea and the deterministic chain of"
+                    " growing N (docs/BENCHMARK.md, 'Depth scaling').")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--families", default=None, help="deepsea and/or chain (default both)")
+    p.add_argument("--sizes", default=None, help="comma-separated depths N (default 4,8,16,32)")
+    p.add_argument("--methods", default=None,
+                   help="comma-separated names of vdbejax.studies.bench_methods.METHODS"
+                        " (default all but PSRL)")
+    p.add_argument("--seeds", type=parse_cli_number, default=None,
+                   help="agents per method and task (default 10)")
+    p.add_argument("--episodes", type=parse_cli_number, default=None,
+                   help="episode budget per agent and task (default 1000)")
+    p.add_argument("--seed", type=parse_cli_number, default=0, help="root seed (default 0)")
+    p.add_argument("--quick", action="store_true",
+                   help="N = 4 and 6, 4 methods, 3 agents, 100 episodes (seconds)")
+    p.add_argument("--no-figures", action="store_true", help="no figure")
+    add_run_flags(p, "continue an interrupted study: whole task folders are reused, the"
+                     " interrupted one continues from its checkpoint")
+    p.add_argument("--quiet", action="store_true", help="no status lines")
+
+
+def depth_command(args: argparse.Namespace) -> None:
+    from vdbejax.studies import depth
+
+    sizes = {"families": args.families, "sizes": args.sizes, "methods": args.methods,
+             "seeds": args.seeds, "episodes": args.episodes}
+    refuse_sizes_with_quick(args.quick, [k for k, v in sizes.items() if v is not None],
+                            "depth study")
+    defaults = {"families": ",".join(depth.FAMILIES), "sizes": ",".join(map(str, depth.SIZES)),
+                "methods": ",".join(depth.METHODS), "seeds": depth.SEEDS,
+                "episodes": depth.EPISODES}
+    values: dict[str, Any] = {k: (defaults[k] if v is None else v) for k, v in sizes.items()}
+    command = "vdbejax depth --out " + args.out + (" --quick" if args.quick else "".join(
+        f" --{k} {v}" for k, v in values.items() if sizes[k] is not None)) + (
+        f" --seed {args.seed}")
+    result = depth.run_depth(args.out, seed=args.seed, quick=args.quick,
+                             progress=not args.quiet, figure=not args.no_figures,
+                             command=command, **values, **run_flags(args))
+    for row in result.slopes:
+        exponent = ("-" if row["exponent"] != row["exponent"] else  # NaN: fewer than 2 depths
+                    f"{row['exponent']:.2f} [{row['exponent_low']:.2f},"
+                    f" {row['exponent_high']:.2f}]")
+        print(f"{row['family']} {row['title']}: solved up to N = {row['largest_solved']},"
+              f" exponent {exponent}")
+    print(f"elapsed: {result.meta['elapsed_seconds']:.1f} s → {Path(args.out) / 'depth.md'}")

@@ -248,10 +248,7 @@ def _choose(folder: Path, task: BenchTask, methods: list[BenchMethod],
     """Each method's chosen candidate: least mean cumulative regret on the tuning seeds."""
     picks: dict[str, Setting] = {}
     if not tune:
-        for m in methods:
-            options_of = candidates[task.name, m.name]
-            picks[m.name] = options_of[len(options_of) // 2]
-        return picks
+        return {m.name: m.default_candidate(task.scale) for m in methods}
     pool = [s for m in methods for s in candidates[task.name, m.name]]
     result = _train(folder, task, pool, seeds=seeds, episodes=episodes, seed=seed,
                     options=options, phase="tune")

@@ -97,6 +97,11 @@ class BenchMethod:
                                         {**values, self.tuned: value}))
         return settings
 
+    def default_candidate(self, scale: TaskScale) -> Setting:
+        """The candidate run untuned (``--no-tune``): the middle one."""
+        options = self.candidates(scale)
+        return options[len(options) // 2]
+
 
 _R = "r_max"
 _EPS = (0.01, 0.1, 0.3)

@@ -38,10 +38,13 @@ from vdbejax.methods.agents import Setting, make_agent, parameter_name
 from vdbejax.results import io
 from vdbejax.results.folder_lock import FolderLock, mark, unmark
 from vdbejax.results.solving import FRACTION, WINDOW, solve_threshold, summarize_solving
-from vdbejax.runs import RunOptions, UntilSolved, prepare_grid
+from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
-from vdbejax.studies import train_in_folder
-from vdbejax.studies.scaling_adaptive import AdaptiveRun, adaptive_run, run_until_solved
+from vdbejax.studies.scaling_adaptive import (
+    AdaptiveRun,
+    run_until_solved,
+    train_until_solved,
+)
 from vdbejax.studies.scaling_report import (
     CSV_FILE,
     META_FILE,
@@ -245,12 +248,12 @@ def run_scaling(
             if progress:
                 sys.stderr.write(f"{size} ({mdp.num_states} states): {len(remaining)} settings ×"
                                  f" {seeds} agents, up to {budget} episodes\n")
-            run = _run_variant(out / RUNS_FOLDER / size, mdp, remaining, seeds=seeds, budget=budget,
-                               stop=UntilSolved(best=best, fraction=fraction, window=window,
-                                                max_seconds=seconds),
-                               seed=seed, options=knobs.replace(chunk_episodes=chunk,
-                                                                progress=progress),
-                               size=size)
+            run = train_until_solved(
+                out / RUNS_FOLDER / size, mdp, remaining, seeds=seeds, budget=budget,
+                stop=UntilSolved(best=best, fraction=fraction, window=window,
+                                 max_seconds=seconds),
+                seed=seed, options=knobs.replace(chunk_episodes=chunk, progress=progress),
+                task=f"variant:{size}")
             runs[size] = run
             if progress:
                 sys.stderr.write(
@@ -309,22 +312,6 @@ def run_scaling(
             for size in runs:
                 shutil.rmtree(out / RUNS_FOLDER / size, ignore_errors=True)
         return ScalingResult(rows, variants, meta, runs)
-
-
-def _run_variant(folder: Path, mdp: Any, settings: list[Setting], *, seeds: int, budget: int,
-                 stop: UntilSolved, seed: int, options: RunOptions, size: str) -> AdaptiveRun:
-    """One variant of the study, trained until solved into its own result folder
-    (``runs/NxK/``, :func:`~vdbejax.studies.train_in_folder`: checkpointed, resumable)."""
-    from vdbejax.engine import compile_seconds
-
-    prepared = prepare_grid(mdp, settings, num_seeds=seeds, num_episodes=budget, seed=seed,
-                            run=options.replace(stop=stop))
-    compiled_before = compile_seconds()
-    result, _ = train_in_folder(
-        folder, prepared, lambda result, stats: None, files=[], statistics=False,
-        annotate=lambda result: result.meta.update(
-            task=f"variant:{size}", compile_seconds=compile_seconds() - compiled_before))
-    return adaptive_run(result, float(result.meta.get("compile_seconds", 0.0)))
 
 
 def _setting_columns(setting: Setting, config: int) -> dict[str, Any]:

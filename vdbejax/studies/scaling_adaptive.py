@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -157,7 +158,29 @@ def adaptive_run(result: GridResult, compile_seconds: float = 0.0) -> AdaptiveRu
     )
 
 
+def train_until_solved(folder: Path, mdp: Any, settings: list[Setting], *, seeds: int,
+                       budget: int, stop: Any, seed: int, options: RunOptions,
+                       task: str) -> AdaptiveRun:
+    """``settings × seeds`` agents trained until solved (``stop``, an
+    :class:`~vdbejax.runs.UntilSolved`) into the result folder ``folder``
+    (:func:`~vdbejax.studies.train_in_folder`: checkpointed, resumable); ``task`` is
+    recorded in its ``meta.json``."""
+    from vdbejax.engine import compile_seconds
+    from vdbejax.runs import prepare_grid
+    from vdbejax.studies.folder import train_in_folder
+
+    prepared = prepare_grid(mdp, settings, num_seeds=seeds, num_episodes=budget, seed=seed,
+                            run=options.replace(stop=stop))
+    compiled_before = compile_seconds()
+    result, _ = train_in_folder(
+        folder, prepared, lambda result, stats: None, files=[], statistics=False,
+        annotate=lambda result: result.meta.update(
+            task=task, compile_seconds=compile_seconds() - compiled_before))
+    return adaptive_run(result, float(result.meta.get("compile_seconds", 0.0)))
+
+
 __all__ = [
     "AdaptiveRun",
     "run_until_solved",
+    "train_until_solved",
 ]

@@ -1,0 +1,123 @@
+"""The depth study's report: ``depth.md`` and ``depth.png`` (:mod:`vdbejax.studies.depth`).
+
+It imports nothing of the runner's training: the data flow one way, runner → report.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vdbejax.results import io
+
+MARKDOWN_FILE, FIGURE_FILE = "depth.md", "depth.png"
+FAMILY_TITLES = {"deepsea": "DeepSea of size N (N steps an episode)",
+                 "chain": "deterministic chain of N states (horizon 2N)"}
+
+
+def write_reports(out: Path, rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, Any]],
+                  meta: dict[str, Any], *, figure: bool = True) -> None:
+    """Write ``depth.md`` and, with ``figure``, ``depth.png`` into ``out``."""
+    io.atomic_write_text(out / MARKDOWN_FILE, depth_markdown(rows, slopes, meta))
+    if figure:
+        io.save_figure(depth_figure(rows), out / FIGURE_FILE)
+
+
+def _interval(row: dict[str, Any], name: str, digits: int = 2) -> str:
+    value = row[name]
+    if not math.isfinite(value):
+        return "-"
+    return (f"{value:.{digits}f} [{row[f'{name}_low']:.{digits}f},"
+            f" {row[f'{name}_high']:.{digits}f}]")
+
+
+def depth_markdown(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, Any]],
+                   meta: dict[str, Any]) -> str:
+    """Per family: one row per method with its median episodes to solve at each depth
+    (95 % interval, solved/agents) and its two growth slopes."""
+    options = meta["options"]
+    lines = ["# Depth scaling", ""]
+    if meta.get("command"):
+        lines += [f"`{meta['command']}`", ""]
+    lines += [
+        f"{options['seeds']} agents per method and task, each until solved or"
+        f" {options['episodes']} episodes (root seed {options['seed']}); every method at its"
+        " untuned middle candidate (`vdbejax bench --no-tune`). **Solved**: the"
+        f" {options['window']}-episode moving average of the normalised return (0 = uniformly"
+        f" random policy, 1 = optimum) reaches {options['solved']}. Cells: median episodes to"
+        " solve [95 % bootstrap interval], solved/agents (`> B`: fewer than half solved"
+        " within B episodes). **Exponent**: slope of log(median) against log(N), the degree"
+        " of a polynomial growth; **doubling**: slope of log2(median) against N, the rate"
+        " of an exponential one; both over the depths with a finite median, with 95 %"
+        f" bootstrap intervals ({options['resamples']} resamples; a censored resample counts"
+        " at the budget).", ""]
+    for family in options["families"]:
+        sizes = options["sizes"]
+        lines += [f"## {FAMILY_TITLES.get(family, family)}", "",
+                  "| method | family | " + " | ".join(f"N = {n}" for n in sizes)
+                  + " | exponent | doubling |",
+                  "| --- | --- | " + " | ".join("---" for _ in sizes) + " | --- | --- |"]
+        for slope in (s for s in slopes if s["family"] == family):
+            cells = []
+            for n in sizes:
+                row = next((r for r in rows if r["family"] == family and r["size"] == n
+                            and r["method"] == slope["method"]), None)
+                cells.append("-" if row is None else
+                             f"{row['median_text']}, {row['solved']}/{row['agents']}")
+            lines.append(f"| {slope['title']} | {slope['method_family']} | "
+                         + " | ".join(cells) + f" | {_interval(slope, 'exponent')}"
+                         f" | {_interval(slope, 'doubling', 3)} |")
+        lines.append("")
+    tasks = meta["tasks"]
+    steps = sum(t["agent_steps"] for t in tasks.values())
+    seconds = sum(t["seconds"] for t in tasks.values())
+    lines += [f"Training: {steps:,} agent-steps in {seconds:.1f} s"
+              f" ({meta['elapsed_seconds']:.1f} s in all).", ""]
+    return "\n".join(lines)
+
+
+def depth_figure(rows: Sequence[dict[str, Any]]) -> Any:
+    """One panel per family: median episodes to solve against N (log-log, 95 % intervals);
+    a censored median is an open triangle at its budget."""
+    import matplotlib
+
+    if "ipykernel" not in sys.modules:  # headless, as results.plotting; a notebook keeps its own
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    families = list(dict.fromkeys(r["family"] for r in rows))
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    colors = {m: plt.get_cmap("tab20")(i % 20) for i, m in enumerate(methods)}
+    fig, axes = plt.subplots(1, len(families), figsize=(7.5 * len(families), 5.2), squeeze=False)
+    for ax, family in zip(axes[0], families, strict=True):
+        for j, method in enumerate(methods):
+            mine = [r for r in rows if r["family"] == family and r["method"] == method]
+            if not mine:
+                continue
+            spread = 1.0 + 0.012 * (j - (len(methods) - 1) / 2)  # keep the bars apart
+            x = np.array([r["size"] for r in mine], float) * spread
+            median, low, high, budget = (np.array([r[k] for r in mine], float) for k in (
+                "median_episodes", "median_low", "median_high", "budget"))
+            high = np.where(np.isfinite(high), high, budget)
+            ok = np.isfinite(median)
+            ax.errorbar(x[ok], median[ok], yerr=[median[ok] - low[ok], high[ok] - median[ok]],
+                        color=colors[method], marker="o", capsize=2, elinewidth=0.8,
+                        markersize=4, label=mine[0]["title"])
+            if (~ok).any():
+                ax.plot(x[~ok], budget[~ok], linestyle="none", marker="^",
+                        markerfacecolor="none", color=colors[method])
+        ax.set_xscale("log", base=2)
+        ax.set_yscale("log")
+        ax.set_xlabel("depth N")
+        ax.set_ylabel("median episodes to solve")
+        ax.set_title(FAMILY_TITLES.get(family, family), fontsize=10)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][-1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    fig.text(0.01, 0.01, "open triangle: fewer than half the agents solved within the budget",
+             fontsize=8)
+    fig.tight_layout()
+    return fig
