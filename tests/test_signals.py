@@ -80,3 +80,37 @@ def test_a_signal_while_the_programs_compile_stops_the_run_cleanly(tmp_path, num
         assert run.returncode == status, (delay, run.returncode, err)
         assert "interrupted" in err and "Traceback" not in err, err
         assert not (out / folder_lock.LOCK_FILE).exists()  # and no lock stays behind
+
+
+_STOP_WHILE_IMPORTING = """
+import os, signal, sys
+from importlib.abc import MetaPathFinder
+
+STOP, OUT = getattr(signal, sys.argv[1]), sys.argv[2]
+
+class StopOnImport(MetaPathFinder):  # the signal arrives while the command line imports
+    def find_spec(self, name, path=None, target=None):
+        if name == "vdbejax.cli":
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), STOP)
+        return None
+
+sys.meta_path.insert(0, StopOnImport())
+from vdbejax._console import main
+sys.argv = ["vdbejax", "run", "--out", OUT, "--learners", "qlearning",
+            "--explorers", "egreedy", "--axis", "epsilon=0.1", "--seeds", "1",
+            "--episodes", "5"]
+sys.exit(main())
+"""
+
+
+@pytest.mark.parametrize("name, code", [("SIGINT", 130), ("SIGTERM", 143)])
+def test_a_stop_while_the_command_line_imports_is_one_line_and_runs_nothing(tmp_path, name,
+                                                                            code):
+    out = tmp_path / "run"
+    done = subprocess.run([sys.executable, "-c", _STOP_WHILE_IMPORTING, name, str(out)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == code, done.stderr
+    assert done.stderr.strip().splitlines() == [
+        "interrupted: rerun with --resume to continue from the last checkpoint"], done.stderr
+    assert not out.exists()  # stopped before the command began

@@ -1,5 +1,5 @@
 import sys
 
-from vdbejax.cli import main
+from vdbejax._console import main
 
 sys.exit(main())
