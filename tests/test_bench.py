@@ -102,3 +102,17 @@ def test_bad_input_is_one_line_before_training(tmp_path: Path,
         err = capsys.readouterr().err
         assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
     assert not (tmp_path / "b" / "runs").exists()
+
+
+def test_a_safety_capped_task_runs_at_the_benchmarks_horizon() -> None:
+    # 10,000 steps (the suite's cap for tasks without a step limit) let one exploring agent
+    # take 10,000 steps an episode: the first full run reached 8 GB in windy's tuning.
+    from vdbejax.envs.suite import task_info
+
+    capped = [name for name in ("windy_gridworld", "cliff_walking", "cruz2018", "taxi",
+                                "chain", "table_cleaning") if task_info(name).safety_cap]
+    assert capped == ["windy_gridworld", "cliff_walking", "cruz2018"]
+    windy, taxi = bench.make_tasks("windy_gridworld,taxi")
+    assert windy.mdp.max_steps == bench.CAPPED_HORIZON and windy.scale.horizon == 200
+    assert windy.best == -15.0  # the optimum lies well within the cap
+    assert taxi.mdp.max_steps == task_info("taxi").horizon  # its own limit (gymnasium's)

@@ -38,6 +38,8 @@ class TaskInfo:
       horizon: the episode length ``max_steps`` at which episodes are truncated.
       horizon_reason: why that horizon.
       extra: the optional dependency (``pip install 'vdbejax[EXTRA]'``) it needs, or None.
+      safety_cap: ``horizon`` is a cap of this repository's (the task as published has no
+        step limit), not the task's own.
     """
 
     name: str
@@ -47,6 +49,7 @@ class TaskInfo:
     horizon: int
     horizon_reason: str
     extra: str | None = None
+    safety_cap: bool = False
 
 
 _STREHL_LITTMAN = ("Strehl & Littman 2008, An analysis of model-based Interval Estimation"
@@ -166,7 +169,7 @@ def task_info(name: str) -> TaskInfo:
             " shortest path",
             gridworlds.HORIZON,
             "a safety cap (the book has no time limit): ~700 times the optimal length; the"
-            " random policy reaches the goal within it with probability ~0.8")
+            " random policy reaches the goal within it with probability ~0.8", safety_cap=True)
     if family in ("frozenlake4", "frozenlake8"):
         side = "4x4" if family == "frozenlake4" else "8x8"
         return TaskInfo(
@@ -194,7 +197,7 @@ def task_info(name: str) -> TaskInfo:
             name, "Table cleaning (the authors' table)", _SOURCES[family],
             "the paper's task as the authors' code runs it: failures, aborts back to the"
             " start, no step limit", STEP_CAP,
-            "a safety cap: the published code has no step limit")
+            "a safety cap: the published code has no step limit", safety_cap=True)
     sections, goblets = sizes
     return TaskInfo(
         name, f"Table cleaning, {sections} sections and {goblets}"
