@@ -16,6 +16,14 @@ from vdbejax.methods.model import capacity
 Array = jax.Array
 
 
+#: The type of every agent-state array but ``tables`` (float32 each): :func:`init_agent`
+#: makes them so, and a checkpoint's state is checked against them.
+STATE_DTYPES = {"q": jnp.float32, "state": jnp.int32, "action": jnp.int32,
+                "pending_reset": jnp.bool_, "episode": jnp.int32,
+                "episode_return": jnp.float32, "episode_length": jnp.int32,
+                "counter": jnp.uint32, "key": jnp.uint32, "nonfinite": jnp.bool_}
+
+
 @pytree_dataclass
 class AgentState:
     """Everything one agent carries between iterations (a leading axis for batches).
@@ -83,20 +91,11 @@ def init_agent(mdp: TabularMDP, params: AgentParams, key: Array) -> AgentState:
             for name, spec in owner.tables().items():
                 init = jnp.full(table_shape(mdp, layout[name]), spec.init, jnp.float32)
                 tables[name] = jnp.where(mine, init, tables[name])
-    zero = jnp.asarray(0, jnp.int32)
-    return AgentState(
-        q=q,
-        tables=tables,
-        state=zero,
-        action=zero,
-        pending_reset=jnp.asarray(True),
-        episode=zero,
-        episode_return=jnp.asarray(0.0, jnp.float32),
-        episode_length=zero,
-        counter=jnp.asarray(0, jnp.uint32),
-        key=key,
-        nonfinite=jnp.asarray(False),
-    )
+    values = {"q": q, "state": 0, "action": 0, "pending_reset": True, "episode": 0,
+              "episode_return": 0.0, "episode_length": 0, "counter": 0, "key": key,
+              "nonfinite": False}
+    return AgentState(tables=tables, **{name: jnp.asarray(values[name], dtype)
+                                        for name, dtype in STATE_DTYPES.items()})
 
 
 def init_agents(mdp: TabularMDP, params: AgentParams, keys: Array) -> AgentState:

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import io as io_bytes
 import json
 import os
 from pathlib import Path
@@ -189,8 +191,9 @@ class GridResult:
                              f" while writing its result files ({MARKER_FILE} is still there);"
                              " run it again")
         returns_path = out / io.RETURNS_FILE
-        try:
-            with np.load(returns_path) as data:
+        try:  # read once: the same bytes are hashed for the manifest and loaded
+            saved = returns_path.read_bytes()
+            with np.load(io_bytes.BytesIO(saved)) as data:
                 returns, lengths = data["returns"], data["lengths"]
                 nonfinite = (data["nonfinite"] if "nonfinite" in data
                              else np.zeros(returns.shape[:2], bool))
@@ -206,7 +209,8 @@ class GridResult:
         if not isinstance(meta, dict):
             raise ValueError(f"results file {str(out / io.META_FILE)!r} is invalid: must hold a"
                              f" JSON object, not {type(meta).__name__}")
-        manifest.verify_manifest(out, meta, io.RESULT_FILES)
+        manifest.verify_manifest(out, meta, io.RESULT_FILES,
+                                 known={io.RETURNS_FILE: hashlib.sha256(saved).hexdigest()})
         settings = io.load_settings(out / io.CONFIGS_FILE)
         _check_saved_arrays(returns_path, len(settings), returns, lengths, nonfinite,
                             episodes_run)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -73,8 +73,9 @@ def read_manifest(folder: str | os.PathLike) -> dict[str, Any] | None:
 
 
 def verify_manifest(folder: str | os.PathLike, meta: dict[str, Any],
-                    names: Iterable[str]) -> None:
-    """Check the files ``names`` of ``folder`` against its manifest.
+                    names: Iterable[str], known: Mapping[str, str] | None = None) -> None:
+    """Check the files ``names`` of ``folder`` against its manifest (``known``: digests of
+    files the caller has just read, by name, so that they are not read again).
 
     Raises:
       ValueError: ``meta`` names a manifest the folder lacks (or cannot be read), the
@@ -101,7 +102,7 @@ def verify_manifest(folder: str | os.PathLike, meta: dict[str, Any],
         if expected is None:
             raise ValueError(f"results file {str(folder / name)!r} is not in {str(path)!r}:"
                              " it was not written by this run")
-        found = file_digest(folder / name)
+        found = (known or {}).get(name) or file_digest(folder / name)
         if found != expected:
             raise ValueError(f"results file {str(folder / name)!r} does not match its sha256 in"
                              f" {str(path)!r} ({found[:12]}…, recorded {expected[:12]}…): it"

@@ -35,7 +35,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from vdbejax.engine import AgentState
-from vdbejax.engine.state import table_shape
+from vdbejax.engine.state import STATE_DTYPES, table_shape
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.results import io
 from vdbejax.runs.state import RunState
@@ -280,13 +280,6 @@ def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
     return returns, lengths
 
 
-#: The type of every agent-state array a run keeps (:func:`vdbejax.engine.state.init_agent`).
-STATE_DTYPES = {"q": np.float32, "state": np.int32, "action": np.int32,
-                "pending_reset": np.bool_, "episode": np.int32, "episode_return": np.float32,
-                "episode_length": np.int32, "counter": np.uint32, "key": np.uint32,
-                "nonfinite": np.bool_}
-
-
 def _check_progress(done: np.ndarray, stopped: np.ndarray, nonfinite: Any, rows: np.ndarray,
                     state: AgentState | None,
                     shape: tuple[int, int], mdp: TabularMDP | None,
@@ -310,7 +303,7 @@ def _check_progress(done: np.ndarray, stopped: np.ndarray, nonfinite: Any, rows:
            if f.name != "tables"):
         return f"every agent-state array must have {m} rows (one per state_rows entry)"
     for name, dtype in STATE_DTYPES.items():
-        if np.asarray(getattr(state, name)).dtype != dtype:
+        if np.asarray(getattr(state, name)).dtype != np.dtype(dtype):
             return (f"agent {name} must be {np.dtype(dtype).name}, not"
                     f" {np.asarray(getattr(state, name)).dtype}")
     for name, table in state.tables.items():
