@@ -26,7 +26,9 @@ FORBIDDEN = {("envs", "methods"), ("methods", "envs")}
 
 def layer(module: str) -> str:
     parts = module.split(".")
-    if len(parts) == 1 or parts[1] in {"__main__", "experiment"} or parts[1] in MOVED_NAMES:
+    # _console: the console script, which loads the command line after its signal handlers
+    if len(parts) == 1 or parts[1] in {"__main__", "_console", "experiment"} or (
+            parts[1] in MOVED_NAMES):
         return "facade"
     if parts[1] in ORDER:
         return parts[1]

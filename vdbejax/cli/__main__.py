@@ -1,5 +1,5 @@
 import sys
 
-from vdbejax._console import main
+from vdbejax.cli import main
 
 sys.exit(main())
