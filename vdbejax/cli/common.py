@@ -54,3 +54,12 @@ def freeze_imports() -> None:
     (≈ 0.05 s per pass). Only when the command line is the process's own (``main()``
     without ``argv``): a caller's process, e.g. a test run, keeps its collector as it is."""
     gc.freeze()
+
+
+def size_values(args: argparse.Namespace, names: list[str], defaults: dict[str, Any],
+                what: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A study's size options: those given (refused beside ``--quick``) and their values,
+    defaults filled in."""
+    given = {name: getattr(args, name) for name in names}
+    refuse_sizes_with_quick(args.quick, [k for k, v in given.items() if v is not None], what)
+    return given, {k: (defaults.get(k) if v is None else v) for k, v in given.items()}

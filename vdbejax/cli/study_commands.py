@@ -3,9 +3,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
-from vdbejax.cli.common import add_run_flags, refuse_sizes_with_quick, run_flags, write_long_csv
+from vdbejax.cli.common import (
+    add_run_flags,
+    refuse_sizes_with_quick,
+    run_flags,
+    size_values,
+    write_long_csv,
+)
 from vdbejax.validation import parse_cli_number
 
 
@@ -273,13 +278,9 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
 def bench_command(args: argparse.Namespace) -> None:
     from vdbejax.studies import bench
 
-    sizes = {"tasks": args.tasks, "methods": args.methods, "seeds": args.seeds,
-             "tune_seeds": args.tune_seeds, "episodes": args.episodes}
-    refuse_sizes_with_quick(args.quick, [k for k, v in sizes.items() if v is not None],
-                            "benchmark")
-    defaults = {"seeds": bench.SEEDS, "tune_seeds": bench.TUNE_SEEDS,
-                "episodes": bench.EPISODES}
-    values: dict[str, Any] = {k: (defaults.get(k) if v is None else v) for k, v in sizes.items()}
+    _, values = size_values(args, ["tasks", "methods", "seeds", "tune_seeds", "episodes"],
+                            {"seeds": bench.SEEDS, "tune_seeds": bench.TUNE_SEEDS,
+                             "episodes": bench.EPISODES}, "benchmark")
     command = "vdbejax bench --out " + args.out + (" --quick" if args.quick else "".join(
         f" --{k.replace('_', '-')} {v}" for k, v in values.items() if v is not None)) + (
         f" --seed {args.seed}" + (" --no-tune" if args.no_tune else ""))
@@ -322,14 +323,11 @@ def add_depth(sub: argparse._SubParsersAction) -> None:
 def depth_command(args: argparse.Namespace) -> None:
     from vdbejax.studies import depth
 
-    sizes = {"families": args.families, "sizes": args.sizes, "methods": args.methods,
-             "seeds": args.seeds, "episodes": args.episodes}
-    refuse_sizes_with_quick(args.quick, [k for k, v in sizes.items() if v is not None],
-                            "depth study")
-    defaults = {"families": ",".join(depth.FAMILIES), "sizes": ",".join(map(str, depth.SIZES)),
-                "methods": ",".join(depth.METHODS), "seeds": depth.SEEDS,
-                "episodes": depth.EPISODES}
-    values: dict[str, Any] = {k: (defaults[k] if v is None else v) for k, v in sizes.items()}
+    sizes, values = size_values(
+        args, ["families", "sizes", "methods", "seeds", "episodes"],
+        {"families": ",".join(depth.FAMILIES), "sizes": ",".join(map(str, depth.SIZES)),
+         "methods": ",".join(depth.METHODS), "seeds": depth.SEEDS, "episodes": depth.EPISODES},
+        "depth study")
     command = "vdbejax depth --out " + args.out + (" --quick" if args.quick else "".join(
         f" --{k} {v}" for k, v in values.items() if sizes[k] is not None)) + (
         f" --seed {args.seed}")
