@@ -322,6 +322,7 @@ def add_depth(sub: argparse._SubParsersAction) -> None:
 
 def depth_command(args: argparse.Namespace) -> None:
     from vdbejax.studies import depth
+    from vdbejax.studies.depth_report import interval_text
 
     sizes, values = size_values(
         args, ["families", "sizes", "methods", "seeds", "episodes"],
@@ -335,9 +336,6 @@ def depth_command(args: argparse.Namespace) -> None:
                              progress=not args.quiet, figure=not args.no_figures,
                              command=command, **values, **run_flags(args))
     for row in result.slopes:
-        exponent = ("-" if row["exponent"] != row["exponent"] else  # NaN: fewer than 2 depths
-                    f"{row['exponent']:.2f} [{row['exponent_low']:.2f},"
-                    f" {row['exponent_high']:.2f}]")
         print(f"{row['family']} {row['title']}: solved up to N = {row['largest_solved']},"
-              f" exponent {exponent}")
+              f" exponent {interval_text(row, 'exponent')}")
     print(f"elapsed: {result.meta['elapsed_seconds']:.1f} s → {Path(args.out) / 'depth.md'}")

@@ -73,6 +73,16 @@ RESULT_BYTES_PER_AGENT = 512
 LOG_BYTES_PER_EPISODE = 8
 
 
+def result_bytes(num_agents: int, num_episodes: int) -> int:
+    """Host bytes of a run's results (:data:`RESULT_BYTES_PER_EPISODE`, ``…_PER_AGENT``)."""
+    return num_agents * (num_episodes * RESULT_BYTES_PER_EPISODE + RESULT_BYTES_PER_AGENT)
+
+
+def log_bytes(num_agents: int, num_episodes: int) -> int:
+    """Disk bytes of a checkpoint's episode log at its largest."""
+    return num_agents * num_episodes * LOG_BYTES_PER_EPISODE
+
+
 def check_run_size(num_agents: int, num_episodes: int, checkpoint: Any = None,
                    available_bytes: int | None = None) -> int:
     """Refuse, before anything is allocated, a run whose results cannot fit.
@@ -90,7 +100,7 @@ def check_run_size(num_agents: int, num_episodes: int, checkpoint: Any = None,
       ValueError: the results need more memory than is free, or the checkpoint log more
         disk space: one line with the estimate and the limit.
     """
-    needed = num_agents * (num_episodes * RESULT_BYTES_PER_EPISODE + RESULT_BYTES_PER_AGENT)
+    needed = result_bytes(num_agents, num_episodes)
     available = _host_available_bytes() if available_bytes is None else available_bytes
     if needed > available:
         raise ValueError(
@@ -99,7 +109,7 @@ def check_run_size(num_agents: int, num_episodes: int, checkpoint: Any = None,
             f" {_size(available)} are free: use fewer seeds or episodes, or split the run")
     if checkpoint is not None:
         folder = Path(checkpoint).parent
-        log = num_agents * num_episodes * LOG_BYTES_PER_EPISODE
+        log = log_bytes(num_agents, num_episodes)
         try:
             free = shutil.disk_usage(folder if folder.exists() else Path.cwd()).free
         except OSError:

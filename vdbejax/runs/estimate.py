@@ -20,15 +20,10 @@ estimate exceeds :data:`LONG_SECONDS` in one line before it starts.
 from __future__ import annotations
 
 import dataclasses
-import os
 
+from vdbejax.engine import available_cpus
 from vdbejax.results.bootstrap import NUM_RESAMPLES
-from vdbejax.runs.batching import (
-    LOG_BYTES_PER_EPISODE,
-    RESULT_BYTES_PER_AGENT,
-    RESULT_BYTES_PER_EPISODE,
-    _size,
-)
+from vdbejax.runs.batching import _size, log_bytes, result_bytes
 
 #: Agent-steps per second per CPU core that no strategy of the engine exceeds on a CPU
 #: (the paper grid's warm run: ≈ 7 M per core, benchmarks/RESULTS.md; twice that here).
@@ -104,17 +99,16 @@ def estimate_run(settings: int, seeds: int, episodes: int, *, statistics: bool =
     """
     agents = settings * seeds
     if cores is None:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
-            os.cpu_count() or 1)
+        cores = available_cpus()
     agent_episodes = float(agents) * episodes
     training = max(agent_episodes / (MAX_STEPS_PER_SECOND * max(cores, 1)),
                    episodes / MAX_LANE_STEPS_PER_SECOND)
-    memory = agents * (episodes * RESULT_BYTES_PER_EPISODE + RESULT_BYTES_PER_AGENT)
+    memory = result_bytes(agents, episodes)
     seconds = 0.0
     if statistics:
         memory += settings * episodes * STATISTICS_BYTES_PER_SETTING_EPISODE
         seconds = NUM_RESAMPLES * float(settings) * episodes / STATISTICS_OPS_PER_SECOND
-    disk = agents * episodes * LOG_BYTES_PER_EPISODE if checkpoint else 0
+    disk = log_bytes(agents, episodes) if checkpoint else 0
     return RunEstimate(agents=agents, episodes=episodes, settings=settings,
                        memory_bytes=int(memory), disk_bytes=int(disk),
                        training_seconds=training, statistics_seconds=seconds)

@@ -27,7 +27,9 @@ def write_reports(out: Path, rows: Sequence[dict[str, Any]], slopes: Sequence[di
         io.save_figure(depth_figure(rows), out / FIGURE_FILE)
 
 
-def _interval(row: dict[str, Any], name: str, digits: int = 2) -> str:
+def interval_text(row: dict[str, Any], name: str, digits: int = 2) -> str:
+    """``"0.86 [0.85, 0.87]"`` for ``row[name]`` and its ``_low``/``_high``; ``"-"`` for NaN
+    (a slope over fewer than two depths)."""
     value = row[name]
     if not math.isfinite(value):
         return "-"
@@ -69,8 +71,8 @@ def depth_markdown(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, An
                 cells.append("-" if row is None else
                              f"{row['median_text']}, {row['solved']}/{row['agents']}")
             lines.append(f"| {slope['title']} | {slope['method_family']} | "
-                         + " | ".join(cells) + f" | {_interval(slope, 'exponent')}"
-                         f" | {_interval(slope, 'doubling', 3)} |")
+                         + " | ".join(cells) + f" | {interval_text(slope, 'exponent')}"
+                         f" | {interval_text(slope, 'doubling', 3)} |")
         lines.append("")
     tasks = meta["tasks"]
     steps = sum(t["agent_steps"] for t in tasks.values())
