@@ -52,7 +52,8 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
                 terminal: Array, self_loop: Array, update_context: Context,
                 select_context: Context, explorer_uniforms: tuple, learner_uniforms: tuple,
                 redraw_uniforms: tuple, state: Array, next_state: Array, time: Array,
-                whole: tuple | None = None, *, select_next: bool = True
+                whole: tuple | None = None, *, select_next: bool = True,
+                unchanged: set[str] | None = None
                 ) -> tuple[Array, dict, dict, Array, Array]:
     """One agent's learning and choice (vmapped over lanes by :func:`lockstep_iteration`).
 
@@ -111,9 +112,18 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
         update, new_explorer_s = learn(jnp.zeros((), jnp.int32), probabilities_next())
         next_action = (select_after(update, new_explorer_s, explorer_uniforms) if select_next
                        else jnp.zeros((), jnp.int32))
+    # What the update returns as it received it was checked when it was written (and the
+    # non-finite flag is sticky): neither checked nor written back again.
+    kept = set() if whole is not None else (
+        {name for name, row in learner_sa.items() if update.tables.get(name) is row}
+        | ({"q"} if update.q is q_sa else set()))
+    if unchanged is not None:
+        unchanged.update(kept)
+    new_values = ({} if "q" in kept else {"q": update.q},
+                  {name: value for name, value in update.tables.items() if name not in kept},
+                  new_explorer_s)
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(leaf))
-                                  for leaf in jax.tree.leaves((update.q, update.tables,
-                                                               new_explorer_s))]))
+                                  for leaf in jax.tree.leaves(new_values)] or [True]))
     return (update.q, update.tables, new_explorer_s,
             jnp.asarray(next_action, jnp.int32), finite)
 
@@ -123,10 +133,15 @@ def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
                self_loop: Array, sa_index: Array, pair_base: Array, state_base: Array,
                update_context: Context, select_context: Context, u: tuple, s_next: Array,
                time: Array, *, num_actions: int, whole: tuple | None = None,
-               select_next: bool = True) -> tuple[Array, dict, dict, Array, Array]:
+               select_next: bool = True, skip_unchanged: bool = False
+               ) -> tuple[Array | None, dict, dict, Array, Array]:
     """The part of an iteration that depends on the kind: the plug-ins' tables read, the
     learner's and explorer's step (:func:`_agent_step`, vmapped over the lanes).
     ``whole``, ``select_next``: see :func:`_agent_step` (batched over the lanes).
+    ``skip_unchanged``: leave out of ``learned`` the learner's tables that its update
+    returns unchanged, and return ``None`` for an unchanged Q: writing them back would
+    rewrite what is there. (Where the update returns a stage table unchanged, as UCBVI's
+    and PSRL's do, the write made XLA copy the whole table every step.)
 
     Returns:
       ``(new_q_sa, learner_sa (new, old), explorer_s (new, old), next_action, finite)``,
@@ -147,13 +162,16 @@ def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
         return rows_of(tables, explorer_specs, state, pair_base, state_base, A)
 
     explorer_s, explorer_next = explorer_rows(s), explorer_rows(act_state)
-    step = partial(_agent_step, select_next=select_next)
+    unchanged: set[str] | None = set() if skip_unchanged else None
+    step = partial(_agent_step, select_next=select_next, unchanged=unchanged)
     new_q_sa, new_learner_sa, new_explorer_s, next_action, finite = jax.vmap(step)(
         agent, a, q_sa, q_next, learner_sa, learner_next, explorer_s, explorer_next, reward,
         terminal, self_loop, update_context, select_context, explorer_u, learner_u, redraw_u,
         s, s_next, time, *(() if whole is None else (whole,)),
     )
     old = learner_sa if whole is None else whole[1]
-    learned = {name: (new_learner_sa[name], old[name]) for name in learner_specs}
+    unchanged = unchanged or set()
+    learned = {name: (new_learner_sa[name], old[name]) for name in learner_specs
+               if name not in unchanged}
     explored = {name: (new_explorer_s[name], explorer_s[name]) for name in explorer_specs}
-    return new_q_sa, learned, explored, next_action, finite
+    return (None if "q" in unchanged else new_q_sa), learned, explored, next_action, finite

@@ -183,14 +183,17 @@ def lockstep_iteration(
                   if agent.learner.updates_whole_table else None)
         new_q_sa, learned, explored, next_action, finite = _kind_step(
             agent, *operands, num_actions=A, whole=blocks,
-            select_next=not (whole_kind and defers_selection(agent.learner)))
+            select_next=not (whole_kind and defers_selection(agent.learner)),
+            skip_unchanged=blocks is None)
         if blocks is None:
-            q = put_learned(agents.q, sa_index, new_q_sa, q_sa, learn)
+            q = (agents.q if new_q_sa is None
+                 else put_learned(agents.q, sa_index, new_q_sa, q_sa, learn))
             for name, (new, old) in learned.items():
                 spec = agent.learner.tables()[name]
                 tables[name] = put_learned(tables[name], sa_index * spec.width(), new, old,
                                            learn, spec.per == "stage")
         else:  # the whole Q and learner tables
+            assert new_q_sa is not None  # (only rows are left unwritten)
             q = put_learned(agents.q, pair_base, new_q_sa.reshape(num_agents, -1),
                             blocks[0].reshape(num_agents, -1), learn, True)
             for name, (new, old) in learned.items():
