@@ -13,7 +13,8 @@
 * :mod:`vdbejax.methods.model` — the agent's count model of its task and planning on it;
   :mod:`vdbejax.methods.model_based` — R-max, MBIE-EB; :mod:`vdbejax.methods.traces` —
   SARSA(λ), Watkins Q(λ); :mod:`vdbejax.methods.dyna` — Dyna-Q, Dyna-Q+;
-  :mod:`vdbejax.methods.finite_horizon` — UCBVI, UCB-H, PSRL;
+  :mod:`vdbejax.methods.finite_horizon` — UCBVI, UCB-H; :mod:`vdbejax.methods.posterior` —
+  PSRL;
   :mod:`vdbejax.methods.delayed_q` — Delayed Q-learning.
 * :mod:`vdbejax.methods.agents` — :class:`Setting`, :func:`sweep`, :func:`make_agent`.
 """
@@ -26,6 +27,7 @@ from vdbejax.methods import (
     finite_horizon,
     learners,
     model_based,
+    posterior,
     traces,
 )
 from vdbejax.methods.agents import (
@@ -82,6 +84,7 @@ __all__ = [
     "make_agent",
     "model_based",
     "paper_settings",
+    "posterior",
     "rounded",
     "sample_categorical",
     "select_action",

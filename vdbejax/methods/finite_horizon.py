@@ -1,5 +1,5 @@
 """Finite-horizon methods with stage-dependent values: UCBVI and optimistic Q-learning
-(UCB-H).
+(UCB-H); PSRL (:mod:`vdbejax.methods.posterior`) builds on their stage table.
 
 Both keep Q_h(s, a) for the stages h = 0 … H−1 of an episode in a stage table
 (``Table("stage", ..., length=H)``, ``[S, A, H]``) and act greedily on Q_h at the episode's
@@ -251,79 +251,3 @@ class UCBH(_StageLearner):
         check_in_range("bonus_scale", self.bonus_scale, 0.0, 1e30)
         check_in_range("iota", self.iota, 0.0, 1e30)
         check_in_range("r_max", self.r_max, 0.0, 1e30, low_open=True)
-
-
-def dirichlet_expected(model: Model, values: Array, sample: Array) -> Array:
-    """``[S, A]`` Σ_s′ P̃(s′ | s, a) · values(s′) for a sampled dense ``[S, A, S + 1]``
-    transition table whose last outcome is "terminal" (worth 0), summed in order of s′."""
-    def add(s_next: Any, total: Array) -> Array:
-        p = sample[:, :, s_next]
-        return total + rounded(p * values[s_next], p)
-
-    return jax.lax.fori_loop(0, values.shape[0], add, jnp.zeros(sample.shape[:2], values.dtype))
-
-
-def posterior_sample(model: Model, key: Array, prior: Any, reward_prior_mean: Any
-                     ) -> tuple[Array, Array]:
-    """One MDP from the posterior: transitions ``Dirichlet(prior + counts)`` over the S
-    states and "terminal", rewards ``N((μ₀ + Σr)/(1 + n), 1/(1 + n))`` (prior N(μ₀, 1),
-    unit noise). Returns ``(rewards [S, A], transitions [S, A, S + 1])``."""
-    S, A = model.visits.shape
-    counts = jnp.zeros((S, A, S), jnp.float32)
-    index = model.next_state.astype(jnp.int32)
-    for k in range(index.shape[-1]):  # the listed successors' counts, one slot at a time
-        counts = counts + jnp.where(jnp.arange(S) == index[..., k, None],
-                                    model.next_count[..., k, None], 0.0)
-    counts = jnp.concatenate([counts, model.terminal[..., None]], axis=-1)  # no scatter
-    transitions_key, rewards_key = jax.random.split(key)
-    gammas = jax.random.gamma(transitions_key, prior + counts)
-    transitions = gammas / jnp.sum(gammas, axis=-1, keepdims=True)
-    precision = 1.0 + model.visits
-    mean = (reward_prior_mean + model.reward_sum) / precision
-    noise = jax.random.normal(rewards_key, (S, A))
-    return mean + noise / jnp.sqrt(precision), transitions
-
-
-@learner("psrl", title="PSRL")
-class PSRL(_StageLearner):
-    """Posterior sampling for RL (Osband, Russo & Van Roy 2013, "(More) efficient
-    reinforcement learning via posterior sampling", NeurIPS, Alg. 1): before each episode
-    (``plan_at = "episode"``) one MDP is drawn from the posterior (:func:`posterior_sample`:
-    a Dirichlet over the S states and "terminal" with ``prior`` per outcome, Gaussian
-    rewards with prior mean ``reward_prior_mean``) and solved by backward induction over
-    ``horizon`` stages; the agent follows its greedy policy (explorer ``greedy``).
-
-    The draw comes from a key made of two of the agent's plan uniforms, so it is a pure
-    function of the agent's stream. Costs ``S² A`` per stage per episode (a dense
-    sampled table): meant for small tasks (RiverSwim, chains, DeepSea of a few rows).
-    """
-
-    gamma: float | Array = 1.0
-    prior: float | Array = 1.0
-    reward_prior_mean: float | Array = 0.0
-    uses_model = True
-    plan_at = "episode"
-    plan_uniforms = 2
-
-    def update(self, t: Transition) -> LearnerUpdate:  # the values come from planning
-        return LearnerUpdate(t.q, dict(t.tables), jnp.zeros_like(t.q))
-
-    def plan(self, q: Array, tables: Mapping[str, Array], model: Any, context: Context,
-             uniforms: tuple[Array, ...]) -> tuple[Array, dict[str, Array]]:
-        bits = [(u * 2.0 ** 23).astype(jnp.uint32) for u in uniforms]
-        key = jax.random.wrap_key_data(jnp.stack([bits[0], bits[1]]), impl="threefry2x32")
-        rewards, transitions = posterior_sample(model, key, self.prior, self.reward_prior_mean)
-
-        def stage(values: Array, _: Any) -> tuple:
-            expected = dirichlet_expected(model, values, transitions)
-            q_h = rewards + rounded(self.gamma * expected, self.gamma)
-            return jnp.max(q_h, axis=1), q_h
-
-        stages = backward_induction(stage, jnp.zeros(q.shape[0], jnp.float32), self.horizon)
-        return stages[..., 0], {"q_stage": stages}
-
-    def validate(self) -> None:
-        super().validate()
-        check_in_range("gamma", self.gamma, 0.0, 1.0)
-        check_in_range("prior", self.prior, 0.0, 1e30, low_open=True)
-        check_in_range("reward_prior_mean", self.reward_prior_mean, -1e30, 1e30)
