@@ -116,3 +116,37 @@ def test_a_safety_capped_task_runs_at_the_benchmarks_horizon() -> None:
     assert windy.mdp.max_steps == bench.CAPPED_HORIZON and windy.scale.horizon == 200
     assert windy.best == -15.0  # the optimum lies well within the cap
     assert taxi.mdp.max_steps == task_info("taxi").horizon  # its own limit (gymnasium's)
+
+
+def test_the_cost_rule_leaves_psrl_out_of_the_large_tasks_of_the_suite() -> None:
+    from vdbejax.envs.suite import DEFAULT_SUITE
+
+    psrl = select_methods("psrl")[0]
+    over = [t.name for t in bench.make_tasks(DEFAULT_SUITE) if t.cost(psrl) > bench.COST_LIMIT]
+    assert over == ["taxi", "variant:3x1"]
+    taxi = bench.make_tasks("taxi")[0]
+    assert taxi.cost(psrl) == 500 * 501 * 6 * 201
+    assert all(taxi.cost(m) == 0 for m in METHODS if m.name != "psrl")
+
+
+def test_a_method_over_the_cost_limit_is_left_out_and_said(tmp_path: Path) -> None:
+    # PSRL costs 36·37·2·7 ≈ 1.9e4 on DeepSea 6 and 5·6·2·1001 ≈ 6.0e4 on the chain
+    result = bench.run_bench(tmp_path / "b", tasks="deepsea:6,chain", methods="egreedy,psrl",
+                             seeds=2, episodes=10, tune=False, cost_limit=3e4, progress=False)
+    ran = {(r["task"], r["method"]) for r in result.rows}
+    assert ran == {("deepsea:6", "egreedy"), ("deepsea:6", "psrl"), ("chain", "egreedy")}
+    assert result.meta["left_out"] == [{"task": "chain", "method": "psrl", "cost": 60060.0,
+                                        "limit": 3e4}]
+    assert len(GridResult.load(tmp_path / "b" / "runs" / "chain").settings) == 1
+    by_method = {a["method"]: a for a in result.aggregate}
+    assert by_method["egreedy"]["tasks"] == 2 and by_method["psrl"]["tasks"] == 1
+    assert [a["method"] for a in result.aggregate][-1] == "psrl"  # partial coverage last
+    text = (tmp_path / "b" / "bench.md").read_text()
+    assert "Left out by the cost rule" in text and "Not run here (cost rule): PSRL." in text
+    assert "| 1 of 2 |" in text
+    with pytest.raises(ValueError, match="no method of methods runs"):
+        bench.run_bench(tmp_path / "c", tasks="chain", methods="psrl", seeds=2, episodes=10,
+                        tune=False, cost_limit=3e4, progress=False)
+    assert not (tmp_path / "c").exists()
+    with pytest.raises(ValueError, match="cost_limit="):
+        bench.run_bench(tmp_path / "d", quick=True, cost_limit=0, progress=False)

@@ -267,6 +267,10 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
                    help="root seed of the reported run; tuning uses seed + 1 (default 0)")
     p.add_argument("--no-tune", action="store_true",
                    help="no tuning: each method at its middle candidate")
+    p.add_argument("--cost-limit", type=number, default=None,
+                   help="the most products per agent-episode a dense-model method (PSRL:"
+                        " S (S + 1) A (H + 1)) may cost on a task, else it is left out of it"
+                        " (default 1e7; inf: never)")
     p.add_argument("--quick", action="store_true",
                    help="3 small tasks, 5 methods, 3 agents, 40 episodes (about a minute)")
     p.add_argument("--no-figures", action="store_true", help="no figures")
@@ -283,7 +287,10 @@ def bench_command(args: argparse.Namespace) -> None:
                              "episodes": bench.EPISODES}, "benchmark")
     command = "vdbejax bench --out " + args.out + (" --quick" if args.quick else "".join(
         f" --{k.replace('_', '-')} {v}" for k, v in values.items() if v is not None)) + (
-        f" --seed {args.seed}" + (" --no-tune" if args.no_tune else ""))
+        f" --seed {args.seed}" + (" --no-tune" if args.no_tune else "")
+        + (f" --cost-limit {args.cost_limit}" if args.cost_limit is not None else ""))
+    if args.cost_limit is not None:
+        values["cost_limit"] = args.cost_limit
     result = bench.run_bench(args.out, seed=args.seed, tune=not args.no_tune, quick=args.quick,
                              progress=not args.quiet, figures=not args.no_figures,
                              command=command, **values, **run_flags(args))

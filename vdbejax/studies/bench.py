@@ -6,7 +6,9 @@ result folder through :func:`~vdbejax.studies.train_in_folder` (checkpointed,
 (:mod:`~vdbejax.studies.bench_methods`) on tuning seeds (root seed ``seed + 1``), and
 ``runs/<task>/`` runs the chosen candidate of each method on the reported seeds (root seed
 ``seed``). The scores (:mod:`vdbejax.results.regret`) and the report
-(:mod:`~vdbejax.studies.bench_report`) come from the reported runs only.
+(:mod:`~vdbejax.studies.bench_report`) come from the reported runs only. A method whose
+per-episode cost on a task exceeds the cost limit (the rule of
+:mod:`~vdbejax.studies.bench_methods`) is left out of that task, and the report says so.
 """
 from __future__ import annotations
 
@@ -30,10 +32,23 @@ from vdbejax.results.regret import cumulative_regret, normalised_returns, run_sc
 from vdbejax.results.solving import episodes_to_solve, summarize_solving
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.runs.batching import check_run_size
-from vdbejax.studies.bench_methods import QUICK_METHODS, BenchMethod, TaskScale, select_methods
+from vdbejax.studies.bench_methods import (
+    COST_LIMIT,
+    QUICK_METHODS,
+    BenchMethod,
+    TaskScale,
+    select_methods,
+)
 from vdbejax.studies.bench_report import output_files, write_report
 from vdbejax.studies.folder import train_in_folder
-from vdbejax.validation import INT32_MAX, UINT32_MAX, check_bool, check_int, check_writable_dir
+from vdbejax.validation import (
+    INT32_MAX,
+    UINT32_MAX,
+    check_bool,
+    check_in_range,
+    check_int,
+    check_writable_dir,
+)
 
 #: Agents per method and task in the reported run, and per candidate in tuning.
 SEEDS, TUNE_SEEDS = 10, 3
@@ -66,6 +81,11 @@ class BenchTask:
         """The task's folder name (``deepsea:10`` → ``deepsea-10``)."""
         return self.name.replace(":", "-")
 
+    def cost(self, method: BenchMethod) -> float:
+        """The method's products per agent-episode on this task (the cost rule)."""
+        return method.episode_cost(self.mdp.num_states, self.mdp.num_actions,
+                                   int(self.mdp.max_steps))
+
     @functools.cached_property
     def scale(self) -> TaskScale:
         reward = np.abs(np.asarray(self.mdp.reward, np.float64))
@@ -76,8 +96,9 @@ class BenchTask:
 
 @dataclasses.dataclass
 class BenchResult:
-    """What :func:`run_bench` wrote: one row per (task, method), the aggregate rows, the
-    meta data and the reported runs (``GridResult`` per task)."""
+    """What :func:`run_bench` wrote: one row per (task, method) that ran, the aggregate
+    rows, the meta data and the reported runs (``GridResult`` per task, its configs the
+    methods that ran there)."""
 
     rows: list[dict[str, Any]]
     aggregate: list[dict[str, Any]]
@@ -139,6 +160,7 @@ def run_bench(
     episodes: int = EPISODES,
     seed: int = 0,
     tune: bool = True,
+    cost_limit: float = COST_LIMIT,
     quick: bool = False,
     resume: bool = False,
     memory_budget_bytes: int | str | None = None,
@@ -159,6 +181,8 @@ def run_bench(
       seed: the reported run's root seed (tuning uses ``seed + 1``).
       tune: tune each method's knob; ``False`` runs each method's middle candidate (its
         published default) and reports a tuning budget of 0.
+      cost_limit: the most products per agent-episode a ``dense_model`` method (PSRL) may
+        cost on a task; it is left out of a task above it (``math.inf``: never).
       quick: the small benchmark of CI: :data:`QUICK_TASKS`, ``QUICK_METHODS``,
         ``QUICK_SEEDS``, ``QUICK_TUNE_SEEDS``, ``QUICK_EPISODES`` (override those arguments).
       resume: continue an interrupted benchmark (whole task folders are reused).
@@ -183,21 +207,30 @@ def run_bench(
     tune_seeds = check_int("tune_seeds", tune_seeds, 1, INT32_MAX)
     episodes = check_int("episodes", episodes, 1, INT32_MAX)
     seed = check_int("seed", seed, 0, UINT32_MAX - 1)
+    cost_limit = check_in_range("cost_limit", cost_limit, 0.0, math.inf, low_open=True)
     chosen_methods = select_methods(methods)
     knobs = RunOptions(resume=resume, memory_budget_bytes=memory_budget_bytes, devices=devices,
                        progress=progress)
     bench_tasks = make_tasks(tasks)
+    ran = {t.name: [m for m in chosen_methods if t.cost(m) <= cost_limit] for t in bench_tasks}
+    left_out = [{"task": t.name, "method": m.name, "cost": t.cost(m), "limit": cost_limit}
+                for t in bench_tasks for m in chosen_methods if m not in ran[t.name]]
+    for task in bench_tasks:
+        if not ran[task.name]:
+            raise ValueError(f"tasks holds {task.name!r}, where no method of methods runs:"
+                             f" each costs more than cost_limit={cost_limit:g} products per"
+                             " agent-episode (see the cost rule of vdbejax bench)")
     candidates = {}
     for task in bench_tasks:  # every setting checked before anything trains
-        for method in chosen_methods:
+        for method in ran[task.name]:
             candidates[task.name, method.name] = method.candidates(task.scale)
             for setting in candidates[task.name, method.name]:
                 make_agent(setting)
     # The largest grid (a task's tuning pool or its reported run) must fit: refused before
     # the folder is made.
-    pools = [sum(len(candidates[t.name, m.name]) for m in chosen_methods) for t in bench_tasks]
-    check_run_size(max(max(pools) * tune_seeds if tune else 0, len(chosen_methods) * seeds),
-                   episodes)
+    pools = [sum(len(candidates[t.name, m.name]) for m in ran[t.name]) for t in bench_tasks]
+    check_run_size(max(max(pools) * tune_seeds if tune else 0,
+                       max(len(methods_of) for methods_of in ran.values()) * seeds), episodes)
     out = check_writable_dir("out", out_dir)
     check_output_paths(out, output_files([t.name for t in bench_tasks], figures))
     from vdbejax.runs.grid import version_info
@@ -210,13 +243,13 @@ def run_bench(
         budget = {"agent_episodes": 0, "agent_steps": 0, "seconds": 0.0}
         timing: dict[str, dict[str, float]] = {}
         for i, task in enumerate(bench_tasks):
-            pool = [s for m in chosen_methods for s in candidates[task.name, m.name]]
+            pool = [s for m in ran[task.name] for s in candidates[task.name, m.name]]
             if progress:
                 sys.stderr.write(f"[{i + 1}/{len(bench_tasks)}] {task.name}"
                                  f" ({task.mdp.num_states} states, best {task.best:g}):"
                                  f" tuning {len(pool)} candidates × {tune_seeds} agents\n")
             tuned_at = time.perf_counter()
-            picks = _choose(out / TUNE_FOLDER / task.folder, task, chosen_methods, candidates,
+            picks = _choose(out / TUNE_FOLDER / task.folder, task, ran[task.name], candidates,
                             tune=tune, seeds=tune_seeds, episodes=episodes, seed=seed + 1,
                             options=knobs, budget=budget)
             tuned_seconds = time.perf_counter() - tuned_at
@@ -235,12 +268,14 @@ def run_bench(
         scores = {t.name: run_scores(runs[t.name].returns, t.best, t.baseline)
                   for t in bench_tasks}
         rows = [row for task in bench_tasks
-                for row in task_rows(task, chosen_methods, runs[task.name], scores[task.name])]
+                for row in task_rows(task, ran[task.name], runs[task.name], scores[task.name])]
         meta = _meta(command, bench_tasks, chosen_methods, chosen, budget, timing, started,
                      versions, seeds=seeds, tune_seeds=tune_seeds, episodes=episodes, seed=seed,
-                     tune=tune, quick=quick)
+                     tune=tune, quick=quick, cost_limit=cost_limit)
+        meta["left_out"] = left_out
         mark(out, "results")  # a folder killed while its report is replaced is recognised
         aggregate = write_report(out, bench_tasks, chosen_methods, runs, scores, rows, meta,
+                                 ran={t: [m.name for m in ms] for t, ms in ran.items()},
                                  figures=figures)
         unmark(out)
     return BenchResult(rows, aggregate, meta, runs)

@@ -11,6 +11,13 @@ tuned. Tuning runs every candidate on *tuning seeds* (another root seed than the
 run's, so no reported number is a tuning number) and keeps the candidate with the least
 mean cumulative regret; ties go to the earlier candidate. The tuning budget is stated in
 the benchmark's ``meta.json``.
+
+**The one cost rule.** A method whose planning works on a dense model, ``dense_model``
+(PSRL: a Dirichlet draw over every successor of every pair and a backward induction over
+it, every episode), costs :func:`episode_cost` ``= S (S + 1) A (H + 1)`` products per
+agent-episode, whatever it learns. The benchmark leaves such a method out of a task where
+that exceeds the cost limit (:data:`COST_LIMIT` by default): it is stated in the report
+and ``meta.json``, and the method's aggregate covers the tasks it ran.
 """
 from __future__ import annotations
 
@@ -22,6 +29,10 @@ from vdbejax.methods.agents import Setting, parameter_name
 
 #: The step size of every TD learner.
 ALPHA = 0.1
+#: The most products per agent-episode a ``dense_model`` method may cost on a task of the
+#: default benchmark (PSRL: 0.6 s per 10⁷ on one core of the 2-core machine, so a task
+#: at the limit costs it ≈ 3 min of the benchmark's 16 agents × 300 episodes).
+COST_LIMIT = 1e7
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,6 +69,8 @@ class BenchMethod:
       fixed: other hyperparameters; a value ``("r_max", x)`` means ``x`` units.
       discounted: uses ``γ = 1 − 1/H`` (else the finite-horizon ``γ = 1`` and ``horizon = H``).
       td: a TD learner (``α`` = :data:`ALPHA`).
+      dense_model: its planning works on a dense ``[S + 1, S, A]`` model every episode
+        (see the module's cost rule).
     """
 
     name: str
@@ -71,6 +84,14 @@ class BenchMethod:
     fixed: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     discounted: bool = True
     td: bool = True
+    dense_model: bool = False
+
+    def episode_cost(self, num_states: int, num_actions: int, horizon: int) -> float:
+        """Products per agent-episode of a ``dense_model`` method, ``S (S + 1) A (H + 1)``
+        (its draw and its H stages); 0 for the others."""
+        if not self.dense_model:
+            return 0.0
+        return float(num_states) * (num_states + 1) * num_actions * (horizon + 1)
 
     def candidates(self, scale: TaskScale) -> list[Setting]:
         """The tuning candidates on a task of this ``scale`` (one if nothing is tuned)."""
@@ -138,7 +159,7 @@ METHODS: tuple[BenchMethod, ...] = (
     BenchMethod("ucbvi", "UCBVI", "model-based", "ucbvi", "greedy", "bonus_scale",
                 (0.01, 0.1, 1.0), fixed={"r_max": (_R, 1.0)}, discounted=False, td=False),
     BenchMethod("psrl", "PSRL", "posterior", "psrl", "greedy", "prior", (0.1, 1.0),
-                discounted=False, td=False),
+                discounted=False, td=False, dense_model=True),
     BenchMethod("dyna_q", "Dyna-Q ε-greedy", "planning", "dyna_q", "egreedy", "epsilon", _EPS),
     BenchMethod("dyna_q_plus", "Dyna-Q+", "planning", "dyna_q_plus", "egreedy", "kappa",
                 (1e-4, 1e-3, 1e-2), _R, {"epsilon": 0.1}),
@@ -171,5 +192,5 @@ def select_methods(names: Sequence[str] | str | None) -> list[BenchMethod]:
     return [m for m in METHODS if m.name in names]
 
 
-__all__ = ["ALPHA", "BY_NAME", "METHODS", "QUICK_METHODS", "BenchMethod", "TaskScale",
+__all__ = ["ALPHA", "BY_NAME", "COST_LIMIT", "METHODS", "QUICK_METHODS", "BenchMethod", "TaskScale",
            "select_methods"]

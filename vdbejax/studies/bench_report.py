@@ -5,6 +5,10 @@ Files (in the benchmark's folder): ``ranking.csv`` (one row per task and method)
 rule and the budget), ``meta.json`` (everything needed to rerun it), ``regret_<task>.png``
 (cumulative regret per method, 95 % bootstrap bands) and ``aggregate.png`` (IQM of the
 normalised scores with stratified bootstrap intervals, and the performance profiles).
+
+A method left out of some tasks (the cost rule of :mod:`vdbejax.studies.bench_methods`)
+is aggregated over the tasks it ran, says how many in its row, and is listed after the
+methods that ran everywhere; its probability of improvement counts the tasks both ran.
 """
 from __future__ import annotations
 
@@ -50,37 +54,59 @@ def output_files(task_names: Sequence[str], figures: bool) -> list[str]:
     return files
 
 
+def _ran_everywhere(tasks: Sequence[Any], methods: Sequence[Any]) -> dict[str, list[str]]:
+    return {t.name: [m.name for m in methods] for t in tasks}
+
+
+def _scores_of(method: str, tasks: Sequence[Any], scores: dict[str, np.ndarray],
+               ran: dict[str, list[str]]) -> dict[str, np.ndarray]:
+    """The method's ``[seeds]`` scores per task it ran (``scores``: per task, ``[methods
+    that ran, seeds]`` in the order of ``ran``)."""
+    return {t.name: scores[t.name][ran[t.name].index(method)] for t in tasks
+            if method in ran[t.name]}
+
+
 def aggregate_rows(tasks: Sequence[Any], methods: Sequence[Any],
-                   scores: dict[str, np.ndarray],
-                   rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per method: IQM of its normalised scores over every (task, agent), its mean
-    rank over tasks, and its probability of improving on :data:`REFERENCE` (``scores``:
-    per task, ``[methods, seeds]``)."""
-    index = {m.name: c for c, m in enumerate(methods)}
-    reference = index.get(REFERENCE)
+                   scores: dict[str, np.ndarray], rows: Sequence[dict[str, Any]],
+                   ran: dict[str, list[str]] | None = None) -> list[dict[str, Any]]:
+    """One row per method that ran somewhere: IQM of its normalised scores over every
+    (task it ran, agent), its mean rank over those tasks, and its probability of improving
+    on :data:`REFERENCE` over the tasks both ran (``scores``: per task, ``[methods that
+    ran, seeds]``; ``ran``: per task the names of the methods that ran, by default all)."""
+    ran = ran or _ran_everywhere(tasks, methods)
+    reference = ({t.name: scores[t.name][ran[t.name].index(REFERENCE)]
+                  for t in tasks if REFERENCE in ran[t.name]}
+                 if any(m.name == REFERENCE for m in methods) else {})
     out = []
     for m in methods:
-        mine = [scores[t.name][index[m.name]] for t in tasks]
-        iqm = aggregate_iqm(mine)
+        mine = _scores_of(m.name, tasks, scores, ran)
+        if not mine:
+            continue
+        iqm = aggregate_iqm(list(mine.values()))
         ranks = [r["rank"] for r in rows if r["method"] == m.name]
-        p = (task_probability_of_improvement(mine, [scores[t.name][reference] for t in tasks])
-             if reference is not None else None)
+        shared = [name for name in mine if name in reference]
+        p = (task_probability_of_improvement([mine[t] for t in shared],
+                                             [reference[t] for t in shared])
+             if shared else None)
         out.append({"method": m.name, "title": m.title, "family": m.family, "iqm": iqm.value,
                     "iqm_low": iqm.low, "iqm_high": iqm.high,
                     "mean_rank": float(np.mean(ranks)),
                     "p_vs_reference": p.value if p else math.nan,
                     "p_low": p.low if p else math.nan, "p_high": p.high if p else math.nan,
-                    "tasks": len(tasks)})
-    return sorted(out, key=lambda r: -r["iqm"])
+                    "tasks": len(mine)})
+    return sorted(out, key=lambda r: (r["tasks"] < len(tasks), -r["iqm"]))
 
 
 def write_report(out: Path, tasks: Sequence[Any], methods: Sequence[Any],
                  runs: dict[str, GridResult], scores: dict[str, np.ndarray],
                  rows: list[dict[str, Any]], meta: dict[str, Any],
-                 *, figures: bool = True) -> list[dict[str, Any]]:
+                 *, ran: dict[str, list[str]] | None = None,
+                 figures: bool = True) -> list[dict[str, Any]]:
     """Write every file of the report (module docstring); returns the aggregate rows.
-    ``scores``: per task, the agents' normalised scores ``[methods, seeds]``."""
-    aggregate = aggregate_rows(tasks, methods, scores, rows)
+    ``scores``: per task, the agents' normalised scores ``[methods that ran, seeds]``;
+    ``ran``: per task the names of the methods that ran there (by default all)."""
+    ran = ran or _ran_everywhere(tasks, methods)
+    aggregate = aggregate_rows(tasks, methods, scores, rows, ran)
     ordered = sorted(rows, key=lambda r: ([t.name for t in tasks].index(r["task"]), r["rank"]))
     io.write_csv(out / RANKING_CSV, ordered, ROW_COLUMNS)
     io.write_csv(out / AGGREGATE_CSV, aggregate, AGGREGATE_COLUMNS)
@@ -92,10 +118,11 @@ def write_report(out: Path, tasks: Sequence[Any], methods: Sequence[Any],
         import matplotlib.pyplot as plt
 
         for task in tasks:
-            fig = regret_figure(task, methods, runs[task.name])
+            fig = regret_figure(task, [m for m in methods if m.name in ran[task.name]],
+                                runs[task.name])
             fig.savefig(out / regret_figure_file(task.name), dpi=110)
             plt.close(fig)
-        fig = aggregate_figure(tasks, methods, scores, aggregate)
+        fig = aggregate_figure(tasks, methods, scores, aggregate, ran)
         fig.savefig(out / AGGREGATE_FIGURE, dpi=110)
         plt.close(fig)
     return aggregate
@@ -115,8 +142,9 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
     tuning = (f"one knob per method, its candidates on {options['tune_seeds']} agents each"
               f" with root seed {options['seed'] + 1}" if options["tune"]
               else "none (each method at its middle candidate)")
+    total = len(meta["tasks"])
     lines += [
-        f"{len(meta['tasks'])} tasks, {len(meta['methods'])} methods, {options['seeds']} agents"
+        f"{total} tasks, {len(meta['methods'])} methods, {options['seeds']} agents"
         f" per method and task, {options['episodes']} episodes each (root seed"
         f" {options['seed']}). Tuning: {tuning}; tuning budget"
         f" {budget['agent_episodes']:,} agent-episodes ({budget['agent_steps']:,}"
@@ -128,14 +156,25 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
         " episode. **Solved**: the share of agents whose 20-episode moving average reached 0.9"
         " on the normalised scale.", "",
         "## Across tasks", "",
-        "| method | family | IQM score [95 % CI] | mean rank | P(better than ε-greedy) |",
-        "| --- | --- | --- | --- | --- |"]
+        "| method | family | IQM score [95 % CI] | mean rank | P(better than ε-greedy) |"
+        " tasks |",
+        "| --- | --- | --- | --- | --- | --- |"]
     for a in aggregate:
         p = ("-" if math.isnan(a["p_vs_reference"])
              else _interval(a["p_vs_reference"], a["p_low"], a["p_high"], 2))
         lines.append(f"| {a['title']} | {a['family']} |"
                      f" {_interval(a['iqm'], a['iqm_low'], a['iqm_high'])} |"
-                     f" {a['mean_rank']:.1f} | {p} |")
+                     f" {a['mean_rank']:.1f} | {p} | {a['tasks']} of {total} |")
+    left_out = meta.get("left_out", [])
+    titles = {m["name"]: m["title"] for m in meta["methods"]}
+    if left_out:
+        lines += ["", f"**Left out by the cost rule** (a dense-model method costs S (S + 1) A"
+                      f" (H + 1) products per agent-episode; limit"
+                      f" {meta['options']['cost_limit']:.3g}): "
+                  + "; ".join(f"{titles[x['method']]} on {x['task']} ({x['cost']:.3g})"
+                              for x in left_out)
+                  + ". A method left out somewhere is aggregated over the tasks it ran"
+                    " (listed last)."]
     for task in meta["tasks"]:
         mine = [r for r in rows if r["task"] == task["name"]]
         lines += ["", f"## {task['name']}", "",
@@ -145,6 +184,7 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
                   "| rank | method | tuned | score [95 % CI] | regret [95 % CI] | final return"
                   " | solved | median episodes |",
                   "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        skipped = [titles[x["method"]] for x in left_out if x["task"] == task["name"]]
         for r in mine:
             tuned = f"{r['tuned']} = {r['value']:.3g}" if r["tuned"] else "-"
             lines.append(
@@ -152,6 +192,8 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
                 f" {_interval(r['score'], r['score_low'], r['score_high'])} |"
                 f" {r['regret']:.4g} [{r['regret_low']:.4g}, {r['regret_high']:.4g}] |"
                 f" {r['final_return']:.4g} | {r['fraction_solved']:.0%} | {r['median_text']} |")
+        if skipped:
+            lines += ["", f"Not run here (cost rule): {', '.join(skipped)}."]
     return "\n".join(lines) + "\n"
 
 
@@ -191,18 +233,21 @@ def regret_figure(task: Any, methods: Sequence[Any], result: GridResult) -> Any:
 
 
 def aggregate_figure(tasks: Sequence[Any], methods: Sequence[Any],
-                     scores: dict[str, np.ndarray], aggregate: Sequence[dict[str, Any]]) -> Any:
+                     scores: dict[str, np.ndarray], aggregate: Sequence[dict[str, Any]],
+                     ran: dict[str, list[str]] | None = None) -> Any:
     """The IQM of the normalised scores per method with its stratified bootstrap interval
     (the :func:`aggregate_rows`), beside the performance profiles (fraction of runs scoring
-    above each threshold)."""
+    above each threshold), each over the tasks the method ran."""
     plt = _pyplot()
-    colors = _colors(plt, methods)
+    ran = ran or _ran_everywhere(tasks, methods)
     by_method = {a["method"]: a for a in aggregate}
+    methods = [m for m in methods if m.name in by_method]
+    colors = _colors(plt, methods)
     fig, (ax_iqm, ax_profile) = plt.subplots(1, 2, figsize=(13, 0.32 * len(methods) + 2.5),
                                              layout="constrained")
     thresholds = np.linspace(-0.5, 1.0, 61)
-    for c, m in enumerate(methods):
-        mine = [scores[t.name][c] for t in tasks]
+    for m in methods:
+        mine = list(_scores_of(m.name, tasks, scores, ran).values())
         fraction, low, high = performance_profile(mine, thresholds, num_resamples=500)
         ax_profile.plot(thresholds, fraction, color=colors[m.name], label=m.title)
         ax_profile.fill_between(thresholds, low, high, color=colors[m.name], alpha=0.12,
@@ -213,7 +258,9 @@ def aggregate_figure(tasks: Sequence[Any], methods: Sequence[Any],
         i = iqms[c]
         ax_iqm.errorbar(i["iqm"], y, xerr=[[i["iqm"] - i["iqm_low"]], [i["iqm_high"] - i["iqm"]]],
                         fmt="o", color=colors[methods[c].name], capsize=3)
-    ax_iqm.set_yticks(range(len(methods)), [methods[c].title for c in order], fontsize=8)
+    ax_iqm.set_yticks(range(len(methods)), [
+        methods[c].title + (f" ({iqms[c]['tasks']} tasks)" if iqms[c]["tasks"] < len(tasks)
+                            else "") for c in order], fontsize=8)
     ax_iqm.set(xlabel="IQM of normalised score (95 % CI)",
                title=f"Across {len(tasks)} tasks")
     ax_profile.set(xlabel="normalised score τ", ylabel="fraction of runs with score > τ",
