@@ -114,3 +114,75 @@ def test_a_stop_while_the_command_line_imports_is_one_line_and_runs_nothing(tmp_
     assert done.stderr.strip().splitlines() == [
         "interrupted: rerun with --resume to continue from the last checkpoint"], done.stderr
     assert not out.exists()  # stopped before the command began
+
+
+_LONG_NATIVE_CALL = """
+import signal, sys, time
+import jax, jax.numpy as jnp
+from vdbejax import _interrupts
+
+for number in (signal.SIGINT, signal.SIGTERM):  # Python-level handlers, as the command line's
+    signal.signal(number, lambda signum, frame: _interrupts.request(KeyboardInterrupt))
+watchdog = _interrupts.Watchdog("interrupted: watchdog", grace=float(sys.argv[2]))
+_interrupts.hold(1, lambda: open(sys.argv[1], "w").write("released"))
+spin = jax.jit(lambda n: jax.lax.while_loop(lambda c: c[0] < n,
+                                            lambda c: (c[0] + 1, c[1] * 1.0000001 + 1e-9),
+                                            (0, jnp.float32(1)))[1])
+spin(10).block_until_ready()  # compiled: what follows is one native call of minutes
+print("ready", flush=True)
+spin(2_000_000_000).block_until_ready()
+print("the call ended", flush=True)
+"""
+
+
+@pytest.mark.parametrize("number, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_stop_during_a_long_native_call_ends_the_process_within_its_grace(tmp_path, number,
+                                                                           status):
+    # Python runs a signal handler only between bytecodes: inside one native call of XLA (a
+    # compilation, a chunk) a stop would wait for the call to end. The watchdog does not.
+    released = tmp_path / "released"
+    run = subprocess.Popen([sys.executable, "-c", _LONG_NATIVE_CALL, str(released), "1.0"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert run.stdout.readline().strip() == "ready"
+    time.sleep(0.3)
+    sent = time.monotonic()
+    run.send_signal(number)
+    out, err = run.communicate(timeout=60)
+    waited = time.monotonic() - sent
+    assert run.returncode == status, (run.returncode, err)
+    assert "interrupted: watchdog" in err and "the call ended" not in out
+    assert 0.9 < waited < 10.0, waited  # its grace (1 s), not the call's minutes
+    assert released.read_text() == "released"  # what the process held was let go
+
+
+def test_a_watchdog_that_is_stopped_never_ends_the_process():
+    watchdog = _interrupts.Watchdog("never printed", grace=0.01)
+    watchdog.stop()
+    previous = signal.signal(signal.SIGINT, lambda *_: None)
+    try:
+        os.kill(os.getpid(), signal.SIGINT)  # after stop(): no wake-up, no exit
+        time.sleep(0.2)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def test_a_stop_during_a_long_first_chunk_ends_the_run_in_about_a_second(tmp_path):
+    # One chunk of 400,000 episodes for 12 agents is one native call of many seconds.
+    out = tmp_path / "out"
+    run = subprocess.Popen([sys.executable, "-m", "vdbejax", "run", "--out", str(out),
+                            "--learners", "qlearning,sarsa", "--explorers",
+                            "egreedy,softmax,vdbe", "--seeds", "2", "--episodes", "400000",
+                            "--chunk-episodes", "400000", "--quiet"],
+                           stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not (out / folder_lock.LOCK_FILE).exists() and time.time() < deadline:
+        time.sleep(0.02)
+    time.sleep(4.0)  # compiling, or in the first chunk: native calls either way
+    sent = time.monotonic()
+    run.send_signal(signal.SIGINT)
+    _, err = run.communicate(timeout=120)
+    waited = time.monotonic() - sent
+    assert run.returncode == 130, (run.returncode, err)
+    assert "interrupted: rerun with --resume" in err and "Traceback" not in err, err
+    assert waited < 6.0, waited
+    assert not (out / folder_lock.LOCK_FILE).exists()

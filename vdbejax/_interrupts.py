@@ -8,10 +8,25 @@ line's handler therefore records the request here (:func:`request`) and raises o
 such a callback (:func:`in_gc_callback`); the driver raises a recorded request after every
 chunk (:func:`raise_pending`), once the chunk's checkpoint is written, and the command line
 once the command returns: an interrupt during a collection stops the run one chunk later.
+
+A handler runs only once the main thread is back in Python, and a compilation or a chunk
+is one native call that can last minutes. So the command line also starts a
+:class:`Watchdog`: Python's own C-level handler writes each signal to a wake-up file
+descriptor at once, a thread waits on it, and if the process still runs ``grace``
+seconds after a stop it ends the process itself — as a ``kill -9`` would, after releasing
+the folder locks this process holds (:func:`hold`). What a kill leaves behind is already
+safe: checkpoints and result files are written atomically, a dead writer's temporaries
+are removed by the next writer, and ``--resume`` continues from the last checkpoint.
 """
 from __future__ import annotations
 
+import contextlib
 import gc
+import os
+import signal
+import sys
+import threading
+from collections.abc import Callable
 from typing import Any
 
 
@@ -50,3 +65,83 @@ def in_gc_callback(frame: Any) -> bool:
             return True
         frame = frame.f_back
     return False
+
+
+#: Releases of what this process holds (folder locks): run before a watchdog's exit.
+_held: dict[int, Callable[[], None]] = {}
+
+
+def hold(key: int, release: Callable[[], None]) -> None:
+    """Register ``release`` (under ``key``, e.g. ``id(lock)``) to run if a watchdog ends
+    the process."""
+    _held[key] = release
+
+
+def let_go(key: int) -> None:
+    """Forget a registration of :func:`hold` (the thing was released normally)."""
+    _held.pop(key, None)
+
+
+class Watchdog:
+    """Ends the process ``grace`` seconds after SIGINT or SIGTERM if it is still running
+    (see the module docstring). Start it in the main thread; :meth:`stop` undoes it.
+
+    Args:
+      message: printed to stderr before the exit.
+      grace: seconds the main thread has to stop on its own.
+    """
+
+    def __init__(self, message: str, grace: float = 1.0) -> None:
+        self.message, self.grace = message, grace
+        self._done = threading.Event()
+        self._exiting = threading.Lock()  # the exit, or the main thread's own stop: one
+        self._read, self._write = os.pipe()
+        os.set_blocking(self._write, False)
+        self._previous = signal.set_wakeup_fd(self._write, warn_on_full_buffer=False)
+        self._thread = threading.Thread(target=self._watch, name="vdbejax-stop-watchdog",
+                                        daemon=True)
+        self._thread.start()
+
+    def _watch(self) -> None:
+        while True:
+            try:
+                data = os.read(self._read, 1)
+            except OSError:
+                return
+            if not data or self._done.is_set():
+                return
+            if data[0] not in (signal.SIGINT, signal.SIGTERM):
+                continue
+            if self._done.wait(self.grace):  # stopped (or finished) on its own
+                return
+            self._exit(143 if data[0] == signal.SIGTERM else 130)
+
+    def _exit(self, code: int) -> None:
+        self._exiting.acquire()  # kept: the process ends here
+        if self._done.is_set():  # the main thread got there first
+            self._exiting.release()
+            return
+        for release in list(_held.values()):
+            with contextlib.suppress(Exception):  # the exit goes on
+                release()
+        try:
+            sys.stderr.write(self.message + "\n")
+            sys.stderr.flush()
+            sys.stdout.flush()
+        finally:
+            os._exit(code)
+
+    def disarm(self) -> None:
+        """The main thread stops on its own from here on (it waits for an exit that has
+        begun)."""
+        with self._exiting:
+            self._done.set()
+
+    def stop(self) -> None:
+        """The command is over: no exit from here on."""
+        self.disarm()
+        signal.set_wakeup_fd(self._previous)
+        os.close(self._write)  # the thread reads the end of the pipe and returns
+        self._thread.join(timeout=1.0)
+        os.close(self._read)
+

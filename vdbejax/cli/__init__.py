@@ -92,6 +92,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 if handled else {})
     if not handled:  # a stop recorded before this command belongs to no command of it
         interrupts.clear()
+    hint = (": rerun with --resume to continue from the last checkpoint"
+            if args.command in ("reproduce", "run", "scale", "ablate", "bench", "depth")
+            else "")
+    # A stop during a long native call (a compilation, a chunk) would wait for it to end:
+    # the watchdog ends the process a second after the signal instead.
+    watchdog = interrupts.Watchdog(f"interrupted{hint}") if handled else None
     try:
         interrupts.raise_pending()  # a stop while the command line imported (vdbejax._console)
         COMMANDS[args.command][1](args)
@@ -100,8 +106,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, interrupts.Terminated) as stop:
-        hint = (": rerun with --resume to continue from the last checkpoint"
-                if args.command in ("reproduce", "run", "scale", "ablate", "bench") else "")
+        if watchdog is not None:
+            watchdog.disarm()
         print(f"interrupted{hint}", file=sys.stderr)
         code = 143 if isinstance(stop, interrupts.Terminated) else 130
         if handled:  # XLA's threads may still compile: tearing the interpreter down under
@@ -110,6 +116,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             os._exit(code)
         return code
     finally:
+        if watchdog is not None:
+            watchdog.stop()
         interrupts.clear()
         for number, handler in previous.items():
             signal.signal(number, handler)

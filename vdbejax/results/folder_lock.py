@@ -29,6 +29,8 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any, TypeVar
 
+from vdbejax import _interrupts as interrupts
+
 fcntl: ModuleType | None
 try:
     import fcntl
@@ -91,6 +93,7 @@ class FolderLock:
         os.ftruncate(fd, 0)
         os.pwrite(fd, str(os.getpid()).encode(), 0)
         self._fd = fd
+        interrupts.hold(id(self), self.release)  # released too if a watchdog ends the process
         remove_stale_temporaries(self.folder)
 
     def held(self) -> bool:
@@ -102,6 +105,7 @@ class FolderLock:
     def release(self) -> None:
         """Give the lock back and remove the lock file (a writer that opened it meanwhile
         finds it gone once it holds it, and locks a new one: :meth:`acquire`)."""
+        interrupts.let_go(id(self))
         if self._fd is not None:
             if fcntl is not None:
                 if _same_file(self.folder / LOCK_FILE, self._fd):

@@ -253,6 +253,7 @@ def run_bench(
                             tune=tune, seeds=tune_seeds, episodes=episodes, seed=seed + 1,
                             options=knobs, budget=budget)
             tuned_seconds = time.perf_counter() - tuned_at
+            budget["seconds"] += tuned_seconds
             chosen[task.name] = {m: dataclasses.asdict(s) for m, s in picks.items()}
             if progress:
                 sys.stderr.write(f"[{i + 1}/{len(bench_tasks)}] {task.name}: reported run,"
