@@ -16,7 +16,8 @@
   :mod:`vdbejax.methods.finite_horizon` — UCBVI, UCB-H; :mod:`vdbejax.methods.posterior` —
   PSRL;
   :mod:`vdbejax.methods.delayed_q` — Delayed Q-learning.
-* :mod:`vdbejax.methods.agents` — :class:`Setting`, :func:`sweep`, :func:`make_agent`.
+* :mod:`vdbejax.methods.agents` — :class:`Setting`, :func:`make_agent`;
+  :mod:`vdbejax.methods.grid_axes` — :func:`sweep`.
 """
 from vdbejax._numerics import rounded, sample_categorical
 from vdbejax._pytree import static_field
@@ -38,7 +39,6 @@ from vdbejax.methods.agents import (
     make_agent,
     paper_settings,
     stack_agents,
-    sweep,
 )
 from vdbejax.methods.api import (
     EXPLORERS,
@@ -55,6 +55,7 @@ from vdbejax.methods.api import (
     learner,
     learner_title,
 )
+from vdbejax.methods.grid_axes import sweep
 from vdbejax.methods.selection import greedy, select_action, softmax_weights
 
 __all__ = [

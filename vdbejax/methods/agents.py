@@ -2,16 +2,14 @@
 
 A :class:`Setting` names one point of a grid: learner, explorer, the explorer's swept
 parameter and any other hyperparameter values. :func:`make_agent` resolves it into an
-:class:`Agent` (two plug-in instances, :mod:`vdbejax.methods.api`), :func:`sweep` builds
-the settings of a product of axes, and :func:`stack_agents` batches agents of any kinds
-into one :class:`AgentParams` pytree for the engine.
+:class:`Agent` (two plug-in instances, :mod:`vdbejax.methods.api`), and
+:func:`stack_agents` batches agents of any kinds into one :class:`AgentParams` pytree for
+the engine. The settings of a product of axes: :func:`vdbejax.methods.grid_axes.sweep`.
 """
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import json
-import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -260,91 +258,6 @@ def paper_settings(
     ]
 
 
-def setting_of(learner: str, explorer: str, values: Mapping[str, Any]) -> Setting:
-    """The :class:`Setting` of ``values`` (the explorer's swept parameter among them, by
-    name): where they do not set that parameter, its class default is stated as ``param``,
-    so that the label and ``configs.csv`` show the value that runs.
-
-    Raises:
-      ValueError: an unknown explorer.
-    """
-    cls: Any = explorer_class(explorer)  # a dataclass (the registry's classes are)
-    values = dict(values)
-    if not cls.parameter:
-        return Setting(learner, explorer, None, values)
-    param = values.pop(cls.parameter, None)
-    if param is None:
-        param = next((f.default for f in dataclasses.fields(cls) if f.name == cls.parameter
-                      and f.default is not dataclasses.MISSING), None)
-    return Setting(learner, explorer, param, values)
-
-
-#: Most settings one grid holds (:func:`sweep`): each costs host memory before training
-#: (its agent, label and summary row), and a grid's config index is int32 in the engine.
-MAX_SETTINGS = 1_000_000
-
-
-def sweep(learners: Sequence[str], explorers: Sequence[str],
-          axes: Mapping[str, Sequence[Any]] | None = None,
-          shared: Mapping[str, Any] | None = None) -> list[Setting]:
-    """The settings of a product of axes: learners × explorers × every applicable axis.
-
-    An axis applies to a learner × explorer pair when one of them has a field of that
-    name (``learner.``/``explorer.`` prefixes allowed); the explorer's swept parameter
-    becomes the settings' ``param`` (its class default where no axis or shared value sets
-    it, so that the label and ``configs.csv`` state the value that runs). E.g.
-    ``sweep(["qlearning", "sarsa"], ["vdbe"], {"alpha": [0.1, 0.3, 0.8], "sigma": [0.01, 1,
-    100]})`` gives 2 × 3 × 3 = 18 settings.
-
-    Args:
-      learners: learner names.
-      explorers: explorer names.
-      axes: ``{hyperparameter: values}``.
-      shared: ``{hyperparameter: value}`` for every setting that has the field.
-
-    Returns:
-      the settings, learner-major, then explorer, then the axes in the given order.
-
-    Raises:
-      ValueError: an empty list, an unknown name, or an axis or shared value that applies
-        to no learner × explorer pair.
-    """
-    axes = dict(axes or {})
-    shared = dict(shared or {})
-    for name, values in (("learners", learners), ("explorers", explorers)):
-        if isinstance(values, str) or not values:
-            raise ValueError(f"{name}={values!r} is invalid: must be a non-empty list of names")
-    for name, values in axes.items():
-        if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or not values:
-            raise ValueError(f"axis {name}={values!r} is invalid: must be a non-empty list"
-                             " of values")
-    for explorer in explorers:
-        explorer_class(explorer)  # an unknown name: its one-line error before any other
-    count = sum(math.prod(len(axes[name]) for name in axes if owners(name, learner, explorer))
-                for learner in learners for explorer in explorers)
-    if count > MAX_SETTINGS:  # counted before any is made: 10⁸ would take minutes and GBs
-        sizes = ", ".join(f"{name} ({len(values)})" for name, values in axes.items())
-        raise ValueError(f"the sweep is too large: {len(learners)} learners × {len(explorers)}"
-                         f" explorers × the axes {sizes} make {count:,} settings, more than"
-                         f" the {MAX_SETTINGS:,} one grid holds: split it into several runs")
-    used: set[str] = set()
-    settings = []
-    for learner in learners:
-        for explorer in explorers:
-            mine = [name for name in axes if owners(name, learner, explorer)]
-            fixed = {name: value for name, value in shared.items()
-                     if owners(name, learner, explorer)}
-            used.update(mine, fixed)
-            for combination in itertools.product(*(axes[name] for name in mine)):
-                chosen = dict(fixed, **dict(zip(mine, combination, strict=True)))
-                settings.append(setting_of(learner, explorer, chosen))
-    unused = [name for name in list(axes) + list(shared) if name not in used]
-    if unused:
-        raise ValueError(f"axis {unused[0]!r} is invalid: no learner in {list(learners)} or"
-                         f" explorer in {list(explorers)} has that field")
-    return settings
-
-
 def kind_key(agent: Agent) -> tuple:
     """What makes an agent's kind: learner and explorer classes with their static fields."""
     def of(plugin: Any) -> tuple:
@@ -406,6 +319,23 @@ def table_layout(params: AgentParams) -> dict[str, str]:
     return layout
 
 
+#: Names that moved to another module, kept importable from here for one release.
+_MOVED_NAMES = {name: "vdbejax.methods.grid_axes"
+                for name in ("sweep", "setting_of", "MAX_SETTINGS")}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _MOVED_NAMES:
+        import importlib
+        import warnings
+
+        home = _MOVED_NAMES[name]
+        warnings.warn(f"vdbejax.methods.agents.{name} moved: import it from {home}",
+                      DeprecationWarning, stacklevel=2)
+        return getattr(importlib.import_module(home), name)
+    raise AttributeError(f"module 'vdbejax.methods.agents' has no attribute {name!r}")
+
+
 __all__ = [
     "PAPER_PARAMETERS",
     "Agent",
@@ -419,7 +349,6 @@ __all__ = [
     "paper_settings",
     "parameter_name",
     "stack_agents",
-    "sweep",
     "table_layout",
     "with_parameter_names",
 ]

@@ -251,3 +251,20 @@ class UCBH(_StageLearner):
         check_in_range("bonus_scale", self.bonus_scale, 0.0, 1e30)
         check_in_range("iota", self.iota, 0.0, 1e30)
         check_in_range("r_max", self.r_max, 0.0, 1e30, low_open=True)
+
+
+#: Names that moved to another module, kept importable from here for one release.
+_MOVED_NAMES = {name: "vdbejax.methods.posterior"
+                for name in ("PSRL", "posterior_sample", "dirichlet_expected")}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _MOVED_NAMES:
+        import importlib
+        import warnings
+
+        home = _MOVED_NAMES[name]
+        warnings.warn(f"vdbejax.methods.finite_horizon.{name} moved: import it from {home}",
+                      DeprecationWarning, stacklevel=2)
+        return getattr(importlib.import_module(home), name)
+    raise AttributeError(f"module 'vdbejax.methods.finite_horizon' has no attribute {name!r}")

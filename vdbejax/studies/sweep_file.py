@@ -54,8 +54,9 @@ import jax
 import numpy as np
 
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.methods.agents import Setting, owners, setting_of, sweep
+from vdbejax.methods.agents import Setting, owners
 from vdbejax.methods.explorers import explorer_class
+from vdbejax.methods.grid_axes import setting_of, sweep
 from vdbejax.methods.learners import learner_class
 from vdbejax.validation import INT32_MAX, check_int
 

@@ -134,7 +134,7 @@ def run_sweep(
       out_dir: output folder (created if needed).
       learners: learner names of the product (none: ``settings`` only).
       explorers: explorer names (built-in or registered by ``plugins``).
-      axes: ``{hyperparameter: values}`` (see :func:`~vdbejax.methods.agents.sweep`).
+      axes: ``{hyperparameter: values}`` (see :func:`~vdbejax.methods.grid_axes.sweep`).
       shared: ``{hyperparameter: value}`` for every setting that has the field.
       exclude: settings of the product to leave out, as tables of values they match
         (:func:`~vdbejax.studies.sweep_file.sweep_settings`).
