@@ -270,7 +270,7 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cost-limit", type=number, default=None,
                    help="the most products per agent-episode a dense-model method (PSRL:"
                         " S (S + 1) A (H + 1)) may cost on a task, else it is left out of it"
-                        " (default 1e7; inf: never)")
+                        " (default: none, every method runs on every task)")
     p.add_argument("--quick", action="store_true",
                    help="3 small tasks, 5 methods, 3 agents, 40 episodes (about a minute)")
     p.add_argument("--no-figures", action="store_true", help="no figures")

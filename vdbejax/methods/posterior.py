@@ -3,7 +3,8 @@ episode, and solved by backward induction.
 
 The posterior's Dirichlet draw is the method's cost (``S (S + 1) A`` Gamma variates an
 episode), so :func:`gamma_variates` is written for it: Marsaglia & Tsang's (2000) exact
-rejection sampler, one vectorised proposal round over all variates at a time. JAX's own
+rejection sampler: one vectorised proposal round over all variates, then rounds over the
+few rejected ones, gathered into a small buffer. JAX's own
 ``jax.random.gamma`` (a rejection loop per variate, vmapped) is several times slower on
 the CPU.
 
@@ -44,32 +45,50 @@ def _proposal(key: Array, d: Array, c: Array) -> tuple[Array, Array]:
     return rounded(d * v, d), positive & (log_u < bound)
 
 
+#: The rejected entries of the first round are redrawn in a buffer of this share of the
+#: entries (about 5 % are rejected); should more be, the rest are redrawn in place.
+RETRY_SHARE = 8
+
+
+def _rounds(key: Array, d: Array, c: Array, value: Array, done: Array) -> Array:
+    """Proposal rounds over all entries of ``d`` until every one has accepted."""
+    def propose(carry: tuple) -> tuple:
+        value, done, round_ = carry
+        candidate, accepted = _proposal(jax.random.fold_in(key, round_), d, c)
+        return jnp.where(accepted & ~done, candidate, value), done | accepted, round_ + 1
+
+    start = (value, done, jnp.asarray(0, jnp.uint32))
+    return jax.lax.while_loop(lambda carry: ~jnp.all(carry[1]), propose, start)[0]
+
+
 def gamma_variates(key: Array, alpha: Array) -> Array:
     """Independent Gamma(α, 1) variates, one per entry of ``alpha`` (all > 0), float32.
 
     Marsaglia & Tsang (2000, "A simple method for generating gamma variables", ACM TOMS
     26(3)) for α ≥ 1; for α < 1, Gamma(α + 1) · U^{1/α} (their section 6). Exact: every
-    entry keeps its first accepted proposal; proposal rounds, each a vectorised pass over
-    all entries, run until every entry has accepted (each accepts with probability
-    ≥ 0.95, so about six rounds for a million entries). A pure function of ``key``: the
-    same bits in every engine strategy and batch.
+    entry keeps its first accepted proposal. One vectorised round proposes for every
+    entry (each accepts with probability ≥ 0.95); the rejected ones are gathered into a
+    buffer of 1/:data:`RETRY_SHARE` of the entries and proposed for there until all have
+    accepted, and any beyond the buffer in place. A pure function of ``key``: the same
+    bits in every engine strategy and batch.
     """
     alpha = jnp.asarray(alpha, jnp.float32)
+    shape = alpha.shape
     boosted = alpha < 1.0
-    d = jnp.where(boosted, alpha + 1.0, alpha) - 1.0 / 3.0
+    d = (jnp.where(boosted, alpha + 1.0, alpha) - 1.0 / 3.0).reshape(-1)
     c = jnp.sqrt(1.0 / (9.0 * d))  # exact in every program (XLA approximates an rsqrt)
-    proposals_key, boost_key = jax.random.split(key)
-
-    def propose(carry: tuple) -> tuple:
-        value, done, round_ = carry
-        candidate, accepted = _proposal(jax.random.fold_in(proposals_key, round_), d, c)
-        taken = accepted & ~done
-        return jnp.where(taken, candidate, value), done | accepted, round_ + 1
-
-    start = (jnp.zeros(alpha.shape, jnp.float32), jnp.zeros(alpha.shape, bool),
-             jnp.asarray(0, jnp.uint32))
-    value = jax.lax.while_loop(lambda carry: ~jnp.all(carry[1]), propose, start)[0]
-    log_u = jnp.log1p(-jax.random.uniform(boost_key, alpha.shape, jnp.float32))
+    first_key, retry_key, rest_key, boost_key = jax.random.split(key, 4)
+    value, done = _proposal(first_key, d, c)
+    n = d.shape[0]
+    size = max(1, -(-n // RETRY_SHARE))
+    where = jnp.nonzero(~done, size=size, fill_value=n)[0]  # n: an empty slot
+    empty = where == n
+    slot = jnp.minimum(where, n - 1)
+    retried = _rounds(retry_key, d[slot], c[slot], jnp.zeros(size, jnp.float32), empty)
+    value = value.at[where].set(retried, mode="drop")
+    done = done.at[where].set(True, mode="drop")
+    value = _rounds(rest_key, d, c, value, done).reshape(shape)  # no round, but rarely
+    log_u = jnp.log1p(-jax.random.uniform(boost_key, shape, jnp.float32))
     inverse = 1.0 / jnp.where(boosted, alpha, 1.0)  # a product below, not a division:
     scale = jnp.exp(rounded(log_u * inverse, inverse))  # XLA rewrites some divisions
     return jnp.where(boosted, value * scale, value)
@@ -163,4 +182,4 @@ class PSRL(_StageLearner):
         check_in_range("reward_prior_mean", self.reward_prior_mean, -1e30, 1e30)
 
 
-__all__ = ["PSRL", "dirichlet_expected", "gamma_variates", "posterior_sample"]
+__all__ = ["PSRL", "RETRY_SHARE", "dirichlet_expected", "gamma_variates", "posterior_sample"]
