@@ -319,3 +319,16 @@ def test_cli_main_with_an_argv_leaves_the_callers_garbage_collector_alone(tmp_pa
     frozen = gc.get_freeze_count()
     assert cli.main(["reproduce", "--out", str(tmp_path / "o"), "--quiet"]) == 2
     assert gc.get_freeze_count() == frozen
+
+
+def test_names_moved_out_of_a_module_still_import_with_a_warning():
+    import vdbejax.methods.agents as agents
+    import vdbejax.methods.finite_horizon as finite_horizon
+    from vdbejax.methods import grid_axes, posterior
+
+    with pytest.warns(DeprecationWarning, match="import it from vdbejax.methods.grid_axes"):
+        assert agents.sweep is grid_axes.sweep
+    with pytest.warns(DeprecationWarning, match="import it from vdbejax.methods.posterior"):
+        assert finite_horizon.PSRL is posterior.PSRL
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        agents.nope  # noqa: B018

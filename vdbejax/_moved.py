@@ -11,7 +11,9 @@ import importlib.abc
 import importlib.machinery
 import sys
 import warnings
+from collections.abc import Callable
 from types import ModuleType
+from typing import Any
 
 #: old module name -> its home now.
 MOVED = {
@@ -65,3 +67,18 @@ def install() -> None:
     """Put the finder on ``sys.meta_path`` (once)."""
     if not any(isinstance(f, _MovedFinder) for f in sys.meta_path):
         sys.meta_path.append(_MovedFinder())
+
+
+def moved_names(module: str, home: str, names: tuple[str, ...]) -> Callable[[str], Any]:
+    """A module ``__getattr__`` for ``module``: each of ``names`` now lives in ``home``;
+    importing it from ``module`` still works, with a ``DeprecationWarning``."""
+    def attribute(name: str) -> Any:
+        if name in names:
+            warnings.warn(f"{module}.{name} moved: import it from {home} (the old name is"
+                          " kept for one release; CHANGELOG.md)", DeprecationWarning,
+                          stacklevel=2)
+            return getattr(importlib.import_module(home), name)
+        raise AttributeError(f"module {module!r} has no attribute {name!r}")
+
+    return attribute
+

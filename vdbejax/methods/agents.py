@@ -16,6 +16,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from vdbejax._moved import moved_names
 from vdbejax._pytree import pytree_dataclass
 from vdbejax.methods.api import (
     EXPLORERS,
@@ -320,20 +321,8 @@ def table_layout(params: AgentParams) -> dict[str, str]:
 
 
 #: Names that moved to another module, kept importable from here for one release.
-_MOVED_NAMES = {name: "vdbejax.methods.grid_axes"
-                for name in ("sweep", "setting_of", "MAX_SETTINGS")}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _MOVED_NAMES:
-        import importlib
-        import warnings
-
-        home = _MOVED_NAMES[name]
-        warnings.warn(f"vdbejax.methods.agents.{name} moved: import it from {home}",
-                      DeprecationWarning, stacklevel=2)
-        return getattr(importlib.import_module(home), name)
-    raise AttributeError(f"module 'vdbejax.methods.agents' has no attribute {name!r}")
+__getattr__ = moved_names("vdbejax.methods.agents", "vdbejax.methods.grid_axes",
+                          ("sweep", "setting_of", "MAX_SETTINGS"))
 
 
 __all__ = [

@@ -19,6 +19,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from vdbejax._moved import moved_names
 from vdbejax._numerics import rounded
 from vdbejax._pytree import pytree_dataclass, static_field
 from vdbejax.methods.contract import Context, Learner, LearnerUpdate, Table, Transition
@@ -254,17 +255,5 @@ class UCBH(_StageLearner):
 
 
 #: Names that moved to another module, kept importable from here for one release.
-_MOVED_NAMES = {name: "vdbejax.methods.posterior"
-                for name in ("PSRL", "posterior_sample", "dirichlet_expected")}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _MOVED_NAMES:
-        import importlib
-        import warnings
-
-        home = _MOVED_NAMES[name]
-        warnings.warn(f"vdbejax.methods.finite_horizon.{name} moved: import it from {home}",
-                      DeprecationWarning, stacklevel=2)
-        return getattr(importlib.import_module(home), name)
-    raise AttributeError(f"module 'vdbejax.methods.finite_horizon' has no attribute {name!r}")
+__getattr__ = moved_names("vdbejax.methods.finite_horizon", "vdbejax.methods.posterior",
+                          ("PSRL", "posterior_sample", "dirichlet_expected"))
