@@ -74,9 +74,7 @@ def aggregate_rows(tasks: Sequence[Any], methods: Sequence[Any],
     on :data:`REFERENCE` over the tasks both ran (``scores``: per task, ``[methods that
     ran, seeds]``; ``ran``: per task the names of the methods that ran, by default all)."""
     ran = ran or _ran_everywhere(tasks, methods)
-    reference = ({t.name: scores[t.name][ran[t.name].index(REFERENCE)]
-                  for t in tasks if REFERENCE in ran[t.name]}
-                 if any(m.name == REFERENCE for m in methods) else {})
+    reference = _scores_of(REFERENCE, tasks, scores, ran)
     out = []
     for m in methods:
         mine = _scores_of(m.name, tasks, scores, ran)
