@@ -7,7 +7,7 @@ import numpy as np
 
 from vdbejax.envs.table_cleaning import env as table_env
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.envs.tabular import compile_env
+from vdbejax.envs.compiled import compile_env
 
 
 def _tables(mdp):

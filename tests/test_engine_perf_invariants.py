@@ -11,7 +11,7 @@ import pytest
 from absl.testing import parameterized
 
 from vdbejax import engine
-from vdbejax.engine import sequential
+from vdbejax.engine import packing, sequential, work_items
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents
 from vdbejax.methods.explorers import select_action
@@ -281,7 +281,7 @@ def test_sequential_work_items_are_equal_sized_cost_balanced_and_cover_every_age
     rng = np.random.default_rng(0)
     kinds = np.repeat([0, 1, 3], [40, 37, 23])
     costs = rng.pareto(1.5, kinds.size) * 100 + 10  # a few agents far slower than most
-    groups = sequential._sequential_groups(kinds, threads=2, costs=costs)
+    groups = work_items._sequential_groups(kinds, threads=2, costs=costs)
     everyone = np.sort(np.concatenate(groups))
     np.testing.assert_array_equal(everyone, np.arange(kinds.size))
     group_costs = [costs[group].sum() for group in groups]
@@ -292,7 +292,7 @@ def test_sequential_work_items_are_equal_sized_cost_balanced_and_cover_every_age
         sizes = [len(group) for group in mine]
         assert max(sizes) - min(sizes) <= 1
     # Without costs every agent counts the same: sizes still within one of each other.
-    plain = sequential._sequential_groups(kinds, threads=2)
+    plain = work_items._sequential_groups(kinds, threads=2)
     assert sum(len(group) for group in plain) == kinds.size
 
 
@@ -394,10 +394,10 @@ class PackedRowsTest(parameterized.TestCase):
             "value": np.array([-0.0, np.nan, np.inf, -1e-45, 3.25], np.float32),
             "key": np.arange(rows * 2, dtype=np.uint32).reshape(rows, 2) * np.uint32(2654435761),
         }
-        packed = self.variant(sequential._pack)(tree)
+        packed = self.variant(packing._pack)(tree)
         assert packed.dtype == jnp.uint32 and packed.shape == (rows, 1 + 1 + 1 + 1 + 1 + 1 + 1 + 2)
         layout = {name: jax.ShapeDtypeStruct(v.shape, v.dtype) for name, v in tree.items()}
-        back = self.variant(lambda words: sequential._unpack(words, layout))(packed)
+        back = self.variant(lambda words: packing._unpack(words, layout))(packed)
         for name, value in tree.items():
             assert back[name].dtype == value.dtype and back[name].shape == value.shape
             np.testing.assert_array_equal(np.asarray(back[name]).view(np.uint8),
@@ -406,8 +406,8 @@ class PackedRowsTest(parameterized.TestCase):
     def test_float64_rows_take_two_words(self):
         with jax.enable_x64(True):
             value = np.array([np.pi, -2.0**-1074, np.nan], np.float64)
-            packed = sequential._pack({"v": value})
+            packed = packing._pack({"v": value})
             assert packed.shape == (3, 2)
-            back = sequential._unpack(packed, {"v": jax.ShapeDtypeStruct((3,), np.float64)})["v"]
+            back = packing._unpack(packed, {"v": jax.ShapeDtypeStruct((3,), np.float64)})["v"]
             np.testing.assert_array_equal(np.asarray(back).view(np.uint64), value.view(np.uint64))
 

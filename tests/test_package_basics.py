@@ -330,5 +330,14 @@ def test_names_moved_out_of_a_module_still_import_with_a_warning():
         assert agents.sweep is grid_axes.sweep
     with pytest.warns(DeprecationWarning, match="import it from vdbejax.methods.posterior"):
         assert finite_horizon.PSRL is posterior.PSRL
+    import vdbejax.envs.tabular as tabular
+    import vdbejax.studies.sweep_file as sweep_file
+    from vdbejax.envs import compiled
+    from vdbejax.studies import task_names
+
+    with pytest.warns(DeprecationWarning, match="import it from vdbejax.envs.compiled"):
+        assert tabular.compile_env is compiled.compile_env
+    with pytest.warns(DeprecationWarning, match="import it from vdbejax.studies.task_names"):
+        assert sweep_file.make_task is task_names.make_task
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         agents.nope  # noqa: B018

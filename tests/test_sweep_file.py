@@ -16,13 +16,13 @@ from vdbejax.envs import TabularMDP
 from vdbejax.methods import Setting, sweep
 from vdbejax.results.grid_result import GridResult
 from vdbejax.studies.sweep_file import (
-    make_task,
     read_sweep_file,
     sweep_from_meta,
     sweep_settings,
     write_sweep_file,
 )
 from vdbejax.studies.sweeps import run_sweep
+from vdbejax.studies.task_names import make_task
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"

@@ -35,10 +35,12 @@ from vdbejax.studies import train_in_folder
 from vdbejax.studies.sweep_file import (  # noqa: F401 (the sweep file's names, here since 0.1)
     SWEEP_KEYS,
     absolute_files,
-    load_plugins,
-    make_task,
     read_sweep_file,
     sweep_settings,
+)
+from vdbejax.studies.task_names import (
+    load_plugins,
+    make_task,
 )
 from vdbejax.validation import INT32_MAX, check_bool, check_int
 
@@ -139,7 +141,7 @@ def run_sweep(
       exclude: settings of the product to leave out, as tables of values they match
         (:func:`~vdbejax.studies.sweep_file.sweep_settings`).
       settings: explicit settings, ``{"learner": …, "explorer": …, field: value}``.
-      task: a task name (:func:`~vdbejax.studies.sweep_file.make_task`: the suite's,
+      task: a task name (:func:`~vdbejax.studies.task_names.make_task`: the suite's,
         ``gym:<id>``, ``module:function`` or ``file.py:function``).
       seeds: agents per setting (per replicate).
       episodes: episodes per agent.

@@ -132,7 +132,7 @@ def make_mdp(max_steps: int = 100, invalid_action: str = "noop") -> TabularMDP:
       the deterministic MDP over all 108 codes (state index = code), named
       ``table_cleaning``.
     """
-    from vdbejax.envs.tabular import compile_env
+    from vdbejax.envs.compiled import compile_env
 
     return compile_env(
         TableCleaning(), make_params(max_steps, invalid_action), name="table_cleaning"

@@ -329,7 +329,7 @@ def make_variant_mdp(
     Returns:
       the deterministic MDP, named ``table_cleaning_n{n}_k{k}``.
     """
-    from vdbejax.envs.tabular import compile_env
+    from vdbejax.envs.compiled import compile_env
 
     env = make_variant(num_sections, num_goblets)
     return compile_env(
