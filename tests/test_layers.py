@@ -91,3 +91,13 @@ def test_old_import_paths_give_the_moved_module_itself() -> None:
             moved = importlib.import_module(old)
         assert moved is importlib.import_module(new)
         assert moved.__name__ == new and moved.__spec__.name == new
+
+
+#: "No module a maintainer must read past about 400 lines to change one thing" (issue 21).
+MODULE_LINES_MAX = 400
+
+
+def test_no_module_is_longer_than_400_lines():
+    long = {str(path.relative_to(PACKAGE)): n for path in PACKAGE.rglob("*.py")
+            if (n := len(path.read_text().splitlines())) > MODULE_LINES_MAX}
+    assert not long, f"modules past {MODULE_LINES_MAX} lines (split them): {long}"
