@@ -58,3 +58,81 @@ def test_a_long_run_is_announced_before_it_starts(tmp_path, capsys, monkeypatch)
     assert "Ctrl-C keeps its checkpoint, --resume continues" in first
     assert cli.main([*args[:2], str(tmp_path / "q"), *args[3:], "--quiet"]) == 0
     assert "a long run" not in capsys.readouterr().err  # --quiet: no status lines
+
+
+def _mdp(next_state, terminal, probability=None, max_steps=50):
+    import numpy as np
+
+    from vdbejax.envs import make_tabular_mdp
+
+    next_state = np.asarray(next_state, np.int32)
+    start = np.zeros(next_state.shape[0])
+    start[0] = 1.0
+    return make_tabular_mdp(next_state, np.zeros(next_state.shape, np.float32),
+                            np.asarray(terminal, bool), start, probability=probability,
+                            max_steps=max_steps)
+
+
+def test_an_episode_is_at_least_the_tasks_shortest_one() -> None:
+    from vdbejax.envs.solvers import shortest_episode
+    from vdbejax.studies.task_names import make_task
+
+    # 0 -> 1 -> 2 -> end, or 0 -> 0 forever: three steps at the fewest
+    chain = _mdp([[[1], [0]], [[2], [1]], [[2], [2]]],
+                 [[[False], [False]], [[False], [False]], [[True], [False]]])
+    assert shortest_episode(chain) == 3
+    # an unlikely outcome counts: action 1 of state 0 ends the episode with probability 0.1
+    rare = _mdp([[[1, 1], [0, 2]], [[2, 2], [1, 1]], [[2, 2], [2, 2]]],
+                [[[False] * 2, [False, True]], [[False] * 2] * 2, [[True] * 2] * 2],
+                probability=[[[0.5, 0.5], [0.9, 0.1]], [[0.5, 0.5]] * 2, [[0.5, 0.5]] * 2])
+    assert shortest_episode(rare) == 1
+    # nothing ends an episode early: every one runs to the step limit
+    assert shortest_episode(make_task("riverswim")) == int(make_task("riverswim").max_steps)
+    assert shortest_episode(make_task("deepsea:6")) == 6
+    assert shortest_episode(make_task("chain:8", max_steps=40)) == 40
+
+
+def test_the_training_bound_counts_the_shortest_episode_and_the_stop_policy() -> None:
+    from vdbejax.methods import Setting
+    from vdbejax.runs import RunOptions, UntilSolved, prepare_grid
+    from vdbejax.studies.task_names import make_task
+
+    mdp = make_task("riverswim")
+    settings = [Setting("qlearning", "egreedy", 0.1)]
+    fixed = estimate.estimate_prepared(prepare_grid(mdp, settings, num_seeds=4,
+                                                    num_episodes=300))
+    assert fixed.fewest_steps == fixed.most_steps == 4 * 300 * 20  # no early end
+    assert "(24.0 k to 24.0 k agent-steps)" in fixed.describe()
+    one_step = estimate.estimate_run(1, 4, 300, statistics=False)
+    assert fixed.training_seconds == pytest.approx(20 * one_step.training_seconds)
+    solving = estimate.estimate_prepared(prepare_grid(
+        mdp, settings, num_seeds=4, num_episodes=300, run=RunOptions(stop=UntilSolved(
+            window=25))))
+    assert (solving.fewest_steps, solving.most_steps) == (4 * 25 * 20, 4 * 300 * 20)
+    assert UntilSolved(max_seconds=5.0).fewest_episodes(300) == 1
+
+
+def test_a_long_study_is_announced_whole_before_its_folder_is_made(
+        tmp_path, capsys, monkeypatch) -> None:
+    from vdbejax.studies import bench
+
+    class Stop(Exception):
+        pass
+
+    def refuse(*args, **kwargs):
+        raise Stop
+
+    monkeypatch.setattr(bench, "check_writable_dir", refuse)
+    methods = ["egreedy", "rmax"]
+    with pytest.raises(Stop):  # 2 tasks × (tuning + reported run), 10^6 episodes each
+        bench.run_bench(tmp_path / "b", tasks=["riverswim", "deepsea:6"], methods=methods,
+                        episodes=10**6, seeds=2, tune_seeds=1)
+    err = capsys.readouterr().err
+    assert err.startswith("a study: 4 runs: training ≥"), err
+    parts = []
+    for task in bench.make_tasks(["riverswim", "deepsea:6"]):
+        pool = sum(len(m.candidates(task.scale)) for m in bench.select_methods(methods))
+        parts += [estimate.estimate_task(task.mdp, pool, 1, 10**6, statistics=False),
+                  estimate.estimate_task(task.mdp, 2, 2, 10**6, statistics=False)]
+    assert f"training ≥ {estimate.duration(sum(p.training_seconds for p in parts))}" in err
+    assert not (tmp_path / "b").exists()

@@ -165,6 +165,22 @@ def test_no_lock_file_stays_after_a_run_or_a_refusal(tmp_path, capsys):
     assert not (out / ".vdbejax.lock").exists()
 
 
+def test_an_ablation_refused_by_its_first_variant_leaves_no_folder(tmp_path, capsys):
+    # A memory budget below one agent is known only once a variant plans its run: the
+    # empty folders ablate made for the document and the results are removed again.
+    out, results = tmp_path / "ab", tmp_path / "raw"
+    args = ["ablate", "--variants", "spec", "--memory-budget", "1", "--seeds", "2",
+            "--episodes", "10", "--replicates", "1"]
+    assert cli.main([*args, "--out", str(out)]) == 2
+    assert "memory_budget_bytes=1 is invalid" in one_error_line(capsys)
+    assert cli.main([*args, "--out", str(out), "--results", str(results)]) == 2
+    assert not out.exists() and not results.exists()
+    kept = tmp_path / "kept"
+    (kept / "notes").mkdir(parents=True)  # a folder that existed before stays as it was
+    assert cli.main([*args, "--out", str(kept)]) == 2
+    assert sorted(p.name for p in kept.iterdir()) == ["notes"]
+
+
 def test_a_lock_file_deleted_during_the_run_is_noticed(tmp_path, monkeypatch, capsys):
     from vdbejax.studies import folder
 

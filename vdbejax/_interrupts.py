@@ -67,6 +67,18 @@ def in_gc_callback(frame: Any) -> bool:
     return False
 
 
+def in_import(frame: Any) -> bool:
+    """Whether ``frame`` (a signal handler's) runs inside an import. An exception raised
+    there can cross a native module's initialisation (jaxlib's), which aborts the process
+    (rc −6) instead of raising: the request is recorded, and the watchdog or the next
+    chunk acts on it."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
 #: Releases of what this process holds (folder locks): run before a watchdog's exit.
 _held: dict[int, Callable[[], None]] = {}
 

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from vdbejax import _interrupts
+
 
 def _fail(name: str, value: Any, allowed: str) -> None:
     if isinstance(value, (np.ndarray, np.generic)) and np.ndim(value) == 0:
@@ -124,6 +126,7 @@ def check_writable_dir(name: str, path: Any) -> Path:
     """
     if not isinstance(path, (str, os.PathLike)) or not str(path):
         _fail(name, path, "must be a folder path")
+    _interrupts.raise_pending()  # a stop the command line recorded: before any folder exists
     folder = Path(path)
     try:
         folder.mkdir(parents=True, exist_ok=True)

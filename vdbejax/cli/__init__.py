@@ -87,18 +87,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     # Both are also recorded (vdbejax._interrupts), so that one swallowed inside a
     # garbage-collector callback still stops the run after its chunk.
     handled = args.own_process and threading.current_thread() is threading.main_thread()
-    previous = ({number: signal.signal(number, _stop) for number in (signal.SIGINT,
-                                                                     signal.SIGTERM)}
-                if handled else {})
     if not handled:  # a stop recorded before this command belongs to no command of it
         interrupts.clear()
     hint = (": rerun with --resume to continue from the last checkpoint"
             if args.command in ("reproduce", "run", "scale", "ablate", "bench", "depth")
             else "")
-    # A stop during a long native call (a compilation, a chunk) would wait for it to end:
-    # the watchdog ends the process a second after the signal instead.
-    watchdog = interrupts.Watchdog(f"interrupted{hint}") if handled else None
-    try:
+    previous: dict[signal.Signals, Any] = {}
+    watchdog = None
+    try:  # from here on a stop is this command's: one line, exit 130 or 143
+        if handled:
+            # A stop during a long native call (a compilation, a chunk) would wait for it
+            # to end: the watchdog ends the process a second after the signal instead.
+            watchdog = interrupts.Watchdog(f"interrupted{hint}")
+            for number in (signal.SIGINT, signal.SIGTERM):
+                previous[number] = signal.signal(number, _stop)
         interrupts.raise_pending()  # a stop while the command line imported (vdbejax._console)
         COMMANDS[args.command][1](args)
         interrupts.raise_pending()  # a stop that came after the last chunk
@@ -119,13 +121,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         if watchdog is not None:
             watchdog.stop()
         interrupts.clear()
-        for number, handler in previous.items():
-            signal.signal(number, handler)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     return 0
 
 
 def _stop(signum: int, frame: Any) -> None:
     kind = interrupts.Terminated if signum == signal.SIGTERM else KeyboardInterrupt
     interrupts.request(kind)
-    if not interrupts.in_gc_callback(frame):  # there Python would print it and go on
+    # In a gc callback Python would print it and go on; in an import it could cross a
+    # native module's initialisation and abort the process: recorded only, then.
+    if not (interrupts.in_gc_callback(frame) or interrupts.in_import(frame)):
         raise kind()

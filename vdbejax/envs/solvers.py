@@ -334,3 +334,31 @@ def steps_to_goal(mdp: TabularMDP) -> np.ndarray:
             return steps
         level += 1
         steps[into_level] = level
+
+
+def shortest_episode(mdp: TabularMDP) -> int:
+    """The fewest steps any episode of ``mdp`` takes: a forward search from the start
+    states over every outcome of positive probability, to the first terminal outcome,
+    capped at ``max_steps`` (truncation). Estimates use it as a lower bound per episode.
+
+    Args:
+      mdp: the MDP.
+
+    Returns:
+      the number of steps, ``1 .. max_steps``.
+    """
+    max_steps = int(mdp.max_steps)
+    next_state = np.asarray(mdp.next_state)
+    possible = np.asarray(mdp.probability) > 0
+    ends = np.asarray(mdp.terminal) & possible
+    seen = np.zeros(mdp.num_states, bool)
+    frontier = start_states(mdp)
+    seen[frontier] = True
+    for steps in range(1, max_steps):
+        if not frontier.size or ends[frontier].any():
+            return steps if frontier.size else max_steps
+        successors = next_state[frontier][possible[frontier] & ~ends[frontier]]
+        frontier = np.unique(successors[~seen[successors]])
+        seen[frontier] = True
+    return max_steps
+

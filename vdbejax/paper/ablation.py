@@ -19,10 +19,11 @@ themselves are in :mod:`vdbejax.paper.ablation_variants` and the document's rend
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -190,7 +191,35 @@ def ablate(
     check_replicates(replicates, seeds)
     check_int("episodes", episodes, 1, INT32_MAX)
     check_int("seed", seed, 0, UINT32_MAX)
-    # Every folder written must be writable before the first variant trains.
+    # Every folder written must be writable before the first variant trains; those made
+    # here are removed again (when still empty) if a variant's run is refused.
+    wanted = [out_dir, results_dir]
+    if isinstance(out_dir, (str, os.PathLike)):
+        wanted.append(Path(out_dir) / figures_dir)
+    made = [Path(p) for p in wanted if isinstance(p, (str, os.PathLike)) and str(p)
+            and not Path(p).exists()]
+    with _removed_if_refused(made):
+        return _ablate(out_dir, figures_dir, results_dir, document, variants, seeds, episodes,
+                       seed, replicates, notes, reuse, progress, mode, sections, knobs)
+
+
+@contextlib.contextmanager
+def _removed_if_refused(folders: list[Path]) -> Iterator[None]:
+    """Remove ``folders`` that are still empty (deepest first) when a ValueError leaves."""
+    try:
+        yield
+    except ValueError:
+        for folder in sorted(folders, key=lambda p: len(p.parts), reverse=True):
+            with contextlib.suppress(OSError):  # not empty (something was written): kept
+                folder.rmdir()
+        raise
+
+
+def _ablate(out_dir: str | os.PathLike, figures_dir: str, results_dir: str | os.PathLike | None,
+            document: str, variants: list[Variant], seeds: int, episodes: int, seed: int,
+            replicates: int, notes: str | os.PathLike | None, reuse: bool, progress: bool,
+            mode: str, sections: bool, knobs: RunOptions) -> list[VariantResult]:
+    """:func:`ablate` once its options are checked."""
     out = check_writable_dir("out", out_dir)
     figures = check_writable_dir("out", out / figures_dir)
     raw = check_writable_dir("results_dir", results_dir) if results_dir is not None else figures

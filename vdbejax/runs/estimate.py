@@ -5,9 +5,14 @@ allocate and write (the results, the checkpoint's episode log, the statistics' b
 Time has two parts:
 
 * **training**: a lower bound, since an episode's length is known only once it is run:
-  every episode takes at least one step, and the engine does not exceed
-  :data:`MAX_STEPS_PER_SECOND` agent-steps per second per CPU core, nor one agent
-  :data:`MAX_LANE_STEPS_PER_SECOND` of its own (its steps are sequential);
+  every episode takes at least the task's shortest episode
+  (:func:`vdbejax.envs.solvers.shortest_episode`: one step, or up to ``max_steps`` where no
+  early end is possible), every agent trains at least its stop policy's fewest episodes,
+  and the engine does not exceed :data:`MAX_STEPS_PER_SECOND` agent-steps per second per
+  CPU core, nor one agent :data:`MAX_LANE_STEPS_PER_SECOND` of its own (its steps are
+  sequential). The estimate also states the run's agent-steps from that fewest to the
+  most (every episode of the budget to the step limit): what a method costs per step
+  (a model's planning, say) is the user's to weigh;
 * **statistics and figures** (the result folder's summary, bands and figures): a
   forecast, since their work is fixed by the sizes: per setting and bootstrap resample,
   a curve of ``episodes`` values is smoothed and searched (convergence, bands), which
@@ -15,15 +20,24 @@ Time has two parts:
   ``python -m benchmarks.estimate_rates``).
 
 The result-folder pipeline (:func:`vdbejax.studies.train_in_folder`) announces a run whose
-estimate exceeds :data:`LONG_SECONDS` in one line before it starts.
+estimate exceeds :data:`LONG_SECONDS` in one line before it starts. A study of several
+result folders (``scale``, ``bench``, ``depth``) adds its runs' estimates into one
+:class:`StudyEstimate`, always announced (unless quiet) before its folder is made.
 """
 from __future__ import annotations
 
 import dataclasses
+import sys
+from typing import TYPE_CHECKING
 
 from vdbejax.engine import available_cpus
+from vdbejax.envs.solvers import shortest_episode
+from vdbejax.envs.tabular import TabularMDP
 from vdbejax.results.bootstrap import NUM_RESAMPLES
 from vdbejax.runs.batching import _size, log_bytes, result_bytes
+
+if TYPE_CHECKING:
+    from vdbejax.runs.grid import PreparedGrid
 
 #: Agent-steps per second per CPU core that no strategy of the engine exceeds on a CPU
 #: (the paper grid's warm run: ≈ 7 M per core, benchmarks/RESULTS.md; twice that here).
@@ -45,11 +59,14 @@ class RunEstimate:
     """A run's work, before it starts (module docstring).
 
     Attributes:
-      agents, episodes, settings: the work's size.
+      agents, episodes, settings: the work's size (``episodes``: the budget).
       memory_bytes: host memory of the results and their statistics.
       disk_bytes: the checkpoint's episode log at its largest.
       training_seconds: a lower bound of the training's wall time.
       statistics_seconds: a forecast of the statistics' and figures' (0 without them).
+      fewest_steps, most_steps: the run's agent-steps at the fewest (every agent its
+        fewest episodes, each the task's shortest) and at the most (every episode of the
+        budget to the step limit).
     """
 
     agents: int
@@ -59,6 +76,8 @@ class RunEstimate:
     disk_bytes: int
     training_seconds: float
     statistics_seconds: float
+    fewest_steps: int = 0
+    most_steps: int = 0
 
     @property
     def seconds(self) -> float:
@@ -71,11 +90,78 @@ class RunEstimate:
         return self.seconds > LONG_SECONDS
 
     def describe(self) -> str:
-        """One line: ``training ≥ 2 min, statistics and figures ≈ 3 min, …``."""
-        return (f"{self.agents:,} agents × {self.episodes:,} episodes: training ≥"
-                f" {duration(self.training_seconds)} (every episode at least one step),"
-                f" statistics and figures ≈ {duration(self.statistics_seconds)}, memory ≈"
-                f" {_size(self.memory_bytes)}, checkpoint ≈ {_size(self.disk_bytes)} of disk")
+        """One line: ``training ≥ 2 min (…), statistics and figures ≈ 3 min, …``."""
+        return (f"{self.agents:,} agents × {self.episodes:,} episodes: {_common(self)},"
+                f" memory ≈ {_size(self.memory_bytes)}, checkpoint ≈ {_size(self.disk_bytes)}"
+                " of disk")
+
+
+@dataclasses.dataclass(frozen=True)
+class StudyEstimate:
+    """A study's runs (one result folder each, trained one after another), estimated
+    together before the study starts. Memory and disk are the largest run's.
+
+    Attributes:
+      parts: every run's estimate.
+    """
+
+    parts: tuple[RunEstimate, ...]
+
+    @property
+    def training_seconds(self) -> float:
+        return sum(part.training_seconds for part in self.parts)
+
+    @property
+    def statistics_seconds(self) -> float:
+        return sum(part.statistics_seconds for part in self.parts)
+
+    @property
+    def seconds(self) -> float:
+        return self.training_seconds + self.statistics_seconds
+
+    @property
+    def fewest_steps(self) -> int:
+        return sum(part.fewest_steps for part in self.parts)
+
+    @property
+    def most_steps(self) -> int:
+        return sum(part.most_steps for part in self.parts)
+
+    @property
+    def long(self) -> bool:
+        """A study is always announced: it runs one result folder after another."""
+        return True
+
+    def describe(self) -> str:
+        """One line: runs, training's bound and agent-steps, statistics, the largest run's
+        memory and checkpoint."""
+        memory = max((part.memory_bytes for part in self.parts), default=0)
+        disk = max((part.disk_bytes for part in self.parts), default=0)
+        return (f"{len(self.parts)} runs: {_common(self)}, memory ≈ {_size(memory)} and"
+                f" checkpoint ≈ {_size(disk)} of disk at the largest run")
+
+
+def _common(estimate: RunEstimate | StudyEstimate) -> str:
+    """Training's bound with its agent-steps, and the statistics' forecast."""
+    return (f"training ≥ {duration(estimate.training_seconds)}"
+            f" ({count(estimate.fewest_steps)} to {count(estimate.most_steps)} agent-steps),"
+            f" statistics and figures ≈ {duration(estimate.statistics_seconds)}")
+
+
+def announce(estimate: RunEstimate | StudyEstimate, what: str) -> None:
+    """Write ``a long run: …`` (``a study: …``) to stderr when ``estimate`` is long."""
+    if estimate.long:
+        label = f"a long {what}" if isinstance(estimate, RunEstimate) else f"a {what}"
+        sys.stderr.write(f"{label}: {estimate.describe()}; Ctrl-C keeps its checkpoint,"
+                         " --resume continues\n")
+
+
+def count(number: float) -> str:
+    """``"950"``, ``"1.5 k"``, ``"3.2 M"`` or ``"4.0 G"``."""
+    for scale, suffix in ((1e9, " G"), (1e6, " M"), (1e3, " k")):
+        if number >= scale:
+            return f"{number / scale:.1f}{suffix}"
+    return f"{number:.0f}"
 
 
 def duration(seconds: float) -> str:
@@ -88,21 +174,29 @@ def duration(seconds: float) -> str:
 
 
 def estimate_run(settings: int, seeds: int, episodes: int, *, statistics: bool = True,
-                 checkpoint: bool = True, cores: int | None = None) -> RunEstimate:
+                 checkpoint: bool = True, cores: int | None = None,
+                 steps_per_episode: int = 1, fewest_episodes: int | None = None,
+                 max_steps: int | None = None) -> RunEstimate:
     """The estimate of ``settings × seeds`` agents trained for ``episodes`` episodes.
 
     Args:
       settings, seeds, episodes: the work.
+      steps_per_episode: the fewest steps of an episode (the task's shortest episode).
+      fewest_episodes: the fewest episodes an agent trains (a stop policy's; default
+        ``episodes``).
+      max_steps: the step limit of an episode (default ``steps_per_episode``).
       statistics: the result folder's statistics and figures follow the training.
       checkpoint: the run keeps an episode log.
       cores: CPU cores the engine uses (default: those this process may use).
     """
     agents = settings * seeds
+    max_steps = steps_per_episode if max_steps is None else max_steps
     if cores is None:
         cores = available_cpus()
-    agent_episodes = float(agents) * episodes
-    training = max(agent_episodes / (MAX_STEPS_PER_SECOND * max(cores, 1)),
-                   episodes / MAX_LANE_STEPS_PER_SECOND)
+    fewest = episodes if fewest_episodes is None else min(fewest_episodes, episodes)
+    steps = float(agents) * fewest * steps_per_episode
+    training = max(steps / (MAX_STEPS_PER_SECOND * max(cores, 1)),
+                   fewest * steps_per_episode / MAX_LANE_STEPS_PER_SECOND) if agents else 0.0
     memory = result_bytes(agents, episodes)
     seconds = 0.0
     if statistics:
@@ -111,4 +205,23 @@ def estimate_run(settings: int, seeds: int, episodes: int, *, statistics: bool =
     disk = log_bytes(agents, episodes) if checkpoint else 0
     return RunEstimate(agents=agents, episodes=episodes, settings=settings,
                        memory_bytes=int(memory), disk_bytes=int(disk),
-                       training_seconds=training, statistics_seconds=seconds)
+                       training_seconds=training, statistics_seconds=seconds,
+                       fewest_steps=int(steps), most_steps=int(agents * episodes * max_steps))
+
+
+def estimate_task(mdp: TabularMDP, settings: int, seeds: int, episodes: int, *,
+                  fewest_episodes: int | None = None, statistics: bool = True,
+                  checkpoint: bool = True) -> RunEstimate:
+    """:func:`estimate_run` on ``mdp``: every episode at least its shortest
+    (:func:`~vdbejax.envs.solvers.shortest_episode`)."""
+    return estimate_run(settings, seeds, episodes, statistics=statistics,
+                        checkpoint=checkpoint, steps_per_episode=shortest_episode(mdp),
+                        fewest_episodes=fewest_episodes, max_steps=int(mdp.max_steps))
+
+
+def estimate_prepared(prepared: PreparedGrid, *, statistics: bool = True) -> RunEstimate:
+    """The estimate of a prepared grid run (its task, work and stop policy)."""
+    return estimate_task(prepared.mdp, len(prepared.settings), prepared.num_seeds,
+                         prepared.num_episodes, statistics=statistics,
+                         fewest_episodes=prepared.stop.fewest_episodes(prepared.num_episodes))
+

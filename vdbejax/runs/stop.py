@@ -43,6 +43,10 @@ class FixedBudget:
     def out_of_time(self, elapsed: float) -> bool:
         return False
 
+    def fewest_episodes(self, num_episodes: int) -> int:
+        """The fewest episodes an agent of a ``num_episodes`` run trains (estimates)."""
+        return num_episodes
+
 
 @dataclasses.dataclass(frozen=True)
 class UntilSolved:
@@ -116,6 +120,11 @@ class UntilSolved:
 
     def out_of_time(self, elapsed: float) -> bool:
         return self.max_seconds is not None and elapsed >= self.max_seconds
+
+    def fewest_episodes(self, num_episodes: int) -> int:
+        """The fewest episodes an agent of a ``num_episodes`` run trains (estimates): a
+        full window before it can have solved, or one with a wall-clock budget."""
+        return 1 if self.max_seconds is not None else min(self.window, num_episodes)
 
 
 #: Margin below the threshold under which a cheap check of a chunk's new windows rules an

@@ -32,6 +32,7 @@ from vdbejax.results.regret import cumulative_regret, normalised_returns, run_sc
 from vdbejax.results.solving import episodes_to_solve, summarize_solving
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.runs.batching import check_run_size
+from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task
 from vdbejax.studies.bench_methods import (
     COST_LIMIT,
     QUICK_METHODS,
@@ -231,6 +232,15 @@ def run_bench(
     pools = [sum(len(candidates[t.name, m.name]) for m in ran[t.name]) for t in bench_tasks]
     check_run_size(max(max(pools) * tune_seeds if tune else 0,
                        max(len(methods_of) for methods_of in ran.values()) * seeds), episodes)
+    if progress:  # each task's tuning pool, then its reported run
+        parts = []
+        for task, pool_size in zip(bench_tasks, pools, strict=True):
+            if tune:
+                parts.append(estimate_task(task.mdp, pool_size, tune_seeds, episodes,
+                                           statistics=False))
+            parts.append(estimate_task(task.mdp, len(ran[task.name]), seeds, episodes,
+                                       statistics=False))
+        announce(StudyEstimate(tuple(parts)), "study")
     out = check_writable_dir("out", out_dir)
     check_output_paths(out, output_files([t.name for t in bench_tasks], figures))
     from vdbejax.runs.grid import version_info

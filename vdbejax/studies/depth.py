@@ -40,6 +40,7 @@ from vdbejax.results.folder_lock import FolderLock, check_output_paths, mark, un
 from vdbejax.results.solving import WINDOW, summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
+from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task
 from vdbejax.studies.bench import SOLVED, BenchTask
 from vdbejax.studies.bench_methods import BenchMethod, select_methods
 from vdbejax.studies.depth_report import FIGURE_FILE, MARKDOWN_FILE, write_reports
@@ -184,6 +185,11 @@ def run_depth(
         for setting in task_settings:
             make_agent(setting)
     check_run_size(len(chosen) * seeds, episodes)  # every task's grid: refused before the folder
+    if progress:
+        fewest = UntilSolved(best=1.0).fewest_episodes(episodes)
+        announce(StudyEstimate(tuple(
+            estimate_task(task.mdp, len(chosen), seeds, episodes, statistics=False,
+                          fewest_episodes=fewest) for _, _, task in tasks)), "study")
     out = check_writable_dir("out", out_dir)
     check_output_paths(out, [CSV_FILE, SLOPES_FILE, MARKDOWN_FILE, META_FILE]
                        + ([FIGURE_FILE] if figure else []))

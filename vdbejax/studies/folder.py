@@ -18,7 +18,6 @@ created), then:
 from __future__ import annotations
 
 import os
-import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -28,7 +27,7 @@ from vdbejax.results import io
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, rescue, save_run
 from vdbejax.results.grid_result import GridResult
 from vdbejax.runs.checkpoint import log_path, remove_checkpoint
-from vdbejax.runs.estimate import estimate_run
+from vdbejax.runs.estimate import announce, estimate_prepared
 from vdbejax.runs.grid import PreparedGrid, run_prepared
 from vdbejax.validation import check_writable_dir
 
@@ -93,11 +92,8 @@ def train_in_folder(
     """
     out = check_writable_dir(name, out_dir)
     check_output_paths(out, [*io.RESULT_FILES, *files, *checkpoint_files()], name)
-    estimate = estimate_run(len(prepared.settings), prepared.num_seeds, prepared.num_episodes,
-                            statistics=statistics)
-    if estimate.long and prepared.run.progress:
-        sys.stderr.write(f"a long run: {estimate.describe()}; Ctrl-C keeps its checkpoint,"
-                         " --resume continues\n")
+    if prepared.run.progress:
+        announce(estimate_prepared(prepared, statistics=statistics), "run")
     with FolderLock(out, name) as lock:  # held from before training to the last file
         checkpoint = out / CHECKPOINT_FILE
         if not prepared.run.resume and process_checkpoint_path(checkpoint).exists():

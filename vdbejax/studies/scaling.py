@@ -40,6 +40,7 @@ from vdbejax.results.folder_lock import FolderLock, mark, unmark
 from vdbejax.results.solving import FRACTION, WINDOW, solve_threshold, summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
+from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task
 from vdbejax.studies.scaling_adaptive import (
     AdaptiveRun,
     run_until_solved,
@@ -217,6 +218,14 @@ def run_scaling(
     # The largest variant's results must fit: refused here, before the folder is made.
     check_run_size(len(settings) * seeds, max(variant_budget(
         task[1].num_states, episodes, episodes_per_state) for task in tasks))
+    if progress:  # settings none solves drop out: only the smallest variant runs them all
+        stop = UntilSolved(best=1.0, fraction=fraction, window=window, max_seconds=seconds)
+        announce(StudyEstimate(tuple(
+            estimate_task(task[1], len(settings), seeds, budget, statistics=False,
+                          fewest_episodes=stop.fewest_episodes(budget) if i == 0 else 0)
+            for i, task in enumerate(tasks)
+            for budget in [variant_budget(task[1].num_states, episodes, episodes_per_state)])),
+            "study")
     out = check_writable_dir("out", out_dir)
     with FolderLock(out):  # the study's folder, held to its last file
 
