@@ -55,6 +55,7 @@ def test_reuse_saved_results(ablated):
                               seeds=2, episodes=12, progress=False)
     after = json.loads((raw / "spec" / "meta.json").read_text())
     assert after["elapsed_seconds"] == before["elapsed_seconds"]  # reused, not retrained
+    assert [r.how for r in results] == ["reused"]  # and said so in the status line
     table = ablation.claims_table(results)
     assert [row["claim"] for row in table] == [1, 2, 3, 4, 5, 6]
     assert all(row["spec"] in ("reproduced", "partly", "not reproduced", "unstable")
@@ -165,6 +166,7 @@ def test_a_variant_left_half_written_by_a_killed_run_is_continued(tmp_path):
     (variant,) = ablation.select_variants("spec")
     folder = tmp_path / "spec"
     first = ablation.run_variant(variant, folder, seeds=2, episodes=12)
+    assert first.how == "trained"
     whole = GridResult.load(folder)
     for damage in ("marker", "meta.json is a list"):
         mark(folder, "results")  # as a run killed while writing its result files leaves it

@@ -113,7 +113,11 @@ def run_variant(
     rep = reproduce(folder, seeds=seeds, episodes=episodes, seed=seed, replicates=replicates,
                     progress=progress, resume=run.resume, devices=run.devices,
                     memory_budget_bytes=run.memory_budget_bytes, **variant.options())
-    return VariantResult(variant, rep.summary, rep.claims, rep.best_return, folder)
+    meta = rep.result.meta
+    how = ("reused" if isinstance(saved, dict) and saved.get("elapsed_seconds") is not None
+           and meta.get("elapsed_seconds") == saved.get("elapsed_seconds")
+           else "continued" if meta.get("resumed_from_agent_episodes") else "trained")
+    return VariantResult(variant, rep.summary, rep.claims, rep.best_return, folder, how)
 
 
 #: Files of a variant's folder copied next to the document (small; no raw arrays).
@@ -273,7 +277,7 @@ def _run_reporting(variant: Variant, raw: Path, reports: Path, assets: Sequence[
                                   (result.folder / name).read_bytes())
     if progress:
         verdicts = ", ".join(f"{c.number}:{c.verdict}" for c in result.claims)
-        print(f"{variant.name}: {verdicts} ({time.perf_counter() - started:.1f} s)",
+        print(f"{variant.name}: {verdicts} ({result.how}, {time.perf_counter() - started:.1f} s)",
               file=sys.stderr, flush=True)
     return result
 

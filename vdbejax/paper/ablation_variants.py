@@ -154,6 +154,9 @@ class VariantResult:
     claims: list[ClaimResult]
     best_return: float
     folder: Path
+    #: How its results came: "trained", "reused" (a saved result of the same run) or
+    #: "continued" (from an interrupted run's checkpoint).
+    how: str = "trained"
 
 
 def mode_variants(mode: str) -> tuple[Variant, ...]:
