@@ -93,3 +93,33 @@ def test_the_command_lines_own_handler_is_restored_on_exit(monkeypatch, tmp_path
     assert cli.main() == 0
     assert seen == [(cli._stop, cli._stop)]  # installed while the command ran
     assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before
+
+
+def test_a_damaged_compilation_cache_entry_is_compiled_again_with_the_same_results(tmp_path):
+    # The "damaged executable-cache entry": JAX's cache is the only program store
+    # left; a damaged entry is recompiled (JAX warns), never run, and the numbers agree.
+    import numpy as np
+
+    cache = tmp_path / "cache"
+    env = {**{k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"},
+           "VDBEJAX_CACHE_DIR": str(cache)}
+
+    def run(name):
+        out = tmp_path / name
+        done = subprocess.run(
+            [sys.executable, "-m", "vdbejax", "run", "--out", str(out), "--learners",
+             "qlearning", "--explorers", "egreedy", "--axis", "epsilon=0.1", "--seeds", "2",
+             "--episodes", "10", "--quiet", "--no-figures"],
+            capture_output=True, text=True, timeout=300, env=env)
+        assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+        with np.load(out / "returns.npz") as data:
+            return data["returns"], done.stderr
+
+    clean, _ = run("clean")
+    entries = [entry for entry in cache.iterdir() if entry.is_file()]
+    assert entries
+    for entry in entries:
+        entry.write_bytes(b"\x00 damaged " * 8)
+    again, err = run("damaged")
+    assert np.array_equal(clean, again)
+    assert "Error reading persistent compilation cache entry" in err
