@@ -248,3 +248,25 @@ def test_bad_run_flags_fail_in_one_line_before_training(tmp_path, capsys, comman
     err = capsys.readouterr().err
     assert err.startswith("error: devices=1000 is invalid") and len(err.splitlines()) == 1
     assert not (out / "returns.npz").exists() and not (out / "checkpoint.npz").exists()
+
+
+def test_the_plan_sizes_chunks_by_agent_episodes_and_results_do_not_change():
+    from small_grid import SETTINGS, run_small
+
+    from vdbejax.runs.plan import (
+        CHUNK_EPISODES_MAX,
+        CHUNK_EPISODES_MIN,
+        default_chunk_episodes,
+    )
+
+    assert default_chunk_episodes(46 * 20, 1000) == 100  # the paper grid's chunks
+    assert default_chunk_episodes(46 * 100, 1000) == CHUNK_EPISODES_MIN
+    assert default_chunk_episodes(1, 10**7) == CHUNK_EPISODES_MAX  # one agent, many episodes
+    assert default_chunk_episodes(4, 600) == 600  # a short run: one chunk
+    calls = []
+    planned = run_small(num_episodes=120, chunk_episodes=None,
+                        progress=lambda done, total, t: calls.append(done))
+    assert calls == [0, len(SETTINGS) * 3 * 120]  # 12 agents: one chunk of all 120 episodes
+    chunked = run_small(num_episodes=120, chunk_episodes=7)
+    assert (planned.returns == chunked.returns).all()
+    assert (planned.lengths == chunked.lengths).all()

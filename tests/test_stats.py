@@ -267,3 +267,19 @@ def test_many_seeds_are_resampled_in_blocks_with_the_same_statistics(monkeypatch
     iqm = statistics.interquartile_mean_ci(returns[:, -1])
     monkeypatch.undo()
     assert iqm == statistics.interquartile_mean_ci(returns[:, -1])
+
+
+def test_one_seeds_bootstrap_is_computed_once_with_the_same_numbers(monkeypatch):
+    # Every resample of one seed is that seed: computed once (2,000 curves of 10^7
+    # episodes took minutes), the numbers of the full bootstrap bit for bit.
+    from vdbejax.results import stats as module
+
+    rng = np.random.default_rng(1)
+    t = np.arange(3000)
+    one = (-1 + 0.9 * (1 - np.exp(-t / 300)) + 0.05 * rng.normal(size=t.size))[None]
+    fast = (module.convergence_ci(one), module.mean_curve_ci(one))
+    monkeypatch.setattr(module, "_distinct_weights", module.weight_blocks)  # all 2,000
+    full = (module.convergence_ci(one), module.mean_curve_ci(one))
+    assert fast[0] == full[0] and np.isfinite(fast[0][0])
+    for a, b in zip(fast[1], full[1], strict=True):
+        np.testing.assert_array_equal(a, b)

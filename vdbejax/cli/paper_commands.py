@@ -30,8 +30,9 @@ def add_reproduce(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tie-break", default=None,
                    help="random (default) or first (the authors' reading's default)")
     p.add_argument("--q-init", type=number, default=0.0, help="initial Q value (default 0)")
-    p.add_argument("--chunk-episodes", type=number, default=100,
-                   help="episodes per jitted chunk (default 100)")
+    p.add_argument("--chunk-episodes", type=number, default=None,
+                   help="episodes per jitted chunk (default: at least 100 and 20,000"
+                        " agent-episodes, at most 10,000)")
     add_run_flags(p, "continue from OUT/checkpoint.npz (or reuse OUT's whole result)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-figures", action="store_true",

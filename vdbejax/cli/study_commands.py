@@ -53,7 +53,9 @@ def add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-steps", type=number, default=None,
                    help="episode truncation (default 100)")
     p.add_argument("--invalid-action", default=None, help="noop (default) or fail")
-    p.add_argument("--chunk-episodes", type=number, default=None, help="episodes per jitted chunk")
+    p.add_argument("--chunk-episodes", type=number, default=None,
+                   help="episodes per jitted chunk (default: at least 100 and 20,000"
+                        " agent-episodes, at most 10,000)")
     add_run_flags(p, "continue from OUT/checkpoint.npz (or reuse OUT's whole result)")
     p.add_argument("--no-figures", action="store_true", help="no fig3.png / sensitivity.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

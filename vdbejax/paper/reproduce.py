@@ -150,7 +150,7 @@ def reproduce(
     tie_break: str | None = None,
     q_init: float = 0.0,
     alpha: float = PAPER_ALPHA,
-    chunk_episodes: int = 100,
+    chunk_episodes: int | None = None,
     resume: bool = False,
     progress: bool = True,
     memory_budget_bytes: int | str | None = None,
@@ -190,7 +190,8 @@ def reproduce(
         the authors).
       q_init: initial Q value (the spec's option).
       alpha: learning rate α of every agent (default: the paper's).
-      chunk_episodes: episodes per jitted chunk (checkpoint granularity).
+      chunk_episodes: episodes per jitted chunk (checkpoint granularity; None: the plan's,
+        :func:`~vdbejax.runs.plan.default_chunk_episodes`: 100 for the paper grid).
       resume: continue an interrupted run from ``out_dir/checkpoint.npz``
         (bit-identically).
       progress: a progress bar and a closing status line on stderr.

@@ -201,7 +201,9 @@ def estimate_run(settings: int, seeds: int, episodes: int, *, statistics: bool =
     seconds = 0.0
     if statistics:
         memory += settings * episodes * STATISTICS_BYTES_PER_SETTING_EPISODE
-        seconds = NUM_RESAMPLES * float(settings) * episodes / STATISTICS_OPS_PER_SECOND
+        # One seed's resamples are all that seed: computed once (vdbejax.results.stats).
+        resamples = 2 if seeds == 1 else NUM_RESAMPLES
+        seconds = resamples * float(settings) * episodes / STATISTICS_OPS_PER_SECOND
     disk = log_bytes(agents, episodes) if checkpoint else 0
     return RunEstimate(agents=agents, episodes=episodes, settings=settings,
                        memory_bytes=int(memory), disk_bytes=int(disk),

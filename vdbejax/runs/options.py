@@ -27,7 +27,7 @@ class RunOptions:
 
     Attributes:
       chunk_episodes: episodes per jitted chunk (progress, checkpoint and stop-check
-        granularity).
+        granularity; None: the plan's, :func:`~vdbejax.runs.plan.default_chunk_episodes`).
       progress: True for a progress bar on stderr, or ``progress(done, total, elapsed)``
         in agent-episodes.
       checkpoint: file written after every chunk (atomically), with its episode log
@@ -45,7 +45,7 @@ class RunOptions:
         may use).
     """
 
-    chunk_episodes: int = 100
+    chunk_episodes: int | None = None
     progress: bool | ProgressCallback = False
     checkpoint: str | os.PathLike | None = None
     resume: bool = False
@@ -59,7 +59,9 @@ class RunOptions:
         def fix(name: str, value: Any) -> None:
             object.__setattr__(self, name, value)
 
-        fix("chunk_episodes", check_int("chunk_episodes", self.chunk_episodes, 1, INT32_MAX))
+        if self.chunk_episodes is not None:
+            fix("chunk_episodes", check_int("chunk_episodes", self.chunk_episodes, 1,
+                                            INT32_MAX))
         if not (isinstance(self.progress, bool) or callable(self.progress)):
             raise ValueError(f"progress={self.progress!r} is invalid: must be True, False or a"
                              " callable progress(done, total, elapsed)")

@@ -14,7 +14,8 @@ Every key, with its default (``docs/sweeps.md`` is the user's page;
     seed = 0
     max_steps = 100                        # default: the task's own
     invalid_action = "noop"                # the table-cleaning tasks: "noop" or "fail"
-    chunk_episodes = 100                   # episodes per compiled chunk (speed only)
+    chunk_episodes = 100                   # episodes per compiled chunk (speed only; default:
+                                           # ≥ 100 and 20,000 agent-episodes, ≤ 10,000)
 
     [axes]                                 # every axis applies where a field has its name
     alpha = [0.1, 0.3, 0.8]

@@ -122,7 +122,7 @@ def run_sweep(
     replicates: int = 1,
     max_steps: int | None = None,
     invalid_action: str = "noop",
-    chunk_episodes: int = 100,
+    chunk_episodes: int | None = None,
     plugins: Sequence[str] = (),
     progress: bool = True,
     figures: bool = True,
@@ -151,7 +151,8 @@ def run_sweep(
         ``summary_pooled.csv`` and ``replicates.csv`` come beside them.
       max_steps: episode truncation length (default: the task's, :func:`make_task`).
       invalid_action: ``noop`` or ``fail``.
-      chunk_episodes: episodes per jitted chunk.
+      chunk_episodes: episodes per jitted chunk (None: the plan's,
+        :func:`~vdbejax.runs.plan.default_chunk_episodes`).
       plugins: files or modules to import first (:func:`load_plugins`).
       progress: a progress bar on stderr.
       figures: write ``fig3.png`` and ``sensitivity.png``.
