@@ -176,3 +176,19 @@ def test_atomic_files_get_the_usual_permissions(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert target.stat().st_mode & 0o777 == 0o666 & ~mask
+
+
+def test_a_run_stopped_before_its_first_checkpoint_leaves_no_file(tmp_path):
+    # The episode log starts with the first checkpoint (a lone empty log was left behind).
+    from small_grid import run_small
+
+    from vdbejax.runs.checkpoint import log_path
+
+    checkpoint = tmp_path / "ckpt.npz"
+
+    def stop(done, total, elapsed):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_small(checkpoint=checkpoint, progress=stop)
+    assert not checkpoint.exists() and not log_path(checkpoint).exists()

@@ -93,10 +93,9 @@ class CheckpointWriter:
         self.path = Path(path)
         self.fingerprint = fingerprint
         self._log: BinaryIO | None = None
-        if resumed is None:
-            self.log_id = secrets.token_hex(8)
+        if resumed is None:  # the log starts with the first checkpoint: a run stopped before
+            self.log_id = secrets.token_hex(8)  # it leaves no file
             self.written = None
-            self._open_fresh()
         else:
             assert log_id is not None  # a resumed run continues its own log
             self.log_id = log_id
@@ -113,6 +112,8 @@ class CheckpointWriter:
                                             self.log_id.encode()))
 
     def __call__(self, sweep: RunState) -> None:
+        if self._log is None and self.written is None:  # the first checkpoint of a fresh run
+            self._open_fresh()
         log = self._log
         assert log is not None  # open until close()
         done = np.asarray(sweep.episodes_done, np.int64)
