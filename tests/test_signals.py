@@ -244,3 +244,27 @@ def test_a_recorded_stop_is_raised_before_any_folder_is_made(tmp_path):
     finally:
         _interrupts.clear()
     assert not (tmp_path / "out").exists()
+
+
+def test_a_stop_where_python_drops_exceptions_is_recorded_not_raised_there():
+    # SIGINT at 1.16 s of a run landed in WeakValueDictionary's removal callback: Python
+    # printed "Exception ignored in ... KeyboardInterrupt" (the run still stopped after).
+    import weakref
+
+    seen = []
+
+    class Dying:
+        def __del__(self):
+            seen.append(_interrupts.in_dropping_callback(sys._getframe()))
+
+    class Target:
+        pass
+
+    target = Target()
+    weakref.finalize(target, lambda: seen.append(
+        _interrupts.in_dropping_callback(sys._getframe())))
+    del target
+    Dying()
+    gc.collect()
+    assert seen == [True, True]
+    assert not _interrupts.in_dropping_callback(sys._getframe())

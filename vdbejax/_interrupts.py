@@ -20,12 +20,14 @@ are removed by the next writer, and ``--resume`` continues from the last checkpo
 """
 from __future__ import annotations
 
+import _weakrefset
 import contextlib
 import gc
 import os
 import signal
 import sys
 import threading
+import weakref
 from collections.abc import Callable
 from typing import Any
 
@@ -62,6 +64,25 @@ def in_gc_callback(frame: Any) -> bool:
     codes.discard(None)
     while frame is not None:
         if frame.f_code in codes:
+            return True
+        frame = frame.f_back
+    return False
+
+
+#: Python prints and drops an exception raised in a weak reference's callback (the
+#: weakref module's dictionaries and sets remove their dead entries in one) or in a
+#: ``__del__``, as in a gc callback.
+_WEAKREF_FILES = {weakref.__file__, _weakrefset.__file__}
+
+
+def in_dropping_callback(frame: Any) -> bool:
+    """Whether ``frame`` (a signal handler's) runs where Python drops an exception: a
+    garbage-collector callback, a weak reference's callback, a ``__del__``."""
+    if in_gc_callback(frame):
+        return True
+    while frame is not None:
+        code = frame.f_code
+        if code.co_filename in _WEAKREF_FILES or code.co_name == "__del__":
             return True
         frame = frame.f_back
     return False

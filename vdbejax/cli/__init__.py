@@ -129,7 +129,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _stop(signum: int, frame: Any) -> None:
     kind = interrupts.Terminated if signum == signal.SIGTERM else KeyboardInterrupt
     interrupts.request(kind)
-    # In a gc callback Python would print it and go on; in an import it could cross a
-    # native module's initialisation and abort the process: recorded only, then.
-    if not (interrupts.in_gc_callback(frame) or interrupts.in_import(frame)):
+    # In a gc or weakref callback Python would print it and go on; in an import it could
+    # cross a native module's initialisation and abort the process: recorded only, then.
+    if not (interrupts.in_dropping_callback(frame) or interrupts.in_import(frame)):
         raise kind()
