@@ -268,3 +268,25 @@ def test_a_stop_where_python_drops_exceptions_is_recorded_not_raised_there():
     gc.collect()
     assert seen == [True, True]
     assert not _interrupts.in_dropping_callback(sys._getframe())
+
+
+def test_a_signal_the_parent_ignores_stays_ignored(tmp_path):
+    # A script's background job (`vdbejax run … &`) or nohup starts with SIGINT ignored:
+    # Ctrl-C meant for the script must not stop it.
+    out = tmp_path / "out"
+    ignoring = ("import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_IGN);"
+                " os.execv(sys.executable, [sys.executable, '-m', 'vdbejax', *sys.argv[1:]])")
+    run = subprocess.Popen([sys.executable, "-c", ignoring, "run", "--out", str(out),
+                            "--learners", "qlearning", "--explorers", "egreedy", "--axis",
+                            "epsilon=0.1", "--seeds", "2", "--episodes", "20000",
+                            "--chunk-episodes", "100", "--quiet", "--no-figures"],
+                           stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not (out / folder_lock.LOCK_FILE).exists() and time.time() < deadline:
+        time.sleep(0.02)
+    for _ in range(3):
+        run.send_signal(signal.SIGINT)
+        time.sleep(0.2)
+    _, err = run.communicate(timeout=300)
+    assert run.returncode == 0 and "interrupted" not in err, (run.returncode, err)
+    assert (out / "returns.npz").exists()

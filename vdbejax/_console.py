@@ -22,7 +22,8 @@ def _record(signum: int, frame: Any) -> None:
 def main() -> int:
     """Run the command line of this process (``sys.argv``); returns its exit code."""
     for number in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(number, _record)
+        if signal.getsignal(number) is not signal.SIG_IGN:  # ignored by the parent: kept so
+            signal.signal(number, _record)  # (a background job of a script, nohup)
     from vdbejax import cli  # a stop while this imports is recorded, and ends the command
 
     return cli.main()

@@ -100,7 +100,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             # to end: the watchdog ends the process a second after the signal instead.
             watchdog = interrupts.Watchdog(f"interrupted{hint}")
             for number in (signal.SIGINT, signal.SIGTERM):
-                previous[number] = signal.signal(number, _stop)
+                if signal.getsignal(number) is not signal.SIG_IGN:  # ignored: kept so
+                    previous[number] = signal.signal(number, _stop)
         interrupts.raise_pending()  # a stop while the command line imported (vdbejax._console)
         COMMANDS[args.command][1](args)
         interrupts.raise_pending()  # a stop that came after the last chunk
