@@ -124,9 +124,22 @@ def uniforms(key: Array, counter: Array, count: int) -> tuple[Array, ...]:
     arrays shaped like ``counter``; values in [0, 1 − 2⁻²³] (23-bit mantissa), which
     :func:`~vdbejax._numerics.sample_categorical` relies on.
     """
+    return uniforms_from(draw_base(key, counter), count)
+
+
+def draw_base(key: Array, counter: Array) -> Array:
+    """The hash of an agent's key and iteration counter that its draws start from
+    (:func:`uniforms` = :func:`uniforms_from` of it). A step loop carries it from one
+    iteration to the next: computed once per step, not again inside every fusion that
+    reads a draw (XLA's CPU backend duplicated it into each, a fifth of the paper grid's
+    run)."""
     key = key.astype(jnp.uint32)
     counter = counter.astype(jnp.uint32)
-    base = _mix32(key[..., 1] ^ _mix32(key[..., 0] + counter * jnp.uint32(0x9E3779B9)))
+    return _mix32(key[..., 1] ^ _mix32(key[..., 0] + counter * jnp.uint32(0x9E3779B9)))
+
+
+def uniforms_from(base: Array, count: int) -> tuple[Array, ...]:
+    """The ``count`` uniforms of an iteration from its :func:`draw_base`."""
     draws = []
     for j in range(count):
         bits = _mix32(base + jnp.uint32((j * 0x632BE5AB) % 2**32))

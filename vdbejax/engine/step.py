@@ -50,7 +50,7 @@ from vdbejax.engine.lanes import (  # noqa: F401  (UNROLLED_LANES_MAX: re-export
     take,
     take_row,
 )
-from vdbejax.engine.state import AgentState, uniforms
+from vdbejax.engine.state import AgentState, draw_base, uniforms_from
 from vdbejax.engine.whole import (
     LearnedStep,
     after_learning,
@@ -104,6 +104,7 @@ def lockstep_iteration(
     chunk_end: Array,
     support: tuple[Array, Array],
     table_rows: Array | None = None,
+    base: Array | None = None,
 ) -> tuple[AgentState, Array, Array]:
     """One lockstep iteration of a batch of one kind: every agent advances by one step.
 
@@ -123,6 +124,8 @@ def lockstep_iteration(
       table_rows: the tables, ``returns`` and ``lengths`` hold the rows of more agents
         than the batch, lane ``i`` being their agent ``table_rows[i]`` (the sequential
         strategy updates a work item's buffers in place this way).
+      base: each agent's :func:`~vdbejax.engine.state.draw_base` of its key and counter,
+        if the caller carries it (:func:`run_loop`); else computed here.
 
     Returns:
       ``(agents, returns, lengths)`` after the iteration.
@@ -139,7 +142,9 @@ def lockstep_iteration(
     active = agents.episode < chunk_end
     # Draw j depends on (key, counter, j) alone: drawing the most any kind needs gives
     # every kind its own draws.
-    u = uniforms(agents.key, agents.counter, max(num_uniforms(k) for k in kinds))
+    if base is None:
+        base = draw_base(agents.key, agents.counter)
+    u = uniforms_from(base, max(num_uniforms(k) for k in kinds))
     resetting = agents.pending_reset
     learn = active & ~resetting
     s, a = agents.state, agents.action
@@ -307,7 +312,7 @@ def run_loop(
     )
 
     def cond(carry: tuple) -> Array:
-        agents, _, _, iterations = carry
+        agents, _, _, iterations, _ = carry
         active = agents.episode < chunk_end
         go = jnp.any(active) & (iterations < max_iterations)
         if stop_at_first_finish is not None:
@@ -315,17 +320,20 @@ def run_loop(
         return go
 
     def body(carry: tuple) -> tuple:
-        agents, returns, lengths, iterations = carry
+        agents, returns, lengths, iterations, base = carry
         for _ in range(unroll):
             agents, returns, lengths = lockstep_iteration(
                 mdp, agent, agents, returns, lengths, chunk_start, chunk_end, support,
-                table_rows,
+                table_rows, base,
             )
-        return agents, returns, lengths, iterations + unroll
+            # The next iteration's hash, carried: the loop's buffers hold it once.
+            base = draw_base(agents.key, agents.counter)
+        return agents, returns, lengths, iterations + unroll, base
 
     zero = jnp.asarray(0, jnp.int32)
-    agents, returns, lengths, iterations = jax.lax.while_loop(
-        cond, body, (agents, returns.reshape(-1), lengths.reshape(-1), zero)
+    agents, returns, lengths, iterations, _ = jax.lax.while_loop(
+        cond, body, (agents, returns.reshape(-1), lengths.reshape(-1), zero,
+                     draw_base(agents.key, agents.counter))
     )
     agents = dataclasses.replace(
         agents, q=agents.q.reshape(q_shape),
