@@ -122,10 +122,21 @@ def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: 
     new_values = ({} if "q" in kept else {"q": update.q},
                   {name: value for name, value in update.tables.items() if name not in kept},
                   new_explorer_s)
-    finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(leaf))
-                                  for leaf in jax.tree.leaves(new_values)] or [True]))
+    finite = all_finite(jax.tree.leaves(new_values))
     return (update.q, update.tables, new_explorer_s,
             jnp.asarray(next_action, jnp.int32), finite)
+
+
+def all_finite(leaves: list) -> Array:
+    """Whether every value of ``leaves`` is finite (integers always are), as lax's
+    primitives: one reduction per leaf, traced several times faster than ``jnp.all``."""
+    finite = jnp.asarray(True)
+    for leaf in leaves:
+        leaf = jnp.asarray(leaf)
+        if jnp.issubdtype(leaf.dtype, jnp.inexact):
+            finite = jax.lax.bitwise_and(finite, jax.lax.reduce_and(
+                jax.lax.is_finite(leaf), tuple(range(leaf.ndim))))
+    return finite
 
 
 def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,

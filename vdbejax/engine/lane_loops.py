@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 
 from vdbejax import _pytree
+from vdbejax.engine.lanes import at_lane
 from vdbejax.engine.packing import _pack, _unpack
 from vdbejax.engine.state import AgentState
 from vdbejax.engine.step import UNROLLED_LANES_MAX, KindSwitch, run_loop
@@ -21,6 +22,12 @@ Array = jax.Array
 
 
 assert LANES <= UNROLLED_LANES_MAX  # wider loops would use scatters: not native
+
+
+def _row(table: Array, row: Array) -> Array:
+    """Row ``row`` (not negative) of a 2-D table, ``[1, width]``."""
+    return jax.lax.dynamic_slice(table, (row, 0), (1, table.shape[1]),
+                                 allow_negative_indices=False)
 
 
 def lanes_for(rows: int) -> int:
@@ -93,8 +100,7 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
     def lane_rows(table: Array, rows: Array) -> Array:
         """Rows ``rows`` (clipped to the batch) of a packed table: one per lane."""
         rows = jnp.clip(rows, 0, num_agents - 1)
-        return jnp.concatenate(
-            [jax.lax.dynamic_slice_in_dim(table, rows[k], 1) for k in range(lanes)])
+        return jnp.concatenate([_row(table, at_lane(rows, k)) for k in range(lanes)])
 
     def refill(carry: tuple) -> tuple:
         """Run the lanes until one finishes; hand finished lanes the next agents."""
@@ -115,13 +121,14 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
         finished = real & (lane_state.episode >= chunk_end)
         lane_packed = _pack(scalars(lane_state))
         for k in range(lanes):  # write back a finished lane's agent, take the next one
-            row = jnp.clip(rows[k], 0, num_agents - 1)
-            old = jax.lax.dynamic_slice_in_dim(packed, row, 1)
-            packed = jax.lax.dynamic_update_slice_in_dim(
-                packed, jnp.where(finished[k], lane_packed[k:k + 1], old), row, 0)
-            take_next = finished[k] & (waiting_from < count)
-            rows = rows.at[k].set(jnp.where(finished[k], jnp.where(
-                take_next, waiting_from, num_agents), rows[k]))
+            row = jnp.clip(at_lane(rows, k), 0, num_agents - 1)
+            old = _row(packed, row)
+            packed = jax.lax.dynamic_update_slice(
+                packed, jnp.where(at_lane(finished, k), lane_packed[k:k + 1], old), (row, 0),
+                allow_negative_indices=False)
+            take_next = at_lane(finished, k) & (waiting_from < count)
+            rows = rows.at[k].set(jnp.where(at_lane(finished, k), jnp.where(
+                take_next, waiting_from, num_agents), at_lane(rows, k)))
             waiting_from = waiting_from + take_next.astype(jnp.int32)
         lane_packed = jnp.where(finished[:, None], lane_rows(packed, rows), lane_packed)
         lane_agent = jnp.where(finished[:, None], lane_rows(agent_packed, rows), lane_agent)
