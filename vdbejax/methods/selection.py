@@ -142,6 +142,14 @@ def select_action(
     explore = uniforms[0] < explore_probability
     # exp((q − max)/∞) is exactly 1 for finite q: uniform weights are the same draw.
     weights = jnp.ones_like(q) if tau is None else softmax_weights(q, tau)
+    if tie_break == "random" and (numerics == "stable" or tau is None):
+        # One draw, from the exploratory weights with the second uniform where exploring
+        # and from the maximal actions with the third elsewhere: a draw depends on its
+        # weights and uniform alone, so this is the action of the two draws selected
+        # below, at half the work (and half the program to trace).
+        maximal = (q == jnp.max(q, axis=0)).astype(q.dtype)
+        return sample_categorical(jnp.where(explore, weights, maximal),
+                                  jnp.where(explore, uniforms[1], uniforms[2]))
     exploratory = sample_categorical(weights, uniforms[1])
     if numerics == "float64" and tau is not None:
         exploratory = float64_softmax_draw(q, tau, exploratory)
