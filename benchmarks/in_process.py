@@ -1,0 +1,42 @@
+"""The paper grid through ``vdbejax.run_grid``, called again and again in one process
+(issue 21's "warm in-process grid time"): each call's wall time and the part of it spent
+getting its programs (every call traces and lowers them afresh; compiled programs are
+found again by the lowered module's digest).
+
+    python -m benchmarks.in_process [--calls 4] [--seeds 20] [--episodes 1000]
+
+The first call also compiles or reads JAX's persistent cache; the later ones are the warm
+in-process time. Compare them with ``benchmarks.compare``'s numba-2t worker run in the same
+sitting (``python -m benchmarks.compare --worker numba_parallel --worker-out F --threads 2``).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--calls", type=int, default=4, help="calls of run_grid (default 4)")
+    parser.add_argument("--seeds", type=int, default=20)
+    parser.add_argument("--episodes", type=int, default=1000)
+    args = parser.parse_args(argv)
+
+    import vdbejax
+    from vdbejax import engine
+    from vdbejax.envs.table_cleaning import make_mdp
+    from vdbejax.methods.agents import paper_settings
+
+    mdp, settings = make_mdp(), paper_settings()
+    for call in range(args.calls):
+        started, programs = time.perf_counter(), engine.compile_seconds()
+        vdbejax.run_grid(mdp, settings, num_seeds=args.seeds, num_episodes=args.episodes)
+        wall = time.perf_counter() - started
+        print(f"call {call + 1}: {wall:.2f} s, getting the programs "
+              f"{engine.compile_seconds() - programs:.2f} s", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
