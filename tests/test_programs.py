@@ -62,9 +62,11 @@ def test_a_patched_explorer_method_gets_a_new_program(monkeypatch, strategy):
 
 
 def test_a_patched_helper_function_is_seen(monkeypatch):
-    """A module-level function the built-ins call (here the greedy choice)."""
+    """A module-level function the built-ins call (here the categorical draw behind every
+    choice of select_action)."""
     before = _run()
-    monkeypatch.setattr(selection, "greedy", lambda q, *_: jnp.int32(q.shape[0] - 1))
+    monkeypatch.setattr(selection, "sample_categorical",
+                        lambda weights, u: jnp.int32(weights.shape[0] - 1))
     assert not np.array_equal(before, _run())
 
 
