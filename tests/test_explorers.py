@@ -144,3 +144,31 @@ class ExplorerVariantsTest(parameterized.TestCase):
             jnp.array([1.0, 0.5]), jnp.array([0.096, -0.48]), jnp.array([0.1, 1.0]), jnp.array([0.1, 0.1])
         )
         np.testing.assert_allclose(batched, [0.9446244, 0.4735496], atol=1e-6)
+
+
+@pytest.mark.parametrize("tau", [None, 0.05, 1.0])
+def test_select_action_draws_the_action_of_the_two_draws_it_chooses_between(tau):
+    """select_action makes one draw (weights and uniform chosen first): the very action of
+    the exploratory draw where it explores and of the greedy draw elsewhere, bit for bit,
+    ties and all, jitted and vmapped."""
+    from vdbejax.methods.selection import (
+        greedy,
+        sample_categorical,
+        select_action,
+        softmax_weights,
+    )
+
+    rng = np.random.default_rng(3)
+    q = jnp.asarray(rng.integers(0, 3, size=(7, 4000)) * 0.5, jnp.float32)  # many ties
+    u = jnp.asarray(rng.integers(0, 2**23, size=(3, 4000)) * 2.0**-23, jnp.float32)
+    epsilon = jnp.asarray(rng.random(4000), jnp.float32)
+
+    def two_draws(q, epsilon, u):
+        weights = jnp.ones_like(q) if tau is None else softmax_weights(q, tau)
+        return jnp.where(u[0] < epsilon, sample_categorical(weights, u[1]),
+                         greedy(q, u[2]))
+
+    one = jax.jit(jax.vmap(lambda q, e, u: select_action(q, e, tau, u), in_axes=(1, 0, 1)))
+    reference = jax.vmap(two_draws, in_axes=(1, 0, 1))(q, epsilon, u)
+    np.testing.assert_array_equal(one(q, epsilon, u), reference)
+    assert len(set(np.asarray(reference).tolist())) == 7
