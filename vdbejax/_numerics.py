@@ -67,42 +67,24 @@ def sample_categorical(weights: Array, u: Array) -> Array:
         cdf = cdf.reshape(cdf.shape[:1] + (1,) * batch_dims + cdf.shape[1:])
         return n - jnp.sum(cdf > threshold, axis=0, dtype=jnp.int32)
     # Left-to-right prefix sums, unrolled: for the few actions of a tabular task this is
-    # much cheaper on CPU than XLA's reduce-window cumsum.
-    if _same_type_and_shape(weights, u):
-        return _unrolled_draw(weights, u)
-    partial = [weights[0]]
-    for i in range(1, n):
-        partial.append(partial[-1] + weights[i])
-    threshold = u * partial[-1]
-    # n minus the prefix sums above the threshold: the same index for real weights, and n
-    # (invalid, flagged by the engine) when a NaN makes every comparison false.
-    above = (partial[0] > threshold).astype(jnp.int32)
-    for value in partial[1:]:
-        above = above + (value > threshold).astype(jnp.int32)
-    return n - above
-
-
-def _same_type_and_shape(weights: Array, u: Array) -> bool:
-    """Whether ``u`` has the weights' type and the shape of one of their rows (nothing to
-    promote or broadcast)."""
-    return (isinstance(weights, jax.Array) and isinstance(u, jax.Array)
-            and weights.dtype == u.dtype and jnp.issubdtype(u.dtype, jnp.floating)
-            and weights.shape[1:] == u.shape)
-
-
-def _unrolled_draw(weights: Array, u: Array) -> Array:
-    """:func:`sample_categorical`'s unrolled draw written with lax's primitives: the same
-    operations in the same order (the same bits), traced several times faster than
-    NumPy-style arithmetic, which every explorer of a program draws through."""
-    n = weights.shape[0]
+    # much cheaper on CPU than XLA's reduce-window cumsum. Written with lax's primitives
+    # (the operations NumPy-style arithmetic would bind, traced several times faster:
+    # every explorer of a program draws through here).
+    weights = jnp.asarray(weights)
     partial = [jax.lax.index_in_dim(weights, 0, keepdims=False)]
     for i in range(1, n):
         partial.append(jax.lax.add(partial[-1],
                                    jax.lax.index_in_dim(weights, i, keepdims=False)))
-    threshold = jax.lax.mul(u, partial[-1])
-    above = [jax.lax.convert_element_type(jax.lax.gt(value, threshold), jnp.int32)
-             for value in partial]
-    count = above[0]
-    for value in above[1:]:
-        count = jax.lax.add(count, value)
+    threshold = u * partial[-1]  # u's and the weights' common type and shape
+
+    def above(value: Array) -> Array:
+        if value.dtype != threshold.dtype or value.shape != threshold.shape:
+            value = jnp.broadcast_to(value.astype(threshold.dtype), threshold.shape)
+        return jax.lax.convert_element_type(jax.lax.gt(value, threshold), jnp.int32)
+
+    # n minus the prefix sums above the threshold: the same index for real weights, and n
+    # (invalid, flagged by the engine) when a NaN makes every comparison false.
+    count = above(partial[0])
+    for value in partial[1:]:
+        count = jax.lax.add(count, above(value))
     return jax.lax.sub(jnp.int32(n), count)

@@ -121,14 +121,14 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
         finished = real & (lane_state.episode >= chunk_end)
         lane_packed = _pack(scalars(lane_state))
         for k in range(lanes):  # write back a finished lane's agent, take the next one
-            row = jnp.clip(at_lane(rows, k), 0, num_agents - 1)
-            old = _row(packed, row)
+            done, row = at_lane(finished, k), at_lane(rows, k)
+            clipped = jnp.clip(row, 0, num_agents - 1)
             packed = jax.lax.dynamic_update_slice(
-                packed, jnp.where(at_lane(finished, k), lane_packed[k:k + 1], old), (row, 0),
-                allow_negative_indices=False)
-            take_next = at_lane(finished, k) & (waiting_from < count)
-            rows = rows.at[k].set(jnp.where(at_lane(finished, k), jnp.where(
-                take_next, waiting_from, num_agents), at_lane(rows, k)))
+                packed, jnp.where(done, lane_packed[k:k + 1], _row(packed, clipped)),
+                (clipped, 0), allow_negative_indices=False)
+            take_next = done & (waiting_from < count)
+            rows = rows.at[k].set(jnp.where(done, jnp.where(
+                take_next, waiting_from, num_agents), row))
             waiting_from = waiting_from + take_next.astype(jnp.int32)
         lane_packed = jnp.where(finished[:, None], lane_rows(packed, rows), lane_packed)
         lane_agent = jnp.where(finished[:, None], lane_rows(agent_packed, rows), lane_agent)
