@@ -12,6 +12,7 @@ def test_quick_run_writes_and_replaces_its_section(tmp_path):
     assert text.startswith("# Results") and "hand-written" in text
     assert text.count(gpu.HEADING) == 1 and "M agent-steps/s" in text
     assert "| 92 | 20 |" in text and "| 368 | 20 |" in text  # 46 × 2 and 46 × 8 agents
+    assert "| agents | episodes | cold s | wall s |" in text  # the same call run twice
     gpu.write_section(out, gpu.HEADING + "\n\nnew body\n")
     again = out.read_text()
     assert again.count(gpu.HEADING) == 1 and "new body" in again and "hand-written" in again
