@@ -30,7 +30,7 @@ def docstring_examples() -> list[tuple[str, str]]:
     found = []
     for path in sorted(PACKAGE.rglob("*.py")):
         tree = ast.parse(path.read_text("utf-8"))
-        for node in [tree, *ast.walk(tree)]:
+        for node in ast.walk(tree):  # the module first, then every node once
             if not isinstance(node, (ast.Module, ast.FunctionDef, ast.ClassDef)):
                 continue
             doc = ast.get_docstring(node)

@@ -42,6 +42,21 @@ def test_the_same_code_reuses_its_compiled_programs(monkeypatch, strategy):
     np.testing.assert_array_equal(first, again)
 
 
+def test_runs_of_a_few_more_or_fewer_episodes_share_their_programs(monkeypatch, strategy):
+    # The chunk buffers' length is a power of two (at least 8): 5 and 7 episodes are one
+    # program, with the episodes of each run as it alone gives them.
+    monkeypatch.setattr(programs, "_TABLE", type(programs._TABLE)())
+    params, keys = grid_agents(SETTINGS, 2)
+    five = run_agents(make_mdp(), params, keys, 5, strategy=strategy)
+    compiled = dict(programs._TABLE)
+    seven = run_agents(make_mdp(), params, keys, 7, strategy=strategy)
+    assert programs._TABLE.keys() == compiled.keys()
+    assert seven.returns.shape == (4, 7) and five.returns.shape == (4, 5)
+    assert seven.returns[:, :5].tobytes() == five.returns.tobytes()
+    assert seven.lengths[:, :5].tobytes() == five.lengths.tobytes()
+    assert (seven.lengths > 0).all()
+
+
 def test_a_patched_learner_method_gets_a_new_program(monkeypatch, strategy):
     before = _run(strategy=strategy)
     monkeypatch.setattr(learners.QLearning, "target", lambda self, t: t.reward + 5.0)

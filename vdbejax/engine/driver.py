@@ -142,6 +142,7 @@ def run_agents(
     keys = jnp.asarray(keys, jnp.uint32)
     num_agents = int(keys.shape[0])
     chunk = min(chunk_episodes, num_episodes)
+    buffer = chunk_buffer_length(chunk)
     returns = np.zeros((num_agents, num_episodes), np.float32)
     lengths = np.zeros((num_agents, num_episodes), np.int32)
     if programs is None:
@@ -173,7 +174,7 @@ def run_agents(
 
     bounds = [(first, min(first + chunk, num_episodes))
               for first in range(done, num_episodes, chunk)]
-    if sequential is not None and bounds and not sequential.prepare(chunk):
+    if sequential is not None and bounds and not sequential.prepare(buffer):
         # not compiled natively: lockstep is faster
         strategy, agents, sequential = "lockstep", sequential.agents(), None
 
@@ -182,7 +183,7 @@ def run_agents(
         for first, end in bounds:
             assert agents is not None  # lockstep: the agents' state is here
             agents, *outputs = run_chunk_lockstep(
-                mdp, params, agents, first, end, chunk, compact=compact,
+                mdp, params, agents, first, end, buffer, compact=compact,
                 block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
                 max_batch=max_batch, programs=programs,
             )
@@ -194,7 +195,7 @@ def run_agents(
     states = on_chunk is not None and chunk_states
     wait = states and created_in_items(mdp, params)
     chunks = (lockstep_chunks() if sequential is None else
-              sequential.run_chunks(bounds, chunk, ahead=0 if wait else 1,
+              sequential.run_chunks(bounds, buffer, ahead=0 if wait else 1,
                                     snapshots=states and not wait))
     try:
         # strict=False: zip stops at the last bound without asking ``chunks`` for more (a
@@ -225,6 +226,14 @@ def run_agents(
         else:
             nonfinite = sequential.nonfinite_flags()
     return RunResult(returns, lengths, nonfinite, iterations, final, lane_iterations, strategy)
+
+
+def chunk_buffer_length(chunk_episodes: int) -> int:
+    """The episodes a chunk's programs hold buffers for: ``chunk_episodes`` rounded up to
+    a power of two, at least 8. The buffer's length is part of a program's shapes, so runs
+    of 5, 6 or 8 episodes (or chunks of 90 and 100) share one program instead of
+    compiling one each; episodes past the chunk's end stay unwritten."""
+    return max(8, 1 << (int(chunk_episodes) - 1).bit_length())
 
 
 #: Engine strategies of :func:`run_agents`.

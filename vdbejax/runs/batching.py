@@ -17,6 +17,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from vdbejax.engine.driver import chunk_buffer_length
 from vdbejax.engine.state import state_bytes
 from vdbejax.envs.tabular import TabularMDP
 
@@ -43,7 +44,8 @@ def bytes_per_agent(mdp: TabularMDP, chunk_episodes: int,
       bytes, for :data:`STATE_COPIES` working copies.
     """
     tables = state_bytes(mdp, {"epsilon": "state"} if layout is None else layout)
-    chunk_buffers = 8 * chunk_episodes  # float32 return + int32 length per episode
+    # float32 return + int32 length per episode of the chunk's (rounded up) buffers
+    chunk_buffers = 8 * chunk_buffer_length(chunk_episodes)
     return STATE_COPIES * (tables + SCALAR_BYTES + chunk_buffers)
 
 
