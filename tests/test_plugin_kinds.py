@@ -102,3 +102,14 @@ class _Renamed:
     def tables(self):
         (spec,) = self._explorer.tables().values()
         return {self._name: spec}
+
+
+def test_many_kinds_are_split_into_programs_of_at_most_sixteen():
+    from vdbejax.engine.sequential import MAX_SWITCH_KINDS, switch_block_size
+
+    assert MAX_SWITCH_KINDS == 16
+    sizes = {n: switch_block_size(n) for n in (1, 8, 16, 17, 36, 100)}
+    assert sizes == {1: 1, 8: 8, 16: 16, 17: 9, 36: 12, 100: 15}
+    for n, size in sizes.items():  # blocks of about equal size, none empty
+        blocks = -(-n // size)
+        assert size <= MAX_SWITCH_KINDS and n - (blocks - 1) * size >= 1

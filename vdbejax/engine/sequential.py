@@ -4,7 +4,8 @@ takes the work item's next agent), and work items of agents on several threads.
 
 With a few lanes every table access is a dynamic slice, so XLA's CPU backend compiles the
 whole loop into one native function (see :mod:`vdbejax._xla_flags`). One program serves
-every kind of agent of the run (learner and explorer type, with their static fields):
+every kind of agent of the run, up to :data:`MAX_SWITCH_KINDS` kinds (learner and
+explorer type, with their static fields):
 each kind's part of the step is a branch of a ``lax.switch`` on the item's kind
 (:class:`~vdbejax.engine.kinds.KindSwitch`), so the loop is traced once, not once per
 kind — tracing is most of what a run pays besides its steps; a chunk of a work item is
@@ -86,12 +87,27 @@ def _check_native(executable: Any) -> bool:
     return native
 
 
+#: Most kinds of agent one program serves. A switch's compile time grows faster than its
+#: branches (a cold process, the table-cleaning task: 9 kinds 3.0 s, 18 kinds 6.0 s, 36
+#: kinds 21 s), so more kinds are split into blocks of about equal size, a program each.
+MAX_SWITCH_KINDS = 16
+
+
+def switch_block_size(num_kinds: int) -> int:
+    """Kinds per program for a run of ``num_kinds`` kinds: blocks of about equal size, at
+    most :data:`MAX_SWITCH_KINDS` (kind ``k`` is branch ``k % size`` of program
+    ``k // size``)."""
+    blocks = -(-max(num_kinds, 1) // MAX_SWITCH_KINDS)
+    return -(-max(num_kinds, 1) // blocks)
+
+
 class _SequentialRun:
     """The sequential strategy over the chunks of one :func:`run_agents` call.
 
     Agents are split by kind (learner and explorer type), one program for every kind
-    (:func:`_run_sequential` with a :class:`~vdbejax.engine.kinds.KindSwitch`; one per kind
-    where a table name is written two ways), and into about ``4 × threads`` work items
+    (:func:`_run_sequential` with a :class:`~vdbejax.engine.kinds.KindSwitch`; one per
+    block of at most :data:`MAX_SWITCH_KINDS` kinds; one per kind where a table name is
+    written two ways), and into about ``4 × threads`` work items
     (:func:`_sequential_groups`); worker threads take items as they become free (XLA
     releases the GIL while a program runs). An item's loop runs :data:`LANES` agents side
     by side. An item's arrays are padded to a power-of-two number of rows (few shapes to
@@ -121,6 +137,7 @@ class _SequentialRun:
         self.item_programs: list[tuple[Any, Any]] = []  # per item: executable, hyperparameters
         self.kinds = np.asarray(self.params.kind)
         self.switch = can_switch(tuple(self.params.kinds))
+        self.block = switch_block_size(len(self.params.kinds))
         self.item_rows = 0  # every item's padded rows (0: each its own power of two)
         self.support = start_support(mdp)
         self.layout = (jax.eval_shape(partial(init_agents), mdp, self.params, self.keys)
@@ -163,7 +180,9 @@ class _SequentialRun:
         rows = _padded(index, self.item_rows)
         kind = int(self.kinds[index[0]])
         # One program for every kind where it can serve them (KindSwitch), else the kind's.
-        agent = (self.params.kinds if self.switch else self.params.kinds[kind])
+        first = kind - kind % self.block  # the first kind of its program's block
+        agent = (self.params.kinds[first:first + self.block] if self.switch
+                 else self.params.kinds[kind])
         agent = jax.tree.map(lambda leaf: leaf[rows], agent)
         static = {"chunk_length": chunk[2], "lanes": lanes_for(rows.size)}
         args = self._arguments((agent, kind), agents, index, chunk)
@@ -176,7 +195,7 @@ class _SequentialRun:
         params, kind = agent
         return (self.mdp, params, agents, np.int32(chunk[0]), np.int32(chunk[1]),
                 np.int32(index.size), self.support,
-                np.int32(kind) if self.switch else None)
+                np.int32(kind % self.block) if self.switch else None)
 
     def _group(self, chunk: tuple[int, int, int]) -> bool:
         """The work items, from the current state; ``False`` if a loop is not native."""
