@@ -97,6 +97,9 @@ def test_attribution_mode_switches_one_authors_detail_at_a_time(tmp_path):
     assert not (tmp_path / "REPRODUCTION.md").exists()
     assert (tmp_path / "attribution" / "authors" / "report.md").exists()
     assert not (tmp_path / "attribution" / "authors" / "fig3.png").exists()  # reports only
+    # ... and the raw results draw none (the document does not show them)
+    assert (tmp_path / "raw" / "authors" / "summary.csv").exists()
+    assert not list((tmp_path / "raw").rglob("*.png"))
     from vdbejax.experiment import GridResult
 
     switched = GridResult.load(tmp_path / "raw" / "textbook+failure_update")
@@ -151,7 +154,8 @@ def test_factorial_mode_and_sections_in_the_document(tmp_path):
                               variants=ablation.select_variants("spec"), seeds=2, episodes=12,
                               progress=False)
     section = ("Factorial", "intro text", "factorial", [
-        ablation.run_variant(v, tmp_path / "factorial" / v.name, seeds=2, episodes=12)
+        ablation.run_variant(v, tmp_path / "factorial" / v.name, seeds=2, episodes=12,
+                             figures=False)
         for v in ablation.select_variants(names, "factorial")])
     doc = ablation.render_document(results, "ablation", "cmd", sections=[section])
     assert "## Factorial" in doc and "intro text" in doc

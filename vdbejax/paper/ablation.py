@@ -81,7 +81,7 @@ def _matches(meta: dict[str, Any], variant: Variant, seeds: int, episodes: int, 
 def run_variant(
     variant: Variant, results_dir: str | os.PathLike, *, seeds: int = 20, episodes: int = 1000,
     seed: int = 0, replicates: int = 1, reuse: bool = True, progress: bool = False,
-    run: RunOptions | None = None,
+    run: RunOptions | None = None, figures: bool = True,
 ) -> VariantResult:
     """Run (or reuse) the full grid of one variant and score the claims.
 
@@ -95,6 +95,8 @@ def run_variant(
       progress: progress bar on stderr.
       run: ``resume``, ``devices`` and ``memory_budget_bytes`` for the variant's run
         (:class:`~vdbejax.runs.RunOptions`; its other fields are the variant's own).
+      figures: draw the variant's figures (``False``: numbers and report only, and no
+        figure of an earlier run is left in ``results_dir``; ``vdbejax plot`` draws them).
 
     Returns:
       :class:`VariantResult`.
@@ -112,7 +114,8 @@ def run_variant(
         run = run.replace(resume=True)
     rep = reproduce(folder, seeds=seeds, episodes=episodes, seed=seed, replicates=replicates,
                     progress=progress, resume=run.resume, devices=run.devices,
-                    memory_budget_bytes=run.memory_budget_bytes, **variant.options())
+                    memory_budget_bytes=run.memory_budget_bytes, figures=figures,
+                    **variant.options())
     meta = rep.result.meta
     how = ("reused" if isinstance(saved, dict) and saved.get("elapsed_seconds") is not None
            and meta.get("elapsed_seconds") == saved.get("elapsed_seconds")
@@ -266,11 +269,15 @@ def _run_reporting(variant: Variant, raw: Path, reports: Path, assets: Sequence[
                    size: tuple[int, int, int, int], reuse: bool, progress: bool,
                    run: RunOptions) -> VariantResult:
     """Run (or reuse) a variant in ``raw``; copy its ``assets`` beside the document (into
-    ``reports``) when the raw results live elsewhere; one status line if ``progress``."""
+    ``reports``) when the raw results live elsewhere; one status line if ``progress``.
+    The variant's figures are drawn only if ``assets`` holds them."""
     started = time.perf_counter()
     seeds, episodes, seed, replicates = size
+    # Figures only where the document shows them: drawing them costs more than a small
+    # variant's training (≈ 1.5–2.5 s each).
     result = run_variant(variant, raw / variant.name, seeds=seeds, episodes=episodes, seed=seed,
-                         replicates=replicates, reuse=reuse, run=run)
+                         replicates=replicates, reuse=reuse, run=run,
+                         figures=FIGURE_FILE in assets)
     if raw != reports:
         for name in [*assets, *(REPLICATE_FILES if replicates > 1 else [])]:
             io.atomic_write_bytes(reports / variant.name / name,
