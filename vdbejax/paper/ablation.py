@@ -96,7 +96,8 @@ def run_variant(
       run: ``resume``, ``devices`` and ``memory_budget_bytes`` for the variant's run
         (:class:`~vdbejax.runs.RunOptions`; its other fields are the variant's own).
       figures: draw the variant's figures (``False``: numbers and report only, and no
-        figure of an earlier run is left in ``results_dir``; ``vdbejax plot`` draws them).
+        figure of an earlier run is left in ``results_dir``; ``vdbejax plot --results
+        FOLDER`` draws them).
 
     Returns:
       :class:`VariantResult`.
