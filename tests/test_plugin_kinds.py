@@ -68,6 +68,14 @@ def test_one_program_serves_every_kind_with_the_bits_of_one_program_per_kind(mon
     loops = [c for c in calls if c.function is sequential._run_sequential]
     assert switched.meta["strategy"] == "sequential"
     assert len(loops) == 1  # every kind, every item: one program
+    # Blocks of at most 4 kinds: the six kinds get two programs of three, the same bits.
+    monkeypatch.setattr(sequential, "MAX_SWITCH_KINDS", 4)
+    calls.clear()
+    blocks = run_grid(mdp, settings, num_seeds=5, num_episodes=30, seed=2, threads=2)
+    loops = [c for c in calls if c.function is sequential._run_sequential]
+    assert len(loops) == 2 and all(len(c.args[1]) == 3 for c in loops)
+    assert blocks.returns.tobytes() == switched.returns.tobytes()
+    assert blocks.lengths.tobytes() == switched.lengths.tobytes()
     monkeypatch.setattr(sequential, "can_switch", lambda kinds: False)
     calls.clear()
     per_kind = run_grid(mdp, settings, num_seeds=5, num_episodes=30, seed=2, threads=2)
