@@ -67,24 +67,26 @@ def sample_categorical(weights: Array, u: Array) -> Array:
         cdf = cdf.reshape(cdf.shape[:1] + (1,) * batch_dims + cdf.shape[1:])
         return n - jnp.sum(cdf > threshold, axis=0, dtype=jnp.int32)
     # Left-to-right prefix sums, unrolled: for the few actions of a tabular task this is
-    # much cheaper on CPU than XLA's reduce-window cumsum. Written with lax's primitives
-    # (the operations NumPy-style arithmetic would bind, traced several times faster:
-    # every explorer of a program draws through here).
+    # much cheaper on CPU than XLA's reduce-window cumsum. Written with lax's primitives,
+    # the categories split off in one operation and the prefix sums compared at once (a
+    # dozen operations to trace instead of four per category: every explorer of a
+    # program draws through here).
     weights = jnp.asarray(weights)
-    partial = [jax.lax.index_in_dim(weights, 0, keepdims=False)]
-    for i in range(1, n):
-        partial.append(jax.lax.add(partial[-1],
-                                   jax.lax.index_in_dim(weights, i, keepdims=False)))
-    threshold = u * partial[-1]  # u's and the weights' common type and shape
-
-    def above(value: Array) -> Array:
-        if value.dtype != threshold.dtype or value.shape != threshold.shape:
-            value = jnp.broadcast_to(value.astype(threshold.dtype), threshold.shape)
-        return jax.lax.convert_element_type(jax.lax.gt(value, threshold), jnp.int32)
-
+    parts = jax.lax.split(weights, (1,) * n) if n > 1 else [weights]
+    partial = [parts[0]]
+    for part in parts[1:]:
+        partial.append(jax.lax.add(partial[-1], part))
+    total = jax.lax.squeeze(partial[-1], (0,))
+    threshold = u * total  # u's and the weights' common type and shape
+    cdf = jax.lax.concatenate(partial, 0) if n > 1 else partial[0]
+    if cdf.dtype != threshold.dtype:
+        cdf = jax.lax.convert_element_type(cdf, threshold.dtype)
+    if cdf.shape[1:] != threshold.shape:  # weights shared by a batch: trailing axes align
+        cdf = jax.lax.broadcast_in_dim(cdf, (n, *threshold.shape), (0, *range(
+            1 + threshold.ndim - (cdf.ndim - 1), 1 + threshold.ndim)))
+    above = jax.lax.gt(cdf, jax.lax.broadcast_in_dim(
+        threshold, cdf.shape, tuple(range(1, cdf.ndim))))
     # n minus the prefix sums above the threshold: the same index for real weights, and n
     # (invalid, flagged by the engine) when a NaN makes every comparison false.
-    count = above(partial[0])
-    for value in partial[1:]:
-        count = jax.lax.add(count, above(value))
+    count = jax.lax.reduce_sum(jax.lax.convert_element_type(above, jnp.int32), (0,))
     return jax.lax.sub(jnp.int32(n), count)
