@@ -87,6 +87,49 @@ def test_sample_categorical_never_returns_zero_weight():
     assert int(picks[-1]) == 3
 
 
+def _numpy_draw(weights: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Inverse-CDF reference: float32 prefix sums left to right, ``n − #(cdf > u·total)``."""
+    cdf = np.cumsum(weights.astype(np.float32), axis=0, dtype=np.float32)
+    threshold = (u.astype(np.float32) * cdf[-1]).astype(np.float32)
+    return (weights.shape[0] - np.sum(cdf > threshold, axis=0)).astype(np.int32)
+
+
+class SampleCategoricalTest(parameterized.TestCase):
+    """The categorical draw is the inverse-CDF draw bit for bit (both of its paths), with
+    and without jit, under vmap, with batched weights and with weights shared by a batch
+    of uniforms; degenerate weights give the invalid index ``n``."""
+
+    @chex.variants(with_jit=True, without_jit=True)
+    @parameterized.parameters(1, 2, 3, 7, 32, 33, 40)
+    def test_matches_the_inverse_cdf_reference(self, n):
+        rng = np.random.default_rng(n)
+        weights = rng.exponential(size=(n, 256)).astype(np.float32)
+        weights[:, ::5] = (weights[:, ::5] > 1.0)  # zero weights, ties of the sums
+        weights[:, 1::7] = np.ldexp(weights[:, 1::7], rng.integers(-100, 100, (n, 1)))
+        weights[rng.integers(n), 2::9] = 0.0
+        weights[:, 2::9] += (weights[:, 2::9].sum(axis=0) == 0)  # keep a positive total
+        u = (rng.integers(0, 2**23, 256) * 2.0**-23).astype(np.float32)
+        u[:3] = [0.0, 0.5, 1.0 - 2.0**-23]
+        draw = self.variant(explorers.sample_categorical)
+        expected = _numpy_draw(weights, u)
+        np.testing.assert_array_equal(draw(jnp.asarray(weights), jnp.asarray(u)), expected)
+        per_column = jax.vmap(explorers.sample_categorical, in_axes=(1, 0))
+        np.testing.assert_array_equal(per_column(jnp.asarray(weights), jnp.asarray(u)),
+                                      expected)
+        shared = draw(jnp.asarray(weights[:, 0]), jnp.asarray(u))  # [n] weights, [256] u
+        np.testing.assert_array_equal(shared, _numpy_draw(weights[:, :1], u[None]))
+        assert draw(jnp.asarray(weights[:, 0]), jnp.float32(u[5])).shape == ()
+
+    @chex.variants(with_jit=True, without_jit=True)
+    def test_weights_that_are_no_distribution_give_n(self):
+        draw = self.variant(explorers.sample_categorical)
+        for n in (4, 40):  # both paths
+            bad = np.ones((n, 3), np.float32)
+            bad[1, 0], bad[:, 1], bad[2, 2] = np.nan, 0.0, np.inf
+            np.testing.assert_array_equal(
+                draw(jnp.asarray(bad), jnp.full(3, 0.5, jnp.float32)), [n, n, n])
+
+
 def test_vdbe_epsilon_update_hand_computed():
     # f = (1 − e^{−0.96}) / (1 + e^{−0.96}) = 0.446245; ε' = 0.1·f + 0.9·1
     assert float(explorers.vdbe_epsilon_update(1.0, 0.096, 0.1, 0.1)) == pytest.approx(0.9446244, abs=1e-6)
