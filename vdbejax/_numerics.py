@@ -78,7 +78,7 @@ def sample_categorical(weights: Array, u: Array) -> Array:
         partial.append(jax.lax.add(partial[-1], part))
     total = jax.lax.squeeze(partial[-1], (0,))
     threshold = u * total  # u's and the weights' common type and shape
-    cdf = jax.lax.concatenate(partial, 0) if n > 1 else partial[0]
+    cdf = jax.lax.concatenate(partial, 0)
     if cdf.dtype != threshold.dtype:
         cdf = jax.lax.convert_element_type(cdf, threshold.dtype)
     if cdf.shape[1:] != threshold.shape:  # weights shared by a batch: trailing axes align

@@ -18,7 +18,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vdbejax.engine.lockstep import DEFAULT_UNROLL, MAX_SAFE_BATCH, run_chunk_lockstep
+from vdbejax.engine.lockstep import (
+    DEFAULT_UNROLL,
+    MAX_SAFE_BATCH,
+    _next_power_of_two,
+    run_chunk_lockstep,
+)
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.programs import compile_seconds as _compile_seconds
 from vdbejax.engine.progress import ProgressCallback, text_progress  # noqa: F401  (re-exported: engine API)
@@ -233,7 +238,7 @@ def chunk_buffer_length(chunk_episodes: int) -> int:
     a power of two, at least 8. The buffer's length is part of a program's shapes, so runs
     of 5, 6 or 8 episodes (or chunks of 90 and 100) share one program instead of
     compiling one each; episodes past the chunk's end stay unwritten."""
-    return max(8, 1 << (int(chunk_episodes) - 1).bit_length())
+    return max(8, _next_power_of_two(int(chunk_episodes)))
 
 
 #: Engine strategies of :func:`run_agents`.
