@@ -393,9 +393,16 @@ class PackedRowsTest(parameterized.TestCase):
             "counter": np.array([0, 1, 2**31, 2**32 - 1, 12345], np.uint32),
             "value": np.array([-0.0, np.nan, np.inf, -1e-45, 3.25], np.float32),
             "key": np.arange(rows * 2, dtype=np.uint32).reshape(rows, 2) * np.uint32(2654435761),
+            # several leaves of one dtype, of one, two and three axes, side by side
+            "rate": np.array([0.5, -1.0, np.nan, 2.0**-149, -np.inf], np.float32),
+            "grid": np.arange(rows * 6, dtype=np.float32).reshape(rows, 2, 3) - 7.5,
+            "steps": np.array([3, -4, 5, -6, 2**30], np.int32),
+            "flags": np.array([[True, False], [False, False], [True, True], [False, True],
+                               [True, False]]),
+            "none": np.zeros((rows, 0), np.int32),
         }
         packed = self.variant(packing._pack)(tree)
-        assert packed.dtype == jnp.uint32 and packed.shape == (rows, 1 + 1 + 1 + 1 + 1 + 1 + 1 + 2)
+        assert packed.dtype == jnp.uint32 and packed.shape == (rows, 19)
         layout = {name: jax.ShapeDtypeStruct(v.shape, v.dtype) for name, v in tree.items()}
         back = self.variant(lambda words: packing._unpack(words, layout))(packed)
         for name, value in tree.items():
