@@ -1,5 +1,15 @@
-"""benchmarks.in_process: run_grid of the paper grid called again in one process."""
-from benchmarks import in_process
+"""benchmarks.in_process (run_grid of the paper grid called again in one process) and
+benchmarks.par (its warm calls beside the harness's numba-2t worker, one sitting)."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from benchmarks import in_process, par
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_each_call_prints_its_wall_and_programs_time(capsys):
@@ -7,3 +17,47 @@ def test_each_call_prints_its_wall_and_programs_time(capsys):
     lines = capsys.readouterr().out.strip().splitlines()
     assert [line.split(":")[0] for line in lines] == ["call 1", "call 2"]
     assert all("getting the programs" in line for line in lines)
+
+
+def test_json_gives_each_calls_wall_and_programs(capsys):
+    assert in_process.main(["--calls", "2", "--seeds", "1", "--episodes", "3",
+                            "--threads", "1", "--json"]) == 0
+    calls = json.loads(capsys.readouterr().out)["calls"]
+    assert len(calls) == 2
+    assert all(0 < call["programs"] < call["wall"] for call in calls)
+
+
+def test_par_table_gives_medians_and_numba_over_vdbejax():
+    rounds = {"harness": [2.0, 3.0, 2.5], "numba-2t": [1.0, 1.5, 1.2],
+              "in-process": [1.6, 1.5, 1.4, 2.0], "programs": [0.3, 0.2, 0.4, 0.3],
+              "running": [1.3, 1.3, 1.0, 1.7]}
+    table = par.report(rounds).splitlines()
+    assert table[2] == "| harness warm worker (fresh process) | 2.50 | 0.48× |"
+    assert table[3] == "| run_grid again in one process (calls 2 on) | 1.55 | 0.77× |"
+    assert table[4] == "| … of which getting the programs | 0.30 | – |"
+    assert table[5] == "| … the rest (running) | 1.30 | 0.92× |"
+    assert table[6] == "| numba-2t (harness worker) | 1.20 | 1.00× |"
+
+
+@pytest.mark.parametrize("flag, value", [("--calls", "1"), ("--rounds", "0"),
+                                         ("--threads", "0")])
+def test_par_bad_counts_are_one_line_errors_before_any_run(flag, value):
+    done = subprocess.run([sys.executable, "-m", "benchmarks.par", flag, value], cwd=ROOT,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    assert f"{flag}={value} is invalid" in done.stderr and "Traceback" not in done.stderr
+    assert "round" not in done.stdout
+
+
+@pytest.mark.benchmark  # fresh processes of vdbejax and numba: left out by .ci/run
+def test_par_end_to_end_prints_every_round_and_the_table(tmp_path):
+    pytest.importorskip("numba")
+    out = tmp_path / "par.json"
+    done = subprocess.run([sys.executable, "-m", "benchmarks.par", "--rounds", "1",
+                           "--calls", "2", "--seeds", "1", "--episodes", "5",
+                           "--json-out", str(out)], cwd=ROOT, check=True,
+                          capture_output=True, text=True)
+    assert "round 1: harness " in done.stdout
+    assert "| numba-2t (harness worker) |" in done.stdout
+    rounds = json.loads(out.read_text())
+    assert [len(rounds[name]) for name in ("harness", "numba-2t", "in-process")] == [1, 1, 1]
