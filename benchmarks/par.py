@@ -1,20 +1,24 @@
 """Issue 21's par line, measured in one sitting: the paper grid's warm vdbejax times beside
-the harness's 2-thread Numba peer (``numba-2t``).
+the harness's 2-thread Numba peer (``numba-2t``), optionally before and after a change.
 
-    python -m benchmarks.par [--rounds 3] [--calls 4] [--threads 2] [--json-out F]
+    python -m benchmarks.par [--rounds 3] [--calls 4] [--threads 2] [--baseline DIR]
+                             [--json-out F]
 
 A first round, not counted, fills JAX's and Numba's caches. Then each round runs, one
-after another (run nothing else on the machine meanwhile):
+after another (run nothing else on the machine meanwhile), for this tree and, with
+``--baseline``, for another checkout of vdbejax (``git worktree add DIR REV``):
 
-* ``harness``: :mod:`benchmarks.compare`'s vdbejax worker, a fresh process, caches warm;
-* ``numba-2t``: :mod:`benchmarks.compare`'s ``numba_parallel`` worker (its wall includes
-  loading its compiled loop from Numba's cache, as the harness reports it);
-* ``in-process``: :mod:`benchmarks.in_process` in a fresh process, ``run_grid`` called
-  ``--calls`` times; calls 2 on are the warm in-process time, split into getting the
-  programs (each call traces and lowers them afresh) and the rest (running).
+* ``harness``: that tree's :mod:`benchmarks.compare` vdbejax worker, a fresh process,
+  caches warm;
+* ``in-process``: :mod:`benchmarks.in_process` in a fresh process on that tree's
+  vdbejax, ``run_grid`` called ``--calls`` times; calls 2 on are the warm in-process time,
+  split into getting the programs (each call traces and lowers them afresh) and the rest
+  (running);
 
-It prints every run and a table of medians with the ratios numba-2t / vdbejax (above 1:
-vdbejax is faster; par is 1).
+and once per round ``numba-2t``: :mod:`benchmarks.compare`'s ``numba_parallel`` worker
+(its wall includes loading its compiled loop from Numba's cache, as the harness reports
+it). It prints every round and a table of medians with the ratios numba-2t / vdbejax
+(above 1: vdbejax is faster; par is 1).
 """
 from __future__ import annotations
 
@@ -25,67 +29,95 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
-from typing import Any
 
-from benchmarks import compare
+import numpy as np
 
-
-def _harness(kind: str, args: argparse.Namespace) -> float:
-    """Wall seconds of one of :mod:`benchmarks.compare`'s workers."""
-    spawn_args = argparse.Namespace(
-        tmp=args.tmp, episodes=args.episodes, seeds=args.seeds, python_seeds=1,
-        mushroom_seeds=1, threads=args.threads, jax_cache=args.jax_cache,
-        mdp_factory=compare.DEFAULT_FACTORY, strategy="auto")
-    return float(compare._spawn(kind, spawn_args)["wall"])
+ROOT = Path(__file__).resolve().parent.parent
+#: What each round measures of a tree, in the table's order.
+METRICS = ("harness", "in-process", "programs", "running")
+LABELS = {"harness": "harness warm worker (fresh process)",
+          "in-process": "run_grid again in one process (calls 2 on)",
+          "programs": "… of which getting the programs",
+          "running": "… the rest (running)"}
 
 
-def _in_process(args: argparse.Namespace) -> list[dict[str, float]]:
-    """Each call's wall and programs seconds, from a fresh :mod:`benchmarks.in_process`."""
-    env = dict(os.environ, VDBEJAX_CACHE_DIR=args.jax_cache)
+def _env(tree: Path) -> dict[str, str]:
+    env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(
-        [str(compare.ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
-    out = subprocess.run(
-        [sys.executable, "-m", "benchmarks.in_process", "--calls", str(args.calls),
-         "--seeds", str(args.seeds), "--episodes", str(args.episodes),
-         "--threads", str(args.threads), "--json"],
-        check=True, env=env, cwd=compare.ROOT, capture_output=True, text=True).stdout
+        [str(tree)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
+    return env
+
+
+def _harness(kind: str, tree: Path, args: argparse.Namespace) -> float:
+    """Wall seconds of one of ``tree``'s :mod:`benchmarks.compare` workers."""
+    out = Path(args.tmp) / f"{kind}-{time.time_ns()}.npz"
+    subprocess.run(
+        [sys.executable, "-m", "benchmarks.compare", "--worker", kind, "--worker-out", str(out),
+         "--episodes", str(args.episodes), "--seeds", str(args.seeds), "--threads",
+         str(args.threads), "--jax-cache", args.jax_cache],
+        check=True, env=_env(tree), cwd=tree, capture_output=True)
+    with np.load(out) as data:
+        return float(json.loads(str(data["meta"]))["wall"])
+
+
+def _in_process(tree: Path, args: argparse.Namespace) -> list[dict[str, float]]:
+    """Each call's wall and programs seconds: this tree's :mod:`benchmarks.in_process`
+    run on ``tree``'s vdbejax."""
+    env = dict(_env(tree), VDBEJAX_CACHE_DIR=args.jax_cache)
+    argv = ["in_process", "--calls", str(args.calls), "--seeds", str(args.seeds),
+            "--episodes", str(args.episodes), "--threads", str(args.threads), "--json"]
+    script = (f"import runpy, sys; sys.argv = {argv!r}; "
+              f"runpy.run_path({str(ROOT / 'benchmarks' / 'in_process.py')!r}, "
+              "run_name='__main__')")
+    out = subprocess.run([sys.executable, "-c", script], check=True, env=env, cwd=tree,
+                         capture_output=True, text=True).stdout
     return list(json.loads(out.strip().splitlines()[-1])["calls"])
 
 
-def measure(args: argparse.Namespace) -> dict[str, Any]:
-    """Every round's times (the first, warming round left out)."""
-    _harness("vdbejax", args)
-    _harness("numba_parallel", args)
-    rounds: dict[str, list[float]] = {"harness": [], "numba-2t": [], "in-process": [],
-                                      "programs": [], "running": []}
+def measure(trees: dict[str, Path], args: argparse.Namespace) -> dict[str, list[float]]:
+    """Every round's times, keyed ``"<tree>:<metric>"`` and ``"numba-2t"`` (the first,
+    warming round left out)."""
+    for tree in trees.values():
+        _harness("vdbejax", tree, args)
+    _harness("numba_parallel", ROOT, args)
+    rounds: dict[str, list[float]] = {"numba-2t": []}
     for r in range(args.rounds):
-        rounds["harness"].append(_harness("vdbejax", args))
-        rounds["numba-2t"].append(_harness("numba_parallel", args))
-        for call in _in_process(args)[1:]:
-            rounds["in-process"].append(call["wall"])
-            rounds["programs"].append(call["programs"])
-            rounds["running"].append(call["wall"] - call["programs"])
-        print(f"round {r + 1}: harness {rounds['harness'][-1]:.2f} s, numba-2t "
-              f"{rounds['numba-2t'][-1]:.2f} s, in-process "
-              + ", ".join(f"{w:.2f}" for w in rounds["in-process"][-(args.calls - 1):])
-              + " s", flush=True)
+        said = []
+        for name, tree in trees.items():
+            times = {"harness": [_harness("vdbejax", tree, args)], "in-process": [],
+                     "programs": [], "running": []}
+            for call in _in_process(tree, args)[1:]:
+                times["in-process"].append(call["wall"])
+                times["programs"].append(call["programs"])
+                times["running"].append(call["wall"] - call["programs"])
+            for metric, values in times.items():
+                rounds.setdefault(f"{name}:{metric}", []).extend(values)
+            said.append(f"{name}: harness {times['harness'][0]:.2f} s, in-process "
+                        + ", ".join(f"{w:.2f}" for w in times["in-process"]) + " s")
+        rounds["numba-2t"].append(_harness("numba_parallel", ROOT, args))
+        print(f"round {r + 1}: " + "; ".join(said)
+              + f"; numba-2t {rounds['numba-2t'][-1]:.2f} s", flush=True)
     return rounds
 
 
 def report(rounds: dict[str, list[float]]) -> str:
-    """The table of medians and ratios (markdown)."""
-    median = {name: statistics.median(values) for name, values in rounds.items()}
+    """The table of medians, each with numba-2t / vdbejax (markdown); a column per tree."""
+    median = {key: statistics.median(values) for key, values in rounds.items()}
     numba = median["numba-2t"]
-    rows = [("harness warm worker (fresh process)", "harness"),
-            ("run_grid again in one process (calls 2 on)", "in-process"),
-            ("… of which getting the programs", "programs"),
-            ("… the rest (running)", "running")]
-    lines = ["| vdbejax | median s | numba-2t / vdbejax |", "| --- | --- | --- |"]
-    for label, name in rows:
-        ratio = f"{numba / median[name]:.2f}×" if name != "programs" else "–"
-        lines.append(f"| {label} | {median[name]:.2f} | {ratio} |")
-    lines.append(f"| numba-2t (harness worker) | {numba:.2f} | 1.00× |")
+    trees = list(dict.fromkeys(key.split(":")[0] for key in rounds if ":" in key))
+    lines = ["| vdbejax | " + " | ".join(trees) + " |",
+             "| --- |" + " --- |" * len(trees)]
+    for metric in METRICS:
+        cells = []
+        for tree in trees:
+            value = median[f"{tree}:{metric}"]
+            cells.append(f"{value:.2f} s" if metric == "programs"
+                         else f"{value:.2f} s ({numba / value:.2f}×)")
+        lines.append(f"| {LABELS[metric]} | " + " | ".join(cells) + " |")
+    lines.append(f"| numba-2t (harness worker) | {numba:.2f} s |" + " |" * (len(trees) - 1))
+    lines += ["", "(×: numba-2t / vdbejax, medians; above 1 vdbejax is faster)"]
     return "\n".join(lines)
 
 
@@ -97,6 +129,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--baseline", default=None,
+                        help="another checkout of vdbejax, measured beside this one")
     parser.add_argument("--jax-cache", default=None,
                         help="JAX's cache directory (default: a new one, warmed first)")
     parser.add_argument("--json-out", default=None, help="also write every time as JSON")
@@ -106,10 +140,17 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--{name}={getattr(args, name)} is invalid: must be >= 1")
     if args.calls < 2:
         parser.error(f"--calls={args.calls} is invalid: must be >= 2 (call 1 is not warm)")
+    trees = {"tip": ROOT}
+    if args.baseline is not None:
+        baseline = Path(args.baseline).resolve()
+        if not (baseline / "vdbejax" / "__init__.py").is_file():
+            parser.error(f"--baseline={args.baseline!r} is invalid: must be a checkout of "
+                         "vdbejax (a folder with vdbejax/__init__.py)")
+        trees = {"baseline": baseline, "tip": ROOT}
     with tempfile.TemporaryDirectory(prefix="vdbejax-par-") as tmp:
         args.tmp = tmp
         args.jax_cache = args.jax_cache or str(Path(tmp) / "jax-cache")
-        rounds = measure(args)
+        rounds = measure(trees, args)
     print(report(rounds))
     if args.json_out:
         Path(args.json_out).write_text(json.dumps(rounds, indent=1) + "\n")

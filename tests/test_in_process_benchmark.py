@@ -28,25 +28,39 @@ def test_json_gives_each_calls_wall_and_programs(capsys):
 
 
 def test_par_table_gives_medians_and_numba_over_vdbejax():
-    rounds = {"harness": [2.0, 3.0, 2.5], "numba-2t": [1.0, 1.5, 1.2],
-              "in-process": [1.6, 1.5, 1.4, 2.0], "programs": [0.3, 0.2, 0.4, 0.3],
-              "running": [1.3, 1.3, 1.0, 1.7]}
+    rounds = {"numba-2t": [1.0, 1.5, 1.2],
+              "tip:harness": [2.0, 3.0, 2.5], "tip:in-process": [1.6, 1.5, 1.4, 2.0],
+              "tip:programs": [0.3, 0.2, 0.4, 0.3], "tip:running": [1.3, 1.3, 1.0, 1.7]}
     table = par.report(rounds).splitlines()
-    assert table[2] == "| harness warm worker (fresh process) | 2.50 | 0.48× |"
-    assert table[3] == "| run_grid again in one process (calls 2 on) | 1.55 | 0.77× |"
-    assert table[4] == "| … of which getting the programs | 0.30 | – |"
-    assert table[5] == "| … the rest (running) | 1.30 | 0.92× |"
-    assert table[6] == "| numba-2t (harness worker) | 1.20 | 1.00× |"
+    assert table[0] == "| vdbejax | tip |"
+    assert table[2] == "| harness warm worker (fresh process) | 2.50 s (0.48×) |"
+    assert table[3] == "| run_grid again in one process (calls 2 on) | 1.55 s (0.77×) |"
+    assert table[4] == "| … of which getting the programs | 0.30 s |"
+    assert table[5] == "| … the rest (running) | 1.30 s (0.92×) |"
+    assert table[6] == "| numba-2t (harness worker) | 1.20 s |"
+
+
+def test_par_table_has_a_column_per_tree():
+    rounds = {"numba-2t": [1.2]}
+    for tree, scale in (("baseline", 2.0), ("tip", 1.0)):
+        for metric, value in (("harness", 2.4), ("in-process", 1.2), ("programs", 0.3),
+                              ("running", 0.9)):
+            rounds[f"{tree}:{metric}"] = [value * scale]
+    table = par.report(rounds).splitlines()
+    assert table[0] == "| vdbejax | baseline | tip |"
+    assert table[3] == ("| run_grid again in one process (calls 2 on) | 2.40 s (0.50×) "
+                        "| 1.20 s (1.00×) |")
+    assert table[6] == "| numba-2t (harness worker) | 1.20 s | |"
 
 
 @pytest.mark.parametrize("flag, value", [("--calls", "1"), ("--rounds", "0"),
-                                         ("--threads", "0")])
-def test_par_bad_counts_are_one_line_errors_before_any_run(flag, value):
+                                         ("--threads", "0"), ("--baseline", "/nonexistent")])
+def test_par_bad_arguments_are_one_line_errors_before_any_run(flag, value):
     done = subprocess.run([sys.executable, "-m", "benchmarks.par", flag, value], cwd=ROOT,
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
-    assert f"{flag}={value} is invalid" in done.stderr and "Traceback" not in done.stderr
-    assert "round" not in done.stdout
+    assert f"{flag}=" in done.stderr and "is invalid" in done.stderr
+    assert "Traceback" not in done.stderr and "round" not in done.stdout
 
 
 @pytest.mark.benchmark  # fresh processes of vdbejax and numba: left out by .ci/run
@@ -55,9 +69,11 @@ def test_par_end_to_end_prints_every_round_and_the_table(tmp_path):
     out = tmp_path / "par.json"
     done = subprocess.run([sys.executable, "-m", "benchmarks.par", "--rounds", "1",
                            "--calls", "2", "--seeds", "1", "--episodes", "5",
-                           "--json-out", str(out)], cwd=ROOT, check=True,
-                          capture_output=True, text=True)
-    assert "round 1: harness " in done.stdout
-    assert "| numba-2t (harness worker) |" in done.stdout
+                           "--baseline", str(ROOT), "--json-out", str(out)], cwd=ROOT,
+                          check=True, capture_output=True, text=True)
+    assert "round 1: baseline: harness " in done.stdout and "; tip: harness " in done.stdout
+    assert "| vdbejax | baseline | tip |" in done.stdout
     rounds = json.loads(out.read_text())
-    assert [len(rounds[name]) for name in ("harness", "numba-2t", "in-process")] == [1, 1, 1]
+    assert len(rounds["numba-2t"]) == 1
+    for tree in ("baseline", "tip"):
+        assert [len(rounds[f"{tree}:{m}"]) for m in par.METRICS] == [1, 1, 1, 1]
