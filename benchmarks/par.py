@@ -123,12 +123,14 @@ def report(rounds: dict[str, list[float]]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--rounds", type=int, default=3,
+                        help="counted rounds, after one that warms the caches (default 3)")
     parser.add_argument("--calls", type=int, default=4,
                         help="run_grid calls per in-process round (at least 2)")
-    parser.add_argument("--seeds", type=int, default=20)
-    parser.add_argument("--episodes", type=int, default=1000)
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--seeds", type=int, default=20, help="agents per setting (default 20)")
+    parser.add_argument("--episodes", type=int, default=1000, help="default 1000")
+    parser.add_argument("--threads", type=int, default=2,
+                        help="threads of vdbejax and of numba-2t's loop (default 2)")
     parser.add_argument("--baseline", default=None,
                         help="another checkout of vdbejax, measured beside this one")
     parser.add_argument("--jax-cache", default=None,
