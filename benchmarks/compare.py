@@ -215,7 +215,20 @@ def _median_run(runs: list[dict]) -> dict:
     return {**ordered[(len(ordered) - 1) // 2], "walls": [r["wall"] for r in runs]}
 
 
-def _spawn(kind: str, args, env_extra: dict | None = None, **overrides) -> dict:
+def pythonpath_env(root: Path, env_extra: dict | None = None) -> dict:
+    """This process's environment (with ``env_extra``) with ``root`` first on PYTHONPATH,
+    so that a subprocess imports ``root``'s vdbejax and benchmarks."""
+    env = dict(os.environ, **(env_extra or {}))
+    env["PYTHONPATH"] = os.pathsep.join(
+        [str(root)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])
+    )
+    return env
+
+
+def _spawn(kind: str, args, env_extra: dict | None = None, root: Path = ROOT,
+           **overrides) -> dict:
+    """One worker of ``root``'s harness (another checkout's, for before-and-after runs) in
+    a fresh process: its result and meta."""
     out = Path(args.tmp) / f"{kind}-{time.time_ns()}.npz"
     cmd = [
         sys.executable, "-m", "benchmarks.compare", "--worker", kind, "--worker-out", str(out),
@@ -226,11 +239,7 @@ def _spawn(kind: str, args, env_extra: dict | None = None, **overrides) -> dict:
         "--agents", str(overrides.get("agents", 0)),
         "--strategy", overrides.get("strategy", args.strategy),
     ]
-    env = dict(os.environ, **(env_extra or {}))
-    env["PYTHONPATH"] = os.pathsep.join(
-        [str(ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])
-    )
-    subprocess.run(cmd, check=True, env=env, cwd=ROOT)
+    subprocess.run(cmd, check=True, env=pythonpath_env(root, env_extra), cwd=root)
     data = dict(np.load(out, allow_pickle=False))
     meta = json.loads(str(data.pop("meta")))
     meta.update(data)

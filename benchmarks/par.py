@@ -24,17 +24,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-import numpy as np
+from benchmarks import compare
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = compare.ROOT
 #: What each round measures of a tree, in the table's order.
 METRICS = ("harness", "in-process", "programs", "running")
 LABELS = {"harness": "harness warm worker (fresh process)",
@@ -43,29 +41,19 @@ LABELS = {"harness": "harness warm worker (fresh process)",
           "running": "… the rest (running)"}
 
 
-def _env(tree: Path) -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(
-        [str(tree)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
-    return env
-
-
 def _harness(kind: str, tree: Path, args: argparse.Namespace) -> float:
     """Wall seconds of one of ``tree``'s :mod:`benchmarks.compare` workers."""
-    out = Path(args.tmp) / f"{kind}-{time.time_ns()}.npz"
-    subprocess.run(
-        [sys.executable, "-m", "benchmarks.compare", "--worker", kind, "--worker-out", str(out),
-         "--episodes", str(args.episodes), "--seeds", str(args.seeds), "--threads",
-         str(args.threads), "--jax-cache", args.jax_cache],
-        check=True, env=_env(tree), cwd=tree, capture_output=True)
-    with np.load(out) as data:
-        return float(json.loads(str(data["meta"]))["wall"])
+    worker_args = argparse.Namespace(
+        tmp=args.tmp, episodes=args.episodes, seeds=args.seeds, python_seeds=1,
+        mushroom_seeds=1, threads=args.threads, jax_cache=args.jax_cache,
+        mdp_factory=compare.DEFAULT_FACTORY, strategy="auto")
+    return float(compare._spawn(kind, worker_args, root=tree)["wall"])
 
 
 def _in_process(tree: Path, args: argparse.Namespace) -> list[dict[str, float]]:
     """Each call's wall and programs seconds: this tree's :mod:`benchmarks.in_process`
     run on ``tree``'s vdbejax."""
-    env = dict(_env(tree), VDBEJAX_CACHE_DIR=args.jax_cache)
+    env = compare.pythonpath_env(tree, {"VDBEJAX_CACHE_DIR": args.jax_cache})
     argv = ["in_process", "--calls", str(args.calls), "--seeds", str(args.seeds),
             "--episodes", str(args.episodes), "--threads", str(args.threads), "--json"]
     script = (f"import runpy, sys; sys.argv = {argv!r}; "
@@ -86,8 +74,8 @@ def measure(trees: dict[str, Path], args: argparse.Namespace) -> dict[str, list[
     for r in range(args.rounds):
         said = []
         for name, tree in trees.items():
-            times = {"harness": [_harness("vdbejax", tree, args)], "in-process": [],
-                     "programs": [], "running": []}
+            times: dict[str, list[float]] = {metric: [] for metric in METRICS}
+            times["harness"].append(_harness("vdbejax", tree, args))
             for call in _in_process(tree, args)[1:]:
                 times["in-process"].append(call["wall"])
                 times["programs"].append(call["programs"])
