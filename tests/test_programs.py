@@ -1,10 +1,14 @@
-"""The engine's programs (vdbejax.engine.programs) are keyed by the lowered program: the
-same code reuses its compiled program, and a patched learner, explorer, helper, environment
-constant or reloaded module runs its new code, never a stale program."""
+"""The engine's programs (vdbejax.engine.programs): traced once per process for the same
+plug-in classes, methods, static fields and shapes, compiled once per lowered program; a
+patched learner or explorer method, a class attribute, an environment constant or a
+reloaded module runs its new code, never a stale program; a patched module-level helper is
+fixed when traced (as under jax.jit) until forget_traced_programs()."""
 import importlib
 import sys
 import textwrap
+from collections import OrderedDict
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -29,17 +33,32 @@ def strategy(request):
     return request.param
 
 
+def _count_traces(monkeypatch) -> list:
+    traced: list = []
+    real = programs._lower
+    monkeypatch.setattr(programs, "_lower", lambda call: traced.append(call) or real(call))
+    return traced
+
+
 def test_the_same_code_reuses_its_compiled_programs(monkeypatch, strategy):
-    # An empty table of its own: a full one (other tests) would hide a program compiled
-    # again under a new key.
-    monkeypatch.setattr(programs, "_TABLE", type(programs._TABLE)())
+    # Empty tables of its own: full ones (other tests) would hide a program traced or
+    # compiled again under a new key.
+    monkeypatch.setattr(programs, "_TABLE", OrderedDict())
+    monkeypatch.setattr(programs, "_TRACED", OrderedDict())
+    traced = _count_traces(monkeypatch)
     first = _run(strategy=strategy)
     compiled = dict(programs._TABLE)
-    assert compiled
+    assert compiled and traced
+    traced.clear()
     again = _run(strategy=strategy)
-    assert programs._TABLE.keys() == compiled.keys()  # traced again, nothing new compiled
-    assert all(programs._TABLE[key] is program for key, program in compiled.items())
+    assert traced == []  # the second call traces nothing
+    assert programs._TABLE.keys() == compiled.keys()  # and compiles nothing
     np.testing.assert_array_equal(first, again)
+    programs.forget_traced_programs()
+    traced_again = _run(strategy=strategy)
+    assert traced  # traced afresh: the same lowered programs, none compiled again
+    assert all(programs._TABLE[key] is program for key, program in compiled.items())
+    np.testing.assert_array_equal(first, traced_again)
 
 
 def test_runs_of_a_few_more_or_fewer_episodes_share_their_programs(monkeypatch, strategy):
@@ -76,13 +95,39 @@ def test_a_patched_explorer_method_gets_a_new_program(monkeypatch, strategy):
     np.testing.assert_array_equal(before[2:], patched[2:])
 
 
-def test_a_patched_helper_function_is_seen(monkeypatch):
+def test_a_patched_helper_function_is_fixed_when_traced_until_forgotten(monkeypatch):
     """A module-level function the built-ins call (here the categorical draw behind every
-    choice of select_action)."""
+    choice of select_action) is read when the program is traced, as under jax.jit."""
     before = _run()
     monkeypatch.setattr(selection, "sample_categorical",
                         lambda weights, u: jnp.int32(weights.shape[0] - 1))
+    np.testing.assert_array_equal(before, _run())  # this process's program, traced before
+    programs.forget_traced_programs()
     assert not np.array_equal(before, _run())
+    monkeypatch.undo()
+    programs.forget_traced_programs()
+    np.testing.assert_array_equal(before, _run())
+
+
+def test_a_changed_class_attribute_gets_a_new_program(monkeypatch):
+    """Class attributes (not only methods) are read when a program is traced."""
+    before = _run()
+    monkeypatch.setattr(explorers.EpsilonGreedy, "select",
+                        lambda self, q, tables, context, uniforms: jnp.int32(self.first))
+    monkeypatch.setattr(explorers.EpsilonGreedy, "first", 0, raising=False)
+    zero = _run()
+    monkeypatch.setattr(explorers.EpsilonGreedy, "first", 6)
+    six = _run()
+    assert not np.array_equal(before[:2], zero[:2])
+    assert not np.array_equal(zero[:2], six[:2])
+
+
+def test_the_trace_key_follows_jax_configuration():
+    call = programs.Call(lambda x: x + 1, (np.float32(1.0),))
+    with jax.enable_x64(True):
+        wide = call.trace_key()
+    assert wide != call.trace_key()
+    assert call.trace_key() == programs.Call(call.function, call.args).trace_key()
 
 
 def test_a_patched_environment_constant_is_seen(monkeypatch):

@@ -120,8 +120,8 @@ def run_agents(
       keep_final_state: ``False`` leaves :attr:`RunResult.final_state` ``None``, which
         spares gathering every agent's tables on the host at the end (large tasks).
       programs: the compiled programs to share with other calls of one study
-        (:class:`~vdbejax.engine.programs.Programs`; default: this call's own, traced
-        from the code as it is now).
+        (:class:`~vdbejax.engine.programs.Programs`; default: this call's own; either
+        way a program traced before in this process for the same plug-in code is reused).
       chunk_states: ``False`` hands ``on_chunk`` ``None`` for the agents (no copy of
         every agent's tables after each chunk, when only the episodes are wanted).
 

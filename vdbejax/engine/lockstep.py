@@ -67,7 +67,7 @@ def run_chunk(
       chunk_length: static buffer length.
       unroll: lockstep iterations per loop trip (static; results do not depend on it).
       programs: the run's programs (:class:`~vdbejax.engine.programs.Programs`; default:
-        traced afresh for this call).
+        this call's own).
 
     Note: keep batches ≤ :data:`MAX_SAFE_BATCH` lanes for results independent of the
     batch (:func:`run_agents` splits larger ones into groups).

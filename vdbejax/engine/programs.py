@@ -1,19 +1,22 @@
-"""The engine's compiled programs, keyed by the lowered program itself.
+"""The engine's compiled programs: traced once per process, compiled once per lowered module.
 
-Every :func:`run_agents <vdbejax.engine.run_agents>` call traces and lowers the programs it
-runs, from a fresh ``jax.jit`` wrapper (so that neither JAX's trace cache nor ours can
-serve a program traced from code that has since been patched, reloaded or edited). A
-program is identified by the SHA-256 of its lowered StableHLO module's text (its
-complete text: computation, constants, shardings, donation), the compiler
-options, and the node types of its input and output trees. What runs is therefore the
-code as it is at the call, by construction.
+A program is traced and lowered the first time a call needs it in this process, and kept
+(:data:`MAX_PROGRAMS` programs, least recently used dropped first) under its *trace key*
+(:meth:`Call.trace_key`): the engine function, its static arguments and options, the
+arguments' tree (node types and static fields included), shapes, dtypes and placement,
+every class attribute and method of the plug-in classes in that tree (so
+``Cls.method = new``, a redefined class or an edited and reloaded module is traced afresh)
+and JAX's configuration. What is fixed when a program is traced, as under ``jax.jit``: a
+module-level global read inside a plug-in or a helper it calls. After patching one,
+:func:`forget_traced_programs` makes the next run trace again.
 
-Compilation is what the key spares: in this process from a bounded table
-(:data:`MAX_PROGRAMS` programs, least recently used dropped first), between processes from
-JAX's persistent compilation cache (whose key is the lowered module too; vdbejax turns it
-on, see :func:`vdbejax.enable_compilation_cache`). Within one run, :class:`Programs`
-remembers each program by its call's signature, so that a loop of chunks or blocks
-traces it once.
+Compilation is keyed by the lowered program itself: the SHA-256 of its lowered StableHLO
+module's text (its complete text: computation, constants, shardings, donation), the
+compiler options and the node types of its input and output trees
+(:func:`program_key`); in this process from a bounded table, between processes from JAX's
+persistent compilation cache (whose key is the lowered module too; vdbejax turns it on,
+see :func:`vdbejax.enable_compilation_cache`). A new process therefore traces its programs
+from the code as it is then, and never runs a program traced from older code.
 """
 from __future__ import annotations
 
@@ -33,7 +36,8 @@ import numpy as np
 #: paper grid uses 10).
 MAX_PROGRAMS = 64
 
-_TABLE: OrderedDict[tuple, Any] = OrderedDict()
+_TABLE: OrderedDict[tuple, Any] = OrderedDict()  # program_key -> compiled program
+_TRACED: OrderedDict[tuple, Any] = OrderedDict()  # Call.trace_key -> compiled program
 _TABLE_LOCK = threading.Lock()
 #: Seconds spent getting programs (tracing, lowering, compiling or loading them).
 _SECONDS = [0.0]
@@ -79,6 +83,58 @@ class Call:
         return (self.function, tuple(sorted(self.static.items())), self.donate,
                 tuple(self.options.items()), treedef, _node_types(treedef),
                 tuple(_leaf_signature(leaf, default) for leaf in leaves))
+
+    def trace_key(self) -> tuple:
+        """What fixes the traced program in this process: :meth:`signature`, the code of
+        the plug-in classes in the arguments' tree and JAX's configuration."""
+        return (self.signature(), plugin_code(jax.tree.structure(self.args)),
+                _jax_settings())
+
+
+def plugin_code(treedef: Any) -> tuple:
+    """Every attribute of every class a tree's program is traced from: its node types,
+    the types of their static fields, and their base classes (methods are compared as
+    function objects, so assigning a new one changes the result)."""
+    classes: dict[type, None] = {}
+
+    def visit(node: Any) -> None:
+        data = node.node_data()
+        if data is not None:
+            classes.setdefault(data[0])
+            _static_types(data[1], classes)
+        for child in node.children():
+            visit(child)
+
+    visit(treedef)
+    mro = dict.fromkeys(base for cls in classes for base in cls.__mro__
+                        if base.__module__ != "builtins")
+    return tuple((base, tuple((name, _hashable(value)) for name, value in vars(base).items()))
+                 for base in mro)
+
+
+def _static_types(value: Any, classes: dict[type, None]) -> None:
+    """The classes of a node's static data (a tuple of field values, dict keys, None)."""
+    if isinstance(value, tuple | list):
+        for item in value:
+            _static_types(item, classes)
+    elif value is not None and type(value).__module__ != "builtins":
+        classes.setdefault(type(value))
+
+
+def _hashable(value: Any) -> Any:
+    """``value`` if it can be a key, else its identity (mutating it in place is, like a
+    module global, fixed when traced)."""
+    try:
+        hash(value)
+    except TypeError:
+        return ("id", id(value))
+    return value
+
+
+def _jax_settings() -> tuple:
+    """JAX's configuration as it is now (thread-local overrides such as ``enable_x64``
+    included): tracing depends on some of it."""
+    return tuple(sorted((name, _hashable(value)) for name, value in jax.config.values.items()))
 
 
 def _leaf_signature(x: Any, default: set[Any]) -> tuple:
@@ -135,18 +191,48 @@ def _strip_locations(lowered: Any) -> None:
 
 
 def compile_all(calls: Sequence[Call], threads: int = 1) -> list[Any]:
-    """The compiled program of each call: traced and lowered here, in order (tracing holds
-    the GIL), then looked up by :func:`program_key` or compiled on up to ``threads``
+    """The compiled program of each call: found by its :meth:`Call.trace_key` among the
+    programs traced in this process, else traced and lowered here, in order (tracing
+    holds the GIL), then looked up by :func:`program_key` or compiled on up to ``threads``
     threads (compiling and reading JAX's cache mostly run outside the GIL)."""
     started = time.perf_counter()
+    trace_keys = [call.trace_key() for call in calls]
+    with _TABLE_LOCK:
+        found = [_recent(_TRACED, key) for key in trace_keys]
+    todo = [k for k, executable in enumerate(found) if executable is None]
+    if todo:
+        fresh = _lower_and_compile([calls[k] for k in todo], threads)
+        with _TABLE_LOCK:
+            for k, executable in zip(todo, fresh, strict=True):
+                found[k] = executable
+                _keep(_TRACED, trace_keys[k], executable)
+    with _TABLE_LOCK:
+        _SECONDS[0] += time.perf_counter() - started
+    return found
+
+
+def _recent(table: OrderedDict[tuple, Any], key: tuple) -> Any:
+    """``table[key]`` marked as the most recently used, or None."""
+    value = table.get(key)
+    if value is not None:
+        table.move_to_end(key)
+    return value
+
+
+def _keep(table: OrderedDict[tuple, Any], key: tuple, value: Any) -> None:
+    table[key] = value
+    table.move_to_end(key)
+    while len(table) > MAX_PROGRAMS:
+        table.popitem(last=False)
+
+
+def _lower_and_compile(calls: Sequence[Call], threads: int) -> list[Any]:
+    """Each call traced and lowered, then its compiled program found by
+    :func:`program_key` or compiled."""
     lowered = [_lower(call) for call in calls]
     keys = [program_key(low, call.options) for low, call in zip(lowered, calls, strict=True)]
-    found: list[Any] = []
     with _TABLE_LOCK:
-        for key in keys:
-            found.append(_TABLE.get(key))
-            if found[-1] is not None:
-                _TABLE.move_to_end(key)
+        found = [_recent(_TABLE, key) for key in keys]
     misses = sorted({key: k for k, key in enumerate(keys) if found[k] is None}.values())
 
     def compile_one(k: int) -> Any:
@@ -161,24 +247,25 @@ def compile_all(calls: Sequence[Call], threads: int = 1) -> list[Any]:
             fresh = [compile_one(k) for k in misses]
         with _TABLE_LOCK:
             for k, executable in zip(misses, fresh, strict=True):
-                _TABLE[keys[k]] = executable
-                _TABLE.move_to_end(keys[k])
-            while len(_TABLE) > MAX_PROGRAMS:
-                _TABLE.popitem(last=False)
+                _keep(_TABLE, keys[k], executable)
         by_key = dict(zip((keys[k] for k in misses), fresh, strict=True))
         found = [by_key[key] if executable is None else executable
                  for key, executable in zip(keys, found, strict=True)]
-    with _TABLE_LOCK:
-        _SECONDS[0] += time.perf_counter() - started
     return found
 
 
-class Programs:
-    """The programs of one run, each traced once per signature (:meth:`Call.signature`).
+def forget_traced_programs() -> None:
+    """Trace every program again at its next use in this process (after patching a
+    module-level global that a plug-in or helper reads; programs compiled from the same
+    lowered text are still reused)."""
+    with _TABLE_LOCK:
+        _TRACED.clear()
 
-    A run creates its own: the next run traces its programs again, so it runs the code
-    as it is then.
-    """
+
+class Programs:
+    """The programs of one run, each looked up once per signature (:meth:`Call.signature`):
+    a loop of chunks or blocks gets its program once (:func:`compile_all` keys the
+    process's programs by :meth:`Call.trace_key`)."""
 
     def __init__(self) -> None:
         self._memo: dict[tuple, Any] = {}
