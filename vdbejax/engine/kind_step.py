@@ -12,7 +12,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from vdbejax.engine.lanes import learner_rows, rows_of
+from vdbejax.engine.lanes import is_unrolled, learner_rows, rows_of
 from vdbejax.methods.agents import Agent
 from vdbejax.methods.api import Context, Transition
 from vdbejax.methods.contract import behaviour_values
@@ -172,7 +172,17 @@ def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
     def explorer_rows(state: Array) -> dict:
         return rows_of(tables, explorer_specs, state, pair_base, state_base, A)
 
-    explorer_s, explorer_next = explorer_rows(s), explorer_rows(act_state)
+    if is_unrolled(s):
+        explorer_s, explorer_next = explorer_rows(s), explorer_rows(act_state)
+    else:
+        # One read of s's and s′'s rows: it feeds the table's write, so XLA writes the
+        # table in place (a read of s′'s rows alone feeds only the next action, and XLA
+        # copied the whole table every iteration to keep it).
+        twice = [jnp.concatenate([x, x]) for x in (pair_base, state_base)]
+        both = rows_of(tables, explorer_specs, jnp.concatenate([s, act_state]), *twice, A)
+        half = s.shape[0]
+        explorer_s = {name: rows[:half] for name, rows in both.items()}
+        explorer_next = {name: rows[half:] for name, rows in both.items()}
     unchanged: set[str] | None = set() if skip_unchanged else None
     step = partial(_agent_step, select_next=select_next, unchanged=unchanged)
     new_q_sa, new_learner_sa, new_explorer_s, next_action, finite = jax.vmap(step)(

@@ -26,7 +26,9 @@ Array = jax.Array
 UNROLLED_LANES_MAX = 4
 
 
-def _unrolled(index: Array) -> bool:
+def is_unrolled(index: Array) -> bool:
+    """Whether a per-lane index is few enough lanes to access them one by one (unrolled
+    slices: the sequential strategy's native loops) rather than by gather and scatter."""
     return index.ndim == 1 and index.shape[0] <= UNROLLED_LANES_MAX
 
 
@@ -50,7 +52,7 @@ def _update(buffer: Array, value: Array, start: Array) -> Array:
 
 def take(buffer: Array, index: Array) -> Array:
     """``buffer[index]``, one value per lane (``[B]``)."""
-    if _unrolled(index):
+    if is_unrolled(index):
         return jnp.concatenate([_slice(buffer, at_lane(index, k), 1)
                                 for k in range(index.shape[0])])
     return buffer.at[index].get(mode="promise_in_bounds")
@@ -58,7 +60,7 @@ def take(buffer: Array, index: Array) -> Array:
 
 def take_row(buffer: Array, index: Array, width: int) -> Array:
     """``buffer[index + j]`` for ``j < width``, one row per lane (``[B, width]``)."""
-    if _unrolled(index):
+    if is_unrolled(index):
         return jnp.stack([_slice(buffer, at_lane(index, k), width)
                           for k in range(index.shape[0])])
     columns = jnp.arange(width, dtype=index.dtype)[None, :]
@@ -95,7 +97,7 @@ def _write_lanes(buffer: Array, index: Array, value: Array, mask: Array) -> Arra
 
 def put_where(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
     """``buffer[index] = value`` where ``mask``; lanes without it write nothing."""
-    if _unrolled(index):
+    if is_unrolled(index):
         return _write_lanes(buffer, index, value, mask)
     index = jnp.where(mask, index, buffer.shape[0])  # past the end: dropped
     return buffer.at[index].set(value.astype(buffer.dtype), mode="drop")
@@ -105,7 +107,7 @@ def put_learned(buffer: Array, index: Array, new: Array, old: Array, mask: Array
                 rows: bool = False) -> Array:
     """``buffer[index] = new`` where ``mask``, ``old`` (the value read) elsewhere; a few
     lanes write lane by lane, those without ``mask`` nothing (see :func:`_write_lanes`)."""
-    if _unrolled(index):
+    if is_unrolled(index):
         return _write_lanes(buffer, index, new, mask)
     kept = jnp.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
     return _scatter(buffer, index, kept, rows)

@@ -101,7 +101,7 @@ def _run_chunk(mdp: TabularMDP, params: Agent, agents: AgentState, chunk_start: 
     )
 
 
-def _run_block(mdp: TabularMDP, params: Agent, agents: AgentState, returns: Array,
+def block_program(mdp: TabularMDP, params: Agent, agents: AgentState, returns: Array,
                lengths: Array, chunk_start: Array, chunk_end: Array, max_iterations: Array,
                start_support: Any, *, unroll: int
                ) -> tuple[AgentState, Array, Array, Array, Array]:
@@ -184,7 +184,7 @@ def _run_chunk_compacting(
     while True:
         args = (mdp, cur_params, *cur, start, end, block, support)
         cur_agents, cur_returns, cur_lengths, done_iterations, active = programs.get(
-            _run_block, args, {"unroll": unroll})(*args)
+            block_program, args, {"unroll": unroll})(*args)
         cur = (cur_agents, cur_returns, cur_lengths)
         done_iterations = int(done_iterations)
         iterations += done_iterations

@@ -43,8 +43,8 @@ from vdbejax.engine.kinds import (  # noqa: F401  (re-exported)
 )
 from vdbejax.engine.lanes import (  # noqa: F401  (UNROLLED_LANES_MAX: re-exported)
     UNROLLED_LANES_MAX,
-    _unrolled,
     _write_lanes,
+    is_unrolled,
     put_learned,
     put_where,
     take,
@@ -222,7 +222,7 @@ def lockstep_iteration(
                 num_states=S, num_actions=A, capacity=capacity(S, mdp.num_outcomes))
     else:
         forms = table_forms(kinds)
-        assert forms is not None and _unrolled(lane), "see can_switch"
+        assert forms is not None and is_unrolled(lane), "see can_switch"
 
         def branch(kind_agent: Agent) -> Any:
             def run(*operands: Any) -> tuple:

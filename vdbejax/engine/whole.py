@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 
 from vdbejax.engine.kinds import has_stage_tables, is_whole_kind  # noqa: F401  (re-exported)
-from vdbejax.engine.lanes import _unrolled, learner_rows, put_learned, rows_of, take, take_row
+from vdbejax.engine.lanes import is_unrolled, learner_rows, put_learned, rows_of, take, take_row
 from vdbejax.methods.agents import Agent
 from vdbejax.methods.contract import Context, Learner, behaviour_values
 from vdbejax.methods.model import MODEL_TABLES, Model, observe
@@ -106,14 +106,15 @@ def _observe(tables: dict, step: LearnedStep, capacity: int) -> dict:
         return (step.sa_index, 1) if per == "pair" else (step.sa_index * capacity, capacity)
 
     rows = {}
-    for name, per in MODEL_TABLES.items():
+    for name, per in MODEL_TABLES.items():  # an outcome list is a row, even of one outcome
         at, width = index(per)
-        rows[name] = take(tables[name], at) if width == 1 else take_row(tables[name], at, width)
+        rows[name] = take(tables[name], at) if per == "pair" else take_row(tables[name], at,
+                                                                             width)
     new = jax.vmap(observe)(rows, step.s_next, step.reward, step.terminal)
     for name, per in MODEL_TABLES.items():
-        at, width = index(per)
+        at, _ = index(per)
         tables[name] = put_learned(tables[name], at, new[name], rows[name], step.learn,
-                                   width > 1)
+                                   per != "pair")
     return tables
 
 
@@ -169,7 +170,7 @@ def _plan(agent: Agent, q: Array, tables: dict, moment: Array, step: LearnedStep
         return new_q, new_tables, ok
 
     names = own + model_names
-    if _unrolled(step.pair_base):  # one lane at a time: a lane that does not plan copies nothing
+    if is_unrolled(step.pair_base):  # one lane at a time: a lane that does not plan copies nothing
         # A loop over the lanes, not an unrolled one: the plan (a posterior draw, a backward
         # induction) is traced and compiled once, not once per lane.
         def lane_plan(k: Array, carry: tuple) -> tuple:

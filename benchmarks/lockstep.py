@@ -1,0 +1,179 @@
+"""Where the lockstep strategy's time goes (issue 46): its loop body, its trips, its speed.
+
+    python -m benchmarks.lockstep [--seeds 1000] [--episodes 50] [--lanes 2048]
+                                  [--repeats 2] [--threads N] [--json]
+
+For each kind of agent of the paper grid, the lockstep block program at ``--lanes`` lanes
+is compiled and its optimized HLO read: XLA operations (fusions) per loop iteration, and
+the bytes of table-sized buffers (more elements than lanes × actions) copied per
+iteration. Then the paper grid at ``--seeds`` seeds × ``--episodes`` episodes runs with
+the lockstep and the sequential strategy, one after the other in this process (each
+once to get its programs, then ``--repeats`` timed calls, best kept): loop trips
+(iterations) and host round trips (blocks run) per chunk, and agent-steps/s of each.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import time
+from typing import Any
+
+_WHILE = re.compile(r"while\(.*?condition=%?([\w.\-]+), body=%?([\w.\-]+)")
+_COPY = re.compile(r"= (\w+)\[([\d,]*)\]\{[^}]*\} copy\(")
+_FUSION = re.compile(r"^\s*%?[\w.\-]+ = .*? fusion\(", re.MULTILINE)
+_BYTES = {"pred": 1, "s8": 1, "u8": 1, "s16": 2, "u16": 2, "f16": 2, "bf16": 2,
+          "s32": 4, "u32": 4, "f32": 4, "s64": 8, "u64": 8, "f64": 8}
+
+
+def computation(hlo: str, name: str) -> str:
+    """The text of computation ``name`` of an optimized HLO module."""
+    start = re.search(rf"^%?{re.escape(name)} ", hlo, re.MULTILINE)
+    if start is None:
+        raise ValueError(f"computation {name!r} not found in the module")
+    end = hlo.find("\n}\n", start.start())
+    return hlo[start.start():end]
+
+
+def loop_body(hlo: str, lanes: int, actions: int) -> dict[str, Any]:
+    """The outermost ``while`` loop body of an optimized HLO module: its fusions, and its
+    copies of buffers of more than ``lanes × actions`` elements (a table, or the chunk's
+    return buffers: one iteration needs at most a row per lane)."""
+    loop = _WHILE.search(hlo)
+    if loop is None:
+        raise ValueError("no while loop in the module")
+    body = computation(hlo, loop.group(2))
+    copies = []
+    for dtype, dims in _COPY.findall(body):
+        elements = 1
+        for dim in filter(None, dims.split(",")):
+            elements *= int(dim)
+        if elements > lanes * actions:
+            copies.append({"dtype": dtype, "shape": dims, "bytes": elements * _BYTES[dtype]})
+    return {"fusions": len(_FUSION.findall(body)), "table_copies": copies,
+            "table_bytes_copied": sum(copy["bytes"] for copy in copies)}
+
+
+def block_program_hlo(setting: Any, lanes: int, chunk_length: int = 64) -> str:
+    """The optimized HLO of the lockstep block program of ``setting``'s kind."""
+    import jax
+    import jax.numpy as jnp
+
+    from vdbejax.engine import lockstep
+    from vdbejax.engine.driver import init_agents
+    from vdbejax.engine.programs import Programs
+    from vdbejax.envs.table_cleaning import make_mdp
+    from vdbejax.experiment import grid_agents
+
+    mdp = make_mdp()
+    params, keys = grid_agents([setting], lanes)
+    agents = jax.eval_shape(init_agents, mdp, params, keys)
+    args = (mdp, params.kinds[0], agents,
+            jax.ShapeDtypeStruct((lanes, chunk_length), jnp.float32),
+            jax.ShapeDtypeStruct((lanes, chunk_length), jnp.int32),
+            jnp.int32(0), jnp.int32(1), jnp.int32(1), lockstep.start_support(mdp))
+    return str(Programs().get(lockstep.block_program, args, {"unroll": 1}).as_text())
+
+
+def kind_rows(lanes: int) -> list[dict[str, Any]]:
+    """:func:`loop_body` of every kind of the paper grid at ``lanes`` lanes."""
+    from vdbejax.envs.table_cleaning import make_mdp
+    from vdbejax.methods.agents import paper_settings
+
+    actions = make_mdp().num_actions
+    kinds: dict[str, Any] = {}
+    for setting in paper_settings():
+        kinds.setdefault(f"{setting.learner}/{setting.explorer}", setting)
+    return [{"kind": name, **loop_body(block_program_hlo(setting, lanes), lanes, actions)}
+            for name, setting in kinds.items()]
+
+
+def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
+               threads: int | None) -> dict[str, Any]:
+    """The paper grid with ``strategy``: programs got once, then the best of ``repeats``
+    calls (one chunk); its loop trips and host round trips (blocks run)."""
+    from vdbejax import engine
+    from vdbejax.engine import lockstep
+    from vdbejax.engine.programs import Programs
+    from vdbejax.envs.table_cleaning import make_mdp
+    from vdbejax.experiment import grid_agents
+    from vdbejax.methods.agents import paper_settings
+
+    mdp = make_mdp()
+    params, keys = grid_agents(paper_settings(), seeds)
+    blocks = [0]
+    real_get = Programs.get
+
+    def counting_get(self: Any, function: Any, *args: Any, **kwargs: Any) -> Any:
+        blocks[0] += function is lockstep.block_program  # one block run per program got
+        return real_get(self, function, *args, **kwargs)
+
+    def run() -> Any:
+        return engine.run_agents(mdp, params, keys, episodes, chunk_episodes=episodes,
+                                 strategy=strategy, threads=threads, keep_final_state=False)
+
+    run()
+    best, result, trips = float("inf"), None, 0
+    Programs.get = counting_get  # type: ignore[method-assign]
+    try:
+        for _ in range(repeats):
+            blocks[0] = 0
+            started = time.perf_counter()
+            result = run()
+            best, trips = min(best, time.perf_counter() - started), blocks[0]
+    finally:
+        Programs.get = real_get  # type: ignore[method-assign]
+    assert result is not None
+    steps = int(result.lengths.sum())
+    return {"strategy": strategy, "agents": len(keys), "episodes": episodes,
+            "seconds": round(best, 3), "agent_steps": steps,
+            "agent_steps_per_s": round(steps / best),
+            "loop_trips_per_chunk": int(result.iterations),
+            "host_round_trips_per_chunk": trips if strategy == "lockstep" else None}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seeds", type=int, default=1000, help="agents per setting")
+    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--lanes", type=int, default=2048,
+                        help="lanes of the block programs whose HLO is read")
+    parser.add_argument("--repeats", type=int, default=2, help="timed calls (best kept)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="the sequential strategy's threads (default: the CPUs)")
+    parser.add_argument("--json", action="store_true", help="one JSON object")
+    args = parser.parse_args(argv)
+    for name in ("seeds", "episodes", "lanes", "repeats"):
+        if getattr(args, name) < 1:
+            parser.exit(2, f"--{name} must be at least 1, got {getattr(args, name)}\n")
+
+    import vdbejax  # noqa: F401  (its XLA setting before JAX starts)
+
+    report = {"kinds": kind_rows(args.lanes), "runs": [
+        timed_grid(strategy, args.seeds, args.episodes, args.repeats, args.threads)
+        for strategy in ("lockstep", "sequential")]}
+    lock, seq = report["runs"]
+    report["lockstep_over_sequential"] = round(
+        lock["agent_steps_per_s"] / seq["agent_steps_per_s"], 3)
+    if args.json:
+        print(json.dumps(report))
+        return 0
+    print(f"lockstep loop body at {args.lanes} lanes, per iteration:")
+    for row in report["kinds"]:
+        print(f"  {row['kind']:<26} {row['fusions']:>3} fusions, "
+              f"{row['table_bytes_copied']:>9,} bytes of tables copied")
+    print(f"paper grid, {args.seeds} seeds × {args.episodes} episodes "
+          f"({lock['agents']:,} agents):")
+    for run in report["runs"]:
+        trips = run["host_round_trips_per_chunk"]
+        print(f"  {run['strategy']:<10} {run['seconds']:>7.2f} s  "
+              f"{run['agent_steps_per_s'] / 1e6:>6.2f} M agent-steps/s  "
+              f"loop trips {run['loop_trips_per_chunk']:,}"
+              + ("" if trips is None else f", host round trips {trips:,}"))
+    print(f"  lockstep / sequential: {report['lockstep_over_sequential']:.2f}×")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
