@@ -178,8 +178,9 @@ def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
         # One read of s's and s′'s rows: it feeds the table's write, so XLA writes the
         # table in place (a read of s′'s rows alone feeds only the next action, and XLA
         # copied the whole table every iteration to keep it).
-        twice = [jnp.concatenate([x, x]) for x in (pair_base, state_base)]
-        both = rows_of(tables, explorer_specs, jnp.concatenate([s, act_state]), *twice, A)
+        both = rows_of(tables, explorer_specs, jnp.concatenate([s, act_state]),
+                       jnp.concatenate([pair_base, pair_base]),
+                       jnp.concatenate([state_base, state_base]), A)
         half = s.shape[0]
         explorer_s = {name: rows[:half] for name, rows in both.items()}
         explorer_next = {name: rows[half:] for name, rows in both.items()}
