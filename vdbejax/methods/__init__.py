@@ -9,7 +9,8 @@
   (greedy, softmax, the paper's one rule, the VDBE ε(s) update).
 * :mod:`vdbejax.methods.explorers` — greedy, ε-greedy, softmax, VDBE, VDBE-Softmax, Max-Boltzmann,
   decaying ε-greedy and softmax, UCB-1, count bonus.
-* :mod:`vdbejax.methods.learners` — Q-learning, SARSA, Expected SARSA, Double Q-learning.
+* :mod:`vdbejax.methods.learners` — Q-learning, SARSA, Expected SARSA, Double Q-learning,
+  sample average.
 * :mod:`vdbejax.methods.model` — the agent's count model of its task and planning on it;
   :mod:`vdbejax.methods.model_based` — R-max, MBIE-EB; :mod:`vdbejax.methods.traces` —
   SARSA(λ), Watkins Q(λ); :mod:`vdbejax.methods.dyna` — Dyna-Q, Dyna-Q+;
