@@ -151,7 +151,7 @@ def lockstep_iteration(
     # every kind its own draws.
     if base is None:
         base = draw_base(agents.key, agents.counter)
-    u = uniforms_from(base, max(num_uniforms(k) for k in kinds))
+    u = uniforms_from(base, max(num_uniforms(k, A) for k in kinds))
     resetting = agents.pending_reset
     learn = active & ~resetting
     s, a = agents.state, agents.action
@@ -219,7 +219,7 @@ def lockstep_iteration(
             tables[name] = put_learned(tables[name], index_of(_write_form("explorer", spec.per)),
                                        new, old, learn, spec.per == "pair")
         if whole_kind:
-            explorer_u, _, _, plan_u = uniform_parts(agent, u)
+            explorer_u, _, _, plan_u = uniform_parts(agent, u, A)
             q, tables, next_action, finite = after_learning(
                 agent, q, tables, next_action, finite, LearnedStep(
                     s=s, s_next=s_next, act_state=act_state, reward=reward, terminal=terminal,

@@ -8,7 +8,8 @@
 * :mod:`vdbejax.methods.selection` — the action-selection rules as pure functions
   (greedy, softmax, the paper's one rule, the VDBE ε(s) update).
 * :mod:`vdbejax.methods.explorers` — greedy, ε-greedy, softmax, VDBE, VDBE-Softmax, Max-Boltzmann,
-  decaying ε-greedy and softmax, UCB-1, count bonus.
+  decaying ε-greedy and softmax, UCB-1, count bonus; :mod:`vdbejax.methods.thompson` —
+  Thompson sampling (Gaussian and Beta posteriors).
 * :mod:`vdbejax.methods.learners` — Q-learning, SARSA, Expected SARSA, Double Q-learning,
   sample average.
 * :mod:`vdbejax.methods.model` — the agent's count model of its task and planning on it;
@@ -30,6 +31,7 @@ from vdbejax.methods import (
     learners,
     model_based,
     posterior,
+    thompson,
     traces,
 )
 from vdbejax.methods.agents import (
@@ -94,5 +96,6 @@ __all__ = [
     "stack_agents",
     "static_field",
     "sweep",
+    "thompson",
     "traces",
 ]
