@@ -118,3 +118,10 @@ def test_sample_average_on_a_bandit_gives_the_same_bits_in_both_strategies():
     np.testing.assert_array_equal(lockstep.returns, sequential.returns)
     np.testing.assert_array_equal(lockstep.final_state.q, sequential.final_state.q)
     assert set(np.unique(lockstep.returns)) <= {0.0, 1.0, 2.0, 3.0}
+
+
+def test_sweep_files_and_the_command_line_take_the_bandit_names():
+    from vdbejax.studies.task_names import make_task
+
+    assert make_task("testbed:4").name == "testbed:4"
+    assert int(make_task("bernoulli_bandit", max_steps=20).max_steps) == 20
