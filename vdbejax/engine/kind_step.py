@@ -15,7 +15,7 @@ import jax.numpy as jnp
 from vdbejax.engine.lanes import is_unrolled, learner_rows, rows_of
 from vdbejax.methods.agents import Agent
 from vdbejax.methods.api import Context, Transition
-from vdbejax.methods.contract import behaviour_values
+from vdbejax.methods.contract import as_draws, behaviour_values
 
 Array = jax.Array
 
@@ -24,27 +24,36 @@ Array = jax.Array
 ENGINE_UNIFORMS = 2
 
 
-def _uniform_counts(agent: Agent) -> tuple[int, int, int, int]:
+def _uniform_counts(agent: Agent, num_actions: int) -> tuple[int, int, int, int]:
     """Uniforms of an iteration after the engine's, in order: the explorer's, the
-    learner's, the explorer's again when the learner redraws its next action, the plan's."""
-    explorer = int(agent.explorer.num_uniforms)
+    learner's, the explorer's again when the learner redraws its next action, the plan's
+    (a plug-in's :meth:`~vdbejax.methods.contract.Explorer.draws` in the task)."""
+    explorer = agent.explorer.draws(num_actions).slots()
     redraw = explorer if agent.learner.redraws_next_action else 0
-    return explorer, int(agent.learner.num_uniforms), redraw, int(agent.learner.plan_uniforms)
+    return (explorer, agent.learner.draws(num_actions).slots(), redraw,
+            int(agent.learner.plan_uniforms))
 
 
-def num_uniforms(agent: Agent) -> int:
-    """Uniforms one iteration of this kind draws (the engine's and :func:`uniform_parts`)."""
-    return ENGINE_UNIFORMS + sum(_uniform_counts(agent))
+def num_uniforms(agent: Agent, num_actions: int) -> int:
+    """Uniforms one iteration of this kind draws in a task of ``num_actions`` actions (the
+    engine's and :func:`uniform_parts`)."""
+    return ENGINE_UNIFORMS + sum(_uniform_counts(agent, num_actions))
 
 
-def uniform_parts(agent: Agent, u: tuple) -> tuple[tuple, tuple, tuple, tuple]:
+def uniform_parts(agent: Agent, u: tuple, num_actions: int
+                  ) -> tuple[tuple, tuple, tuple, tuple]:
     """An iteration's uniforms ``u`` split into the explorer's, the learner's, the
-    redrawn choice's and the plan's (the engine's own are ``u[:ENGINE_UNIFORMS]``)."""
+    redrawn choice's and the plan's (the engine's own are ``u[:ENGINE_UNIFORMS]``), the
+    first three as the draws their plug-in asks for
+    (:func:`~vdbejax.methods.contract.as_draws`)."""
     parts, start = [], ENGINE_UNIFORMS
-    for count in _uniform_counts(agent):
+    for count in _uniform_counts(agent, num_actions):
         parts.append(u[start:start + count])
         start += count
-    return parts[0], parts[1], parts[2], parts[3]
+    explorer_draws = agent.explorer.draws(num_actions)
+    return (as_draws(explorer_draws, parts[0]),
+            as_draws(agent.learner.draws(num_actions), parts[1]),
+            as_draws(explorer_draws, parts[2]) if parts[2] else (), parts[3])
 
 
 def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: dict,
@@ -161,7 +170,7 @@ def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
     """
     learner, explorer = agent.learner, agent.explorer
     A = num_actions
-    explorer_u, learner_u, redraw_u, _ = uniform_parts(agent, u)
+    explorer_u, learner_u, redraw_u, _ = uniform_parts(agent, u, A)
     learner_specs = learner.tables()
     learner_sa = {name: learner_rows(tables[name], sa_index, 1, spec)
                   for name, spec in learner_specs.items()}

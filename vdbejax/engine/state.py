@@ -155,6 +155,23 @@ def uniforms_from(base: Array, count: int) -> tuple[Array, ...]:
     return tuple(draws)
 
 
+#: Mixed into an iteration's :func:`draw_base` for the task's own draw (a reward's noise),
+#: a stream apart from the plug-ins' uniforms (any number of them).
+_TASK_STREAM = np.uint32(0xB5297A4D)
+
+
+def reward_uniform(base: Array) -> Array:
+    """The uniform in the open interval (0, 1) of an iteration's reward noise
+    (:mod:`vdbejax.envs.reward_noise`), from its :func:`draw_base`: a pure function of the
+    agent's key and counter, apart from the plug-ins' draws, so a plug-in that asks for
+    more uniforms changes no reward. Drawn only for a task with reward noise."""
+    bits = _mix32(lax.add(_mix32(lax.bitwise_xor(base, _TASK_STREAM)), _TASK_STREAM))
+    mantissa = lax.convert_element_type(lax.shift_right_logical(bits, np.uint32(9)),
+                                        jnp.float32)
+    # (m + 0.5) · 2⁻²³ is exact and never 0 or 1 (the inverse normal CDF is finite there).
+    return lax.mul(lax.add(mantissa, np.float32(0.5)), np.float32(2.0**-23))
+
+
 def agent_keys(seed: int, num_seeds: int) -> np.ndarray:
     """Keys of agents 0..num_seeds-1: ``fold_in(PRNGKey(seed), i)`` (uint32 ``[n, 2]``).
 

@@ -50,7 +50,7 @@ from vdbejax.engine.lanes import (  # noqa: F401  (UNROLLED_LANES_MAX: re-export
     take,
     take_row,
 )
-from vdbejax.engine.state import AgentState, draw_base, uniforms_from
+from vdbejax.engine.state import AgentState, draw_base, reward_uniform, uniforms_from
 from vdbejax.engine.whole import (
     LearnedStep,
     after_learning,
@@ -58,6 +58,7 @@ from vdbejax.engine.whole import (
     is_whole_kind,
     whole_blocks,
 )
+from vdbejax.envs.reward_noise import noisy_reward
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Agent
 from vdbejax.methods.api import Context
@@ -82,16 +83,22 @@ def start_support(mdp: TabularMDP) -> tuple[Array, Array]:
     return jax.device_put(support), jax.device_put(host[support])
 
 
-def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array) -> tuple[Array, Array, Array]:
+def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array, noise_u: Array | None
+                ) -> tuple[Array, Array, Array]:
     """Batched :meth:`TabularMDP.transition` (flat 1-D gathers when deterministic)."""
     if mdp.num_outcomes != 1:
-        return jax.vmap(mdp.transition)(s, a, u)
+        return jax.vmap(mdp.transition)(s, a, u, noise_u)
     flat = s * mdp.num_actions + a
 
     def at(table: Array) -> Array:
         return take(table.reshape(-1), flat)
 
-    return at(mdp.next_state), at(mdp.reward), at(mdp.terminal)
+    reward = at(mdp.reward)
+    if mdp.reward_noise is not None:  # static: a task without noise draws nothing
+        assert noise_u is not None  # (lockstep_iteration draws it for such a task)
+        noise = mdp.reward_noise
+        reward = noisy_reward(reward, at(noise.model), at(noise.std), noise_u)
+    return at(mdp.next_state), reward, at(mdp.terminal)
 
 
 def lockstep_iteration(
@@ -144,7 +151,7 @@ def lockstep_iteration(
     # every kind its own draws.
     if base is None:
         base = draw_base(agents.key, agents.counter)
-    u = uniforms_from(base, max(num_uniforms(k) for k in kinds))
+    u = uniforms_from(base, max(num_uniforms(k, A) for k in kinds))
     resetting = agents.pending_reset
     learn = active & ~resetting
     s, a = agents.state, agents.action
@@ -153,7 +160,8 @@ def lockstep_iteration(
     # neighbours' tables lie next to them in the same buffer.
     a = jnp.clip(a, 0, A - 1)
 
-    s_next, reward, terminal = _transition(mdp, s, a, u[1])
+    noise_u = None if mdp.reward_noise is None else reward_uniform(base)
+    s_next, reward, terminal = _transition(mdp, s, a, u[1], noise_u)
     length = agents.episode_length + 1
     truncated = ~terminal & (length >= mdp.max_steps)
     states, weights = support
@@ -211,7 +219,7 @@ def lockstep_iteration(
             tables[name] = put_learned(tables[name], index_of(_write_form("explorer", spec.per)),
                                        new, old, learn, spec.per == "pair")
         if whole_kind:
-            explorer_u, _, _, plan_u = uniform_parts(agent, u)
+            explorer_u, _, _, plan_u = uniform_parts(agent, u, A)
             q, tables, next_action, finite = after_learning(
                 agent, q, tables, next_action, finite, LearnedStep(
                     s=s, s_next=s_next, act_state=act_state, reward=reward, terminal=terminal,

@@ -19,6 +19,7 @@ import numpy as np
 from vdbejax._moved import moved_names
 from vdbejax._numerics import sample_categorical
 from vdbejax._pytree import pytree_dataclass, static_field
+from vdbejax.envs.reward_noise import RewardNoise, make_reward_noise, noisy_reward
 
 Array = jax.Array
 
@@ -38,6 +39,9 @@ class TabularMDP:
       state_codes: int32 ``[S]`` increasing environment code of each state index, or
         ``None`` when state index = code (dense compilation, MDPs built from arrays).
         ``None`` adds no pytree leaf, so such MDPs keep their fingerprints.
+      reward_noise: the outcomes' noise models (:mod:`vdbejax.envs.reward_noise`; ``reward``
+        then holds their means), or ``None`` when every reward is its mean: no leaf, no
+        draw, the bits and fingerprint of a task without noise.
     """
 
     next_state: Array
@@ -48,6 +52,7 @@ class TabularMDP:
     max_steps: Array
     name: str = static_field("mdp")
     state_codes: Array | None = None
+    reward_noise: RewardNoise | None = None
 
     @property
     def num_states(self) -> int:
@@ -111,25 +116,43 @@ class TabularMDP:
         """
         return sample_categorical(self.start_probability, u)
 
-    def transition(self, state: Array, action: Array, u: Array) -> tuple[Array, Array, Array]:
+    def transition(self, state: Array, action: Array, u: Array, noise_u: Array | None = None
+                   ) -> tuple[Array, Array, Array]:
         """One transition from integer ``state`` under ``action``.
 
         Args:
           state: int32 state index.
           action: int32 action index.
           u: uniform in [0, 1) choosing the outcome (unused when ``K = 1``).
+          noise_u: uniform in (0, 1) drawing the reward around its mean (a task with
+            ``reward_noise`` only).
 
         Returns:
           ``(next_state, reward, terminal)``.
+
+        Raises:
+          ValueError: ``noise_u`` missing for a task with reward noise.
         """
         # static: deterministic MDPs skip the draw
         k: int | Array = (0 if self.num_outcomes == 1
                           else sample_categorical(self.probability[state, action], u))
         return (
             self.next_state[state, action, k],
-            self.reward[state, action, k],
+            self.reward_at(state, action, k, noise_u),
             self.terminal[state, action, k],
         )
+
+    def reward_at(self, state: Array, action: Array, k: Any, noise_u: Array | None) -> Array:
+        """The reward of outcome ``k`` of ``(state, action)``: its mean, or a draw around it
+        with ``noise_u`` where the task has reward noise."""
+        mean = self.reward[state, action, k]
+        if self.reward_noise is None:  # static: a task without noise draws nothing
+            return mean
+        if noise_u is None:
+            raise ValueError(f"noise_u is None but MDP {self.name!r} has reward noise:"
+                             " pass a uniform in (0, 1)")
+        return noisy_reward(mean, self.reward_noise.model[state, action, k],
+                            self.reward_noise.std[state, action, k], noise_u)
 
 
 def _as_array(label: str, value: Any, dtype: Any = None) -> np.ndarray:
@@ -142,11 +165,13 @@ def _as_array(label: str, value: Any, dtype: Any = None) -> np.ndarray:
                          " must be a rectangular array of numbers") from None
 
 
-def _first_bad(label: str, arr: np.ndarray, bad: np.ndarray, allowed: str) -> None:
+def first_bad(label: str, arr: np.ndarray, bad: np.ndarray, allowed: str) -> None:
     """Raise for the first element of ``arr`` where ``bad`` holds, naming its position."""
     if np.any(bad):
         where = tuple(int(i) for i in np.unravel_index(np.argmax(bad), bad.shape))
-        raise ValueError(f"{label}{list(where)} = {arr[where].item()!r}: {allowed}")
+        value = arr[where]
+        value = value.item() if isinstance(value, np.generic) else value
+        raise ValueError(f"{label}{list(where)} = {value!r}: {allowed}")
 
 
 def _on_device(value: Any, dtype: Any) -> Array:
@@ -166,6 +191,8 @@ def make_tabular_mdp(
     name: str = "mdp",
     atol: float = 1e-5,
     state_codes: Any | None = None,
+    reward_noise: Any | None = None,
+    reward_std: Any | None = None,
 ) -> TabularMDP:
     """Build a validated :class:`TabularMDP` from arrays.
 
@@ -186,6 +213,12 @@ def make_tabular_mdp(
       atol: tolerance of the sums to 1 (sums are then renormalised exactly).
       state_codes: optional ``[S]`` strictly increasing non-negative integer codes of the
         states in some environment encoding (see :func:`compile_env`).
+      reward_noise: ``None`` (rewards are exact), or the noise model of every outcome
+        (``"none"``, ``"gaussian"``, ``"bernoulli"``, :mod:`vdbejax.envs.reward_noise`) or
+        a ``next_state``-shaped array of them; ``reward`` then holds the means (in [0, 1]
+        for Bernoulli outcomes).
+      reward_std: the standard deviation of the Gaussian outcomes (a number >= 0 or a
+        ``next_state``-shaped array); needed exactly when some outcome is Gaussian.
 
     Returns:
       the :class:`TabularMDP`.
@@ -193,7 +226,8 @@ def make_tabular_mdp(
     Raises:
       ValueError: one line naming the parameter, the offending shape or value, and what is
         allowed (wrong shapes or dtypes, out-of-range indices, negative probabilities or
-        sums other than 1, non-finite rewards, ``max_steps`` not in [1, 2**31 − 1], …).
+        sums other than 1, non-finite rewards, ``max_steps`` not in [1, 2**31 − 1], an
+        unknown noise model, a negative standard deviation, …).
     """
     from vdbejax.validation import INT32_MAX, check_int, check_positive
 
@@ -214,7 +248,7 @@ def make_tabular_mdp(
     num_states = shape[0]
     if min(shape) < 1:
         raise ValueError(f"next_state has shape {shape}: every dimension must be >= 1")
-    _first_bad("next_state", next_state, (next_state < 0) | (next_state >= num_states),
+    first_bad("next_state", next_state, (next_state < 0) | (next_state >= num_states),
                f"must be a state index in [0, {num_states - 1}]")
 
     def outcome_array(label: str, value: Any, dtype: Any) -> np.ndarray:
@@ -239,7 +273,7 @@ def make_tabular_mdp(
         probability = np.ones(shape, np.float32)  # exact: nothing to check or normalise
     else:
         probability = outcome_array("probability", probability, np.float64)
-        _first_bad("probability", probability, ~np.isfinite(probability) | (probability < 0),
+        first_bad("probability", probability, ~np.isfinite(probability) | (probability < 0),
                    "must be finite and >= 0")
         sums = probability.sum(-1, keepdims=True)
         error = np.abs(sums[..., 0] - 1.0)
@@ -252,13 +286,13 @@ def make_tabular_mdp(
         probability = (probability / sums).astype(np.float32)
     # float32 as stored: a float64 reward beyond float32's range would become inf.
     reward = outcome_array("reward", reward, np.float32)
-    _first_bad("reward", reward, ~np.isfinite(reward), "must be finite in float32")
+    first_bad("reward", reward, ~np.isfinite(reward), "must be finite in float32")
     terminal = _as_array("terminal", terminal)
     if terminal.shape == (num_states,):
         terminal = terminal[next_state]  # terminal states -> terminal outcomes
     terminal = outcome_array("terminal", terminal, None)
     if terminal.dtype != bool:
-        _first_bad("terminal", terminal, (terminal != 0) & (terminal != 1),
+        first_bad("terminal", terminal, (terminal != 0) & (terminal != 1),
                    "must be a bool or 0/1")
         terminal = terminal != 0
     start = _as_array("start_probability", start_probability)
@@ -269,7 +303,7 @@ def make_tabular_mdp(
     if not np.issubdtype(start.dtype, np.number):
         raise ValueError(f"start_probability has dtype {start.dtype}: must hold numbers")
     start = start.astype(np.float64)
-    _first_bad("start_probability", start, ~np.isfinite(start) | (start < 0),
+    first_bad("start_probability", start, ~np.isfinite(start) | (start < 0),
                "must be finite and >= 0")
     if abs(start.sum() - 1.0) > atol:
         raise ValueError(
@@ -287,6 +321,7 @@ def make_tabular_mdp(
         if given[-1] > np.iinfo(np.int32).max:
             raise ValueError(f"state_codes holds {given[-1]}: must be < 2**31")
         codes = _on_device(given, np.int32)
+    noise = make_reward_noise(reward, reward_noise, reward_std, outcome_array)
     return TabularMDP(
         next_state=_on_device(next_state, np.int32),
         probability=_on_device(probability, np.float32),
@@ -296,6 +331,8 @@ def make_tabular_mdp(
         max_steps=_on_device(max_steps, np.int32),
         name=name,
         state_codes=codes,
+        reward_noise=None if noise is None else RewardNoise(
+            model=_on_device(noise[0], np.int32), std=_on_device(noise[1], np.float32)),
     )
 
 

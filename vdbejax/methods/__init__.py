@@ -8,8 +8,10 @@
 * :mod:`vdbejax.methods.selection` — the action-selection rules as pure functions
   (greedy, softmax, the paper's one rule, the VDBE ε(s) update).
 * :mod:`vdbejax.methods.explorers` — greedy, ε-greedy, softmax, VDBE, VDBE-Softmax, Max-Boltzmann,
-  decaying ε-greedy and softmax, UCB-1, count bonus.
-* :mod:`vdbejax.methods.learners` — Q-learning, SARSA, Expected SARSA, Double Q-learning.
+  decaying ε-greedy and softmax, UCB-1, count bonus; :mod:`vdbejax.methods.thompson` —
+  Thompson sampling (Gaussian and Beta posteriors).
+* :mod:`vdbejax.methods.learners` — Q-learning, SARSA, Expected SARSA, Double Q-learning,
+  sample average.
 * :mod:`vdbejax.methods.model` — the agent's count model of its task and planning on it;
   :mod:`vdbejax.methods.model_based` — R-max, MBIE-EB; :mod:`vdbejax.methods.traces` —
   SARSA(λ), Watkins Q(λ); :mod:`vdbejax.methods.dyna` — Dyna-Q, Dyna-Q+;
@@ -29,6 +31,7 @@ from vdbejax.methods import (
     learners,
     model_based,
     posterior,
+    thompson,
     traces,
 )
 from vdbejax.methods.agents import (
@@ -93,5 +96,6 @@ __all__ = [
     "stack_agents",
     "static_field",
     "sweep",
+    "thompson",
     "traces",
 ]

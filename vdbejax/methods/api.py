@@ -41,14 +41,16 @@ Contract (checked by :func:`check_plugin` before any training, one-line ``ValueE
   (after every learning step, with the tables of the state just left), ``probabilities(q,
   tables, context) -> [A]`` (the exact distribution ``select`` samples; Expected SARSA
   and :func:`vdbejax.results.analysis.action_probabilities` use it), ``num_uniforms`` (uniforms in
-  [0, 1) handed to ``select``; 3 by default).
+  [0, 1) handed to ``select``; 3 by default) or, for draws sized from the task or of
+  other laws, ``draws(num_actions) -> Draws(uniforms, normals, keys)`` (handed to
+  ``select`` in that order; :class:`~vdbejax.methods.contract.Draws`).
 * **Learner**: ``update(transition) -> LearnerUpdate`` (new Q(s,a), new values of its own
   tables at (s,a), and ΔQ for the explorer); a ``gamma`` field (the engine passes
   ``discount = 0`` on terminal steps, ``gamma`` otherwise); optional ``tables()`` (extra
   per-(state, action) tables, e.g. Double Q's second table), ``behaviour(q, tables)``
   (the values the explorer acts on), ``initial_q(key, S, A)``, ``uses_next_action``
   (SARSA: a′ is drawn before the update and passed in), ``uses_next_probabilities``
-  (Expected SARSA: π(·|s′) passed in), ``num_uniforms``.
+  (Expected SARSA: π(·|s′) passed in), ``num_uniforms`` or ``draws(num_actions)``.
 
 The random numbers come from the engine's per-agent counter-based stream, so results
 depend only on an agent's key and hyperparameters. If your update adds a product to
@@ -67,6 +69,7 @@ from vdbejax.methods.contract import (  # noqa: F401  (re-exported)
     TABLE_KINDS,
     Array,
     Context,
+    Draws,
     Explorer,
     Learner,
     LearnerUpdate,
@@ -92,6 +95,7 @@ __all__ = [
     "EXPLORERS",
     "LEARNERS",
     "Context",
+    "Draws",
     "Explorer",
     "Learner",
     "LearnerUpdate",

@@ -51,6 +51,40 @@ class Table:
         return int(self.length) if self.per == "stage" and self.length is not None else 1
 
 
+@dataclasses.dataclass(frozen=True)
+class Draws:
+    """The random draws a plug-in asks for per step (:meth:`Explorer.draws`,
+    :meth:`Learner.draws`), handed to it as one tuple in this order: ``uniforms`` uniforms
+    in [0, 1), ``normals`` standard normals, ``keys`` PRNG keys (raw ``uint32[2]``) for any
+    other distribution (``jax.random.gamma``, ``jax.random.beta``, …, with parameters the
+    plug-in computes). All come from the agent's own stream: results still depend only on
+    its key and hyperparameters."""
+
+    uniforms: int = 0
+    normals: int = 0
+    keys: int = 0
+
+    def slots(self) -> int:
+        """Uniforms of the agent's stream they take (a key takes two)."""
+        return self.uniforms + self.normals + 2 * self.keys
+
+
+def as_draws(draws: Draws, uniforms: tuple) -> tuple:
+    """The draws ``draws`` asks for from its :meth:`Draws.slots` uniforms of the stream
+    (uniforms ``m · 2⁻²³``, ``m`` a 23-bit integer): the uniforms as they are, a normal
+    from one uniform (the inverse normal CDF at the open interval's ``u + 2⁻²⁴``), a key
+    from two (their 23-bit integers)."""
+    if draws.normals == 0 and draws.keys == 0:
+        return tuple(uniforms)
+    from jax.scipy.special import ndtri
+
+    first = draws.uniforms + draws.normals
+    normals = tuple(ndtri(u + jnp.float32(2.0**-24)) for u in uniforms[draws.uniforms:first])
+    words = [(u * jnp.float32(2.0**23)).astype(jnp.uint32) for u in uniforms[first:]]
+    keys = tuple(jnp.stack(words[2 * k: 2 * k + 2], axis=-1) for k in range(draws.keys))
+    return (*uniforms[:draws.uniforms], *normals, *keys)
+
+
 @pytree_dataclass
 class Context:
     """Where the agent is: ``episode`` (0-based index of the episode the action belongs
@@ -77,7 +111,8 @@ class Transition:
       next_action: a′ (only with ``uses_next_action``; else 0).
       next_probabilities: ``[A]`` π(·|s′) (only with ``uses_next_probabilities``; else
         zeros).
-      uniforms: the learner's ``num_uniforms`` uniforms in [0, 1).
+      uniforms: the learner's draws (:meth:`Learner.draws`: by default ``num_uniforms``
+        uniforms in [0, 1)).
       terminal: the transition ended its episode (a failure has a negative reward, a goal
         a positive one, on the tasks of vdbejax).
       state, action, next_state: s, a and s′ (int32 scalars; s′ is the state the
@@ -124,10 +159,16 @@ class Explorer:
     title: ClassVar[str] = ""
     #: The hyperparameter a :class:`~vdbejax.methods.agents.Setting`'s ``param`` sets.
     parameter: ClassVar[str | None] = None
-    #: Uniforms ``select`` receives.
+    #: Uniforms ``select`` receives (the :meth:`draws` of a plug-in that does not
+    #: override it).
     num_uniforms: ClassVar[int] = 3
     #: Grid-wide option names this explorer takes under another field name.
     option_aliases: ClassVar[dict[str, str]] = {}
+
+    def draws(self, num_actions: int) -> Draws:
+        """The draws ``select`` receives each step (as its ``uniforms`` tuple), sized from
+        the task's number of actions where need be; ``num_uniforms`` uniforms by default."""
+        return Draws(uniforms=self.num_uniforms)
 
     def tables(self) -> dict[str, Table]:
         """The tables this explorer keeps (none by default)."""
@@ -183,6 +224,11 @@ class Learner:
         update (the a′ of the target only serves the target; the authors' SARSA). A class
         attribute, or a property where it is an option."""
         return False
+
+    def draws(self, num_actions: int) -> Draws:
+        """The draws ``update`` receives each step (``transition.uniforms``), sized from the
+        task's number of actions where need be; ``num_uniforms`` uniforms by default."""
+        return Draws(uniforms=self.num_uniforms)
 
     def tables(self) -> dict[str, Table]:
         """Extra per-(state, action) tables (none by default)."""

@@ -1,6 +1,6 @@
 """Learning rules as pure functions of one transition (rlax style), and the learners
-(plug-ins, :mod:`vdbejax.methods.api`) built on them: Q-learning, SARSA, Expected SARSA
-and Double Q-learning.
+(plug-ins, :mod:`vdbejax.methods.api`) built on them: Q-learning, SARSA, Expected SARSA,
+Double Q-learning and the sample average.
 
 ``discount`` is γ for a non-terminal transition and 0 for a terminal one, so terminal
 transitions use the target ``r`` and truncated ones still bootstrap. Q rows have the
@@ -242,6 +242,30 @@ class DoubleQLearning(TDLearner):
                            double_q_learning_target(t.reward, t.discount, t.q_next, q2_next))
         new, delta_q = td_update(jnp.where(first, t.q, q2), target, self.alpha)
         return LearnerUpdate(jnp.where(first, new, t.q), {"q2": jnp.where(first, q2, new)}, delta_q)
+
+
+@learner("sample_average", title="Sample average")
+class SampleAverage(Learner):
+    """Sample averages (Sutton & Barto 2018, §2.4): ``Q(s,a) += (target − Q(s,a)) / n(s,a)``
+    with ``n(s,a)`` the visits of (s, a), this one included (step size α = 1/n), and the
+    Q-learning target ``r + γ max_b Q(s',b)``. On a bandit (every pull terminal: target
+    ``r``) Q(a) is the mean of the rewards arm ``a`` has paid; ``q_init`` is forgotten at
+    the first visit."""
+
+    gamma: float | Array = PAPER_GAMMA
+    q_init: float | Array = 0.0
+
+    def tables(self) -> dict[str, Table]:
+        return {"visits": Table("pair", 0.0)}
+
+    def update(self, t: Transition) -> LearnerUpdate:
+        visits = t.tables["visits"] + 1.0
+        delta_q = (q_learning_target(t.reward, t.discount, t.q_next) - t.q) / visits
+        return LearnerUpdate(t.q + delta_q, {"visits": visits}, delta_q)
+
+    def validate(self) -> None:
+        check_in_range("gamma", self.gamma, 0.0, 1.0)
+        check_finite("q_init", self.q_init)
 
 
 def make_learner(name: str, **values: object) -> Learner:

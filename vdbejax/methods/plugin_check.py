@@ -16,11 +16,13 @@ from vdbejax.methods.contract import (
     PLAN_MOMENTS,
     TABLE_KINDS,
     Context,
+    Draws,
     Explorer,
     Learner,
     LearnerUpdate,
     Table,
     Transition,
+    as_draws,
 )
 from vdbejax.methods.model import Model
 
@@ -71,7 +73,7 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
                for k, s in lspecs.items()}
     context = Context(_abstract((), jnp.int32), _abstract((), jnp.int32),
                       _abstract((), jnp.bool_))
-    uniforms = tuple(scalar for _ in range(_count(name, agent_explorer.num_uniforms)))
+    uniforms = _abstract_draws(name, agent_explorer, A)
 
     def traced(what: str, fn: Callable, *args: Any) -> Any:
         try:
@@ -100,6 +102,7 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
     action = _abstract((), jnp.int32)
     new = traced(f"{name} update()", agent_explorer.update, tables, action, scalar, context)
     _check_same(f"{name} update()", new, tables)
+    _check_actions_in_range(name, agent_explorer, A)
     uses_probabilities = agent_learner.uses_next_probabilities
     if uses_probabilities:
         try:
@@ -123,7 +126,7 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
     behaviour = traced(f"{lname} behaviour()", agent_learner.behaviour, row, ltables,
                        *((context,) if agent_learner.behaviour_uses_context else ()))
     _check_same(f"{lname} behaviour()", behaviour, row)
-    luniforms = tuple(scalar for _ in range(_count(lname, agent_learner.num_uniforms)))
+    luniforms = _abstract_draws(lname, agent_learner, A)
     index = _abstract((), jnp.int32)
     transition = Transition(scalar, lpair, scalar, scalar, row, ltables,
                             action, row, luniforms, _abstract((), jnp.bool_), index, index,
@@ -152,6 +155,74 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
 _FLAGS = ("num_uniforms", "uses_next_action", "uses_next_probabilities", "redraws_next_action",
           "behaviour_uses_context", "uses_model", "updates_whole_table", "plan_at",
           "plan_uniforms")
+
+
+def _abstract_draws(name: str, plugin: Explorer | Learner, num_actions: int) -> tuple:
+    """Abstract stand-ins of the draws ``plugin`` asks for in a task of ``num_actions``
+    actions (scalars; a key ``uint32[2]``), its request checked."""
+    _count(name, plugin.num_uniforms)  # what the default draws() hands on
+    try:
+        draws = plugin.draws(num_actions)
+    except Exception as error:
+        raise ValueError(f"{name} draws({num_actions}) fails: {type(error).__name__}:"
+                         f" {str(error).strip().splitlines()[0] if str(error).strip() else ''}"
+                         ) from None
+    if type(draws) is not Draws:
+        raise ValueError(f"{name} draws({num_actions}) returned {type(draws).__name__}: must"
+                         " return Draws(uniforms, normals, keys)")
+    for field in ("uniforms", "normals", "keys"):
+        _count(f"{name} draws({num_actions}).{field}", getattr(draws, field), "")
+    _count(f"{name} draws({num_actions}) in all", draws.slots(), "")
+    scalar = _abstract((), jnp.float32)
+    return ((scalar,) * (draws.uniforms + draws.normals)
+            + (_abstract((2,), jnp.uint32),) * draws.keys)
+
+
+#: Sample states an explorer's ``select`` is run on by :func:`_check_actions_in_range`.
+_SAMPLES = 8
+
+
+def _check_actions_in_range(name: str, agent_explorer: Explorer, num_actions: int) -> None:
+    """Run ``select`` on a few sample states (small Q values, one row all tied, the tables
+    at their initial values and after some visits, draws at the stream's extremes and
+    between) and refuse an action outside ``[0, num_actions)``: a plug-in sized for
+    another task (a hard-coded number of actions) is caught before training, not flagged
+    after it."""
+    rng = np.random.default_rng(0)
+    A, f32 = num_actions, np.float32
+    # Small values: a formula that overflows on large ones (an unstabilised softmax at a
+    # small τ) is a numerical matter, flagged at run time (nonfinite), not refused here.
+    q = (rng.normal(size=(_SAMPLES, A)) * 1e-3).astype(f32)
+    q[0] = 0.0  # all tied
+    tables = {key: jnp.full((_SAMPLES, *((A,) if spec.per == "pair" else ())), spec.init,
+                            jnp.float32)
+              for key, spec in agent_explorer.tables().items()}
+    context = Context(jnp.arange(_SAMPLES, dtype=jnp.int32), jnp.zeros(_SAMPLES, jnp.int32),
+                      jnp.zeros(_SAMPLES, bool))
+    visited = jnp.asarray(np.arange(_SAMPLES) >= _SAMPLES // 2)
+    for _ in range(3):  # half the states visited a few times, through the explorer's update
+        actions = jnp.asarray(rng.integers(0, A, _SAMPLES), jnp.int32)
+        delta_q = jnp.asarray(rng.normal(size=_SAMPLES), jnp.float32)
+        updated = jax.vmap(agent_explorer.update)(tables, actions, delta_q, context)
+        tables = {key: jnp.where(visited.reshape((-1,) + (1,) * (value.ndim - 1)),
+                                 jnp.asarray(updated[key], jnp.float32), value)
+                  for key, value in tables.items()}
+    draws = agent_explorer.draws(A)
+    edges = np.linspace(0.0, 1.0 - 2.0**-23, _SAMPLES, dtype=f32)
+    uniforms = tuple(jnp.asarray(rng.permutation(edges)) for _ in range(draws.slots()))
+    given = as_draws(draws, uniforms)
+    try:
+        chosen = np.asarray(jax.vmap(agent_explorer.select)(jnp.asarray(q), tables, context,
+                                                             given))
+    except Exception as error:
+        message = str(error).strip().splitlines()[0] if str(error).strip() else ""
+        raise ValueError(f"{name} select() fails on sample states: {type(error).__name__}:"
+                         f" {message}") from None
+    bad = (chosen < 0) | (chosen >= A)
+    if bad.any():
+        raise ValueError(f"{name} select() returned action {int(chosen[bad][0])} on a"
+                         f" sample state of a task with {A} actions: must be in [0, {A - 1}]"
+                         " (size its draws and arrays from the Q row it is given)")
 
 
 #: States and listed successors of the abstract task a whole-table plug-in is traced on.
@@ -272,10 +343,10 @@ def _abstract(shape: tuple[int, ...], dtype: Any) -> Any:
 MAX_UNIFORMS = 4096
 
 
-def _count(name: str, value: Any) -> int:
+def _count(name: str, value: Any, label: str = " num_uniforms") -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not (
             0 <= value <= MAX_UNIFORMS):
-        raise ValueError(f"{name} num_uniforms={value!r} is invalid: must be an integer in"
+        raise ValueError(f"{name}{label}={value!r} is invalid: must be an integer in"
                          f" [0, {MAX_UNIFORMS}] (each uniform is an operation of the compiled"
                          " step)")
     return int(value)

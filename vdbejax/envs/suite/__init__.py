@@ -8,6 +8,8 @@ One module per task family, each citing its source and building the task as publ
 * :mod:`.deep_sea`: DeepSea (Osband et al. 2019; bsuite 2020);
 * :mod:`.gridworlds`: the windy gridworld and cliff walking of Sutton & Barto (2018);
 * :mod:`.toy_text`: gymnasium's FrozenLake (4×4, 8×8) and Taxi (needs the ``gym`` extra);
+* :mod:`.bandits`: k-armed Gaussian and Bernoulli bandits and Sutton & Barto's testbed
+  (2018), one-state tasks with random rewards;
 
 and the table-cleaning family that :mod:`vdbejax.envs.table_cleaning` and
 :mod:`vdbejax.envs.cruz2018` define. :func:`make_suite_task` builds a task from its name
@@ -22,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from vdbejax.envs.suite import chain, deep_sea, gridworlds, river_swim, toy_text
+from vdbejax.envs.suite import bandits, chain, deep_sea, gridworlds, river_swim, toy_text
 from vdbejax.envs.tabular import TabularMDP
 
 
@@ -76,19 +78,26 @@ _SOURCES = {
                 " vdbejax.envs.cruz2018)",
     "variant": "generated variants of the table-cleaning task"
                " (vdbejax.envs.table_cleaning.generator)",
+    "gaussian_bandit": "the k-armed bandit with Gaussian rewards (Sutton & Barto 2018,"
+                       " Reinforcement Learning: An Introduction (2nd ed.), ch. 2)",
+    "bernoulli_bandit": "the k-armed Bernoulli bandit (Chapelle & Li 2011, An empirical"
+                        " evaluation of Thompson sampling, NeurIPS)",
+    "testbed": "Sutton & Barto 2018, Reinforcement Learning: An Introduction (2nd ed.),"
+               " §2.3, the 10-armed testbed",
 }
 
 #: The forms of names :func:`make_suite_task` accepts (``N``, ``K``: integers).
 NAMES = ("riverswim", "riverswim:N", "riverswim_normalised", "riverswim_normalised:N",
          "sixarms", "chain", "chain:N", "deepsea", "deepsea:N", "windy_gridworld",
          "cliff_walking", "frozenlake4", "frozenlake8", "taxi", "table_cleaning", "cruz2018",
-         "variant:NxK")
+         "variant:NxK", "gaussian_bandit:N", "bernoulli_bandit:N", "testbed:N")
 #: The default benchmark: every family once, at its published size.
 DEFAULT_SUITE = ("riverswim", "riverswim_normalised", "sixarms", "chain", "deepsea:10",
                  "windy_gridworld", "cliff_walking", "frozenlake4", "frozenlake8", "taxi",
                  "table_cleaning", "cruz2018", "variant:3x1")
 #: Families whose name may carry a size (``family:N``), with their default size.
-_SIZED = {"riverswim": 6, "riverswim_normalised": 6, "chain": 5, "deepsea": 10}
+_SIZED = {"riverswim": 6, "riverswim_normalised": 6, "chain": 5, "deepsea": 10,
+          "gaussian_bandit": 10, "bernoulli_bandit": 10, "testbed": 10}
 #: The table-cleaning tasks' default truncation (``vdbejax.studies.sweeps.make_task``'s).
 TABLE_CLEANING_HORIZON = 100
 
@@ -190,6 +199,17 @@ def task_info(name: str) -> TaskInfo:
             name, "Table cleaning (the paper's text)", _SOURCES[family],
             "finding a 15-step plan among 7 actions, failures ending the episode",
             TABLE_CLEANING_HORIZON, "the repository's default truncation of the paper's task")
+    if family in bandits.FAMILIES:
+        assert size is not None
+        kind = {"gaussian_bandit": "Gaussian bandit", "bernoulli_bandit": "Bernoulli bandit",
+                "testbed": "10-armed testbed"}[family]
+        means = ("arm means N(0, 1)" if family == "testbed" else "arm means uniform in [0, 1)")
+        rewards = "rewards 0 or 1" if family == "bernoulli_bandit" else "unit-variance rewards"
+        return TaskInfo(
+            name, f"{kind} ({size} arms, {means}, {rewards}, instance seed"
+            f" {bandits.INSTANCE_SEED})", _SOURCES[family],
+            "exploration against reward noise alone: which arm pays most on average",
+            bandits.PULLS, "one pull per episode (a run's max_steps sets more)")
     if family == "cruz2018":
         from vdbejax.envs.cruz2018 import STEP_CAP
 
@@ -215,8 +235,10 @@ def make_suite_task(name: str, *, max_steps: int | None = None,
         ``sixarms``, ``chain``, ``deepsea`` (10 × 10), ``windy_gridworld``,
         ``cliff_walking``, ``frozenlake4``, ``frozenlake8``, ``taxi``, ``table_cleaning``,
         ``cruz2018``; with a size: ``riverswim:N``, ``riverswim_normalised:N``,
-        ``chain:N``, ``deepsea:N`` and ``variant:NxK`` (N sections, K goblets).
-      max_steps: the truncation (default: the task's horizon, :func:`task_info`).
+        ``chain:N``, ``deepsea:N``, ``variant:NxK`` (N sections, K goblets),
+        ``gaussian_bandit:N``, ``bernoulli_bandit:N`` and ``testbed:N`` (N arms).
+      max_steps: the truncation (default: the task's horizon, :func:`task_info`); a
+        bandit's pulls per episode.
       invalid_action: ``noop`` or ``fail``, the table-cleaning tasks of the paper's text
         (``table_cleaning``, ``variant:NxK``) only.
 
@@ -258,6 +280,9 @@ def make_suite_task(name: str, *, max_steps: int | None = None,
                                          max_steps=horizon, name=name)
     if family == "taxi":
         return toy_text.make_taxi(max_steps=horizon, name=name)
+    if family in bandits.FAMILIES:
+        assert size is not None
+        return bandits.make_family_bandit(family, size, pulls=horizon, name=name)
     if family == "cruz2018":
         from vdbejax.envs.cruz2018 import make_authors_mdp
 
