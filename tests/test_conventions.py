@@ -13,8 +13,13 @@ import pytest
 from vdbejax import RunOptions, run_grid
 from vdbejax.engine.state import task_facts
 from vdbejax.envs.tabular import make_tabular_mdp
-from vdbejax.methods.agents import AgentOptions, Setting, make_agent, recorded_options
-from vdbejax.methods.agents import paper_settings
+from vdbejax.methods.agents import (
+    AgentOptions,
+    Setting,
+    make_agent,
+    paper_settings,
+    recorded_options,
+)
 from vdbejax.methods.contract import Context, TaskFacts
 from vdbejax.methods.finite_horizon import UCBVI
 from vdbejax.methods.model import Model
@@ -171,11 +176,9 @@ def test_psrl_posterior_has_no_terminal_outcome_on_a_task_without_one():
 
 
 def test_psrl_default_prior_follows_whether_the_task_terminates():
-    settings = [Setting("psrl", "greedy", None, {"horizon": 8}),
-                Setting("psrl", "greedy", None, {"horizon": 8, "terminal_outcome": outcome})]
     for terminal, outcome in ((False, "never"), (True, "always")):
-        settings[1] = Setting("psrl", "greedy", None,
-                              {"horizon": 8, "terminal_outcome": outcome})
+        settings = [Setting("psrl", "greedy", None, {"horizon": 8}),
+                    Setting("psrl", "greedy", None, {"horizon": 8, "terminal_outcome": outcome})]
         result = grid(wander(terminal), settings)
         np.testing.assert_array_equal(result.returns[0], result.returns[1])
         np.testing.assert_array_equal(result.lengths[0], result.lengths[1])

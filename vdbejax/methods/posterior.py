@@ -3,9 +3,9 @@ episode, and solved by backward induction.
 
 The posterior's Dirichlet draw is the method's cost (``S² A`` Gamma variates an episode,
 ``S (S + 1) A`` with a terminal outcome), so :func:`gamma_variates` is written for it:
-Marsaglia & Tsang's (2000) exact rejection sampler: one vectorised proposal round over all variates, then rounds over the
-few rejected ones, gathered into a small buffer. JAX's own
-``jax.random.gamma`` (a rejection loop per variate, vmapped) is several times slower on
+Marsaglia & Tsang's (2000) exact rejection sampler: one vectorised proposal round over
+all variates, then rounds over the few rejected ones, gathered into a small buffer. JAX's
+own ``jax.random.gamma`` (a rejection loop per variate, vmapped) is several times slower on
 the CPU.
 
 The sampled table is kept successor-major, ``[S, S, A]`` (``[S + 1, S, A]`` with a
@@ -212,4 +212,5 @@ class PSRL(_StageLearner):
         check_choice("terminal_outcome", self.terminal_outcome, PSRL_TERMINAL_OUTCOMES)
 
 
-__all__ = ["PSRL", "PSRL_TERMINAL_OUTCOMES", "RETRY_SHARE", "dirichlet_expected", "gamma_variates", "posterior_sample"]
+__all__ = ["PSRL", "PSRL_TERMINAL_OUTCOMES", "RETRY_SHARE", "dirichlet_expected",
+           "gamma_variates", "posterior_sample"]
