@@ -401,6 +401,11 @@ def _np_ucbvi(mdp, episodes, horizon, bonus_kind, scale=0.1, delta=0.1, r_max=1.
     visits, rsum = np.zeros((S, A), F), np.zeros((S, A), F)
     count, succ = np.zeros((S, A), F), np.zeros((S, A), int)
     returns, lengths = [], []
+    if convention == "rlberry":  # rlberry's v_max: the task's reward range, not r_max
+        r_max = F(float(rew.max()) - float(rew.min()))
+    cap = F(0)
+    for _ in range(horizon):
+        cap = F(F(r_max) + F(1) * cap)  # v_max_0, where rlberry caps every stage's values
     for episode in range(episodes):
         n = np.maximum(visits, F(1))
         inverse_root = np.sqrt(F(1) / n).astype(F)
@@ -425,6 +430,8 @@ def _np_ucbvi(mdp, episodes, horizon, bonus_kind, scale=0.1, delta=0.1, r_max=1.
                 backed = np.minimum(rsum / n + bonus + future, v_max)
                 stages[h] = np.where(visits > 0, backed, v_max)
             values, v_next = stages[h].max(axis=1), v_max
+            if convention == "rlberry":
+                values = np.minimum(values, cap)
         s, total, length = 0, F(0), 0
         while True:
             a = int(np.argmax(stages[min(length, horizon - 1), s]))

@@ -28,7 +28,7 @@ from vdbejax.engine.programs import Programs
 from vdbejax.engine.programs import compile_seconds as _compile_seconds
 from vdbejax.engine.progress import ProgressCallback, text_progress  # noqa: F401  (re-exported: engine API)
 from vdbejax.engine.sequential import _SequentialRun, created_in_items
-from vdbejax.engine.state import AgentState, init_agents
+from vdbejax.engine.state import AgentState, for_task, init_agents
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams
 from vdbejax.methods.api import check_plugin
@@ -128,6 +128,9 @@ def run_agents(
     None of ``compact`` … ``threads`` change the results, only the speed, as long as
     ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
 
+    Every kind's learner is first set for the task (:func:`~vdbejax.engine.state.for_task`:
+    the facts of ``mdp`` a method's convention depends on).
+
     Returns:
       :class:`RunResult`.
     """
@@ -139,6 +142,7 @@ def run_agents(
     check_int("max_batch", max_batch, 1)
     check_choice("strategy", strategy, (*STRATEGIES, "auto"))
     check_params(params, mdp.num_actions)
+    params = for_task(params, mdp)
     if threads is None:
         threads = available_cpus()
     check_int("threads", threads, 1)

@@ -1,6 +1,7 @@
 """What an agent carries between steps, how it starts, and its random stream."""
 from __future__ import annotations
 
+import dataclasses
 from functools import partial
 from typing import Any
 
@@ -12,6 +13,7 @@ from jax import lax
 from vdbejax._pytree import pytree_dataclass
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams, table_layout
+from vdbejax.methods.contract import TaskFacts
 from vdbejax.methods.model import capacity
 
 Array = jax.Array
@@ -210,6 +212,24 @@ def broadcast_agents(params: Any, repeats: int) -> Any:
         return (jnp if isinstance(leaf, jax.Array) else np).repeat(leaf, repeats, axis=0)
 
     return jax.tree.map(repeat, params)
+
+
+def task_facts(mdp: TabularMDP) -> TaskFacts:
+    """What a learner is told of ``mdp`` (:class:`~vdbejax.methods.contract.TaskFacts`):
+    its rewards' extremes over the outcomes it can give, and whether one is terminal."""
+    possible = np.asarray(mdp.probability) > 0
+    reward = np.asarray(mdp.reward, np.float64)[possible]
+    return TaskFacts(reward_min=float(reward.min()), reward_max=float(reward.max()),
+                     terminates=bool(np.asarray(mdp.terminal)[possible].any()))
+
+
+def for_task(params: AgentParams, mdp: TabularMDP) -> AgentParams:
+    """``params`` with every kind's learner set for ``mdp`` (its
+    :meth:`~vdbejax.methods.contract.Learner.for_task`): the engine's first act on a batch."""
+    facts = task_facts(mdp)
+    kinds = tuple(dataclasses.replace(agent, learner=agent.learner.for_task(facts))
+                  for agent in params.kinds)
+    return dataclasses.replace(params, kinds=kinds)
 
 
 def state_bytes(mdp: TabularMDP, layout: dict[str, str]) -> int:

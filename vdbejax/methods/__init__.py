@@ -2,7 +2,7 @@
 
 * :mod:`vdbejax.methods.api` — the plug-in surface in one import: the contract
   (:mod:`~vdbejax.methods.contract`: :class:`Explorer`, :class:`Learner`, :class:`Table`,
-  :class:`Context`, :class:`Transition`), the registry and its decorators
+  :class:`TaskFacts`, :class:`Context`, :class:`Transition`), the registry and its decorators
   (:mod:`~vdbejax.methods.registry`) and the plug-in check
   (:mod:`~vdbejax.methods.plugin_check`).
 * :mod:`vdbejax.methods.selection` — the action-selection rules as pure functions
@@ -51,6 +51,7 @@ from vdbejax.methods.api import (
     Learner,
     LearnerUpdate,
     Table,
+    TaskFacts,
     Transition,
     check_plugin,
     explorer,
@@ -73,6 +74,7 @@ __all__ = [
     "LearnerUpdate",
     "Setting",
     "Table",
+    "TaskFacts",
     "Transition",
     "check_plugin",
     "delayed_q",

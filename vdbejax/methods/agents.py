@@ -142,10 +142,12 @@ def _format(value: Any) -> str:
 @dataclasses.dataclass(frozen=True)
 class AgentOptions:
     """Values shared by every agent of a run where its learner or explorer has the field
-    (spec defaults); a setting's own values take precedence."""
+    (spec defaults); a setting's own values take precedence. ``gamma`` ``None`` (the
+    default): each learner's own default γ (the paper's learners: 0.9; the finite-horizon
+    UCBVI, PSRL and UCB-H: 1)."""
 
     alpha: float = PAPER_ALPHA
-    gamma: float = PAPER_GAMMA
+    gamma: float | None = None
     q_init: float = 0.0
     tie_break: str = "random"
     delta: float = VDBE_DELTA
@@ -193,7 +195,8 @@ def make_agent(setting: Setting, options: AgentOptions = AgentOptions()) -> Agen
     """Validated hyperparameters of one agent.
 
     Values are resolved per field: the setting's hyperparameters, then its ``param``, then
-    ``options`` (where the learner or explorer has the field), then the class default.
+    ``options`` (where the learner or explorer has the field and the option is not
+    ``None``), then the class default.
 
     Args:
       setting: learner, explorer, swept parameter and other values.
@@ -213,6 +216,8 @@ def make_agent(setting: Setting, options: AgentOptions = AgentOptions()) -> Agen
         "learner": learner_class(setting.learner), "explorer": explorer_cls}
     values: dict[str, dict[str, Any]] = {"learner": {}, "explorer": {}}
     for name, value in dataclasses.asdict(options).items():
+        if value is None:  # the class's own default
+            continue
         for role, cls in classes.items():
             field = cls.option_aliases.get(name, name)
             if field in field_names(cls):
@@ -231,6 +236,22 @@ def make_agent(setting: Setting, options: AgentOptions = AgentOptions()) -> Agen
         for role in roles:
             values[role][name.rpartition(".")[2]] = value
     return Agent(*(build(classes[role], values[role], role) for role in ("learner", "explorer")))
+
+
+def recorded_options(options: AgentOptions, settings: Sequence[Setting]) -> dict[str, Any]:
+    """``options`` as a run's fingerprint records them (:func:`vdbejax.runs.grid.prepare_grid`).
+
+    Where γ is left to each learner (``gamma=None``) and every setting's learner gets the
+    paper's γ, which every learner got from the options before, the record says that γ:
+    the runs are the same runs, so their earlier results and checkpoints are found again.
+    """
+    described = dataclasses.asdict(options)
+    if options.gamma is None:
+        before = dataclasses.replace(options, gamma=PAPER_GAMMA)
+        if all(float(make_agent(s, options).learner.gamma)
+               == float(make_agent(s, before).learner.gamma) for s in settings):
+            described["gamma"] = PAPER_GAMMA
+    return described
 
 
 def agent_hyperparameters(agent: Agent) -> dict[str, Any]:
@@ -337,6 +358,7 @@ __all__ = [
     "owners",
     "paper_settings",
     "parameter_name",
+    "recorded_options",
     "stack_agents",
     "table_layout",
     "with_parameter_names",

@@ -50,7 +50,12 @@ Contract (checked by :func:`check_plugin` before any training, one-line ``ValueE
   per-(state, action) tables, e.g. Double Q's second table), ``behaviour(q, tables)``
   (the values the explorer acts on), ``initial_q(key, S, A)``, ``uses_next_action``
   (SARSA: a′ is drawn before the update and passed in), ``uses_next_probabilities``
-  (Expected SARSA: π(·|s′) passed in), ``num_uniforms`` or ``draws(num_actions)``.
+  (Expected SARSA: π(·|s′) passed in), ``num_uniforms`` or ``draws(num_actions)``,
+  ``for_task(task) -> learner``
+  (the engine hands every learner the facts of its task before training,
+  :class:`~vdbejax.methods.contract.TaskFacts`: its reward range and whether it has terminal
+  outcomes; a method whose convention depends on them sets its static fields from them,
+  e.g. UCBVI's rlberry convention and PSRL's prior).
 
 The random numbers come from the engine's per-agent counter-based stream, so results
 depend only on an agent's key and hyperparameters. If your update adds a product to
@@ -74,6 +79,7 @@ from vdbejax.methods.contract import (  # noqa: F401  (re-exported)
     Learner,
     LearnerUpdate,
     Table,
+    TaskFacts,
     Transition,
 )
 from vdbejax.methods.plugin_check import check_plugin
@@ -100,6 +106,7 @@ __all__ = [
     "Learner",
     "LearnerUpdate",
     "Table",
+    "TaskFacts",
     "Transition",
     "build",
     "check_plugin",

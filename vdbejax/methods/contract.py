@@ -1,6 +1,6 @@
 """The plug-in contract's types: the :class:`Explorer` and :class:`Learner` base classes,
-the :class:`Table` an agent keeps, and what the engine hands a plug-in (:class:`Context`,
-:class:`Transition`) and takes back (:class:`LearnerUpdate`).
+the :class:`Table` an agent keeps, and what the engine hands a plug-in (:class:`TaskFacts`,
+:class:`Context`, :class:`Transition`) and takes back (:class:`LearnerUpdate`).
 
 The contract in prose (what each method receives and returns) is :mod:`vdbejax.methods.api`'s
 docstring; :mod:`vdbejax.methods.registry` registers and builds plug-ins and
@@ -83,6 +83,26 @@ def as_draws(draws: Draws, uniforms: tuple) -> tuple:
     words = [(u * jnp.float32(2.0**23)).astype(jnp.uint32) for u in uniforms[first:]]
     keys = tuple(jnp.stack(words[2 * k: 2 * k + 2], axis=-1) for k in range(draws.keys))
     return (*uniforms[:draws.uniforms], *normals, *keys)
+class TaskFacts:
+    """What the engine tells a learner about its task before training
+    (:meth:`Learner.for_task`): a method's convention may depend on them, and a method may
+    not read the task itself (methods know nothing of tasks).
+
+    Attributes:
+      reward_min, reward_max: the smallest and largest reward of an outcome the task can
+        give (probability > 0).
+      terminates: some outcome of the task ends its episode (a terminal outcome; the step
+        limit is not one).
+    """
+
+    reward_min: float
+    reward_max: float
+    terminates: bool
+
+    @property
+    def reward_range(self) -> float:
+        """``reward_max − reward_min``."""
+        return self.reward_max - self.reward_min
 
 
 @pytree_dataclass
@@ -237,6 +257,12 @@ class Learner:
     def behaviour(self, q: Array, tables: Mapping[str, Array]) -> Array:
         """The ``[A]`` values the explorer acts on (Q itself by default)."""
         return q
+
+    def for_task(self, task: TaskFacts) -> Learner:
+        """This learner on a task with facts ``task``: the engine calls it once before
+        training, on each kind of a batch (a batched instance: change static fields only).
+        Itself by default; raise a one-line ``ValueError`` where the task does not suit."""
+        return self
 
     def initial_q(self, key: Array, num_states: int, num_actions: int) -> Array:
         """The agent's initial Q table (``q_init`` everywhere by default)."""

@@ -13,6 +13,7 @@ stage). Both assume rewards at most ``r_max``; ``v_max_h = r_max + γ v_max_{h+1
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
@@ -22,7 +23,14 @@ import jax.numpy as jnp
 from vdbejax._moved import moved_names
 from vdbejax._numerics import rounded
 from vdbejax._pytree import pytree_dataclass, static_field
-from vdbejax.methods.contract import Context, Learner, LearnerUpdate, Table, Transition
+from vdbejax.methods.contract import (
+    Context,
+    Learner,
+    LearnerUpdate,
+    Table,
+    TaskFacts,
+    Transition,
+)
 from vdbejax.methods.learners import masked_value
 from vdbejax.methods.model import Model, expected_under
 from vdbejax.methods.registry import learner
@@ -51,19 +59,28 @@ def stage_values(stage_row: Array, context: Context) -> Array:
 def ucbvi_values(model: Model, bonus: Any, gamma: Any, r_max: Any, horizon: int,
                  convention: str = "paper") -> Array:
     """``[S, A, H]`` Q_h by backward induction on the empirical model, ``V_h = max_a Q_h``,
-    ``V_H = 0``; ``bonus(n, v_max_h, h)`` gives b_h.
+    ``V_H = 0``; ``bonus(n, v_max_h, h)`` gives b_h; ``v_max_h = r_max + γ v_max_{h+1}``.
 
     ``"paper"``: ``Q_h = min(r̂ + b_h + γ P̂ V_{h+1}, v_max_h)`` for a visited pair,
-    ``v_max_h`` otherwise. ``"rlberry"``: ``Q_h = r̂ + b_h + γ P̂ V_{h+1}`` unclipped, an
+    ``v_max_h`` otherwise. ``"rlberry"`` (rlberry-scool 0.7.3's ``UCBVIAgent``, whose
+    ``r_max`` is the task's reward range): ``Q_h = r̂ + b_h + γ P̂ V_{h+1}`` unclipped, an
     unvisited pair with r̂ = 0 and P̂ uniform over the states (rlberry's initial
-    estimate)."""
+    estimate), and ``V_h = min(max_a Q_h, v_max_0)`` (its ``backward_induction_reward_sd``
+    caps every stage's value at the first stage's bound)."""
     visited = model.visits > 0
     reward = model.mean_reward()
     probabilities = model.successor_probabilities()
 
+    def bound(v_max_next: Array, h: Array) -> tuple:
+        v_max = r_max + rounded(gamma * v_max_next, gamma)
+        return v_max, v_max
+
+    zero = jnp.asarray(0.0, jnp.float32)
+    cap = jax.lax.scan(bound, zero, jnp.arange(horizon))[0]  # v_max_0
+
     def stage(carry: tuple, h: Array) -> tuple:
         values, v_max_next = carry
-        v_max = r_max + rounded(gamma * v_max_next, gamma)
+        v_max = bound(v_max_next, h)[0]
         expected = expected_under(probabilities, model.next_state, values)
         if convention == "rlberry":
             expected = jnp.where(visited, expected, jnp.mean(values))
@@ -71,9 +88,12 @@ def ucbvi_values(model: Model, bonus: Any, gamma: Any, r_max: Any, horizon: int,
         backed = reward + bonus(model.visits, v_max, h) + future
         q = (backed if convention == "rlberry"
              else jnp.where(visited, jnp.minimum(backed, v_max), v_max))
-        return (jnp.max(q, axis=1), v_max), q
+        values = jnp.max(q, axis=1)
+        if convention == "rlberry":
+            values = jnp.minimum(values, cap)
+        return (values, v_max), q
 
-    start = (jnp.zeros(model.visits.shape[0], jnp.float32), jnp.asarray(0.0, jnp.float32))
+    start = (jnp.zeros(model.visits.shape[0], jnp.float32), zero)
     return backward_induction(stage, start, horizon)
 
 
@@ -119,10 +139,14 @@ class UCBVI(_StageLearner):
 
     Where we chose: the model is stage-independent (one transition and reward estimate per
     pair, the paper's setting); values are clipped to ``v_max_h`` (the paper clips at H).
-    ``convention="rlberry"`` (static) follows rlberry-scool's ``UCBVIAgent`` instead, to
-    compare with it on equal terms: the Bernstein bonus of stage h keeps the visits of
-    the pair's last visit *at that stage* (``v_max_h`` before one), values are not
-    clipped, and an unvisited pair has r̂ = 0 and uniform successors.
+    ``convention="rlberry"`` (static) follows rlberry-scool 0.7.3's ``UCBVIAgent`` instead,
+    to compare with it on equal terms: its bound ``v_max_h`` is built from the task's
+    reward range ``max r − min r`` (``reward_range``, static: the engine sets it from the
+    task, :meth:`for_task`; 1 where the range is 0 or infinite, as rlberry), not from
+    ``r_max``; the Bernstein bonus of stage h keeps the visits of the pair's last visit
+    *at that stage* (``v_max_h`` before one); Q values are not clipped but every stage's
+    state value is capped at ``v_max_0``; and an unvisited pair has r̂ = 0 and uniform
+    successors.
     """
 
     gamma: float | Array = 1.0
@@ -131,8 +155,27 @@ class UCBVI(_StageLearner):
     r_max: float | Array = 1.0
     bonus: str = static_field("bernstein")
     convention: str = static_field("paper")
+    reward_range: float | None = static_field(None)
     uses_model = True
     plan_at = "episode"
+
+    def for_task(self, task: TaskFacts) -> UCBVI:
+        if self.convention != "rlberry" or self.reward_range is not None:
+            return self
+        spread = task.reward_range  # rlberry: a range of 0 or ∞ is taken as 1
+        return dataclasses.replace(self, reward_range=(
+            float(spread) if 0.0 < spread < float("inf") else 1.0))
+
+    def bound_reward(self) -> Any:
+        """The reward whose sum over the stages bounds the values: ``r_max``, or the
+        task's reward range under ``convention="rlberry"``."""
+        if self.convention != "rlberry":
+            return self.r_max
+        if self.reward_range is None:
+            raise ValueError("ucbvi with convention='rlberry' needs the task's reward range:"
+                             " run it through the engine (vdbejax.run_grid or run_agents),"
+                             " which sets reward_range from the task, or give reward_range")
+        return jnp.float32(self.reward_range)
 
     def tables(self) -> dict[str, Table]:
         tables = super().tables()
@@ -183,7 +226,7 @@ class UCBVI(_StageLearner):
     def plan(self, q: Array, tables: Mapping[str, Array], model: Any, context: Context,
              uniforms: tuple[Array, ...]) -> tuple[Array, dict[str, Array]]:
         stages = ucbvi_values(model, self.stage_bonus(model, context, tables), self.gamma,
-                              self.r_max, self.horizon, self.convention)
+                              self.bound_reward(), self.horizon, self.convention)
         return stages[..., 0], {**tables, "q_stage": stages}
 
     def validate(self) -> None:
@@ -197,6 +240,12 @@ class UCBVI(_StageLearner):
         if self.convention == "rlberry" and self.bonus != "bernstein":
             raise ValueError(f"bonus={self.bonus!r} is invalid with convention='rlberry':"
                              " rlberry's UCBVIAgent has the 'bernstein' bonus only")
+        if self.reward_range is not None:
+            if self.convention != "rlberry":
+                raise ValueError(f"reward_range={self.reward_range!r} is invalid with"
+                                 f" convention={self.convention!r}: only the rlberry"
+                                 " convention takes it (the paper's bounds values with r_max)")
+            check_in_range("reward_range", self.reward_range, 0.0, 1e30, low_open=True)
 
 
 @learner("ucb_h", title="UCB-H")

@@ -1,19 +1,20 @@
 """Posterior sampling for RL (PSRL): one MDP drawn from the agent's posterior before each
 episode, and solved by backward induction.
 
-The posterior's Dirichlet draw is the method's cost (``S (S + 1) A`` Gamma variates an
-episode), so :func:`gamma_variates` is written for it: Marsaglia & Tsang's (2000) exact
-rejection sampler: one vectorised proposal round over all variates, then rounds over the
-few rejected ones, gathered into a small buffer. JAX's own
-``jax.random.gamma`` (a rejection loop per variate, vmapped) is several times slower on
+The posterior's Dirichlet draw is the method's cost (``S² A`` Gamma variates an episode,
+``S (S + 1) A`` with a terminal outcome), so :func:`gamma_variates` is written for it:
+Marsaglia & Tsang's (2000) exact rejection sampler: one vectorised proposal round over
+all variates, then rounds over the few rejected ones, gathered into a small buffer. JAX's
+own ``jax.random.gamma`` (a rejection loop per variate, vmapped) is several times slower on
 the CPU.
 
-The sampled table is kept successor-major, ``[S + 1, S, A]``, so that the fixed-order sum
-over successors of every stage (:func:`dirichlet_expected`) reads one contiguous
-``[S, A]`` slice per successor.
+The sampled table is kept successor-major, ``[S, S, A]`` (``[S + 1, S, A]`` with a
+terminal outcome), so that the fixed-order sum over successors of every stage
+(:func:`dirichlet_expected`) reads one contiguous ``[S, A]`` slice per successor.
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
@@ -21,13 +22,18 @@ import jax
 import jax.numpy as jnp
 
 from vdbejax._numerics import rounded
-from vdbejax.methods.contract import Context, LearnerUpdate, Transition
+from vdbejax._pytree import static_field
+from vdbejax.methods.contract import Context, LearnerUpdate, TaskFacts, Transition
 from vdbejax.methods.finite_horizon import _StageLearner, backward_induction
 from vdbejax.methods.model import Model
 from vdbejax.methods.registry import learner
-from vdbejax.validation import check_in_range
+from vdbejax.validation import check_choice, check_in_range
 
 Array = jax.Array
+
+#: PSRL's prior outcomes (``terminal_outcome``): the task's (Osband et al. 2013), always
+#: a terminal outcome (vdbejax's earlier prior), or never.
+PSRL_TERMINAL_OUTCOMES = ("task", "always", "never")
 
 def _proposal(key: Array, d: Array, c: Array) -> tuple[Array, Array]:
     """One Marsaglia–Tsang proposal per entry: (its value ``d v``, whether it is accepted)."""
@@ -94,12 +100,12 @@ def gamma_variates(key: Array, alpha: Array) -> Array:
     return jnp.where(boosted, value * scale, value)
 
 
-def posterior_sample(model: Model, key: Array, prior: Any, reward_prior_mean: Any
-                     ) -> tuple[Array, Array]:
+def posterior_sample(model: Model, key: Array, prior: Any, reward_prior_mean: Any,
+                     terminal: bool = True) -> tuple[Array, Array]:
     """One MDP from the posterior: transitions ``Dirichlet(prior + counts)`` over the S
-    states and "terminal", rewards ``N((μ₀ + Σr)/(1 + n), 1/(1 + n))`` (prior N(μ₀, 1),
-    unit noise). Returns ``(rewards [S, A], transitions [S + 1, S, A])``: successor-major,
-    outcome S is "terminal"."""
+    states, and "terminal" where ``terminal`` (static), rewards ``N((μ₀ + Σr)/(1 + n),
+    1/(1 + n))`` (prior N(μ₀, 1), unit noise). Returns ``(rewards [S, A], transitions
+    [S (+ 1), S, A])``: successor-major, outcome S (with ``terminal``) is "terminal"."""
     S, A = model.visits.shape
     index = model.next_state.astype(jnp.int32)
     successor = jnp.arange(S)[:, None, None]
@@ -107,14 +113,15 @@ def posterior_sample(model: Model, key: Array, prior: Any, reward_prior_mean: An
     for k in range(index.shape[-1]):  # the listed successors' counts, one slot at a time
         counts = counts + jnp.where(successor == index[None, ..., k],
                                     model.next_count[None, ..., k], 0.0)
-    counts = jnp.concatenate([counts, model.terminal[None]], axis=0)  # no scatter
+    if terminal:
+        counts = jnp.concatenate([counts, model.terminal[None]], axis=0)  # no scatter
     transitions_key, rewards_key = jax.random.split(key)
     gammas = gamma_variates(transitions_key, prior + counts)
 
     def add(j: Any, total: Array) -> Array:  # the normaliser, in order of successors
         return total + gammas[j]
 
-    total = jax.lax.fori_loop(0, S + 1, add, jnp.zeros((S, A), jnp.float32))
+    total = jax.lax.fori_loop(0, counts.shape[0], add, jnp.zeros((S, A), jnp.float32))
     # Products by reciprocals, not divisions: XLA turns a division by a broadcast value
     # into such a product in some programs only (other bits).
     transitions = gammas * (1.0 / total)
@@ -127,8 +134,8 @@ def posterior_sample(model: Model, key: Array, prior: Any, reward_prior_mean: An
 
 def dirichlet_expected(values: Array, sample: Array) -> Array:
     """``[S, A]`` Σ_s′ P̃(s′ | s, a) · values(s′) for a sampled successor-major
-    ``[S + 1, S, A]`` table whose last outcome is "terminal" (worth 0), summed in order
-    of s′ (the same bits under any batching)."""
+    ``[S, S, A]`` table, or ``[S + 1, S, A]`` whose last outcome is "terminal" (worth 0),
+    summed in order of s′ (the same bits under any batching)."""
     def add(s_next: Any, total: Array) -> Array:
         p = sample[s_next]
         return total + rounded(p * values[s_next], p)
@@ -141,22 +148,39 @@ class PSRL(_StageLearner):
     """Posterior sampling for RL (Osband, Russo & Van Roy 2013, "(More) efficient
     reinforcement learning via posterior sampling", NeurIPS, Alg. 1): before each episode
     (``plan_at = "episode"``) one MDP is drawn from the posterior (:func:`posterior_sample`:
-    a Dirichlet over the S states and "terminal" with ``prior`` per outcome, Gaussian
-    rewards with prior mean ``reward_prior_mean``) and solved by backward induction over
-    ``horizon`` stages; the agent follows its greedy policy (explorer ``greedy``).
+    a Dirichlet over the outcomes with ``prior`` per outcome, Gaussian rewards with prior
+    mean ``reward_prior_mean``) and solved by backward induction over ``horizon`` stages;
+    the agent follows its greedy policy (explorer ``greedy``).
+
+    The Dirichlet's outcomes (``terminal_outcome``, static): ``"task"`` (the default, the
+    paper's prior): the S successor states, and a "terminal" outcome only where the task
+    has terminal outcomes (the engine tells, :meth:`for_task`); ``"always"``: the S states
+    and "terminal" on every task (vdbejax's prior before 2026-12-05, which also puts mass
+    on ending a task that never ends); ``"never"``: the S states (refused on a task with
+    terminal outcomes).
 
     The draw comes from a key made of two of the agent's plan uniforms, so it is a pure
-    function of the agent's stream. Costs ``S (S + 1) A`` Gamma variates and
-    ``S (S + 1) A`` products per stage each episode (a dense sampled table): meant for
+    function of the agent's stream. Costs ``S² A`` Gamma variates and ``S² A`` products per
+    stage each episode (``S (S + 1) A`` with "terminal"; a dense sampled table): meant for
     small tasks (RiverSwim, chains, DeepSea of a few rows, gridworlds).
     """
 
     gamma: float | Array = 1.0
     prior: float | Array = 1.0
     reward_prior_mean: float | Array = 0.0
+    terminal_outcome: str = static_field("task")
     uses_model = True
     plan_at = "episode"
     plan_uniforms = 2
+
+    def for_task(self, task: TaskFacts) -> PSRL:
+        if self.terminal_outcome == "never" and task.terminates:
+            raise ValueError("terminal_outcome='never' is invalid on this task: it has"
+                             " terminal outcomes (use 'task' or 'always')")
+        if self.terminal_outcome != "task":
+            return self
+        return dataclasses.replace(self, terminal_outcome="always" if task.terminates
+                                   else "never")
 
     def update(self, t: Transition) -> LearnerUpdate:  # the values come from planning
         return LearnerUpdate(t.q, dict(t.tables), jnp.zeros_like(t.q))
@@ -165,7 +189,12 @@ class PSRL(_StageLearner):
              uniforms: tuple[Array, ...]) -> tuple[Array, dict[str, Array]]:
         bits = [(u * 2.0 ** 23).astype(jnp.uint32) for u in uniforms]
         key = jax.random.wrap_key_data(jnp.stack([bits[0], bits[1]]), impl="threefry2x32")
-        rewards, transitions = posterior_sample(model, key, self.prior, self.reward_prior_mean)
+        if self.terminal_outcome == "task":
+            raise ValueError("psrl with terminal_outcome='task' needs to know whether the task"
+                             " has terminal outcomes: run it through the engine"
+                             " (vdbejax.run_grid or run_agents), or give 'always' or 'never'")
+        rewards, transitions = posterior_sample(model, key, self.prior, self.reward_prior_mean,
+                                                self.terminal_outcome == "always")
 
         def stage(values: Array, _: Any) -> tuple:
             expected = dirichlet_expected(values, transitions)
@@ -180,6 +209,8 @@ class PSRL(_StageLearner):
         check_in_range("gamma", self.gamma, 0.0, 1.0)
         check_in_range("prior", self.prior, 0.0, 1e30, low_open=True)
         check_in_range("reward_prior_mean", self.reward_prior_mean, -1e30, 1e30)
+        check_choice("terminal_outcome", self.terminal_outcome, PSRL_TERMINAL_OUTCOMES)
 
 
-__all__ = ["PSRL", "RETRY_SHARE", "dirichlet_expected", "gamma_variates", "posterior_sample"]
+__all__ = ["PSRL", "PSRL_TERMINAL_OUTCOMES", "RETRY_SHARE", "dirichlet_expected",
+           "gamma_variates", "posterior_sample"]

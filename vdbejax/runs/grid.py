@@ -37,6 +37,7 @@ from vdbejax.methods.agents import (
     Setting,
     agent_hyperparameters,
     make_agent,
+    recorded_options,
     stack_agents,
     table_layout,
 )
@@ -172,7 +173,7 @@ def prepare_grid(
         "num_seeds": num_seeds,
         "num_episodes": num_episodes,
         "seed": seed,
-        "options": dataclasses.asdict(options),
+        "options": recorded_options(options, settings),
     }
     if stop.checks_chunks:  # a fixed budget leaves the fingerprint of earlier runs as it was
         description["stop"] = stop.describe()
