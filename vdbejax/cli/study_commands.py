@@ -56,6 +56,11 @@ def add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--chunk-episodes", type=number, default=None,
                    help="episodes per jitted chunk (default: at least 100 and 20,000"
                         " agent-episodes, at most 10,000)")
+    p.add_argument("--evaluate-every", type=number, default=None, metavar="K",
+                   help="every K episodes, the exact expected return of each agent's greedy"
+                        " policy (policy_values in returns.npz, the policy_gap and"
+                        " optimal_fraction columns of summary.csv, policy_gap.png); the"
+                        " returns are the same")
     add_run_flags(p, "continue from OUT/checkpoint.npz (or reuse OUT's whole result)")
     p.add_argument("--no-figures", action="store_true", help="no fig3.png / sensitivity.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -95,7 +100,7 @@ def run_command(args: argparse.Namespace) -> None:
 
     spec = read_sweep_file(args.config) if args.config else {}
     for key in ("task", "seeds", "replicates", "episodes", "seed", "max_steps",
-                "invalid_action", "chunk_episodes"):
+                "invalid_action", "chunk_episodes", "evaluate_every"):
         if getattr(args, key) is not None:
             spec[key] = getattr(args, key)
     for key in ("learners", "explorers"):
