@@ -168,3 +168,20 @@ def test_a_bad_evaluate_every_is_one_line_and_exit_2(tmp_path, capsys, value, me
     assert not (tmp_path / "x").exists()
     with pytest.raises(ValueError, match="evaluate_every"):
         RunOptions(evaluate_every=True)
+
+
+def test_the_plan_states_the_evaluations_cost():
+    from vdbejax.runs.estimate import estimate_prepared
+    from vdbejax.studies.task_names import make_task
+
+    mdp = make_task("chain:4")
+    settings = [Setting("qlearning", "greedy"), Setting("ucb_h", "greedy")]
+    plain = estimate_prepared(prepare_grid(mdp, settings, num_seeds=2, num_episodes=40))
+    estimate = estimate_prepared(prepare_grid(mdp, settings, num_seeds=2, num_episodes=40,
+                                              run=RunOptions(evaluate_every=10)))
+    assert plain.evaluations == 0 and "policy evaluation" not in plain.describe()
+    assert estimate.evaluations == 4 and estimate.long
+    assert "policy evaluation" in estimate.describe() and "4 evaluations" in estimate.describe()
+    H, S, A, K = int(mdp.max_steps), mdp.num_states, mdp.num_actions, mdp.num_outcomes
+    stage = make_agent(settings[1]).learner.horizon
+    assert estimate.evaluation_operations == 4 * H * S * A * (2 * K + 2 * (K + stage))

@@ -89,10 +89,18 @@ def collect_evaluations(state: RunState, mdp: TabularMDP, run: RunOptions,
     return gather_agents(state.policy_values, shape[0] * shape[1]).reshape((*shape[:2], -1))
 
 
-def evaluation_operations(mdp: TabularMDP) -> int:
-    """Multiply-adds of one agent's evaluation at most: ``H`` backups of ``S · A · K``
-    outcomes each (a stationary policy often stops earlier)."""
-    return int(mdp.max_steps) * mdp.num_states * mdp.num_actions * mdp.num_outcomes
+def evaluation_operations(mdp: TabularMDP, params: AgentParams) -> int:
+    """Multiply-adds of one evaluation of every agent of ``params`` at most: ``H`` backups
+    of ``S · A · K`` outcomes each, and for a learner whose greedy action depends on the
+    step (stage values), its ``S · A · L`` stage table read again at every backup (a
+    stationary policy often stops earlier)."""
+    total = 0
+    for k, agent in enumerate(params.kinds):
+        width = 0
+        if type(agent.learner).behaviour_uses_context:
+            width = max((spec.width() for spec in agent.learner.tables().values()), default=1)
+        total += params.rows_of(k).size * (mdp.num_outcomes + width)
+    return int(mdp.max_steps) * mdp.num_states * mdp.num_actions * total
 
 
 def greedy_returns(mdp: TabularMDP, params: AgentParams, q: Any, tables: dict[str, Any],
