@@ -5,6 +5,7 @@ import argparse
 from pathlib import Path
 
 from vdbejax.cli.common import (
+    add_evaluate_flag,
     add_run_flags,
     refuse_sizes_with_quick,
     run_flags,
@@ -56,11 +57,8 @@ def add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--chunk-episodes", type=number, default=None,
                    help="episodes per jitted chunk (default: at least 100 and 20,000"
                         " agent-episodes, at most 10,000)")
-    p.add_argument("--evaluate-every", type=number, default=None, metavar="K",
-                   help="every K episodes, the exact expected return of each agent's greedy"
-                        " policy (policy_values in returns.npz, the policy_gap and"
-                        " optimal_fraction columns of summary.csv, policy_gap.png); the"
-                        " returns are the same")
+    add_evaluate_flag(p, "policy_values in returns.npz, the policy_gap and optimal_fraction"
+                         " columns of summary.csv, policy_gap.png")
     add_run_flags(p, "continue from OUT/checkpoint.npz (or reuse OUT's whole result)")
     p.add_argument("--no-figures", action="store_true", help="no fig3.png / sensitivity.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -281,6 +279,8 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true",
                    help="3 small tasks, 5 methods, 3 agents, 40 episodes (about a minute)")
     p.add_argument("--no-figures", action="store_true", help="no figures")
+    add_evaluate_flag(p, "in the reported runs: the gap to the optimum and the share of optimal"
+                         " policies in bench.md and ranking.csv, policy_gap_<task>.png")
     add_run_flags(p, "continue an interrupted benchmark: whole task folders are reused, the"
                      " interrupted one continues from its checkpoint")
     p.add_argument("--quiet", action="store_true", help="no status lines")
@@ -295,12 +295,14 @@ def bench_command(args: argparse.Namespace) -> None:
     command = "vdbejax bench --out " + args.out + (" --quick" if args.quick else "".join(
         f" --{k.replace('_', '-')} {v}" for k, v in values.items() if v is not None)) + (
         f" --seed {args.seed}" + (" --no-tune" if args.no_tune else "")
-        + (f" --cost-limit {args.cost_limit}" if args.cost_limit is not None else ""))
+        + (f" --cost-limit {args.cost_limit}" if args.cost_limit is not None else "")
+        + (f" --evaluate-every {args.evaluate_every}" if args.evaluate_every else ""))
     if args.cost_limit is not None:
         values["cost_limit"] = args.cost_limit
     result = bench.run_bench(args.out, seed=args.seed, tune=not args.no_tune, quick=args.quick,
                              progress=not args.quiet, figures=not args.no_figures,
-                             command=command, **values, **run_flags(args))
+                             command=command, evaluate_every=args.evaluate_every, **values,
+                             **run_flags(args))
     for row in result.aggregate:
         print(f"{row['title']}: IQM score {row['iqm']:.3f} [{row['iqm_low']:.3f},"
               f" {row['iqm_high']:.3f}], mean rank {row['mean_rank']:.1f}")

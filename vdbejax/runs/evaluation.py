@@ -52,7 +52,7 @@ from vdbejax.runs.state import RunState
 Array = jax.Array
 
 #: Relative tolerance of "the greedy policy is optimal" (module docstring).
-OPTIMAL_TOLERANCE = 1e-5
+OPTIMAL_TOLERANCE = 1e-4
 #: Elements (agents × states × actions × outcomes) one evaluation program gathers at
 #: a time: more agents are evaluated in groups, so its memory stays bounded.
 GROUP_ELEMENTS = 1 << 24
