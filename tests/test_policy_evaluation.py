@@ -119,12 +119,16 @@ def test_a_stop_policy_and_a_resume_keep_the_evaluations(tmp_path):
     stop = UntilSolved(window=5)
     plain = run_grid(mdp, settings, num_seeds=2, num_episodes=40, stop=stop, chunk_episodes=5)
     evaluated = run_grid(mdp, settings, num_seeds=2, num_episodes=40, stop=stop,
-                         evaluate_every=10)
+                         chunk_episodes=5, evaluate_every=10)
     assert np.array_equal(plain.returns, evaluated.returns, equal_nan=True)
     ran = evaluated.episodes_run if evaluated.episodes_run is not None else np.full((2, 2), 40)
     # Evaluated up to each agent's stop, NaN after it.
     assert np.array_equal(~np.isnan(evaluated.policy_values),
                           evaluated.evaluation_episodes <= ran[..., None])
+    # Under a stop policy the chunks decide where agents stop: they are not realigned.
+    with pytest.raises(ValueError, match="evaluate_every=10 is invalid with chunk_episodes=4"):
+        prepare_grid(mdp, settings, num_seeds=2, num_episodes=40,
+                     run=RunOptions(stop=stop, chunk_episodes=4, evaluate_every=10))
     # Killed after a chunk and resumed: the evaluations before the stop are kept.
     run = RunOptions(evaluate_every=10, checkpoint=tmp_path / "c.npz")
     prepared = prepare_grid(mdp, settings, num_seeds=2, num_episodes=40, run=run)

@@ -331,6 +331,9 @@ def add_depth(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true",
                    help="N = 4 and 6, 4 methods, 3 agents, 100 episodes (seconds)")
     p.add_argument("--no-figures", action="store_true", help="no figure")
+    add_evaluate_flag(p, "a multiple of the study's chunk, max(100, episodes/100): the gap to"
+                         " the optimum and the share of optimal policies in depth.md and"
+                         " depth.csv")
     add_run_flags(p, "continue an interrupted study: whole task folders are reused, the"
                      " interrupted one continues from its checkpoint")
     p.add_argument("--quiet", action="store_true", help="no status lines")
@@ -347,10 +350,12 @@ def depth_command(args: argparse.Namespace) -> None:
         "depth study")
     command = "vdbejax depth --out " + args.out + (" --quick" if args.quick else "".join(
         f" --{k} {v}" for k, v in values.items() if sizes[k] is not None)) + (
-        f" --seed {args.seed}")
+        f" --seed {args.seed}") + (
+        f" --evaluate-every {args.evaluate_every}" if args.evaluate_every else "")
     result = depth.run_depth(args.out, seed=args.seed, quick=args.quick,
                              progress=not args.quiet, figure=not args.no_figures,
-                             command=command, **values, **run_flags(args))
+                             command=command, evaluate_every=args.evaluate_every, **values,
+                             **run_flags(args))
     for row in result.slopes:
         print(f"{row['family']} {row['title']}: solved up to N = {row['largest_solved']},"
               f" exponent {interval_text(row, 'exponent')}")

@@ -157,7 +157,8 @@ def make_plan(mdp: TabularMDP, params: AgentParams, num_agents: int, num_episode
 
     Raises:
       ValueError: more devices than there are, devices of no process of this one, the
-        sequential strategy for sharded agents, or a budget no agent fits.
+        sequential strategy for sharded agents, a budget no agent fits, or under a stop
+        policy an ``evaluate_every`` that is not a multiple of the chunk.
     """
     devices = select_devices(run.devices)
     local = local_devices(devices)
@@ -175,8 +176,13 @@ def make_plan(mdp: TabularMDP, params: AgentParams, num_agents: int, num_episode
               else int(run.memory_budget_bytes))
     chunk = (default_chunk_episodes(num_agents, num_episodes) if run.chunk_episodes is None
              else run.chunk_episodes)
-    if run.evaluate_every is not None:
+    if run.evaluate_every is not None and not run.stop.checks_chunks:
         chunk = evaluation_chunk(chunk, run.evaluate_every)
+    elif run.evaluate_every is not None and run.evaluate_every % chunk:
+        # A stop policy stops agents at chunk ends: another chunk would change the results.
+        raise ValueError(f"evaluate_every={run.evaluate_every} is invalid with"
+                         f" chunk_episodes={chunk} under a stop policy: must be a multiple of"
+                         " the chunk (its chunks decide where agents stop)")
     batch_size = agents_per_batch(
         max(len(rows), 1),
         bytes_per_agent(mdp, min(chunk, num_episodes), table_layout(params)),

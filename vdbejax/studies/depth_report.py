@@ -37,6 +37,26 @@ def interval_text(row: dict[str, Any], name: str, digits: int = 2) -> str:
             f" {row[f'{name}_high']:.{digits}f}]")
 
 
+def policy_table(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, Any]],
+                 family: str, sizes: Sequence[int]) -> list[str]:
+    """A family's table of the greedy policies at each agent's last evaluation: mean gap
+    ``V* − V^π`` [95 % bootstrap interval] and the share of optimal greedy policies."""
+    lines = ["Greedy policies at each agent's last evaluation (exact, vdbejax.runs.evaluation):"
+             " mean V* − V^π [95 % interval], share of optimal ones.", "",
+             "| method | " + " | ".join(f"N = {n}" for n in sizes) + " |",
+             "| --- | " + " | ".join("---" for _ in sizes) + " |"]
+    for slope in (s for s in slopes if s["family"] == family):
+        cells = []
+        for n in sizes:
+            row = next((r for r in rows if r["family"] == family and r["size"] == n
+                        and r["method"] == slope["method"]), None)
+            cells.append("-" if row is None or not math.isfinite(row["policy_gap"]) else
+                         f"{row['policy_gap']:.3g} [{row['policy_gap_ci_low']:.3g},"
+                         f" {row['policy_gap_ci_high']:.3g}], {row['optimal_fraction']:.0%}")
+        lines.append(f"| {slope['title']} | " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
 def depth_markdown(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, Any]],
                    meta: dict[str, Any]) -> str:
     """Per family: one row per method with its median episodes to solve at each depth
@@ -74,6 +94,8 @@ def depth_markdown(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, An
                          + " | ".join(cells) + f" | {interval_text(slope, 'exponent')}"
                          f" | {interval_text(slope, 'doubling', 3)} |")
         lines.append("")
+        if options.get("evaluate_every"):
+            lines += policy_table(rows, slopes, family, sizes)
     tasks = meta["tasks"]
     steps = sum(t["agent_steps"] for t in tasks.values())
     seconds = sum(t["seconds"] for t in tasks.values())
