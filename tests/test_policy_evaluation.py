@@ -13,7 +13,7 @@ from vdbejax.envs.tabular import make_tabular_mdp
 from vdbejax.experiment import GridResult
 from vdbejax.methods.agents import Setting, make_agent, stack_agents
 from vdbejax.results.analysis import summarize
-from vdbejax.results.policy import policy_summary
+from vdbejax.results.policy import policy_gaps, policy_summary
 from vdbejax.runs import RunOptions, UntilSolved, prepare_grid, run_grid, run_prepared
 from vdbejax.runs.evaluation import greedy_returns
 from vdbejax.runs.plan import evaluation_chunk
@@ -93,7 +93,7 @@ def test_evaluation_changes_no_return_and_is_kept_beside_them(tmp_path):
     assert evaluated.policy_values.shape == (3, 2, 3)
     assert np.isfinite(evaluated.policy_values).all()
     assert list(evaluated.evaluation_episodes) == [10, 20, 30]
-    gaps = evaluated.policy_gaps()
+    gaps = policy_gaps(evaluated)
     assert (gaps >= -evaluated.meta["optimal_tolerance"]).all()
     assert evaluated.meta["optimal_return"] == best_return(mdp)
     # The same values whatever the chunking and strategy.

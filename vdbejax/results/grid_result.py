@@ -37,7 +37,8 @@ class GridResult:
       policy_values: float32 ``[configs, seeds, evaluations]``, the exact expected return
         of each agent's greedy policy after episodes ``evaluate_every · (1, 2, …)``
         (:attr:`evaluation_episodes`; NaN past an agent's stop), with
-        ``meta["optimal_return"]`` the optimum V* (:mod:`vdbejax.runs.evaluation`).
+        ``meta["optimal_return"]`` the optimum V* (:mod:`vdbejax.runs.evaluation`; the
+        gaps: :func:`vdbejax.results.policy.policy_gaps`).
         ``None``: a run without ``evaluate_every``.
     """
 
@@ -57,26 +58,6 @@ class GridResult:
             return np.zeros(0, np.int64)
         every = int(self.meta["evaluate_every"])
         return every * np.arange(1, self.policy_values.shape[2] + 1, dtype=np.int64)
-
-    def policy_gaps(self) -> np.ndarray:
-        """float64 ``[configs, seeds, evaluations]``: ``V* − V^π`` of every agent's greedy
-        policy at every evaluation (NaN where none was taken).
-
-        Raises:
-          ValueError: the run has no evaluations (``evaluate_every``).
-        """
-        if self.policy_values is None:
-            raise ValueError("this result has no policy evaluations: run it with"
-                             " evaluate_every=K (CLI --evaluate-every K)")
-        return float(self.meta["optimal_return"]) - self.policy_values.astype(np.float64)
-
-    def optimal_agents(self) -> np.ndarray:
-        """float64 ``[configs, seeds, evaluations]``: 1 where the agent's greedy policy is
-        optimal (gap ≤ ``meta["optimal_tolerance"]``), 0 where not, NaN where not
-        evaluated."""
-        gaps = self.policy_gaps()
-        optimal = (gaps <= float(self.meta["optimal_tolerance"])).astype(np.float64)
-        return np.where(np.isnan(gaps), np.nan, optimal)
 
     @property
     def num_seeds(self) -> int:

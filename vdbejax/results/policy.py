@@ -5,7 +5,7 @@ returns, the exact expected return ``V^π`` of every agent's greedy policy after
 K-th episode (``GridResult.policy_values``). From them:
 
 * the **policy gap** ``V* − V^π`` of every agent and evaluation (0: the greedy policy is
-  as good as the optimum; ``GridResult.policy_gaps``), and per setting its mean over the
+  as good as the optimum; :func:`policy_gaps`), and per setting its mean over the
   agents with a 95 % bootstrap interval (:func:`policy_summary`);
 * the **fraction of agents whose greedy policy is optimal** (gap within
   ``meta["optimal_tolerance"]``), with its Wilson interval.
@@ -32,6 +32,27 @@ POLICY_COLUMNS = ["policy_gap", "policy_gap_ci_low", "policy_gap_ci_high", "opti
                   "optimal_ci_low", "optimal_ci_high"]
 
 
+def policy_gaps(result: GridResult) -> np.ndarray:
+    """float64 ``[configs, seeds, evaluations]``: ``V* − V^π`` of every agent's greedy
+    policy at every evaluation (NaN where none was taken).
+
+    Raises:
+      ValueError: the result has no policy evaluations (``evaluate_every``).
+    """
+    if result.policy_values is None:
+        raise ValueError("this result has no policy evaluations: run it with"
+                         " evaluate_every=K (CLI --evaluate-every K)")
+    return float(result.meta["optimal_return"]) - result.policy_values.astype(np.float64)
+
+
+def optimal_agents(result: GridResult) -> np.ndarray:
+    """float64 ``[configs, seeds, evaluations]``: 1 where the agent's greedy policy is
+    optimal (gap ≤ ``meta["optimal_tolerance"]``), 0 where not, NaN where not evaluated."""
+    gaps = policy_gaps(result)
+    optimal = (gaps <= float(result.meta["optimal_tolerance"])).astype(np.float64)
+    return np.where(np.isnan(gaps), np.nan, optimal)
+
+
 def last_evaluations(result: GridResult, values: np.ndarray) -> np.ndarray:
     """``[configs, seeds]``: each agent's entry of ``values`` (``[configs, seeds,
     evaluations]``) at its last evaluation (before its stop, for an agent a stop policy
@@ -53,8 +74,8 @@ def policy_summary(result: GridResult) -> list[dict[str, Any]]:
     Raises:
       ValueError: the result has no policy evaluations.
     """
-    gaps = last_evaluations(result, result.policy_gaps())
-    optimal = last_evaluations(result, result.optimal_agents())
+    gaps = last_evaluations(result, policy_gaps(result))
+    optimal = last_evaluations(result, optimal_agents(result))
     rows = []
     for c in range(len(result.settings)):
         evaluated = ~np.isnan(gaps[c])
@@ -77,7 +98,7 @@ def policy_gap_figure(result: GridResult) -> Any:
     import matplotlib.pyplot as plt
 
     episodes = result.evaluation_episodes
-    gaps = result.policy_gaps()
+    gaps = policy_gaps(result)
     figure, axes = plt.subplots(figsize=(7, 4.5))
     for c, setting in enumerate(result.settings):
         evaluated = ~np.isnan(gaps[c])  # agents stopped early are not evaluated after

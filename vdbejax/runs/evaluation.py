@@ -62,7 +62,7 @@ def optimal_tolerance(mdp: TabularMDP) -> float:
     """The gap below which a greedy policy counts as optimal on ``mdp`` (module
     docstring)."""
     largest = float(np.abs(np.asarray(mdp.reward)).max()) if mdp.reward.size else 0.0
-    return OPTIMAL_TOLERANCE * int(mdp.max_steps) * max(largest, np.finfo(np.float32).tiny)
+    return OPTIMAL_TOLERANCE * int(mdp.max_steps) * max(largest, float(np.finfo(np.float32).tiny))
 
 
 def evaluation_meta(mdp: TabularMDP, evaluate_every: int) -> dict[str, Any]:
