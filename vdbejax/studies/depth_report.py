@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,16 +45,28 @@ def policy_table(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, Any]
              " mean V* − V^π [95 % interval], share of optimal ones.", "",
              "| method | " + " | ".join(f"N = {n}" for n in sizes) + " |",
              "| --- | " + " | ".join("---" for _ in sizes) + " |"]
+    def cell(row: dict[str, Any]) -> str:
+        if not math.isfinite(row["policy_gap"]):
+            return "-"
+        return (f"{row['policy_gap']:.3g} [{row['policy_gap_ci_low']:.3g},"
+                f" {row['policy_gap_ci_high']:.3g}], {row['optimal_fraction']:.0%}")
+
     for slope in (s for s in slopes if s["family"] == family):
-        cells = []
-        for n in sizes:
-            row = next((r for r in rows if r["family"] == family and r["size"] == n
-                        and r["method"] == slope["method"]), None)
-            cells.append("-" if row is None or not math.isfinite(row["policy_gap"]) else
-                         f"{row['policy_gap']:.3g} [{row['policy_gap_ci_low']:.3g},"
-                         f" {row['policy_gap_ci_high']:.3g}], {row['optimal_fraction']:.0%}")
-        lines.append(f"| {slope['title']} | " + " | ".join(cells) + " |")
+        lines.append(f"| {slope['title']} | "
+                     + " | ".join(depth_cells(rows, slope, family, sizes, cell)) + " |")
     return [*lines, ""]
+
+
+def depth_cells(rows: Sequence[dict[str, Any]], slope: dict[str, Any], family: str,
+                sizes: Sequence[int], cell: Callable[[dict[str, Any]], str]) -> list[str]:
+    """``cell`` of a method's row of ``family`` at each depth of ``sizes`` (``-`` where it
+    did not run)."""
+    cells = []
+    for n in sizes:
+        row = next((r for r in rows if r["family"] == family and r["size"] == n
+                    and r["method"] == slope["method"]), None)
+        cells.append("-" if row is None else cell(row))
+    return cells
 
 
 def depth_markdown(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, Any]],
@@ -84,12 +96,9 @@ def depth_markdown(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, An
                   + " | exponent | doubling |",
                   "| --- | --- | " + " | ".join("---" for _ in sizes) + " | --- | --- |"]
         for slope in (s for s in slopes if s["family"] == family):
-            cells = []
-            for n in sizes:
-                row = next((r for r in rows if r["family"] == family and r["size"] == n
-                            and r["method"] == slope["method"]), None)
-                cells.append("-" if row is None else
-                             f"{row['median_text']}, {row['solved']}/{row['agents']}")
+            cells = depth_cells(
+                rows, slope, family, sizes,
+                lambda row: f"{row['median_text']}, {row['solved']}/{row['agents']}")
             lines.append(f"| {slope['title']} | {slope['method_family']} | "
                          + " | ".join(cells) + f" | {interval_text(slope, 'exponent')}"
                          f" | {interval_text(slope, 'doubling', 3)} |")
