@@ -44,7 +44,7 @@ def test_method_names_are_checked() -> None:
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, bench.BenchResult]:
     out = tmp_path_factory.mktemp("bench")
-    return out, bench.run_bench(out, quick=True, progress=False)
+    return out, bench.run_bench(out, quick=True, progress=False, evaluate_every=20)
 
 
 def test_quick_benchmark_writes_its_report(quick: tuple[Path, bench.BenchResult]) -> None:
@@ -64,6 +64,14 @@ def test_quick_benchmark_writes_its_report(quick: tuple[Path, bench.BenchResult]
     assert {a["method"] for a in result.aggregate} == set(bench.QUICK_METHODS)
     text = (out / "bench.md").read_text()
     assert "## Across tasks" in text and "tuning budget" in text
+    # --evaluate-every: the greedy policies' gap and optimal share beside realized regret
+    assert "realized regret [95 % CI]" in text and "policy gap [95 % CI]" in text
+    for row in result.rows:
+        assert row["policy_gap_ci_low"] <= row["policy_gap"] <= row["policy_gap_ci_high"]
+        assert 0.0 <= row["optimal_fraction"] <= 1.0
+    assert "optimal_fraction" in (out / "ranking.csv").read_text().splitlines()[0]
+    for task in bench.QUICK_TASKS:
+        assert (out / f"policy_gap_{task.replace(':', '-')}.png").is_file()
 
 
 def test_tuning_runs_on_other_seeds_and_keeps_the_least_regret(
@@ -97,7 +105,8 @@ def test_bad_input_is_one_line_before_training(tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:
     for argv, message in ((["--tasks", "nope"], "nope"), (["--methods", "nope"], "methods="),
                           (["--quick", "--seeds", "3"], "--quick sets"),
-                          (["--episodes", "0"], "episodes=")):
+                          (["--episodes", "0"], "episodes="),
+                          (["--quick", "--evaluate-every", "41"], "evaluate_every=41")):
         assert cli.main(["bench", "--out", str(tmp_path / "b"), "--quiet", *argv]) == 2
         err = capsys.readouterr().err
         assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err

@@ -54,7 +54,7 @@ def test_growth_slopes_recover_a_polynomial_and_an_exponential() -> None:
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, depth.DepthResult]:
     out = tmp_path_factory.mktemp("depth")
-    return out, depth.run_depth(out, quick=True, progress=False)
+    return out, depth.run_depth(out, quick=True, progress=False, evaluate_every=100)
 
 
 def test_quick_study_writes_its_report(quick: tuple[Path, depth.DepthResult]) -> None:
@@ -68,6 +68,9 @@ def test_quick_study_writes_its_report(quick: tuple[Path, depth.DepthResult]) ->
     assert all(r["solved"] == r["agents"] for r in rmax)  # R-max solves small seas
     meta = json.loads((out / "meta.json").read_text())
     assert meta["options"]["sizes"] == list(sizes)
+    # evaluate_every: the greedy policies per depth (R-max's are optimal once solved)
+    assert all(r["optimal_fraction"] == 1.0 and abs(r["policy_gap"]) < 1e-3 for r in rmax)
+    assert "Greedy policies at each agent's last evaluation" in (out / "depth.md").read_text()
     text = (out / "depth.md").read_text()
     assert "## DeepSea" in text and "| R-max |" in text
 
@@ -99,6 +102,7 @@ def test_resume_reuses_whole_task_folders(quick: tuple[Path, depth.DepthResult])
     (["--methods", "nope"], "methods="),
     (["--episodes", "5"], "episodes=5 is invalid"),
     (["--quick", "--seeds", "2"], "--quick sets the depth study's size: leave out --seeds"),
+    (["--quick", "--evaluate-every", "50"], "evaluate_every=50 is invalid with episodes=100"),
 ])
 def test_bad_input_is_one_line_before_anything_is_written(tmp_path: Path, capsys, args,
                                                           message) -> None:

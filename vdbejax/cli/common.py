@@ -23,6 +23,14 @@ def add_run_flags(p: argparse.ArgumentParser, resume: str) -> None:
                         " the free memory); agents that do not fit run in sequential batches")
 
 
+def add_evaluate_flag(p: argparse.ArgumentParser, where: str) -> None:
+    """``--evaluate-every K``: the exact value of each agent's greedy policy every K
+    episodes (vdbejax.runs.evaluation); ``where``: what the command reports of it."""
+    p.add_argument("--evaluate-every", type=parse_cli_number, default=None, metavar="K",
+                   help="every K episodes, the exact expected return of each agent's greedy"
+                        f" policy ({where}); the returns are the same")
+
+
 def run_flags(args: argparse.Namespace) -> dict[str, Any]:
     return {"resume": args.resume, "devices": args.devices,
             "memory_budget_bytes": args.memory_budget}

@@ -5,6 +5,7 @@ import argparse
 from pathlib import Path
 
 from vdbejax.cli.common import (
+    add_evaluate_flag,
     add_run_flags,
     refuse_sizes_with_quick,
     run_flags,
@@ -56,6 +57,8 @@ def add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--chunk-episodes", type=number, default=None,
                    help="episodes per jitted chunk (default: at least 100 and 20,000"
                         " agent-episodes, at most 10,000)")
+    add_evaluate_flag(p, "policy_values in returns.npz, the policy_gap and optimal_fraction"
+                         " columns of summary.csv, policy_gap.png")
     add_run_flags(p, "continue from OUT/checkpoint.npz (or reuse OUT's whole result)")
     p.add_argument("--no-figures", action="store_true", help="no fig3.png / sensitivity.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -95,7 +98,7 @@ def run_command(args: argparse.Namespace) -> None:
 
     spec = read_sweep_file(args.config) if args.config else {}
     for key in ("task", "seeds", "replicates", "episodes", "seed", "max_steps",
-                "invalid_action", "chunk_episodes"):
+                "invalid_action", "chunk_episodes", "evaluate_every"):
         if getattr(args, key) is not None:
             spec[key] = getattr(args, key)
     for key in ("learners", "explorers"):
@@ -276,6 +279,8 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true",
                    help="3 small tasks, 5 methods, 3 agents, 40 episodes (about a minute)")
     p.add_argument("--no-figures", action="store_true", help="no figures")
+    add_evaluate_flag(p, "in the reported runs: the gap to the optimum and the share of optimal"
+                         " policies in bench.md and ranking.csv, policy_gap_<task>.png")
     add_run_flags(p, "continue an interrupted benchmark: whole task folders are reused, the"
                      " interrupted one continues from its checkpoint")
     p.add_argument("--quiet", action="store_true", help="no status lines")
@@ -290,12 +295,14 @@ def bench_command(args: argparse.Namespace) -> None:
     command = "vdbejax bench --out " + args.out + (" --quick" if args.quick else "".join(
         f" --{k.replace('_', '-')} {v}" for k, v in values.items() if v is not None)) + (
         f" --seed {args.seed}" + (" --no-tune" if args.no_tune else "")
-        + (f" --cost-limit {args.cost_limit}" if args.cost_limit is not None else ""))
+        + (f" --cost-limit {args.cost_limit}" if args.cost_limit is not None else "")
+        + (f" --evaluate-every {args.evaluate_every}" if args.evaluate_every else ""))
     if args.cost_limit is not None:
         values["cost_limit"] = args.cost_limit
     result = bench.run_bench(args.out, seed=args.seed, tune=not args.no_tune, quick=args.quick,
                              progress=not args.quiet, figures=not args.no_figures,
-                             command=command, **values, **run_flags(args))
+                             command=command, evaluate_every=args.evaluate_every, **values,
+                             **run_flags(args))
     for row in result.aggregate:
         print(f"{row['title']}: IQM score {row['iqm']:.3f} [{row['iqm_low']:.3f},"
               f" {row['iqm_high']:.3f}], mean rank {row['mean_rank']:.1f}")
@@ -324,6 +331,9 @@ def add_depth(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true",
                    help="N = 4 and 6, 4 methods, 3 agents, 100 episodes (seconds)")
     p.add_argument("--no-figures", action="store_true", help="no figure")
+    add_evaluate_flag(p, "a multiple of the study's chunk, max(100, episodes/100): the gap to"
+                         " the optimum and the share of optimal policies in depth.md and"
+                         " depth.csv")
     add_run_flags(p, "continue an interrupted study: whole task folders are reused, the"
                      " interrupted one continues from its checkpoint")
     p.add_argument("--quiet", action="store_true", help="no status lines")
@@ -340,10 +350,12 @@ def depth_command(args: argparse.Namespace) -> None:
         "depth study")
     command = "vdbejax depth --out " + args.out + (" --quick" if args.quick else "".join(
         f" --{k} {v}" for k, v in values.items() if sizes[k] is not None)) + (
-        f" --seed {args.seed}")
+        f" --seed {args.seed}") + (
+        f" --evaluate-every {args.evaluate_every}" if args.evaluate_every else "")
     result = depth.run_depth(args.out, seed=args.seed, quick=args.quick,
                              progress=not args.quiet, figure=not args.no_figures,
-                             command=command, **values, **run_flags(args))
+                             command=command, evaluate_every=args.evaluate_every, **values,
+                             **run_flags(args))
     for row in result.slopes:
         print(f"{row['family']} {row['title']}: solved up to N = {row['largest_solved']},"
               f" exponent {interval_text(row, 'exponent')}")

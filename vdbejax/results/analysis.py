@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.policy import POLICY_COLUMNS, policy_summary
 from vdbejax.results.stats import (  # noqa: F401  (re-exported: the historical home of these names)
     FRACTION,
     LAST,
@@ -75,7 +76,9 @@ def summarize(
       of :data:`SUMMARY_COLUMNS`: ``config, learner, explorer, param, final_return,
       final_ci_low, final_ci_high, final_iqm, convergence_episode, convergence_ci_low,
       convergence_ci_high, truncated_fraction, mean_length, nonfinite_agents``; with
-      ``episodes_cut`` and ``agents_cut`` for a task whose step limit is only a safety cap).
+      ``episodes_cut`` and ``agents_cut`` for a task whose step limit is only a safety cap;
+      the policy columns of :func:`~vdbejax.results.policy.policy_summary` for a run with
+      policy evaluations).
     """
     last = min(last, result.num_episodes)
     if statistics is None:
@@ -86,6 +89,8 @@ def summarize(
                          f"{len(statistics.final)} settings) do not match window={window}, "
                          f"last={last} and the grid's {len(result.settings)} settings")
     max_steps = result.meta.get("max_steps")
+    policy = (policy_summary(result) if result.policy_values is not None
+              else [{}] * len(result.settings))
     rows = []
     for c, setting in enumerate(result.settings):
         episodes_cut = agents_cut = None
@@ -112,6 +117,7 @@ def summarize(
             nonfinite_agents=int(result.nonfinite[c].sum()),
             episodes_cut=episodes_cut,
             agents_cut=agents_cut,
+            **policy[c],
         ))
     return rows
 
@@ -119,10 +125,12 @@ def summarize(
 def summary_columns(result: GridResult) -> list[str]:
     """:data:`SUMMARY_COLUMNS`, ``hyperparameters`` when a setting of ``result`` has values
     besides its swept parameter, and ``episodes_cut`` / ``agents_cut`` for a task whose
-    step limit is only a safety cap (``meta["step_cap"]``, the authors' reading)."""
+    step limit is only a safety cap (``meta["step_cap"]``, the authors' reading), and
+    :data:`~vdbejax.results.policy.POLICY_COLUMNS` for a run with policy evaluations."""
     extra = ["hyperparameters"] if any(s.hyperparameters for s in result.settings) else []
     capped = ["episodes_cut", "agents_cut"] if result.meta.get("step_cap") else []
-    return SUMMARY_COLUMNS[:4] + extra + SUMMARY_COLUMNS[4:] + capped
+    policy = POLICY_COLUMNS if result.policy_values is not None else []
+    return SUMMARY_COLUMNS[:4] + extra + SUMMARY_COLUMNS[4:] + capped + policy
 
 
 def probability_of_improvement_matrix(

@@ -34,6 +34,12 @@ class GridResult:
       episodes_run: int64 ``[configs, seeds]``, the episodes each agent ran, when a stop
         policy stopped agents early (:class:`~vdbejax.runs.UntilSolved`): their returns
         are NaN and lengths 0 past it. ``None``: every agent ran every episode.
+      policy_values: float32 ``[configs, seeds, evaluations]``, the exact expected return
+        of each agent's greedy policy after episodes ``evaluate_every · (1, 2, …)``
+        (:attr:`evaluation_episodes`; NaN past an agent's stop), with
+        ``meta["optimal_return"]`` the optimum V* (:mod:`vdbejax.runs.evaluation`; the
+        gaps: :func:`vdbejax.results.policy.policy_gaps`).
+        ``None``: a run without ``evaluate_every``.
     """
 
     settings: list[Setting]
@@ -42,6 +48,16 @@ class GridResult:
     nonfinite: np.ndarray
     meta: dict[str, Any]
     episodes_run: np.ndarray | None = None
+    policy_values: np.ndarray | None = None
+
+    @property
+    def evaluation_episodes(self) -> np.ndarray:
+        """int64 ``[evaluations]``: the episodes after which :attr:`policy_values` were
+        taken (empty without them)."""
+        if self.policy_values is None:
+            return np.zeros(0, np.int64)
+        every = int(self.meta["evaluate_every"])
+        return every * np.arange(1, self.policy_values.shape[2] + 1, dtype=np.int64)
 
     @property
     def num_seeds(self) -> int:
@@ -164,6 +180,8 @@ class GridResult:
                                   "nonfinite": self.nonfinite}
         if self.episodes_run is not None:
             arrays["episodes_run"] = self.episodes_run
+        if self.policy_values is not None:
+            arrays["policy_values"] = self.policy_values
         meta = dict(self.meta, **{manifest.META_KEY: manifest.MANIFEST_FILE})
         io.atomic_savez(out / io.RETURNS_FILE, **arrays)
         io.save_settings(out / io.CONFIGS_FILE, self.settings)
@@ -198,6 +216,7 @@ class GridResult:
                 nonfinite = (data["nonfinite"] if "nonfinite" in data
                              else np.zeros(returns.shape[:2], bool))
                 episodes_run = data.get("episodes_run")
+                policy_values = data.get("policy_values")
         except Exception as error:
             raise ValueError(f"results file {str(returns_path)!r} is unreadable:"
                              f" {type(error).__name__}: {error}") from None
@@ -216,7 +235,8 @@ class GridResult:
                             episodes_run)
         settings = with_parameter_names(settings, meta.get("parameter_names", {}))
         _check_against_meta(out, meta, settings, returns, lengths, nonfinite, episodes_run)
-        return cls(settings, returns, lengths, nonfinite, meta, episodes_run)
+        _check_policy_values(returns_path, meta, returns, policy_values)
+        return cls(settings, returns, lengths, nonfinite, meta, episodes_run, policy_values)
 
 
 def _check_saved_arrays(path: Path, num_settings: int, returns: np.ndarray, lengths: np.ndarray,
@@ -254,6 +274,24 @@ def _check_saved_arrays(path: Path, num_settings: int, returns: np.ndarray, leng
              " nonfinite flags do not account for")
     if lengths.size and lengths[ran].size and lengths[ran].min() < 1:
         fail("episode lengths must be at least 1")
+
+
+def _check_policy_values(path: Path, meta: dict[str, Any], returns: np.ndarray,
+                         policy_values: np.ndarray | None) -> None:
+    """One-line errors for policy evaluations that cannot belong to the saved run."""
+    if policy_values is None:
+        return
+    every = meta.get("evaluate_every")
+    if not isinstance(every, int) or every < 1 or not isinstance(
+            meta.get("optimal_return"), (int, float)) or not isinstance(
+            meta.get("optimal_tolerance"), (int, float)):
+        raise ValueError(f"results file {str(path)!r} does not match {io.META_FILE}: it holds"
+                         " policy_values, meta.json lacks evaluate_every, optimal_return or"
+                         " optimal_tolerance")
+    wanted = (*returns.shape[:2], returns.shape[2] // every)
+    if policy_values.shape != wanted or not np.issubdtype(policy_values.dtype, np.floating):
+        raise ValueError(f"results file {str(path)!r} is damaged: policy_values must be float"
+                         f" {list(wanted)}, not {policy_values.dtype} {list(policy_values.shape)}")
 
 
 #: Standard errors by which a setting's mean final return may exceed the task's best

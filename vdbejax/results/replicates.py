@@ -69,7 +69,8 @@ def replicate(result: GridResult, index: int) -> GridResult:
                 replicate=index)
     return GridResult(result.settings, result.returns[:, agents], result.lengths[:, agents],
                       result.nonfinite[:, agents], meta,
-                      None if result.episodes_run is None else result.episodes_run[:, agents])
+                      None if result.episodes_run is None else result.episodes_run[:, agents],
+                      None if result.policy_values is None else result.policy_values[:, agents])
 
 
 @dataclasses.dataclass

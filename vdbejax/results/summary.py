@@ -9,7 +9,8 @@ claims, the sensitivity plot, the scaling study's parameter choice, the CLI) tak
 
 Columns that older summaries lack (``final_iqm``, the convergence interval,
 ``truncated_fraction``) and those written only for some grids (``episodes_cut`` and
-``agents_cut``, a task whose step limit is only a safety cap) are ``None`` when absent.
+``agents_cut``, a task whose step limit is only a safety cap; the ``policy_gap`` and
+``optimal_fraction`` columns, a run that evaluates its policies) are ``None`` when absent.
 """
 from __future__ import annotations
 
@@ -69,6 +70,11 @@ class SummaryRow(Mapping[str, Any]):
       mean_length: mean episode length.
       nonfinite_agents: agents whose returns are not all finite.
       episodes_cut, agents_cut: episodes (and agents with any) cut at a task's safety cap.
+      policy_gap, policy_gap_ci_low, policy_gap_ci_high: mean ``V* − V^π`` of the agents'
+        greedy policies at their last evaluation and its 95% bootstrap interval;
+        optimal_fraction, optimal_ci_low, optimal_ci_high: the fraction of agents whose
+        greedy policy is optimal and its Wilson interval (a run with ``evaluate_every``
+        only, :mod:`vdbejax.results.policy`).
     """
 
     config: int
@@ -88,6 +94,12 @@ class SummaryRow(Mapping[str, Any]):
     nonfinite_agents: int
     episodes_cut: int | None = None
     agents_cut: int | None = None
+    policy_gap: float | None = None
+    policy_gap_ci_low: float | None = None
+    policy_gap_ci_high: float | None = None
+    optimal_fraction: float | None = None
+    optimal_ci_low: float | None = None
+    optimal_ci_high: float | None = None
 
     def swept_param(self) -> float:
         """:attr:`param`, for a consumer that compares settings by it.

@@ -9,6 +9,8 @@
   stores);
 * :mod:`~vdbejax.runs.driver` — :func:`drive`, the loop over batches and chunks and its
   stages (record, stop, checkpoint, progress);
+* :mod:`~vdbejax.runs.evaluation` — the exact value of every agent's greedy policy every
+  ``evaluate_every`` episodes;
 * :mod:`~vdbejax.runs.grid` — :func:`run_grid` = :func:`prepare_grid` + :func:`run_prepared`.
 """
 from vdbejax.runs.driver import Drive, drive

@@ -147,6 +147,8 @@ class CheckpointWriter:
             nonfinite=np.asarray(sweep.nonfinite), state_rows=np.asarray(sweep.state_rows),
             **leaves,
         )
+        if sweep.policy_values is not None:  # a run that evaluates its greedy policies
+            arrays["policy_values"] = np.asarray(sweep.policy_values, np.float32)
         io.atomic_savez(self.path, compressed=False, **arrays,
                         **{CHECKSUM_KEY: np.asarray(contents_digest(arrays))})
         self.written = done.copy()
@@ -159,7 +161,8 @@ class CheckpointWriter:
 
 def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
                     mdp: TabularMDP | None = None, layout: dict[str, str] | None = None,
-                    keys: np.ndarray | None = None) -> tuple[RunState, int, str]:
+                    keys: np.ndarray | None = None,
+                    evaluations: int | None = None) -> tuple[RunState, int, str]:
     """Read a checkpoint of this run and check it (module docstring).
 
     Args:
@@ -169,6 +172,7 @@ def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
       mdp: the task (checks Q, table, state and action ranges), if known.
       layout: the agents' table layout (:func:`~vdbejax.methods.agents.table_layout`).
       keys: uint32 ``[agents, 2]``: the random keys of the run's agents, in row order.
+      evaluations: the policy evaluations the run takes (None: none).
 
     Returns:
       ``(progress, log_bytes, log_id)``.
@@ -204,6 +208,7 @@ def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
         stopped = np.asarray(stored["stopped"])
         log_bytes, log_id = int(stored["log_bytes"]), str(stored["log_id"])
         num_episodes = int(stored["num_episodes"])
+        policy_values = stored.get("policy_values")
     except Exception as error:  # a damaged file: zip, pickle, EOF or key errors
         if isinstance(error, ValueError) and str(error).startswith(f"checkpoint {str(path)!r}"):
             raise  # ours: another run's or another layout's checkpoint
@@ -216,10 +221,14 @@ def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
                               layout, None if keys is None else np.asarray(keys, np.uint32))
     if problem:
         raise ValueError(f"checkpoint {str(path)!r} is damaged: {problem}; {HINT}")
+    if (evaluations is None) != (policy_values is None) or (policy_values is not None and (
+            policy_values.shape != (shape[0], evaluations) or policy_values.dtype != np.float32)):
+        raise ValueError(f"checkpoint {str(path)!r} is damaged: it does not hold the policy"
+                         f" evaluations of this run (float32 [{shape[0]}, {evaluations}]); {HINT}")
     returns, lengths = _read_log(path, fingerprint, log_id, log_bytes, episodes_done, shape)
     progress = RunState(returns=returns, lengths=lengths, episodes_done=episodes_done,
                         stopped=stopped, nonfinite=nonfinite, state_rows=state_rows,
-                        state=state)
+                        state=state, policy_values=policy_values)
     return progress, log_bytes, log_id
 
 

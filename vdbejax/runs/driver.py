@@ -5,7 +5,9 @@ runs it through the engine (:meth:`RunPlan.run_engine`: sharded when the plan sa
 and after every chunk applies the run's stages, in this order:
 
 1. **record** the chunk's episodes (and, when a checkpoint needs them, the agents'
-   states) in the one :class:`~vdbejax.runs.state.RunState`;
+   states) in the one :class:`~vdbejax.runs.state.RunState`, and after every
+   ``evaluate_every``-th episode the value of each agent's greedy policy
+   (:mod:`vdbejax.runs.evaluation`);
 2. **stop**: the stop policy retires agents (:mod:`vdbejax.runs.stop`; a fixed budget
    retires none, so its batches run to the end in one engine call);
 3. **checkpoint** the state (:class:`~vdbejax.runs.checkpoint.CheckpointWriter`);
@@ -28,6 +30,7 @@ from vdbejax.engine.programs import Programs
 from vdbejax.engine.progress import ProgressCallback
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams
+from vdbejax.runs.evaluation import greedy_returns
 from vdbejax.runs.plan import RunPlan
 from vdbejax.runs.state import RunState
 from vdbejax.runs.stop import StopPolicy
@@ -56,7 +59,8 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
           state: RunState, stop: StopPolicy, *,
           checkpoint: Callable[[RunState], None] | None = None,
           progress: ProgressCallback | None = None,
-          programs: Programs | None = None) -> Drive:
+          programs: Programs | None = None,
+          evaluate_every: int | None = None) -> Drive:
     """Train the unfinished agents of ``state`` (rows of ``params`` and ``keys``).
 
     Args:
@@ -68,6 +72,8 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
       checkpoint: called with the state after every chunk.
       progress: called after every chunk.
       programs: the compiled programs shared by every engine call (default: the run's own).
+      evaluate_every: evaluate the agents' greedy policies after every this many episodes
+        into ``state.policy_values`` (the plan's chunks end on its multiples).
 
     Returns:
       :class:`Drive`.
@@ -88,6 +94,13 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
         report()
         interrupts.raise_pending()  # a Ctrl-C or SIGTERM swallowed during the chunk
 
+    def evaluate(batch: np.ndarray, done: int, agents: AgentState | None) -> None:
+        if evaluate_every is None or done % evaluate_every:
+            return
+        assert agents is not None and state.policy_values is not None  # asked for below
+        state.policy_values[batch, done // evaluate_every - 1] = greedy_returns(
+            mdp, take_agents(params, batch), agents.q, agents.tables, agents.episode)
+
     report()
     while (batch := state.next_batch(plan.batch_size)).size:
         start = int(state.episodes_done[batch[0]])
@@ -104,20 +117,23 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
             state.add_episodes(batch, first, done, returns[:, first:done],
                                lengths[:, first:done])
             recorded[0] = done
-            if agents is not None:
+            evaluate(batch, done, agents)
+            if agents is not None and checkpoint is not None:
                 state.set_agents(batch, agents)
             after_stop()  # a fixed budget stops no agent
 
         result = plan.run_engine(
             mdp, take_agents(params, batch), keys[batch], end,
             initial=state.resume_point(batch), on_chunk=None if per_chunk else after_chunk,
-            chunk_states=checkpoint is not None, keep_final_state=end < num_episodes,
+            chunk_states=checkpoint is not None or evaluate_every is not None,
+            keep_final_state=end < num_episodes or (per_chunk and evaluate_every is not None),
             programs=programs)
         batches += 1
         strategy = result.strategy
         if per_chunk:
             state.add_episodes(batch, start, end, result.returns[:, start:end],
                                result.lengths[:, start:end])
+            evaluate(batch, end, result.final_state)
         state.set_agents(batch, result.final_state, nonfinite=result.nonfinite)
         if per_chunk:
             state.stop(batch[stop.newly_stopped(state.returns, batch, start, end)])

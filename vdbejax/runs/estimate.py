@@ -19,10 +19,13 @@ Time has two parts:
   dominates the weighting of the seeds (:data:`STATISTICS_OPS_PER_SECOND`, measured with
   ``python -m benchmarks.estimate_rates``).
 
-The result-folder pipeline (:func:`vdbejax.studies.train_in_folder`) announces a run whose
-estimate exceeds :data:`LONG_SECONDS` in one line before it starts. A study of several
-result folders (``scale``, ``bench``, ``depth``) adds its runs' estimates into one
-:class:`StudyEstimate`, always announced (unless quiet) before its folder is made.
+A run that evaluates its agents' greedy policies (``evaluate_every``) adds a forecast of
+the evaluations (:data:`EVALUATION_OPS_PER_SECOND`). The result-folder pipeline
+(:func:`vdbejax.studies.train_in_folder`) announces a run whose estimate exceeds
+:data:`LONG_SECONDS`, or that evaluates its policies, in one line before it starts. A
+study of several result folders (``scale``, ``bench``, ``depth``) adds its runs'
+estimates into one :class:`StudyEstimate`, always announced (unless quiet) before its
+folder is made.
 """
 from __future__ import annotations
 
@@ -35,6 +38,7 @@ from vdbejax.envs.solvers import shortest_episode
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.results.bootstrap import NUM_RESAMPLES
 from vdbejax.runs.batching import _size, log_bytes, result_bytes
+from vdbejax.runs.evaluation import evaluation_operations
 
 if TYPE_CHECKING:
     from vdbejax.runs.grid import PreparedGrid
@@ -48,6 +52,11 @@ MAX_LANE_STEPS_PER_SECOND = 5e6
 #: episodes took 6 s beyond the training and start-up, 2 × 50 × 20,000 about 1 s, and
 #: 1 × 1 × 10⁷ about 3 min (2-core machine, 2026-12-03).
 STATISTICS_OPS_PER_SECOND = 1e8
+#: Multiply-adds per second of the policy evaluation (:mod:`vdbejax.runs.evaluation`): 64
+#: Q-learning agents on a 2,000-state task (2 outcomes, H = 200) took 0.75 s for
+#: 3.1 × 10⁸ (counted as :func:`~vdbejax.runs.evaluation.evaluation_operations` does), 16
+#: UCB-H agents 4.4 s for 2.6 × 10⁹ (2-core machine, 2026-12-05): the slower, rounded down.
+EVALUATION_OPS_PER_SECOND = 2.5e8
 #: Bytes per setting-episode of the statistics (mean curves, bands, moving averages).
 STATISTICS_BYTES_PER_SETTING_EPISODE = 64
 #: A run whose estimate exceeds this is announced before it starts.
@@ -78,22 +87,34 @@ class RunEstimate:
     statistics_seconds: float
     fewest_steps: int = 0
     most_steps: int = 0
+    evaluations: int = 0
+    evaluation_operations: int = 0
+
+    @property
+    def evaluation_seconds(self) -> float:
+        """A forecast of the policy evaluations' time (:data:`EVALUATION_OPS_PER_SECOND`)."""
+        return self.evaluation_operations / EVALUATION_OPS_PER_SECOND
 
     @property
     def seconds(self) -> float:
-        """The whole run's estimate (training's lower bound + statistics)."""
-        return self.training_seconds + self.statistics_seconds
+        """The whole run's estimate (training's lower bound + statistics + evaluations)."""
+        return self.training_seconds + self.statistics_seconds + self.evaluation_seconds
 
     @property
     def long(self) -> bool:
-        """Whether the run is announced (:data:`LONG_SECONDS`)."""
-        return self.seconds > LONG_SECONDS
+        """Whether the run is announced: its estimate exceeds :data:`LONG_SECONDS`, or it
+        evaluates its policies (work the user asked for, whose cost it states)."""
+        return self.seconds > LONG_SECONDS or self.evaluations > 0
 
     def describe(self) -> str:
         """One line: ``training ≥ 2 min (…), statistics and figures ≈ 3 min, …``."""
-        return (f"{self.agents:,} agents × {self.episodes:,} episodes: {_common(self)},"
-                f" memory ≈ {_size(self.memory_bytes)}, checkpoint ≈ {_size(self.disk_bytes)}"
-                " of disk")
+        evaluation = (f", policy evaluation ≈ {duration(self.evaluation_seconds)}"
+                      f" ({self.evaluations:,} evaluations of every agent,"
+                      f" ≤ {count(self.evaluation_operations)} multiply-adds)"
+                      if self.evaluations else "")
+        return (f"{self.agents:,} agents × {self.episodes:,} episodes: {_common(self)}"
+                f"{evaluation}, memory ≈ {_size(self.memory_bytes)}, checkpoint ≈"
+                f" {_size(self.disk_bytes)} of disk")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -151,7 +172,8 @@ def _common(estimate: RunEstimate | StudyEstimate) -> str:
 def announce(estimate: RunEstimate | StudyEstimate, what: str) -> None:
     """Write ``a long run: …`` (``a study: …``) to stderr when ``estimate`` is long."""
     if estimate.long:
-        label = f"a long {what}" if isinstance(estimate, RunEstimate) else f"a {what}"
+        label = (f"a long {what}" if isinstance(estimate, RunEstimate)
+                 and estimate.seconds > LONG_SECONDS else f"a {what}")
         sys.stderr.write(f"{label}: {estimate.describe()}; Ctrl-C keeps its checkpoint,"
                          " --resume continues\n")
 
@@ -222,8 +244,20 @@ def estimate_task(mdp: TabularMDP, settings: int, seeds: int, episodes: int, *,
 
 
 def estimate_prepared(prepared: PreparedGrid, *, statistics: bool = True) -> RunEstimate:
-    """The estimate of a prepared grid run (its task, work and stop policy)."""
-    return estimate_task(prepared.mdp, len(prepared.settings), prepared.num_seeds,
-                         prepared.num_episodes, statistics=statistics,
-                         fewest_episodes=prepared.stop.fewest_episodes(prepared.num_episodes))
+    """The estimate of a prepared grid run (its task, work and stop policy; its policy
+    evaluations, :mod:`vdbejax.runs.evaluation`, at most one per ``evaluate_every``
+    episodes of the budget)."""
+    estimate = estimate_task(prepared.mdp, len(prepared.settings), prepared.num_seeds,
+                             prepared.num_episodes, statistics=statistics,
+                             fewest_episodes=prepared.stop.fewest_episodes(
+                                 prepared.num_episodes))
+    every = prepared.run.evaluate_every
+    if every is None:
+        return estimate
+    evaluations = prepared.num_episodes // every
+    return dataclasses.replace(
+        estimate, evaluations=evaluations,
+        memory_bytes=estimate.memory_bytes + 4 * estimate.agents * evaluations,
+        evaluation_operations=evaluations * evaluation_operations(prepared.mdp,
+                                                                  prepared.params))
 

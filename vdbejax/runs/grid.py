@@ -46,6 +46,7 @@ from vdbejax.results.grid_result import GridResult
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.checkpoint import CheckpointWriter, load_checkpoint, remove_checkpoint
 from vdbejax.runs.driver import drive
+from vdbejax.runs.evaluation import collect_evaluations, evaluations
 from vdbejax.runs.options import RunOptions
 from vdbejax.runs.plan import RunPlan, make_plan
 from vdbejax.runs.state import RunState
@@ -138,6 +139,10 @@ def prepare_grid(
     num_seeds = check_int("num_seeds", num_seeds, 1, INT32_MAX)
     num_episodes = check_int("num_episodes", num_episodes, 1, INT32_MAX)
     seed = check_int("seed", seed, 0, UINT32_MAX)
+    if run.evaluate_every is not None and run.evaluate_every > num_episodes:
+        raise ValueError(f"evaluate_every={run.evaluate_every} is invalid with num_episodes="
+                         f"{num_episodes}: must be at most the episodes (or no policy would be"
+                         " evaluated)")
     if not isinstance(mdp, TabularMDP):
         raise ValueError(f"mdp={type(mdp).__name__} is invalid: must be a TabularMDP"
                          " (see make_tabular_mdp, compile_env)")
@@ -177,6 +182,8 @@ def prepare_grid(
     }
     if stop.checks_chunks:  # a fixed budget leaves the fingerprint of earlier runs as it was
         description["stop"] = stop.describe()
+    if run.evaluate_every is not None:  # its checkpoints hold evaluations: not another's
+        description["evaluate_every"] = run.evaluate_every
     if plugin_code:  # built-ins only: the fingerprint of earlier runs, as it was
         description["plugin_code"] = dict(sorted(plugin_code.items()))
     return PreparedGrid(mdp, settings, num_seeds, num_episodes, seed, options, run, stop,
@@ -233,7 +240,8 @@ def _resume_state(prepared: PreparedGrid, fingerprint: str
     if run.resume and path.exists():
         state, log_bytes, log_id = load_checkpoint(path, fingerprint, shape, prepared.mdp,
                                                    table_layout(prepared.params),
-                                                   prepared.keys[prepared.plan.rows])
+                                                   prepared.keys[prepared.plan.rows],
+                                                   evaluations(prepared.num_episodes, run))
         return state, CheckpointWriter(path, fingerprint, state, log_bytes, log_id)
     remove_checkpoint(path)  # a fresh run: an older checkpoint must not outlive its log
     return None, CheckpointWriter(path, fingerprint)
@@ -253,14 +261,15 @@ def run_prepared(prepared: PreparedGrid, programs: Programs | None = None) -> Gr
     checkpoint_fingerprint = fingerprint if jax.process_count() == 1 else _fingerprint(
         dict(prepared.description, process=[jax.process_index(), jax.process_count()]))
     state, writer = _resume_state(prepared, checkpoint_fingerprint)
-    state = RunState.fresh(len(plan.rows), prepared.num_episodes) if state is None else state
+    state = (RunState.fresh(len(plan.rows), prepared.num_episodes, run.evaluate_every)
+             if state is None else state)
     resumed_from = int(state.episodes_done.sum())
     progress = text_progress() if run.progress is True else (run.progress or None)
     try:
         done = drive(prepared.mdp, take_agents(prepared.params, plan.rows),
                      prepared.keys[plan.rows], plan, state, prepared.stop,
                      checkpoint=None if writer is None else _failing_quietly(writer),
-                     progress=progress, programs=programs)
+                     progress=progress, programs=programs, evaluate_every=run.evaluate_every)
     finally:
         if writer is not None:
             writer.close()
@@ -324,8 +333,9 @@ def _collect(prepared: PreparedGrid, state: RunState, fingerprint: str, resumed_
     meta["truncated_episodes_by_config"] = cut.sum(axis=(1, 2)).tolist()
     meta["hyperparameters"] = [agent_hyperparameters(make_agent(s, options)) for s in settings]
     meta["parameter_names"] = {s.explorer: s.parameter for s in settings}
+    policy_values = collect_evaluations(state, mdp, prepared.run, shape, meta)
     return GridResult(settings, returns, lengths, nonfinite, meta,
-                      episodes_run.astype(np.int64) if stopped_early else None)
+                      episodes_run.astype(np.int64) if stopped_early else None, policy_values)
 
 
 def nonfinite_message(settings: Sequence[Setting], nonfinite: np.ndarray,

@@ -43,6 +43,9 @@ class RunOptions:
         accelerators and for sharded agents), ``"sequential"`` or ``"lockstep"``.
       threads: worker threads of the sequential strategy (default: the CPUs this process
         may use).
+      evaluate_every: every this many episodes, the exact expected return of each
+        agent's greedy policy (:mod:`vdbejax.runs.evaluation`), kept beside the returns
+        (``GridResult.policy_values``); None: no evaluation. It changes no return.
     """
 
     chunk_episodes: int | None = None
@@ -54,6 +57,7 @@ class RunOptions:
     stop: StopPolicy = dataclasses.field(default_factory=FixedBudget)
     strategy: str = "auto"
     threads: int | None = None
+    evaluate_every: int | None = None
 
     def __post_init__(self) -> None:
         def fix(name: str, value: Any) -> None:
@@ -82,6 +86,9 @@ class RunOptions:
         check_choice("strategy", self.strategy, STRATEGIES)
         if self.threads is not None:
             fix("threads", check_int("threads", self.threads, 1))
+        if self.evaluate_every is not None:
+            fix("evaluate_every", check_int("evaluate_every", self.evaluate_every, 1,
+                                            INT32_MAX))
 
     def replace(self, **changes: Any) -> RunOptions:
         """A copy with ``changes`` (checked like the original).

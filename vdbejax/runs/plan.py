@@ -19,6 +19,7 @@ devices) is refused in one line.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -138,13 +139,26 @@ def default_chunk_episodes(num_agents: int, num_episodes: int) -> int:
     return max(CHUNK_EPISODES_MIN, min(wanted, CHUNK_EPISODES_MAX, max(int(num_episodes), 1)))
 
 
+def evaluation_chunk(chunk_episodes: int, evaluate_every: int) -> int:
+    """The chunk of a run that evaluates its agents every ``evaluate_every`` episodes:
+    every multiple of it must end a chunk, so the largest divisor of it not above
+    ``chunk_episodes``; ``evaluate_every`` itself where that divisor is below a quarter
+    of ``chunk_episodes`` (a prime, say: chunks of a few episodes would cost more than a
+    longer chunk's buffers). Results never depend on it."""
+    divisors = {d for i in range(1, math.isqrt(evaluate_every) + 1) if evaluate_every % i == 0
+                for d in (i, evaluate_every // i)}
+    largest = max(d for d in divisors if d <= chunk_episodes)
+    return largest if 4 * largest >= min(chunk_episodes, evaluate_every) else evaluate_every
+
+
 def make_plan(mdp: TabularMDP, params: AgentParams, num_agents: int, num_episodes: int,
               run: RunOptions) -> RunPlan:
     """Decide a run's plan (module docstring).
 
     Raises:
       ValueError: more devices than there are, devices of no process of this one, the
-        sequential strategy for sharded agents, or a budget no agent fits.
+        sequential strategy for sharded agents, a budget no agent fits, or under a stop
+        policy an ``evaluate_every`` that is not a multiple of the chunk.
     """
     devices = select_devices(run.devices)
     local = local_devices(devices)
@@ -162,6 +176,13 @@ def make_plan(mdp: TabularMDP, params: AgentParams, num_agents: int, num_episode
               else int(run.memory_budget_bytes))
     chunk = (default_chunk_episodes(num_agents, num_episodes) if run.chunk_episodes is None
              else run.chunk_episodes)
+    if run.evaluate_every is not None and not run.stop.checks_chunks:
+        chunk = evaluation_chunk(chunk, run.evaluate_every)
+    elif run.evaluate_every is not None and run.evaluate_every % chunk:
+        # A stop policy stops agents at chunk ends: another chunk would change the results.
+        raise ValueError(f"evaluate_every={run.evaluate_every} is invalid with"
+                         f" chunk_episodes={chunk} under a stop policy: must be a multiple of"
+                         " the chunk (its chunks decide where agents stop)")
     batch_size = agents_per_batch(
         max(len(rows), 1),
         bytes_per_agent(mdp, min(chunk, num_episodes), table_layout(params)),

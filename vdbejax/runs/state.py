@@ -30,6 +30,10 @@ class RunState:
       state_rows: int64 ``[m]`` agents that are started but unfinished.
       state: their :class:`~vdbejax.engine.AgentState` (numpy leaves, leading axis m),
         or None when m = 0.
+      policy_values: float32 ``[agents, evaluations]``, the expected return of each
+        agent's greedy policy after every ``evaluate_every``-th episode (NaN where not
+        evaluated yet, or past an agent's stop; :mod:`vdbejax.runs.evaluation`), or None
+        for a run without evaluation.
     """
 
     returns: np.ndarray
@@ -39,10 +43,12 @@ class RunState:
     nonfinite: np.ndarray
     state_rows: np.ndarray
     state: AgentState | None
+    policy_values: np.ndarray | None = None
 
     @classmethod
-    def fresh(cls, num_agents: int, num_episodes: int) -> RunState:
-        """Nothing done yet."""
+    def fresh(cls, num_agents: int, num_episodes: int,
+              evaluate_every: int | None = None) -> RunState:
+        """Nothing done yet (``evaluate_every``: room for the evaluations)."""
         return cls(
             returns=np.zeros((num_agents, num_episodes), np.float32),
             lengths=np.zeros((num_agents, num_episodes), np.int32),
@@ -51,6 +57,8 @@ class RunState:
             nonfinite=np.zeros(num_agents, bool),
             state_rows=np.zeros(0, np.int64),
             state=None,
+            policy_values=(None if evaluate_every is None else np.full(
+                (num_agents, num_episodes // evaluate_every), np.nan, np.float32)),
         )
 
     @property

@@ -28,6 +28,7 @@ from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Setting, make_agent
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, mark, unmark
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.policy import policy_summary
 from vdbejax.results.regret import cumulative_regret, normalised_returns, run_scores
 from vdbejax.results.solving import episodes_to_solve, summarize_solving
 from vdbejax.runs import RunOptions, prepare_grid
@@ -169,6 +170,7 @@ def run_bench(
     progress: bool = True,
     figures: bool = True,
     command: str | None = None,
+    evaluate_every: int | None = None,
 ) -> BenchResult:
     """Run every method on every task and write the ranking (module docstring).
 
@@ -191,6 +193,9 @@ def run_bench(
       progress: status lines and the run's progress bar on stderr.
       figures: write the figures.
       command: the command line, recorded in ``meta.json`` and ``bench.md``.
+      evaluate_every: in the reported runs, every this many episodes the exact value of
+        each agent's greedy policy (:mod:`vdbejax.runs.evaluation`): its gap to the
+        optimum and the share of optimal greedy policies in the ranking.
 
     Returns:
       the :class:`BenchResult` (also written to ``out_dir``).
@@ -207,6 +212,8 @@ def run_bench(
     seeds = check_int("seeds", seeds, 1, INT32_MAX)
     tune_seeds = check_int("tune_seeds", tune_seeds, 1, INT32_MAX)
     episodes = check_int("episodes", episodes, 1, INT32_MAX)
+    if evaluate_every is not None:
+        evaluate_every = check_int("evaluate_every", evaluate_every, 1, episodes)
     seed = check_int("seed", seed, 0, UINT32_MAX - 1)
     cost_limit = check_in_range("cost_limit", cost_limit, 0.0, math.inf, low_open=True)
     chosen_methods = select_methods(methods)
@@ -242,7 +249,8 @@ def run_bench(
                                        statistics=False))
         announce(StudyEstimate(tuple(parts)), "study")
     out = check_writable_dir("out", out_dir)
-    check_output_paths(out, output_files([t.name for t in bench_tasks], figures))
+    check_output_paths(out, output_files([t.name for t in bench_tasks], figures,
+                                         evaluated=evaluate_every is not None))
     from vdbejax.runs.grid import version_info
 
     versions = version_info()  # the code that runs: read before training, not after
@@ -270,7 +278,8 @@ def run_bench(
                                  f" {len(picks)} methods × {seeds} agents\n")
             run_at = time.perf_counter()
             runs[task.name] = _train(out / RUNS_FOLDER / task.folder, task, list(picks.values()),
-                                     seeds=seeds, episodes=episodes, seed=seed, options=knobs,
+                                     seeds=seeds, episodes=episodes, seed=seed,
+                                     options=knobs.replace(evaluate_every=evaluate_every),
                                      phase="report")
             timing[task.name] = {"tuning_seconds": tuned_seconds,
                                  "report_seconds": time.perf_counter() - run_at,
@@ -282,7 +291,8 @@ def run_bench(
                 for row in task_rows(task, ran[task.name], runs[task.name], scores[task.name])]
         meta = _meta(command, bench_tasks, chosen_methods, chosen, budget, timing, started,
                      versions, seeds=seeds, tune_seeds=tune_seeds, episodes=episodes, seed=seed,
-                     tune=tune, quick=quick, cost_limit=cost_limit)
+                     tune=tune, quick=quick, cost_limit=cost_limit,
+                     evaluate_every=evaluate_every)
         meta["left_out"] = left_out
         mark(out, "results")  # a folder killed while its report is replaced is recognised
         aggregate = write_report(out, bench_tasks, chosen_methods, runs, scores, rows, meta,
@@ -319,10 +329,12 @@ def _choose(folder: Path, task: BenchTask, methods: list[BenchMethod],
 def task_rows(task: BenchTask, methods: list[BenchMethod], result: GridResult,
               scores: np.ndarray) -> list[dict[str, Any]]:
     """One row per method of a task's reported run (``scores``: its agents' normalised
-    scores, ``[methods, seeds]``): score, regret, final return, solving."""
+    scores, ``[methods, seeds]``): score, realized regret, final return, solving (and,
+    with policy evaluations, the greedy policies' gap and optimal share)."""
     from vdbejax.results.bootstrap import bootstrap_ci
 
     rows = []
+    policy = policy_summary(result) if result.policy_values is not None else None
     regret = cumulative_regret(result.returns, task.best)[..., -1]
     last = max(1, result.num_episodes // 10)
     solve = episodes_to_solve(normalised_returns(result.returns, task.best, task.baseline), 1.0,
@@ -344,6 +356,7 @@ def task_rows(task: BenchTask, methods: list[BenchMethod], result: GridResult,
             "fraction_solved": solved.fraction, "median_episodes": solved.median,
             "median_text": solved.median_text(),
             "nonfinite_agents": int(result.nonfinite[c].sum()),
+            **({} if policy is None else policy[c]),
         })
     order = sorted(range(len(rows)), key=lambda r: -float(scores[r].mean()))
     for rank, r in enumerate(order, 1):

@@ -22,6 +22,7 @@ import numpy as np
 
 from vdbejax.results import io
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.policy import POLICY_COLUMNS, policy_gap_figure
 from vdbejax.results.regret import (
     aggregate_iqm,
     cumulative_regret,
@@ -35,6 +36,8 @@ ROW_COLUMNS = ["task", "rank", "method", "title", "family", "tuned", "value", "s
                "score_low", "score_high", "regret", "regret_low", "regret_high", "final_return",
                "best_return", "random_return", "fraction_solved", "median_episodes",
                "median_text", "nonfinite_agents"]
+#: The ranking's columns of runs with policy evaluations (:mod:`vdbejax.results.policy`).
+RANKING_POLICY_COLUMNS = POLICY_COLUMNS
 AGGREGATE_COLUMNS = ["method", "title", "family", "iqm", "iqm_low", "iqm_high", "mean_rank",
                      "p_vs_reference", "p_low", "p_high", "tasks"]
 #: The reference of the probability of improvement: the paper's undirected baseline.
@@ -46,11 +49,18 @@ def regret_figure_file(task: str) -> str:
     return f"regret_{task.replace(':', '-')}.png"
 
 
-def output_files(task_names: Sequence[str], figures: bool) -> list[str]:
-    """Every file the report writes."""
+def policy_figure_file(task: str) -> str:
+    """``policy_gap_<task>.png``: the greedy policies' gap (runs with evaluations)."""
+    return f"policy_gap_{task.replace(':', '-')}.png"
+
+
+def output_files(task_names: Sequence[str], figures: bool, evaluated: bool = False) -> list[str]:
+    """Every file the report writes (``evaluated``: the runs evaluate their policies)."""
     files = [RANKING_CSV, AGGREGATE_CSV, MARKDOWN_FILE, io.META_FILE]
     if figures:
         files += [AGGREGATE_FIGURE, *(regret_figure_file(t) for t in task_names)]
+        if evaluated:
+            files += [policy_figure_file(t) for t in task_names]
     return files
 
 
@@ -106,11 +116,14 @@ def write_report(out: Path, tasks: Sequence[Any], methods: Sequence[Any],
     ran = ran or _ran_everywhere(tasks, methods)
     aggregate = aggregate_rows(tasks, methods, scores, rows, ran)
     ordered = sorted(rows, key=lambda r: ([t.name for t in tasks].index(r["task"]), r["rank"]))
-    io.write_csv(out / RANKING_CSV, ordered, ROW_COLUMNS)
+    evaluated = "policy_gap" in ordered[0] if ordered else False
+    io.write_csv(out / RANKING_CSV, ordered,
+                 ROW_COLUMNS + (RANKING_POLICY_COLUMNS if evaluated else []))
     io.write_csv(out / AGGREGATE_CSV, aggregate, AGGREGATE_COLUMNS)
     io.save_json(out / io.META_FILE, meta)
     io.atomic_write_text(out / MARKDOWN_FILE, markdown(ordered, aggregate, meta))
-    for stale in [*out.glob("regret_*.png"), out / AGGREGATE_FIGURE]:
+    for stale in [*out.glob("regret_*.png"), *out.glob("policy_gap_*.png"),
+                  out / AGGREGATE_FIGURE]:
         stale.unlink(missing_ok=True)  # no figure of an earlier run outlives it
     if figures:
         import matplotlib.pyplot as plt
@@ -120,6 +133,10 @@ def write_report(out: Path, tasks: Sequence[Any], methods: Sequence[Any],
                                 runs[task.name])
             fig.savefig(out / regret_figure_file(task.name), dpi=110)
             plt.close(fig)
+            if runs[task.name].policy_values is not None:
+                fig = policy_gap_figure(runs[task.name])
+                fig.savefig(out / policy_figure_file(task.name), dpi=110)
+                plt.close(fig)
         fig = aggregate_figure(tasks, methods, scores, aggregate, ran)
         fig.savefig(out / AGGREGATE_FIGURE, dpi=110)
         plt.close(fig)
@@ -134,6 +151,7 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
              meta: dict[str, Any]) -> str:
     """``bench.md``: the aggregate table, then one ranking table per task."""
     options, budget = meta["options"], meta["tuning_budget"]
+    evaluated = bool(options.get("evaluate_every"))
     lines = ["# Exploration benchmark", ""]
     if meta.get("command"):
         lines += [f"Command: `{meta['command']}`", ""]
@@ -150,9 +168,11 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
         "",
         "**Score**: mean normalised return over all episodes (0 = uniformly random policy,"
         " 1 = the exact optimum from the first episode on), 95 % bootstrap interval over"
-        " agents. **Regret**: cumulative regret against the exact optimum after the last"
-        " episode. **Solved**: the share of agents whose 20-episode moving average reached 0.9"
-        " on the normalised scale.", "",
+        " agents. **Realized regret**: cumulative regret of the episodes' returns against the"
+        " exact optimum after the last episode, 95 % bootstrap interval (returns sampled with"
+        " exploration: it can fall below 0 by luck). **Solved**: the share of agents whose"
+        " 20-episode moving average reached 0.9 on the normalised scale.", "",
+        *(policy_note(options["evaluate_every"]) if options.get("evaluate_every") else []),
         "## Across tasks", "",
         "| method | family | IQM score [95 % CI] | mean rank | P(better than ε-greedy) |"
         " tasks |",
@@ -179,9 +199,11 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
                   f"{task['states']} states, {task['actions']} actions, horizon"
                   f" {task['horizon']}; best return {task['best_return']:.4g}, random policy"
                   f" {task['random_return']:.4g}.", "",
-                  "| rank | method | tuned | score [95 % CI] | regret [95 % CI] | final return"
-                  " | solved | median episodes |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+                  "| rank | method | tuned | score [95 % CI] | realized regret [95 % CI] |"
+                  " final return | solved | median episodes |"
+                  + (" policy gap [95 % CI] | optimal policies |" if evaluated else ""),
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"
+                  + (" --- | --- |" if evaluated else "")]
         skipped = [titles[x["method"]] for x in left_out if x["task"] == task["name"]]
         for r in mine:
             tuned = f"{r['tuned']} = {r['value']:.3g}" if r["tuned"] else "-"
@@ -189,10 +211,27 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
                 f"| {r['rank']} | {r['title']} | {tuned} |"
                 f" {_interval(r['score'], r['score_low'], r['score_high'])} |"
                 f" {r['regret']:.4g} [{r['regret_low']:.4g}, {r['regret_high']:.4g}] |"
-                f" {r['final_return']:.4g} | {r['fraction_solved']:.0%} | {r['median_text']} |")
+                f" {r['final_return']:.4g} | {r['fraction_solved']:.0%} | {r['median_text']} |"
+                + (policy_cells(r) if evaluated else ""))
         if skipped:
             lines += ["", f"Not run here (cost rule): {', '.join(skipped)}."]
     return "\n".join(lines) + "\n"
+
+
+def policy_note(every: int) -> list[str]:
+    """``bench.md``'s lines on the greedy policies' values (runs with evaluations)."""
+    return ["**Policy gap**: V* − V^π of each agent's greedy policy after its last evaluation"
+            f" (every {every} episodes; exact, by policy evaluation on the known task under"
+            " its step limit), mean over agents with its 95 % bootstrap interval; **optimal"
+            " policies**: the share of agents whose greedy policy is optimal (Wilson 95 %"
+            " interval).", ""]
+
+
+def policy_cells(row: dict[str, Any]) -> str:
+    """The policy gap and optimal share of a ranking row, as table cells."""
+    return (f" {row['policy_gap']:.4g} [{row['policy_gap_ci_low']:.4g},"
+            f" {row['policy_gap_ci_high']:.4g}] | {row['optimal_fraction']:.0%}"
+            f" [{row['optimal_ci_low']:.0%}, {row['optimal_ci_high']:.0%}] |")
 
 
 def _pyplot() -> Any:

@@ -37,6 +37,7 @@ import numpy as np
 
 from vdbejax.results import io
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, mark, unmark
+from vdbejax.results.policy import POLICY_COLUMNS
 from vdbejax.results.solving import WINDOW, summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
@@ -138,6 +139,7 @@ def run_depth(
     command: str | None = None,
     memory_budget_bytes: int | str | None = None,
     devices: int | None = None,
+    evaluate_every: int | None = None,
 ) -> DepthResult:
     """Episodes to solve of every method on DeepSea and the chain of growing depth.
 
@@ -157,6 +159,9 @@ def run_depth(
       figure: write ``depth.png``.
       command: the command line, recorded in ``depth.md`` and ``meta.json``.
       memory_budget_bytes, devices: as :class:`~vdbejax.runs.RunOptions` (speed only).
+      evaluate_every: every this many episodes the exact value of each agent's greedy
+        policy (:mod:`vdbejax.runs.evaluation`): its gap to the optimum and the share of
+        optimal greedy policies per depth in ``depth.csv`` and ``depth.md``.
 
     Returns:
       the :class:`DepthResult` (also written to ``out_dir``).
@@ -176,6 +181,12 @@ def run_depth(
     seeds = check_int("seeds", seeds, 1, INT32_MAX)
     episodes = check_int("episodes", episodes, WINDOW, INT32_MAX)
     seed = check_int("seed", seed, 0, UINT32_MAX)
+    if evaluate_every is not None:
+        evaluate_every = check_int("evaluate_every", evaluate_every, 1, episodes)
+        if evaluate_every % auto_chunk(episodes):  # agents stop at chunk ends: kept as it is
+            raise ValueError(f"evaluate_every={evaluate_every} is invalid with episodes="
+                             f"{episodes}: must be a multiple of the study's chunk of"
+                             f" {auto_chunk(episodes)} episodes, where agents stop")
     chosen: list[BenchMethod] = select_methods(methods)
     tasks = [(family, size, depth_task(family, size)) for family in chosen_families
              for size in chosen_sizes]
@@ -194,7 +205,8 @@ def run_depth(
     check_output_paths(out, [CSV_FILE, SLOPES_FILE, MARKDOWN_FILE, META_FILE]
                        + ([FIGURE_FILE] if figure else []))
     knobs = RunOptions(resume=resume, memory_budget_bytes=memory_budget_bytes, devices=devices,
-                       progress=progress, chunk_episodes=auto_chunk(episodes))
+                       progress=progress, chunk_episodes=auto_chunk(episodes),
+                       evaluate_every=evaluate_every)
     versions = version_info()  # the code that runs: read before training, not after
     started = time.perf_counter()
     with FolderLock(out):
@@ -217,7 +229,8 @@ def run_depth(
         meta = {"command": command, "elapsed_seconds": time.perf_counter() - started,
                 "options": {"families": chosen_families, "sizes": chosen_sizes, "seeds": seeds,
                             "episodes": episodes, "seed": seed, "quick": quick,
-                            "solved": SOLVED, "window": WINDOW, "resamples": RESAMPLES},
+                            "solved": SOLVED, "window": WINDOW, "resamples": RESAMPLES,
+                            "evaluate_every": evaluate_every},
                 "methods": {m.name: dataclasses.asdict(m) for m in chosen},
                 "tasks": {task.name: {"best": task.best, "baseline": task.baseline,
                                       "states": int(task.mdp.num_states),
@@ -226,7 +239,8 @@ def run_depth(
                           for _, _, task in tasks},
                 **versions}
         mark(out, "results")  # a folder killed while its files are replaced is recognised
-        io.write_csv(out / CSV_FILE, rows, ROW_COLUMNS)
+        io.write_csv(out / CSV_FILE, rows,
+                     ROW_COLUMNS + (POLICY_COLUMNS if evaluate_every is not None else []))
         io.write_csv(out / SLOPES_FILE, slopes, SLOPE_COLUMNS)
         io.save_json(out / META_FILE, meta)
         write_reports(out, rows, slopes, meta, figure=figure)
@@ -248,7 +262,8 @@ def _task_rows(family: str, size: int, task: BenchTask, methods: list[BenchMetho
             "budget": summary.budget, "median_text": summary.median_text(),
             "agent_episodes": int(run.episodes_run[c].sum()),
             "agent_steps": int(run.lengths[c].sum(dtype=np.int64)),
-            "_episodes": np.where(run.solve.solved[c], run.solve.episodes[c], np.inf)})
+            "_episodes": np.where(run.solve.solved[c], run.solve.episodes[c], np.inf),
+            **(run.policy[c] if run.policy is not None else {})})
     return rows
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +37,38 @@ def interval_text(row: dict[str, Any], name: str, digits: int = 2) -> str:
             f" {row[f'{name}_high']:.{digits}f}]")
 
 
+def policy_table(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, Any]],
+                 family: str, sizes: Sequence[int]) -> list[str]:
+    """A family's table of the greedy policies at each agent's last evaluation: mean gap
+    ``V* − V^π`` [95 % bootstrap interval] and the share of optimal greedy policies."""
+    lines = ["Greedy policies at each agent's last evaluation (exact, vdbejax.runs.evaluation):"
+             " mean V* − V^π [95 % interval], share of optimal ones.", "",
+             "| method | " + " | ".join(f"N = {n}" for n in sizes) + " |",
+             "| --- | " + " | ".join("---" for _ in sizes) + " |"]
+    def cell(row: dict[str, Any]) -> str:
+        if not math.isfinite(row["policy_gap"]):
+            return "-"
+        return (f"{row['policy_gap']:.3g} [{row['policy_gap_ci_low']:.3g},"
+                f" {row['policy_gap_ci_high']:.3g}], {row['optimal_fraction']:.0%}")
+
+    for slope in (s for s in slopes if s["family"] == family):
+        lines.append(f"| {slope['title']} | "
+                     + " | ".join(depth_cells(rows, slope, family, sizes, cell)) + " |")
+    return [*lines, ""]
+
+
+def depth_cells(rows: Sequence[dict[str, Any]], slope: dict[str, Any], family: str,
+                sizes: Sequence[int], cell: Callable[[dict[str, Any]], str]) -> list[str]:
+    """``cell`` of a method's row of ``family`` at each depth of ``sizes`` (``-`` where it
+    did not run)."""
+    cells = []
+    for n in sizes:
+        row = next((r for r in rows if r["family"] == family and r["size"] == n
+                    and r["method"] == slope["method"]), None)
+        cells.append("-" if row is None else cell(row))
+    return cells
+
+
 def depth_markdown(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, Any]],
                    meta: dict[str, Any]) -> str:
     """Per family: one row per method with its median episodes to solve at each depth
@@ -64,16 +96,15 @@ def depth_markdown(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, An
                   + " | exponent | doubling |",
                   "| --- | --- | " + " | ".join("---" for _ in sizes) + " | --- | --- |"]
         for slope in (s for s in slopes if s["family"] == family):
-            cells = []
-            for n in sizes:
-                row = next((r for r in rows if r["family"] == family and r["size"] == n
-                            and r["method"] == slope["method"]), None)
-                cells.append("-" if row is None else
-                             f"{row['median_text']}, {row['solved']}/{row['agents']}")
+            cells = depth_cells(
+                rows, slope, family, sizes,
+                lambda row: f"{row['median_text']}, {row['solved']}/{row['agents']}")
             lines.append(f"| {slope['title']} | {slope['method_family']} | "
                          + " | ".join(cells) + f" | {interval_text(slope, 'exponent')}"
                          f" | {interval_text(slope, 'doubling', 3)} |")
         lines.append("")
+        if options.get("evaluate_every"):
+            lines += policy_table(rows, slopes, family, sizes)
     tasks = meta["tasks"]
     steps = sum(t["agent_steps"] for t in tasks.values())
     seconds = sum(t["seconds"] for t in tasks.values())

@@ -22,6 +22,7 @@ import numpy as np
 from vdbejax.engine.progress import ProgressCallback
 from vdbejax.methods.agents import AgentOptions, Setting
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.policy import policy_summary
 from vdbejax.results.solving import FRACTION, WINDOW, SolveTimes, episodes_to_solve
 from vdbejax.runs.options import RunOptions
 
@@ -43,6 +44,8 @@ class AdaptiveRun:
       elapsed_seconds: wall clock of the training (engine programs included).
       compile_seconds: of which getting the engine's programs.
       chunks: engine calls made.
+      policy: per config, :func:`~vdbejax.results.policy.policy_summary` of the agents'
+        greedy policies (a run with ``evaluate_every``; else None).
     """
 
     settings: list[Setting]
@@ -60,6 +63,7 @@ class AdaptiveRun:
     elapsed_seconds: float
     compile_seconds: float
     chunks: int
+    policy: list[dict[str, Any]] | None = None
 
     @property
     def agent_steps(self) -> int:
@@ -155,6 +159,7 @@ def adaptive_run(result: GridResult, compile_seconds: float = 0.0) -> AdaptiveRu
         max_episodes=max_episodes, max_seconds=stop["max_seconds"], stopped=result.meta["stopped"],
         elapsed_seconds=float(result.meta["elapsed_seconds"]), compile_seconds=compile_seconds,
         chunks=int(result.meta["batches"]),
+        policy=policy_summary(result) if result.policy_values is not None else None,
     )
 
 

@@ -47,18 +47,21 @@ from vdbejax.validation import INT32_MAX, check_bool, check_int
 SUMMARY_FILE = "summary.csv"
 FIGURE_FILE = "fig3.png"
 SENSITIVITY_FILE = "sensitivity.png"
+#: The learned policies' gap to the optimum (a run with ``evaluate_every``).
+POLICY_FIGURE_FILE = "policy_gap.png"
 
 
 #: Files a run writes into its folder (checked before training: none may be a folder).
 RUN_FILES = [io.RETURNS_FILE, io.CONFIGS_FILE, io.META_FILE, SUMMARY_FILE, FIGURE_FILE,
-             SENSITIVITY_FILE, *REPLICATE_FILES]
+             SENSITIVITY_FILE, POLICY_FIGURE_FILE, *REPLICATE_FILES]
 
 
 def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | None,
                   bands: bool = True, figures: bool = True,
                   statistics: CurveStatistics | None = None) -> ReplicateSummaries:
     """Write ``summary.csv`` and (unless ``figures=False``) ``fig3.png`` and
-    ``sensitivity.png`` for a grid of any kinds; with replicates, these are replicate 0's
+    ``sensitivity.png`` (and ``policy_gap.png`` with policy evaluations) for a grid of
+    any kinds; with replicates, these are replicate 0's
     and ``summary_pooled.csv`` and ``replicates.csv`` come beside them
     (:mod:`vdbejax.results.replicates`).
 
@@ -97,6 +100,10 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
         names = {s.explorer: s.parameter for s in result.settings}
         io.save_figure(sensitivity(summary, best_return=best, parameter_names=names),
                        out / SENSITIVITY_FILE)
+        if result.policy_values is not None:
+            from vdbejax.results.policy import policy_gap_figure
+
+            io.save_figure(policy_gap_figure(first), out / POLICY_FIGURE_FILE)
     if count == 1:
         for name in REPLICATE_FILES:  # an earlier run's with replicates would go stale
             (out / name).unlink(missing_ok=True)
@@ -129,6 +136,7 @@ def run_sweep(
     resume: bool = False,
     memory_budget_bytes: int | str | None = None,
     devices: int | None = None,
+    evaluate_every: int | None = None,
 ) -> GridResult:
     """Train a sweep on a task and write the result folder.
 
@@ -161,6 +169,9 @@ def run_sweep(
       memory_budget_bytes: per-device memory budget (sequential batches when the agents
         do not fit); changes only the speed.
       devices: devices to shard the agents over (default all); changes only the speed.
+      evaluate_every: every this many episodes, the exact value of each agent's greedy
+        policy (:mod:`vdbejax.runs.evaluation`): ``policy_values`` in ``returns.npz``, the
+        policy columns of ``summary.csv`` and ``policy_gap.png``; the returns are the same.
 
     Returns:
       the :class:`~vdbejax.experiment.GridResult` (also saved in ``out_dir``).
@@ -180,7 +191,8 @@ def run_sweep(
     check_bool("progress", progress)
     check_bool("figures", figures)
     run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
-                     memory_budget_bytes=memory_budget_bytes, devices=devices)
+                     memory_budget_bytes=memory_budget_bytes, devices=devices,
+                     evaluate_every=evaluate_every)
     prepared = prepare_grid(mdp, grid_settings, num_seeds=seeds * replicates, num_episodes=episodes,
                             seed=seed, run=run)
     best = best_return(mdp)
