@@ -13,13 +13,13 @@ from vdbejax.paper.ablation_variants import VariantResult
 from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimTable, stable_count
 from vdbejax.paper.reproduce import FIGURE_FILE, SENSITIVITY_FILE
 from vdbejax.results import io
-from vdbejax.results.curves import CONVERGENCE_TEXT
 from vdbejax.results.replicates import POOLED_SUMMARY_FILE
+from vdbejax.results.solving import CONVERGENCE_TEXT
 from vdbejax.results.stats import wilson_interval
 from vdbejax.results.summary import SummaryRow, episode_text, read_summary
 
 VERDICT_MARKS = {"reproduced": "✅ reproduced", "partly": "◐ partly", "not reproduced": "❌ not",
-                 "unstable": "⚠ unstable"}
+                 "unstable": "⚠ unstable", "undecided": "? undecided"}
 
 
 def render_document(
@@ -75,7 +75,7 @@ def render_document(
         agree = (f"; {claim.agreeing}/{len(claim.replicate_verdicts)} agree"
                  if claim.replicate_verdicts else "")
         return (f"{VERDICT_MARKS[claim.verdict]}"
-                f" ({sum(k.passed for k in claim.checks)}/{len(claim.checks)}{agree})")
+                f" ({claim.passed_count}/{len(claim.checks)}{agree})")
 
     if len(results) <= 10:  # claims as rows, variants as columns
         lines += ["", "## Claims × variants", "",

@@ -30,6 +30,7 @@ import numpy as np
 from vdbejax.engine import agent_keys, broadcast_agents, check_params, text_progress
 from vdbejax.engine.distributed import gather_agents, process_checkpoint_path, take_agents
 from vdbejax.engine.programs import Programs
+from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import (
     AgentOptions,
@@ -323,6 +324,8 @@ def _collect(prepared: PreparedGrid, state: RunState, fingerprint: str, resumed_
     meta["truncated_episodes_by_config"] = cut.sum(axis=(1, 2)).tolist()
     meta["hyperparameters"] = [agent_hyperparameters(make_agent(s, options)) for s in settings]
     meta["parameter_names"] = {s.explorer: s.parameter for s in settings}
+    # The task's exact references, which the summary's convergence episode is measured on.
+    meta["best_return"], meta["random_return"] = best_return(mdp), uniform_random_return(mdp)
     return GridResult(settings, returns, lengths, nonfinite, meta,
                       episodes_run.astype(np.int64) if stopped_early else None)
 
