@@ -96,8 +96,11 @@ def render_document(
     count = len(first.claims[0].replicate_verdicts) if first.claims else 0
     legend = ("headline verdict (checks passed on the pooled agents / checks; replicates"
               " whose verdict is the pooled one / replicates: the headline is the pooled"
-              f" verdict when at least {stable_count(count)} of {count} agree, else unstable)"
+              f" verdict when at least {stable_count(count)} of {count} agree — of those that"
+              " decide it, a replicate too small to decide being left out — else unstable)"
               if count else "verdict (checks passed / checks)")
+    legend += ("; a check holds or fails only when the 95% intervals decide it, and a claim"
+               " whose checks the intervals leave open is undecided")
     lines += ["", f"Cells: {legend}. The claims:", ""]
     for c in first.claims:
         lines.append(f"{c.number}. {c.claim}")

@@ -201,8 +201,11 @@ class ClaimResult:
     @property
     def verdict(self) -> str:
         """The headline: the pooled verdict, if at least ``⌈STABLE·D⌉`` of the D replicates
-        that decide the claim agree with it; otherwise ``"unstable"``."""
+        that decide the claim agree with it (or if the pooled agents leave it undecided:
+        the replicates, smaller, cannot decide it better); otherwise ``"unstable"``."""
         decided = self.decided_replicates
+        if self.pooled_verdict == "undecided":
+            return self.pooled_verdict
         if decided and self.agreeing < stable_count(decided):
             return "unstable"
         return self.pooled_verdict

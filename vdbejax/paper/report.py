@@ -30,7 +30,8 @@ def headline_rule(replicates: int) -> str:
     return (f"a claim's headline verdict is its pooled verdict when at least {STABLE:.0%} of"
             f" the replicates that decide the claim ({need} of {replicates} when all do) give"
             " the same verdict, otherwise **unstable**; a replicate whose verdict is undecided"
-            " (too small to decide the claim) is left out of that count")
+            " (too small to decide the claim) is left out of that count, and a claim the"
+            " pooled agents leave undecided is undecided")
 
 
 #: How checks are decided, as ``report.md`` states it.
