@@ -284,3 +284,14 @@ def test_summarize_needs_the_tasks_references():
     with pytest.raises(ValueError, match="no best_return and random_return"):
         summarize(grid)
     assert summarize(grid, best=BEST, baseline=RANDOM)[0].agents_converged == 0
+
+
+def test_convergence_of_a_wide_run_is_found_block_by_block(monkeypatch):
+    from vdbejax.results import analysis
+
+    t = np.arange(60)
+    grid = convergence_grid({"a": np.where(t < 30, RANDOM, 0.95), "b": np.full(60, 0.95)},
+                            agents=7)
+    whole = summarize(grid, window=5)
+    monkeypatch.setattr(analysis, "CONVERGENCE_BLOCK", 2 * 60)  # two agents at a time
+    assert summarize(grid, window=5) == whole

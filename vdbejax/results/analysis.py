@@ -108,12 +108,11 @@ def summarize(
                          f"{len(statistics.final)} settings) do not match window={window}, "
                          f"last={last} and the grid's {len(result.settings)} settings")
     best, baseline = task_scale(result, best, baseline)
-    converge = episodes_to_converge(result.returns, best, baseline, window=window,
-                                    episodes_run=result.episodes_run)
     max_steps = result.meta.get("max_steps")
     rows = []
     for c, setting in enumerate(result.settings):
-        convergence = summarize_solving(converge.episodes[c], converge.solved[c])
+        episodes, solved = _convergence_times(result, c, best, baseline, window)
+        convergence = summarize_solving(episodes, solved)
         episodes_cut = agents_cut = None
         if result.meta.get("step_cap"):  # a task without step limit: cuts at its cap
             cut = result.lengths[c] >= max_steps
@@ -143,6 +142,25 @@ def summarize(
             agents_cut=agents_cut,
         ))
     return rows
+
+
+#: Agent-episodes converted to float64 at a time when finding convergence episodes (a
+#: bound on the memory of a wide or long run's summary; the results do not depend on it).
+CONVERGENCE_BLOCK = 1 << 22
+
+
+def _convergence_times(result: GridResult, c: int, best: float, baseline: float,
+                       window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Setting ``c``'s agents' convergence episodes and whether they converged, block of
+    agents by block of agents (:func:`~vdbejax.results.solving.episodes_to_converge`)."""
+    agents = result.returns.shape[1]
+    step = max(1, CONVERGENCE_BLOCK // max(1, result.num_episodes))
+    parts = [episodes_to_converge(
+        result.returns[c, i:i + step], best, baseline, window=window,
+        episodes_run=None if result.episodes_run is None else result.episodes_run[c, i:i + step])
+        for i in range(0, agents, step)]
+    return (np.concatenate([p.episodes for p in parts]),
+            np.concatenate([p.solved for p in parts]))
 
 
 def summary_columns(result: GridResult) -> list[str]:
