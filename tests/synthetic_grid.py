@@ -8,6 +8,8 @@ from vdbejax.experiment import GridResult
 from vdbejax.methods.agents import paper_settings
 
 BEST = 0.86
+#: The uniformly random policy's expected return (the paper's task: −1.047).
+RANDOM = -1.05
 
 
 def synthetic_grid(seeds: int = 4, episodes: int = 120, seed: int = 0) -> GridResult:
@@ -21,5 +23,6 @@ def synthetic_grid(seeds: int = 4, episodes: int = 120, seed: int = 0) -> GridRe
                + rng.normal(0, 0.05, (len(settings), seeds, episodes))).astype(np.float32)
     lengths = rng.integers(15, 101, (len(settings), seeds, episodes)).astype(np.int32)
     meta = {"mdp": "table_cleaning", "num_seeds": seeds, "num_episodes": episodes, "seed": seed,
-            "max_steps": 100, "options": {}, "best_return": BEST}
+            "max_steps": 100, "options": {}, "best_return": BEST,
+            "random_return": RANDOM}
     return GridResult(settings, returns, lengths, np.zeros((len(settings), seeds), bool), meta)

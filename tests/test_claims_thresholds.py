@@ -1,5 +1,6 @@
-"""Every claim check fed hand-made summaries on each side of its threshold, with the tied
-and heavy-tailed cases; replicates' counts and the headline rule."""
+"""Every claim check fed hand-made summaries on each side of its threshold and with
+intervals that straddle it (undecided), with the heavy-tailed cases; replicates' counts
+and the headline rule."""
 import dataclasses
 
 import pytest
@@ -12,20 +13,23 @@ from vdbejax.results.summary import SummaryRow
 BEST = 0.86
 SIGMAS = (0.001, 0.01, 0.1, 1.0, 10.0, 100.0)  # the paper's VDBE σ
 EPS = 0.002  # well inside TIE (0.01) and NEAR (0.05), well above float noise
+HALF = 0.005  # half the width of every final return's interval (unless a test sets it)
+CLEAR = HALF + EPS  # a value this far from a bound has its interval on one side of it
 
 
 def rows(values=None):
     """The paper's 46 settings, every one ending at the best return at episode 300;
     ``values[(learner, explorer, param)] = {field: value}`` overrides (``final`` sets the
-    mean and the IQM, ``conv`` the convergence episode and its interval)."""
+    mean and the IQM, with an interval of ±``HALF``; ``conv`` the convergence episode and
+    its interval, of zero width)."""
     out = []
     for config, s in enumerate(paper_settings()):
         change = dict((values or {}).get((s.learner, s.explorer, s.param), {}))
         final = change.pop("final", BEST)
         conv = change.pop("conv", 300)
         row = SummaryRow(config=config, learner=s.learner, explorer=s.explorer, param=s.param,
-                         final_return=final, final_ci_low=final - 0.01,
-                         final_ci_high=final + 0.01, final_iqm=final, convergence_episode=conv,
+                         final_return=final, final_ci_low=final - HALF,
+                         final_ci_high=final + HALF, final_iqm=final, convergence_episode=conv,
                          convergence_ci_low=float(conv), convergence_ci_high=float(conv),
                          truncated_fraction=0.0, mean_length=20.0, nonfinite_agents=0)
         out.append(dataclasses.replace(row, **change))
@@ -51,22 +55,26 @@ def claim1_table(q=Q_EPS, s=S_EPS, extra=None):
     return rows({**egreedy("qlearning", q), **egreedy("sarsa", s), **(extra or {})})
 
 
-def test_claim_1_best_epsilon_each_side_and_tie():
-    assert check(claim1_table(), 1, "Q-learning: the best ε are")
-    # ε = 0.01 above the worse of the two by more than a tie: fails; within a tie: holds.
-    assert not check(claim1_table({**Q_EPS, 0.01: 0.65 + TIE + EPS}), 1, "Q-learning: the best ε")
-    assert check(claim1_table({**Q_EPS, 0.01: 0.65 + TIE - EPS}), 1, "Q-learning: the best ε")
+def test_claim_1_best_epsilon_each_side_and_undecided():
+    assert check(claim1_table(), 1, "Q-learning: the best ε are") is True
+    # ε = 0.01's interval above that of 0.1 (0.65): fails; below it: holds; overlapping:
+    # undecided, whichever way the point values lean.
+    q = "Q-learning: the best ε"
+    assert check(claim1_table({**Q_EPS, 0.01: 0.65 + 2 * CLEAR}), 1, q) is False
+    assert check(claim1_table({**Q_EPS, 0.01: 0.65 - 2 * CLEAR}), 1, q) is True
+    assert check(claim1_table({**Q_EPS, 0.01: 0.65 + EPS}), 1, q) is None
+    assert check(claim1_table({**Q_EPS, 0.01: 0.65 - EPS}), 1, q) is None
 
 
-def test_claim_1_best_epsilon_is_ranked_by_iqm_not_a_heavy_tail():
-    # One looping agent sinks 0.05's mean (and widens its interval) but not its IQM.
+def test_claim_1_a_heavy_tail_leaves_the_best_epsilon_undecided():
+    # One looping agent sinks 0.05's mean and widens its interval over the others': the
+    # intervals cannot rank it, whatever its IQM.
     tail = {("qlearning", "egreedy", 0.05): {"final": -4.0, "final_iqm": 0.7,
                                             "final_ci_low": -14.0, "final_ci_high": 0.86}}
-    assert check(claim1_table(extra=tail), 1, "Q-learning: the best ε are")
-    # A wide interval does not make a setting best: 0.01's IQM is above, so it fails.
+    assert check(claim1_table(extra=tail), 1, "Q-learning: the best ε are") is None
     wide = {("qlearning", "egreedy", 0.01): {"final": 0.5, "final_iqm": 0.8,
                                             "final_ci_low": -14.0, "final_ci_high": 0.86}}
-    assert not check(claim1_table(extra=wide), 1, "Q-learning: the best ε are")
+    assert check(claim1_table(extra=wide), 1, "Q-learning: the best ε are") is None
 
 
 @pytest.mark.parametrize("learner, stated", [("qlearning", 0.7), ("sarsa", 0.6)])
@@ -79,29 +87,31 @@ def test_claim_1_about_bound_is_two_sided(learner, stated):
         table = claim1_table(**({"q": finals} if learner == "qlearning" else {"s": finals}))
         return check(table, 1, f"{name}: best ε's final return")
 
-    for inside in ((1 - ABOUT) * stated + EPS, (1 + ABOUT) * stated - EPS):
-        assert passes(inside)
+    low, high = (1 - ABOUT) * stated, (1 + ABOUT) * stated
+    assert passes(low + CLEAR) is True and passes(high - CLEAR) is True
     # Above "about" fails; so does a collapsed curve far below it (−0.68 < 0.6 is no pass).
-    assert not passes((1 + ABOUT) * stated + EPS)
-    assert not passes((1 - ABOUT) * stated - EPS) and not passes(-0.68)
+    assert passes(high + CLEAR) is False
+    assert passes(low - CLEAR) is False and passes(-0.68) is False
+    assert passes(low) is None and passes(high) is None  # the interval straddles an end
 
 
 def test_claim_2_best_tau_and_near():
-    assert check(rows(), 2, "Q-learning: the best τ are")
-    above = {("qlearning", "softmax", 0.01): {"final": BEST},
-             ("qlearning", "softmax", 0.001): {"final": BEST - TIE - EPS}}
-    assert not check(rows(above), 2, "Q-learning: the best τ are")
-    tied = {("qlearning", "softmax", 0.001): {"final": BEST - TIE + EPS}}
-    assert check(rows(tied), 2, "Q-learning: the best τ are")
-    # The issue's heavy-tailed τ = 1e-4: worst mean, wide interval, low IQM: not best.
-    loop = {("qlearning", "softmax", 0.0001): {"final": -4.18, "final_iqm": 0.5,
-                                              "final_ci_low": -14.3, "final_ci_high": 0.86}}
-    assert not check(rows(loop), 2, "Q-learning: the best τ are")
-    assert not check(rows(loop), 2, "Q-learning: τ ∈")  # its mean is not near 0.86
+    assert check(rows(), 2, "Q-learning: the best τ are") is None  # all at 0.86: no order
+    apart = {("qlearning", "softmax", t): {"final": 0.5} for t in (0.01, 0.1, 1.0, 10.0)}
+    assert check(rows(apart), 2, "Q-learning: the best τ are") is True
+    above = {**apart, ("qlearning", "softmax", 0.01): {"final": BEST},
+             ("qlearning", "softmax", 0.001): {"final": BEST - 2 * CLEAR}}
+    assert check(rows(above), 2, "Q-learning: the best τ are") is False
+    # The issue's heavy-tailed τ = 1e-4: worst mean, wide interval, low IQM: not decided
+    # best, and its mean's interval straddles "near 0.86".
+    loop = {**apart, ("qlearning", "softmax", 0.0001): {
+        "final": -4.18, "final_iqm": 0.5, "final_ci_low": -14.3, "final_ci_high": 0.86}}
+    assert check(rows(loop), 2, "Q-learning: the best τ are") is None
+    assert check(rows(loop), 2, "Q-learning: τ ∈") is None
     near = BEST - NEAR
-    assert check(rows({("sarsa", "softmax", 0.001): {"final": near + EPS}}), 2, "SARSA: τ ∈")
-    assert not check(rows({("sarsa", "softmax", 0.001): {"final": near - EPS}}), 2,
-                     "SARSA: τ ∈")
+    for final, outcome in ((near + CLEAR, True), (near - CLEAR, False), (near, None)):
+        assert check(rows({("sarsa", "softmax", 0.001): {"final": final}}), 2,
+                     "SARSA: τ ∈") is outcome
 
 
 def vdbe(learner, param, **fields):
@@ -110,29 +120,32 @@ def vdbe(learner, param, **fields):
 
 def test_claim_3_good_sigma_near_each_side():
     near = BEST - NEAR
-    assert check(rows(vdbe("sarsa", 1.0, final=near + EPS)), 3, "SARSA: every σ ≥ 1")
-    assert not check(rows(vdbe("sarsa", 1.0, final=near - EPS)), 3, "SARSA: every σ ≥ 1")
+    for final, outcome in ((near + CLEAR, True), (near - CLEAR, False), (near, None)):
+        assert check(rows(vdbe("sarsa", 1.0, final=final)), 3, "SARSA: every σ ≥ 1") is outcome
 
 
 def test_claim_3_low_sigma_ends_lower_or_later_is_not_vacuous():
-    low = {**vdbe("qlearning", 0.01, final=BEST - TIE - EPS),
+    low = {**vdbe("qlearning", 0.01, final=BEST - 2 * CLEAR),
            **vdbe("qlearning", 0.001, final=0.0)}
-    assert check(rows(low), 3, "Q-learning: every σ < 0.1")
-    # Tied with the good σ and converging no later: not "lower or later".
-    tied = {**low, **vdbe("qlearning", 0.01, final=BEST - TIE + EPS)}
-    assert not check(rows(tied), 3, "Q-learning: every σ < 0.1")
-    # Tied but converging after every good σ: holds.
-    later = {**low, **vdbe("qlearning", 0.01, final=BEST - TIE + EPS, conv=301)}
-    assert check(rows(later), 3, "Q-learning: every σ < 0.1")
-    # The good σ collapsed too: a low σ ending as low is not "lower".
+    assert check(rows(low), 3, "Q-learning: every σ < 0.1") is True
+    # Intervals overlapping the good σ's and converging at the same episode: undecided.
+    tied = {**low, **vdbe("qlearning", 0.01, final=BEST - EPS)}
+    assert check(rows(tied), 3, "Q-learning: every σ < 0.1") is None
+    # ... but converging after every good σ (intervals apart): holds.
+    later = {**low, **vdbe("qlearning", 0.01, final=BEST - EPS, conv=301)}
+    assert check(rows(later), 3, "Q-learning: every σ < 0.1") is True
+    # Ending higher and converging earlier than a good σ: fails.
+    early = {**low, **vdbe("qlearning", 0.01, final=BEST + 2 * CLEAR, conv=200)}
+    assert check(rows(early), 3, "Q-learning: every σ < 0.1") is False
+    # The good σ collapsed too: a low σ ending as low is not decided "lower".
     collapsed = {(lr, "vdbe", p): {"final": -1.0} for lr in ("qlearning", "sarsa")
                  for p in SIGMAS}
-    assert not check(rows(collapsed), 3, "SARSA: every σ < 1")
+    assert check(rows(collapsed), 3, "SARSA: every σ < 1") is None
 
 
-@pytest.mark.parametrize("sarsa, passed", [(-1.07, True), (-1.073 + TIE - EPS, True),
-                                           (-1.073 + TIE + EPS, False), (-1.2, True)])
-def test_claim_3_worst_with_sarsa_counts_a_tie(sarsa, passed):
+@pytest.mark.parametrize("sarsa, passed", [(-1.073 - 2 * CLEAR, True), (-1.073 - EPS, None),
+                                           (-1.073 + EPS, None), (-1.073 + 2 * CLEAR, False)])
+def test_claim_3_worst_with_sarsa_from_the_intervals(sarsa, passed):
     table = rows({**vdbe("qlearning", 0.001, final=-1.073), **vdbe("sarsa", 0.001, final=sarsa)})
     assert check(table, 3, "too-low σ is worst with SARSA") is passed
 
@@ -140,8 +153,8 @@ def test_claim_3_worst_with_sarsa_counts_a_tie(sarsa, passed):
 def test_claim_4_each_sigma_near_each_side():
     near = BEST - NEAR
     key = ("sarsa", "vdbe_softmax", 0.1)
-    assert check(rows({key: {"final": near + EPS}}), 4, "SARSA σ=0.1 ends")
-    assert not check(rows({key: {"final": near - EPS}}), 4, "SARSA σ=0.1 ends")
+    for final, outcome in ((near + CLEAR, True), (near - CLEAR, False), (near, None)):
+        assert check(rows({key: {"final": final}}), 4, "SARSA σ=0.1 ends") is outcome
 
 
 def claim5(conv, extra=None):
@@ -165,6 +178,25 @@ def test_claim_5_about_episodes_each_side(factor, passed):
     assert check(table, 5, "Q-learning: best vdbe converges after about 350") is passed
 
 
+def test_claim_5_about_episodes_with_an_interval_across_the_range_is_undecided():
+    wide = {(lr, "vdbe", p): {"convergence_ci_low": 250.0, "convergence_ci_high": 400.0}
+            for lr in ("qlearning", "sarsa") for p in SIGMAS}
+    assert check(claim5(PAPER, wide), 5, "Q-learning: best vdbe converges after about") is None
+
+
+def test_claim_5_no_later_than_a_rival_is_decided_by_the_intervals():
+    # The issue's example: VDBE-Softmax at 121 against softmax's 120, intervals overlapping:
+    # neither "no later" nor "later" — undecided, not unticked.
+    overlap = {(lr, e, p): {"convergence_ci_low": c - 3.0, "convergence_ci_high": c + 3.0}
+               for lr, e, p, c in ((s.learner, s.explorer, s.param, 121 if s.explorer ==
+                                    "vdbe_softmax" else 120) for s in paper_settings())
+               if e in ("softmax", "vdbe_softmax")}
+    table = claim5({**PAPER, "vdbe_softmax": 121, "softmax": 120}, overlap)
+    assert check(table, 5, "SARSA: VDBE-Softmax ends near the best return") is None
+    assert check(claim5({**PAPER, "softmax": 280}), 5, "SARSA: VDBE-Softmax ends near") is False
+    assert check(claim5(PAPER), 5, "SARSA: VDBE-Softmax ends near") is True
+
+
 def test_claim_5_best_vdbe_tie_goes_to_the_first_to_converge():
     # σ = 0.01 and σ = 0.1 tied at the top (within TIE): the earlier, σ = 0.1 (episode
     # 323), is the best VDBE, not σ = 0.01 (553).
@@ -175,27 +207,32 @@ def test_claim_5_best_vdbe_tie_goes_to_the_first_to_converge():
     assert check(claim5(PAPER, tied), 5, "Q-learning: best vdbe converges after about 350")
     # Beyond a tie the higher return wins, however late it converges.
     apart = {**tied, ("qlearning", "vdbe", 0.1): {"conv": 323, "final": BEST - TIE - EPS}}
-    assert not check(claim5(PAPER, apart), 5,
-                     "Q-learning: best vdbe converges after about 350")
+    assert check(claim5(PAPER, apart), 5,
+                 "Q-learning: best vdbe converges after about 350") is False
 
 
-def test_claim_5_egreedy_worse_return_is_beyond_a_tie():
+def test_claim_5_egreedy_worse_return_from_the_intervals():
     def passes(final):
         extra = {("qlearning", "egreedy", 0.05): {"final": final}}
         return check(claim5(PAPER, extra), 5, "ε-greedy converges about as fast")
 
-    assert passes(BEST - TIE - EPS) and not passes(BEST - TIE + EPS)
+    assert passes(BEST - 2 * CLEAR) is True and passes(BEST - EPS) is None
+    assert passes(BEST + 2 * CLEAR) is False
 
 
 def test_claim_6_each_side():
     near = BEST - NEAR
-    low = {("sarsa", "vdbe", p): {"final": near - EPS} for p in SIGMAS}
-    assert not check(rows(low), 6, "SARSA: best vdbe (")
-    assert check(rows({**low, ("sarsa", "vdbe", 10.0): {"final": near + EPS}}), 6,
-                 "SARSA: best vdbe (")
-    assert not check(rows(), 6, "SARSA: ε-greedy's best")  # ε-greedy at 0.86 is not lower
-    assert check(rows(egreedy("sarsa", {e: near - EPS for e in S_EPS})), 6,
-                 "SARSA: ε-greedy's best")
+    low = {("sarsa", "vdbe", p): {"final": near - CLEAR} for p in SIGMAS}
+    assert check(rows(low), 6, "SARSA: best vdbe (") is False
+    assert check(rows({**low, ("sarsa", "vdbe", 10.0): {"final": near + CLEAR}}), 6,
+                 "SARSA: best vdbe (") is True
+    assert check(rows({**low, ("sarsa", "vdbe", 10.0): {"final": near}}), 6,
+                 "SARSA: best vdbe (") is None
+    assert check(rows(), 6, "SARSA: ε-greedy's best") is False  # at 0.86: not lower
+    assert check(rows(egreedy("sarsa", {e: near - CLEAR for e in S_EPS})), 6,
+                 "SARSA: ε-greedy's best") is True
+    assert check(rows(egreedy("sarsa", {e: near for e in S_EPS})), 6,
+                 "SARSA: ε-greedy's best") is None
 
 
 LOW_EGREEDY = {**egreedy("qlearning", Q_EPS), **egreedy("sarsa", S_EPS)}
@@ -227,12 +264,36 @@ def test_report_names_the_flips_and_states_the_rule():
     meta = {"num_seeds": 100, "agents_per_replicate": 20, "num_episodes": 1000, "seed": 0}
     report = render_report(claims, meta, BEST)
     assert "5 replicates × 20 agents (pooled 100)" in report
-    assert "at least 4 of the 5 replicates" in report
+    assert "(4 of 5 when all do)" in report
     assert "Claim 6: its verdict flips: partly in 2, reproduced in 3." in report
     assert "holds in 3 of 5: SARSA: best vdbe (" in report
     assert "## Claim 6: unstable (pooled reproduced; 3 of 5 replicates agree)" in report
     steady = render_report(evaluate_claims(rows(), BEST, replicates=[rows()] * 5), meta, BEST)
-    assert "None: every check holds in all replicates or in none." in steady
+    assert "None: every check holds in all replicates that decide it or in none." in steady
+
+
+def test_undecided_checks_are_reported_and_do_not_make_a_claim_unstable():
+    # Claim 6 decided on the pooled agents; in two replicates (smaller runs) SARSA's best
+    # VDBE straddles "near": undecided there, which neither agrees nor flips.
+    good = rows(LOW_EGREEDY)
+    near = BEST - NEAR
+    small = rows({**LOW_EGREEDY, **{("sarsa", "vdbe", p): {"final": near} for p in SIGMAS}})
+    claims = {c.number: c for c in evaluate_claims(good, BEST, replicates=[small] * 2 + [good] * 3)}
+    assert claims[6].replicate_verdicts.count("undecided") == 2
+    assert claims[6].verdict == claims[6].pooled_verdict == "reproduced"
+    check6 = next(k for k in claims[6].checks if "SARSA: best vdbe (" in k.description)
+    assert (check6.replicates_passed, check6.replicates_undecided) == (3, 2)
+    assert not check6.flips
+    # Undecided on the pooled agents: the claim is undecided and the report says why.
+    pooled = evaluate_claims(small, BEST)
+    claim6 = next(c for c in pooled if c.number == 6)
+    assert claim6.verdict == "undecided" and claim6.undecided_count == 1
+    meta = {"num_seeds": 20, "num_episodes": 1000, "seed": 0}
+    report = render_report(pooled, meta, BEST)
+    assert "claim 6 (1)" in report and "**Undecided.** " in report
+    assert "this run (20 agents per setting) is too small to decide them" in report
+    assert "  - [?] SARSA: best vdbe (" in report
+    assert "[?] undecided (they overlap" in report
 
 
 def test_replicates_with_other_settings_are_refused():

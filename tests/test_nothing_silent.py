@@ -254,12 +254,13 @@ def test_an_option_the_authors_task_ignores_is_refused(tmp_path, capsys):
     assert "invalid_action='fail' is invalid with task='cruz2018'" in one_error_line(capsys)
 
 
-def test_a_printed_comparison_shows_why_it_held_or_failed():
-    from vdbejax.paper.claims import _apart
+def test_a_printed_comparison_shows_the_intervals_that_decided_it():
+    from vdbejax.paper.claim_table import Estimate, _interval, less
 
-    assert _apart(-1.0651, -1.0739) == ("-1.065", "-1.074")  # not "-1.07 ≤ -1.07"
-    assert _apart(0.81, 0.7) == ("0.81", "0.70")
-    assert _apart(0.5, 0.5) == ("0.500000", "0.500000")  # equal: every digit says so
+    sarsa, qlearning = Estimate(-1.0739, -1.078, -1.070), Estimate(-1.0651, -1.068, -1.062)
+    assert less(sarsa, qlearning) is True  # apart: printed as two disjoint intervals
+    assert (_interval(sarsa), _interval(qlearning)) == ("[-1.078, -1.070]", "[-1.068, -1.062]")
+    assert less(sarsa, Estimate(-1.07, -1.072, -1.068)) is None  # overlapping: undecided
 
 
 def _greedy_plugin(pick):

@@ -115,7 +115,8 @@ def _grid_of(settings, seeds=3, episodes=60):
                + rng.normal(0, 0.05, (len(settings), seeds, episodes))).astype(np.float32)
     lengths = np.full(returns.shape, 20, np.int32)
     meta = {"mdp": "a_user_task_with_a_rather_long_name", "num_seeds": seeds,
-            "num_episodes": episodes, "seed": 0, "max_steps": 100, "options": {}}
+            "num_episodes": episodes, "seed": 0, "max_steps": 100, "options": {},
+            "best_return": BEST, "random_return": -1.05}
     return GridResult(settings, returns, lengths, np.zeros(returns.shape[:2], bool), meta)
 
 

@@ -84,8 +84,10 @@ def test_summary_csv(cli_out, name, agents):
         final = returns[c, agents, -100:].mean()
         assert float(row["final_return"]) == pytest.approx(final, abs=1e-4)
         assert float(row["final_ci_low"]) <= float(row["final_return"]) + 1e-6 <= float(row["final_ci_high"]) + 2e-6
-        episode = row["convergence_episode"]  # a whole episode, or censored ("inf")
-        assert episode == "inf" or 1 <= int(episode) <= EPISODES
+        # The median over agents: an episode or halfway between two, or censored ("inf").
+        episode = row["convergence_episode"]
+        assert episode == "inf" or (1 <= float(episode) <= EPISODES
+                                    and (2 * float(episode)).is_integer())
 
 
 def test_fig3_png(cli_out):
@@ -105,7 +107,8 @@ def test_report_md(cli_out):
         assert f"## Claim {number}:" in report
     assert "Paper:" in report and "Measured:" in report
     for line in done.stdout.splitlines()[:6]:
-        assert line.split(": ")[1] in {"reproduced", "partly", "not reproduced", "unstable"}
+        assert line.split(": ")[1] in {"reproduced", "partly", "not reproduced", "unstable",
+                                       "undecided"}
     assert "elapsed" in done.stdout
     meta = json.loads((out / "meta.json").read_text())
     assert meta["num_seeds"] == AGENTS and meta["num_episodes"] == EPISODES
@@ -184,15 +187,19 @@ def test_a_new_root_seed_reports_each_verdicts_stability(tmp_path, root):
     rep = vdbejax.reproduce(tmp_path, seeds=SEEDS, episodes=EPISODES, seed=root, replicates=3,
                             progress=False, figures=False)
     report = (tmp_path / "report.md").read_text()
-    assert f"root seed {root}" in report and "at least 3 of the 3 replicates" in report
+    assert f"root seed {root}" in report and "(3 of 3 when all do)" in report
     for claim in rep.claims:
         assert len(claim.replicate_verdicts) == 3
         assert f"## Claim {claim.number}: {claim.verdict} (pooled {claim.pooled_verdict};" \
                f" {claim.agreeing} of 3 replicates agree)" in report
-        flips = len(set(claim.replicate_verdicts)) > 1
+        # Replicates too small to decide a claim neither agree nor flip.
+        decided = [v for v in claim.replicate_verdicts if v != "undecided"]
+        flips = len(set(decided)) > 1
         assert (f"- Claim {claim.number}: its verdict flips" in report) is flips
-        assert claim.verdict == ("unstable" if flips else claim.pooled_verdict)
+        stable = (claim.pooled_verdict == "undecided" or not decided
+                  or decided.count(claim.pooled_verdict) >= len(decided))
+        assert claim.verdict == (claim.pooled_verdict if stable else "unstable")
         for check in claim.checks:
             assert f"{check.description} — holds in {check.replicates_passed} of 3" in report
             if check.flips:
-                assert f"of 3: {check.description}\n" in report
+                assert f": {check.description}\n" in report

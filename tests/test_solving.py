@@ -7,8 +7,14 @@ import numpy as np
 import pytest
 
 from vdbejax.results import stats
+from vdbejax.experiment import GridResult
+from vdbejax.methods.agents import Setting
+from vdbejax.results.analysis import summarize
 from vdbejax.results.solving import (
+    CONVERGENCE_TEXT,
     SolveSummary,
+    convergence_threshold,
+    episodes_to_converge,
     episodes_to_solve,
     median_episodes,
     solve_threshold,
@@ -207,3 +213,85 @@ def test_solving_rows_of_a_grid():
     with pytest.raises(ValueError, match="must be \\[settings, agents, episodes\\]"):
         solving_rows(returns[0], 1.0)
     assert isinstance(summarize_solving([1], [True]), SolveSummary)
+
+
+# ------------------------------------------------- convergence against the task's optimum
+#: A task like the paper's: the random policy's return −1, the best 1 (threshold 0.8).
+BEST, RANDOM = 1.0, -1.0
+
+
+def convergence_grid(curves: dict[str, np.ndarray], agents: int = 6) -> GridResult:
+    """One setting per named curve, each of ``agents`` agents with that curve plus noise."""
+    rng = np.random.default_rng(0)
+    settings = [Setting("qlearning", "egreedy", 0.01 * (c + 1)) for c in range(len(curves))]
+    returns = np.stack([curve + rng.normal(0, 0.02, (agents, curve.size))
+                        for curve in curves.values()]).astype(np.float32)
+    episodes = returns.shape[-1]
+    meta = {"mdp": "test", "num_seeds": agents, "num_episodes": episodes, "max_steps": 100,
+            "best_return": BEST, "random_return": RANDOM}
+    return GridResult(settings, returns, np.full(returns.shape, 10, np.int32),
+                      np.zeros(returns.shape[:2], bool), meta)
+
+
+def test_convergence_is_measured_on_the_normalised_scale():
+    assert convergence_threshold(BEST, RANDOM) == pytest.approx(0.8)
+    # The same returns on a task whose random policy scores 0.5: threshold 0.95.
+    times = episodes_to_converge(np.full((2, 30), 0.9, np.float32), BEST, 0.5, window=5)
+    assert not times.solved.any() and times.episodes.tolist() == [30, 30]
+    times = episodes_to_converge(np.full((2, 30), 0.9, np.float32), BEST, RANDOM, window=5)
+    assert times.solved.all() and times.episodes.tolist() == [5, 5]  # the first full window
+    with pytest.raises(ValueError, match="best=1.0 and baseline=2.0 are invalid"):
+        episodes_to_converge(np.zeros(30), BEST, 2.0)
+
+
+def test_a_never_learning_setting_is_censored_and_an_immediate_one_converges_first():
+    # The old rule measured each curve against its own final level: a flat curve at the
+    # random return "converged" at episode 1 and read as the fastest of all.
+    episodes = 200
+    t = np.arange(episodes)
+    grid = convergence_grid({
+        "never": np.full(episodes, RANDOM),                  # flat at the random policy's
+        "immediate": np.full(episodes, 0.95),                # at the optimum from the start
+        "late": np.where(t < 120, RANDOM, 0.95),             # learns at episode 121
+    })
+    never, immediate, late = summarize(grid, window=20)
+    assert math.isinf(never.convergence_episode) and never.agents_converged == 0
+    assert math.isinf(never.convergence_ci_low) and never.convergence_budget == episodes
+    assert immediate.convergence_episode == 20 and immediate.agents_converged == 6
+    assert (immediate.convergence_ci_low, immediate.convergence_ci_high) == (20, 20)
+    # Window 20 at 0.8: (k·0.95 − (20 − k)) / 20 ≥ 0.8 needs k ≥ 18.5 of the new episodes.
+    assert late.convergence_episode == 120 + 19 and late.agents_converged == 6
+    assert immediate.convergence_episode < late.convergence_episode < never.convergence_episode
+
+
+def test_a_setting_reads_censored_while_half_of_its_agents_never_converge():
+    episodes = 100
+    curves = {"half": np.full(episodes, 0.95)}
+    grid = convergence_grid(curves, agents=4)
+    grid.returns[0, 2:] = RANDOM  # two of four never learn
+    (row,) = summarize(grid, window=10)
+    assert row.agents_converged == 2 and math.isinf(row.convergence_episode)
+    grid.returns[0, 2] = 0.95  # three of four: the median is the middle two's mean
+    (row,) = summarize(grid, window=10)
+    assert row.agents_converged == 3 and row.convergence_episode == 10
+    assert row.convergence_ci_low == 10 and math.isinf(row.convergence_ci_high)
+    assert "normalised score of 0.9" in CONVERGENCE_TEXT and "> budget" in CONVERGENCE_TEXT
+
+
+def test_summarize_needs_the_tasks_references():
+    grid = convergence_grid({"x": np.zeros(30)})
+    del grid.meta["random_return"]
+    with pytest.raises(ValueError, match="no best_return and random_return"):
+        summarize(grid)
+    assert summarize(grid, best=BEST, baseline=RANDOM)[0].agents_converged == 0
+
+
+def test_convergence_of_a_wide_run_is_found_block_by_block(monkeypatch):
+    from vdbejax.results import analysis
+
+    t = np.arange(60)
+    grid = convergence_grid({"a": np.where(t < 30, RANDOM, 0.95), "b": np.full(60, 0.95)},
+                            agents=7)
+    whole = summarize(grid, window=5)
+    monkeypatch.setattr(analysis, "CONVERGENCE_BLOCK", 2 * 60)  # two agents at a time
+    assert summarize(grid, window=5) == whole

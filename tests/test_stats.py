@@ -15,46 +15,6 @@ def test_final_return_is_mean_of_last_episodes():
     np.testing.assert_allclose(stats.final_return(returns, last=2), [2.5, 1.0])
 
 
-def test_convergence_episode_step_curve():
-    # Level L = 1 (last 10 episodes); threshold 0.95. With window 4 the moving average of a
-    # step at episode 11 (index 10) reaches 0.95 once 4 ones are in the window: episode 14.
-    curve = np.r_[np.zeros(10), np.ones(20)]
-    assert stats.convergence_episode(curve, window=4, last=10) == 14
-    # Batched form gives the same per row.
-    batch = np.stack([curve, curve])
-    np.testing.assert_array_equal(stats.convergence_episodes(batch, window=4, last=10), [14, 14])
-
-
-def test_a_setting_that_never_learns_has_no_convergence_episode():
-    # L = −1: the threshold is −1 − 0.05 = −1.05, met at once by a flat curve. It used to
-    # "converge" at episode 1, which read as the fastest: it is censored (+∞) instead.
-    assert stats.convergence_episode(-np.ones(50), window=5, last=10) == np.inf
-    # So is a curve that starts at its final level and only falls away and back.
-    assert stats.convergence_episode(np.r_[np.ones(5), np.zeros(5), np.ones(40)],
-                                     window=5, last=10) == np.inf
-    # One that starts below its level and climbs does converge, even at a negative level.
-    curve = np.r_[np.full(10, -5.0), -np.ones(40)]
-    assert stats.convergence_episode(curve, window=5, last=10) == 15
-
-
-def test_a_censored_convergence_has_open_interval_ends():
-    rng = np.random.default_rng(0)
-    flat = -1 + 0.01 * rng.normal(size=(20, 200))
-    assert stats.convergence_ci(flat, window=5, last=20) == (np.inf, np.inf, np.inf)
-    # Half the agents learn at episode 50, half never: the mean curve converges, but the
-    # resamples with few learners may not; the finite ends are whole episodes.
-    learners = np.r_[np.full(50, -5.0), -np.ones(150)]
-    mixed = np.concatenate([np.tile(learners, (2, 1)), np.full((18, 200), -1.0)])
-    point, low, high = stats.convergence_ci(mixed, window=5, last=20)
-    assert np.isfinite(point) and high == np.inf and low <= point
-    # Without censored resamples the interval is numpy's linear percentile interval.
-    steady = np.concatenate([np.tile(learners, (20, 1))]) + 0.1 * rng.normal(size=(20, 200))
-    point, low, high = stats.convergence_ci(steady, window=5, last=20)
-    weights = stats.bootstrap_weights(20, stats.NUM_RESAMPLES, 0)
-    episodes = stats.convergence_episodes(weights @ steady, window=5, last=20)
-    assert (low, high) == tuple(np.quantile(episodes, [0.025, 0.975]))
-
-
 def test_bootstrap_weights_match_indices():
     idx = stats.bootstrap_indices(4, 50, seed=3)
     w = stats.bootstrap_weights(4, 50, seed=3)
@@ -91,12 +51,6 @@ def test_final_return_ci():
     returns = np.array([[0.0, 1.0], [0.0, 3.0]])
     mean, low, high = stats.final_return_ci(returns, last=1)
     assert mean == 2.0 and low >= 1.0 and high <= 3.0
-
-
-def test_convergence_ci_identical_seeds():
-    curve = np.r_[np.zeros(10), np.ones(20)]
-    point, low, high = stats.convergence_ci(np.tile(curve, (4, 1)), window=4, last=10)
-    assert (point, low, high) == (14, 14.0, 14.0)
 
 
 def test_interquartile_mean_by_hand():
@@ -159,45 +113,16 @@ def test_percentile_interval_equals_numpy_quantile_bit_for_bit():
     assert all(np.isnan(v) for v in _interval(with_nan, 0.9))
 
 
-def _reference_convergence(curves, window, last, fraction=0.95):
-    """The convergence rule written out over the whole moving average (no early exit),
-    censored (+∞) where the first window's mean is already in the band, or never."""
-    curves = np.asarray(curves, np.float64)
-    level = curves[..., -last:].mean(-1, keepdims=True)
-    threshold = level - (1 - fraction) * np.abs(level) - 1e-12
-    reached = stats.moving_average(curves, window) >= threshold
-    flat = curves[..., :window].mean(-1) >= threshold[..., 0]
-    return np.where(reached.any(-1) & ~flat, np.argmax(reached, axis=-1) + 1.0, np.inf)
-
-
-def test_block_scan_equals_the_whole_moving_average():
-    # The block-by-block scan (with early exit) must make the same comparisons as the
-    # plain rule: random walks, discrete returns, windows longer than a block.
-    rng = np.random.default_rng(7)
-    for trial in range(120):
-        n, window = int(rng.integers(1, 600)), int(rng.integers(1, 300))
-        last = int(rng.integers(1, n + 1))
-        rows = int(rng.integers(1, 40))
-        if trial % 2:
-            curves = rng.choice([-1.0, -0.1, 0.5, 0.86], size=(rows, n))
-        else:
-            curves = 0.01 * rng.normal(size=(rows, n)).cumsum(-1)
-        np.testing.assert_array_equal(stats.convergence_episodes(curves, window, last),
-                                      _reference_convergence(curves, window, last))
-
-
 def test_curve_statistics_equal_the_per_setting_functions_for_any_thread_count():
     rng = np.random.default_rng(3)
     returns = rng.choice([-1.0, 0.2, 0.86], size=(5, 6, 150)).astype(np.float32)
     one = stats.curve_statistics(returns, window=10, last=30, bands=True, workers=1)
     two = stats.curve_statistics(returns, window=10, last=30, bands=True, workers=2)
-    for name in ("final", "final_low", "final_high", "final_iqm", "convergence",
-                 "convergence_low", "convergence_high", "curves", "band_low", "band_high"):
+    for name in ("final", "final_low", "final_high", "final_iqm", "curves", "band_low",
+                 "band_high"):
         np.testing.assert_array_equal(getattr(one, name), getattr(two, name))
     for c in range(5):
         assert (one.final[c], one.final_low[c], one.final_high[c]) == stats.final_return_ci(returns[c], 30)
-        assert (one.convergence[c], one.convergence_low[c], one.convergence_high[c]) == \
-            stats.convergence_ci(returns[c], 10, 30)
         curve, low, high = stats.mean_curve_ci(returns[c], 10)
         np.testing.assert_array_equal(one.band_low[c], low)
         np.testing.assert_array_equal(one.curves[c], curve)
@@ -237,9 +162,7 @@ def test_long_runs_are_resampled_in_blocks_with_the_same_statistics(monkeypatch)
     assert bootstrap.rows_per_block(200) >= statistics.NUM_RESAMPLES  # 10 × 20 agents
     monkeypatch.setattr(bootstrap, "BLOCK_BYTES", 8 * 700 * 37)  # 37 resamples, 7 episodes
     blocked = statistics.curve_statistics(returns[None], bands=True)
-    assert blocked.convergence.tolist() == whole.convergence.tolist()
-    np.testing.assert_allclose(blocked.convergence_low, whole.convergence_low)
-    np.testing.assert_allclose(blocked.convergence_high, whole.convergence_high)
+    assert blocked.final.tolist() == whole.final.tolist()
     np.testing.assert_allclose(blocked.band_low, whole.band_low, rtol=0, atol=1e-12)
     np.testing.assert_allclose(blocked.band_high, whole.band_high, rtol=0, atol=1e-12)
 
@@ -259,8 +182,7 @@ def test_many_seeds_are_resampled_in_blocks_with_the_same_statistics(monkeypatch
     weights = np.concatenate(list(bootstrap.weight_blocks(50)))
     np.testing.assert_array_equal(weights, bootstrap.bootstrap_weights(50))
     blocked = statistics.curve_statistics(returns[None], bands=True)
-    for name in ("final", "final_low", "final_high", "final_iqm", "convergence",
-                 "convergence_low", "convergence_high"):
+    for name in ("final", "final_low", "final_high", "final_iqm"):
         np.testing.assert_array_equal(getattr(blocked, name), getattr(whole, name), name)
     np.testing.assert_allclose(blocked.band_low, whole.band_low, rtol=0, atol=1e-12)
     np.testing.assert_allclose(blocked.band_high, whole.band_high, rtol=0, atol=1e-12)
@@ -277,9 +199,8 @@ def test_one_seeds_bootstrap_is_computed_once_with_the_same_numbers(monkeypatch)
     rng = np.random.default_rng(1)
     t = np.arange(3000)
     one = (-1 + 0.9 * (1 - np.exp(-t / 300)) + 0.05 * rng.normal(size=t.size))[None]
-    fast = (module.convergence_ci(one), module.mean_curve_ci(one))
+    fast = module.mean_curve_ci(one)
     monkeypatch.setattr(module, "_distinct_weights", module.weight_blocks)  # all 2,000
-    full = (module.convergence_ci(one), module.mean_curve_ci(one))
-    assert fast[0] == full[0] and np.isfinite(fast[0][0])
-    for a, b in zip(fast[1], full[1], strict=True):
+    full = module.mean_curve_ci(one)
+    for a, b in zip(fast, full, strict=True):
         np.testing.assert_array_equal(a, b)

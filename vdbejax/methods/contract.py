@@ -83,6 +83,9 @@ def as_draws(draws: Draws, uniforms: tuple) -> tuple:
     words = [(u * jnp.float32(2.0**23)).astype(jnp.uint32) for u in uniforms[first:]]
     keys = tuple(jnp.stack(words[2 * k: 2 * k + 2], axis=-1) for k in range(draws.keys))
     return (*uniforms[:draws.uniforms], *normals, *keys)
+
+
+@dataclasses.dataclass(frozen=True)
 class TaskFacts:
     """What the engine tells a learner about its task before training
     (:meth:`Learner.for_task`): a method's convention may depend on them, and a method may

@@ -49,7 +49,6 @@ from vdbejax.paper.reproduce import (  # noqa: F401  (AUTHORS_DETAILS: re-export
     FIGURE_FILE,
     SENSITIVITY_FILE,
     reproduce,
-    saved_best_return,
     write_outputs,
 )
 from vdbejax.results import io

@@ -13,13 +13,13 @@ from vdbejax.paper.ablation_variants import VariantResult
 from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimTable, stable_count
 from vdbejax.paper.reproduce import FIGURE_FILE, SENSITIVITY_FILE
 from vdbejax.results import io
-from vdbejax.results.curves import CONVERGENCE_TEXT
 from vdbejax.results.replicates import POOLED_SUMMARY_FILE
+from vdbejax.results.solving import CONVERGENCE_TEXT
 from vdbejax.results.stats import wilson_interval
 from vdbejax.results.summary import SummaryRow, episode_text, read_summary
 
 VERDICT_MARKS = {"reproduced": "✅ reproduced", "partly": "◐ partly", "not reproduced": "❌ not",
-                 "unstable": "⚠ unstable"}
+                 "unstable": "⚠ unstable", "undecided": "? undecided"}
 
 
 def render_document(
@@ -75,7 +75,7 @@ def render_document(
         agree = (f"; {claim.agreeing}/{len(claim.replicate_verdicts)} agree"
                  if claim.replicate_verdicts else "")
         return (f"{VERDICT_MARKS[claim.verdict]}"
-                f" ({sum(k.passed for k in claim.checks)}/{len(claim.checks)}{agree})")
+                f" ({claim.passed_count}/{len(claim.checks)}{agree})")
 
     if len(results) <= 10:  # claims as rows, variants as columns
         lines += ["", "## Claims × variants", "",
@@ -96,8 +96,11 @@ def render_document(
     count = len(first.claims[0].replicate_verdicts) if first.claims else 0
     legend = ("headline verdict (checks passed on the pooled agents / checks; replicates"
               " whose verdict is the pooled one / replicates: the headline is the pooled"
-              f" verdict when at least {stable_count(count)} of {count} agree, else unstable)"
+              f" verdict when at least {stable_count(count)} of {count} agree — of those that"
+              " decide it, a replicate too small to decide being left out — else unstable)"
               if count else "verdict (checks passed / checks)")
+    legend += ("; a check holds or fails only when the 95% intervals decide it, and a claim"
+               " whose checks the intervals leave open is undecided")
     lines += ["", f"Cells: {legend}. The claims:", ""]
     for c in first.claims:
         lines.append(f"{c.number}. {c.claim}")

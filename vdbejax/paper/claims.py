@@ -1,33 +1,40 @@
 """The paper's six claims (spec, last section), scored against measured results.
 
 Each claim is split into concrete checks on the summary table (final return = mean of the
-last 100 episodes over agents; convergence episode as defined in
-:mod:`vdbejax.results.stats`). A claim is *reproduced* when every check holds, *not
-reproduced* when none does, *partly* otherwise. The rules every check follows:
+last 100 episodes over agents, with its 95% bootstrap interval; convergence episode as
+defined in :mod:`vdbejax.results.solving`, the median over agents with its interval).
+
+Every check is decided by the 95% intervals (:mod:`vdbejax.paper.claim_table`): it holds
+when the intervals lie on its side of the bound or apart from the other setting's in its
+direction, fails when they lie on the other side, and is *undecided* when they overlap —
+never decided by a difference smaller than the intervals. A claim is *reproduced* when
+every check holds, *not reproduced* when every check fails, *partly* when some hold and
+some fail, and *undecided* otherwise (the run is too small to decide it). The rules:
 
 - "At or near the best return" means within ``NEAR`` (0.05) of it.
 - Every figure the paper states as "about" a value lies within ``ABOUT`` (±25 %) of it:
   claim 5's episodes and claim 1's "below about 0.6 / 0.7" (read as: ε-greedy's best
   levels off at about that return, so a collapsed curve far below it does not pass).
-- Two returns within ``TIE`` (0.01) of each other are tied: a tie neither wins nor loses
-  a comparison ("worse", "lower", "worst").
+- "Lower", "worse", "later" and "no later" compare two settings' intervals.
 - The "best" settings of an explorer are ranked by the interquartile mean of the agents'
   final returns (``final_iqm``; the mean for older summaries without it), so one
   heavy-tailed agent cannot lift or sink a setting. "The best ε / τ are a and b" holds
-  when a and b rank top two, or no other value ranks above the worse of them by more than
-  ``TIE``. An explorer's *best setting* is, among those whose IQM is within ``TIE`` of the
-  highest, the one that converges first.
+  when the intervals of a and b lie above every other value's. An explorer's *best
+  setting* is, among those whose IQM is within ``TIE`` (0.01) of the highest, the one that
+  converges first.
 
 With replicates (:mod:`vdbejax.results.replicates`) :func:`evaluate_claims` scores the
 pooled agents and each replicate: a check reports in how many of the R replicates it
-holds, a claim each replicate's verdict, and the headline verdict is the pooled one when at
-least ``STABLE`` (80 %, 4 of 5) of the replicates agree with it, else *unstable*.
+holds (and is undecided), a claim each replicate's verdict, and the headline verdict is the
+pooled one when at least ``STABLE`` (80 %, 4 of 5) of the replicates agree with it, else
+*unstable* (a replicate decides otherwise) or *undecided* (the others are undecided).
 
 Each claim is one function of a :class:`ClaimTable` (``claim_1`` … ``claim_6``, listed in
 :data:`CLAIMS`).
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
@@ -40,9 +47,18 @@ from vdbejax.paper.claim_table import (
     Check,
     ClaimResult,
     ClaimTable,
+    Estimate,
     _about,
-    _apart,
     _finals,
+    _interval,
+    all_of,
+    any_of,
+    at_most,
+    convergence_estimate,
+    final_estimate,
+    less,
+    negate,
+    point,
     rank_value,
     stable_count,
 )
@@ -51,6 +67,27 @@ from vdbejax.results.summary import SummaryRow, episode_text
 __all__ = ["ABOUT", "CLAIMS", "LEARNER_NAMES", "NEAR", "STABLE", "TIE", "Check", "ClaimResult",
            "ClaimTable", "evaluate_claims", "rank_value", "stable_count"]
 
+
+def _near(t: ClaimTable, row: SummaryRow) -> bool | None:
+    """Whether a setting ends within :data:`NEAR` of the best return (its interval)."""
+    return at_most(point(t.near), final_estimate(row))
+
+
+def _episodes(x: Estimate, budget: int | None) -> str:
+    """A convergence episode with its interval: ``"118 [117, 120]"`` or ``"> 1000"``."""
+    if math.isinf(x.value):
+        return episode_text(x.value, budget)
+    return (f"{episode_text(x.value)} [{episode_text(x.low, budget)},"
+            f" {episode_text(x.high, budget)}]")
+
+
+def _near_text(near: bool | None) -> str:
+    """What a rival's "near the best return" outcome adds to its episode."""
+    return "" if near else " (not near best)" if near is False else " (near best: undecided)"
+
+
+def _conv(row: SummaryRow) -> str:
+    return _episodes(convergence_estimate(row), row.convergence_budget)
 
 
 def claim_1(t: ClaimTable) -> ClaimResult:
@@ -67,9 +104,10 @@ def claim_1(t: ClaimTable) -> ClaimResult:
         passed, how = t.best_are(learner, "egreedy", {0.05, 0.1})
         measured.append(f"{name} ε→final: {_finals(rows_e)}")
         checks.append(Check(f"{name}: the best ε are 0.05 and 0.1 ({how})", passed))
-        lo, hi, inside = _about(best.final_return, bounds[learner])
-        checks.append(Check(f"{name}: best ε's final return {best.final_return:.3f} is about"
-                            f" {bounds[learner]} (±{ABOUT:.0%}: {lo:.3g}–{hi:.3g})", inside))
+        lo, hi, inside = _about(final_estimate(best), bounds[learner])
+        checks.append(Check(f"{name}: best ε's final return {best.final_return:.3f}"
+                            f" {_interval(final_estimate(best))} is about {bounds[learner]}"
+                            f" (±{ABOUT:.0%}: {lo:.3g}–{hi:.3g})", inside))
     return ClaimResult(
         1, "ε-greedy: the best ε are 0.1 and 0.05 for both learners; its final average return "
            "stays below about 0.6 (SARSA) and 0.7 (Q-learning).",
@@ -91,10 +129,15 @@ def claim_2(t: ClaimTable) -> ClaimResult:
         measured.append(f"{name} τ→final: {_finals(rows_s)}")
         checks.append(Check(f"{name}: the best τ are 0.0001 and 0.001 ({how})", passed))
         checks.append(Check(f"{name}: τ ∈ {{0.0001, 0.001}} end within {NEAR} of"
-                            f" {t.best_return:.2f} ({_finals(low) or 'absent'})",
-                            bool(low) and all(r.final_return >= t.near for r in low)))
+                            f" {t.best_return:.2f} ({_lows(low) or 'absent'})",
+                            all_of(_near(t, r) for r in low) if low else False))
     return ClaimResult(2, "Softmax: low τ (0.001, 0.0001) are best, ending at or near 0.86.",
                        "best τ ∈ {0.0001, 0.001}, final ≈ 0.86", "; ".join(measured), checks)
+
+
+def _lows(rows: list[SummaryRow]) -> str:
+    """Each row's parameter and final-return interval."""
+    return ", ".join(f"{r.swept_param():g}→{_interval(final_estimate(r))}" for r in rows)
 
 
 def claim_3(t: ClaimTable) -> ClaimResult:
@@ -102,7 +145,7 @@ def claim_3(t: ClaimTable) -> ClaimResult:
     slowly or not at all, worst with SARSA."""
     measured, checks = [], []
     good_from = {"qlearning": 0.1, "sarsa": 1.0}
-    worst = {}
+    worst: dict[str, SummaryRow] = {}
     for learner in t.learners:
         rows_v = t.get(learner, "vdbe")
         if not rows_v:
@@ -111,26 +154,27 @@ def claim_3(t: ClaimTable) -> ClaimResult:
         high = [r for r in rows_v if r.swept_param() >= good_from[learner]]
         low = [r for r in rows_v if r.swept_param() < good_from[learner]]
         measured.append(f"{name} σ→final (convergence ep.): " + ", ".join(
-            f"{r.swept_param():g}→{r.final_return:.2f} ({episode_text(r.convergence_episode)})"
-            for r in rows_v))
+            f"{r.swept_param():g}→{r.final_return:.2f} ({_conv(r)})" for r in rows_v))
         checks.append(Check(f"{name}: every σ ≥ {good_from[learner]:g} ends within {NEAR}"
-                            f" of {t.best_return:.2f}",
-                            bool(high) and all(r.final_return >= t.near for r in high)))
+                            f" of {t.best_return:.2f} ({_lows(high)})",
+                            all_of(_near(t, r) for r in high) if high else False))
         if low and high:
-            floor = min(r.final_return for r in high)
-            high_conv = max(r.convergence_episode for r in high)
-            slow = all(r.final_return < floor - TIE or r.convergence_episode > high_conv
-                       for r in low)
-            checks.append(Check(f"{name}: every σ < {good_from[learner]:g} ends lower (below"
-                                f" {floor:.3f} − {TIE}) or converges later than every σ ≥"
-                                f" {good_from[learner]:g} (their latest convergence episode:"
-                                f" {episode_text(high_conv)})", slow))
-        worst[learner] = min(r.final_return for r in rows_v)
+            slow = all_of(any_of([
+                all_of(less(final_estimate(r), final_estimate(h)) for h in high),
+                all_of(less(convergence_estimate(h), convergence_estimate(r)) for h in high)])
+                for r in low)
+            latest = max(high, key=lambda r: (r.convergence_episode, r.config))
+            checks.append(Check(f"{name}: every σ < {good_from[learner]:g} ends lower than every"
+                                f" σ ≥ {good_from[learner]:g} or converges later than all of"
+                                f" them (their latest: σ = {latest.swept_param():g},"
+                                f" {_conv(latest)})", slow))
+        worst[learner] = min(rows_v, key=lambda r: r.final_return)
     if len(worst) == 2:
-        sarsa, qlearning = _apart(worst["sarsa"], worst["qlearning"])
-        checks.append(Check(f"too-low σ is worst with SARSA (worst final SARSA {sarsa},"
-                            f" Q-learning {qlearning}: SARSA's lower or tied within {TIE})",
-                            worst["sarsa"] <= worst["qlearning"] + TIE))
+        sarsa, qlearning = worst["sarsa"], worst["qlearning"]
+        checks.append(Check(f"too-low σ is worst with SARSA (worst final SARSA"
+                            f" {_interval(final_estimate(sarsa))}, Q-learning"
+                            f" {_interval(final_estimate(qlearning))}: SARSA's no higher)",
+                            at_most(final_estimate(sarsa), final_estimate(qlearning))))
     return ClaimResult(
         3, "VDBE: Q-learning does well for σ ≥ 0.1, SARSA for σ ≥ 1; a σ too low converges "
            "slowly or not at all, worst with SARSA.",
@@ -147,7 +191,8 @@ def claim_4(t: ClaimTable) -> ClaimResult:
         name = LEARNER_NAMES[learner]
         measured.append(f"{name} σ→final: {_finals(rows_vs)}")
         checks += [Check(f"{name} σ={r.swept_param():g} ends within {NEAR}"
-                         f" of {t.best_return:.2f}", r.final_return >= t.near)
+                         f" of {t.best_return:.2f} ({_interval(final_estimate(r))})",
+                         _near(t, r))
                    for r in rows_vs]
     return ClaimResult(4, "VDBE-Softmax: good for every σ tried, with either learner.",
                        "every σ ends near 0.86", "; ".join(measured), checks)
@@ -157,9 +202,8 @@ def claim_5(t: ClaimTable) -> ClaimResult:
     """Convergence speed: VDBE-Softmax's best setting converges first, after about the
     episodes the paper states.
 
-    Each explorer's best setting is :meth:`ClaimTable.best`'s. A setting that never gets
-    near the best return has not "converged" in the paper's sense, however early its flat
-    curve hits its own level.
+    Each explorer's best setting is :meth:`ClaimTable.best`'s. A rival that does not end
+    near the best return (decided by its interval) does not compete in "converges first".
     """
     measured, checks = [], []
     paper_episode = {"qlearning": 280, "sarsa": 300}
@@ -169,25 +213,20 @@ def claim_5(t: ClaimTable) -> ClaimResult:
         if bests["vdbe_softmax"] is None:
             continue
         found = {e: r for e, r in bests.items() if r is not None}
-        conv = {e: r.convergence_episode for e, r in found.items()}
-        good = {e: r.final_return >= t.near for e, r in found.items()}
+        conv = {e: convergence_estimate(r) for e, r in found.items()}
+        good = {e: _near(t, r) for e, r in found.items()}
         measured.append(f"{name} convergence episode of each explorer's best setting: " + ", ".join(
-            f"{e} ({found[e].swept_param():g}) {episode_text(conv[e])}"
-            + ("" if good[e] else " (not near best)") for e in conv)
+            f"{e} ({found[e].swept_param():g}) {_conv(found[e])}" + _near_text(good[e])
+            for e in conv)
             + f" (paper: VDBE-Softmax ≈{paper_episode[learner]}, others ≈350)")
         rivals = [e for e in ("softmax", "vdbe") if e in conv]
-        # "No later" up to noise: the lower end of VDBE-Softmax's bootstrap interval (when
-        # the summary has one) must not exceed the other's convergence episode.
-        vs_ci_low = found["vdbe_softmax"].convergence_ci_low
-        vs_low = float(conv["vdbe_softmax"]) if vs_ci_low is None else vs_ci_low
-        checks.append(Check(f"{name}: VDBE-Softmax ends near the best return and converges "
-                            f"({episode_text(conv['vdbe_softmax'])}, CI from"
-                            f" {episode_text(vs_low)}) no later than "
-                            + ", ".join(f"{e} ({episode_text(conv[e])}"
-                                        f"{'' if good[e] else ', never near best'})"
-                                        for e in rivals),
-                            good["vdbe_softmax"] and all(
-                                not good[e] or vs_low <= conv[e] for e in rivals)))
+        checks.append(Check(
+            f"{name}: VDBE-Softmax ends near the best return and converges"
+            f" ({_conv(found['vdbe_softmax'])}) no later than "
+            + ", ".join(f"{e} ({_conv(found[e])}){_near_text(good[e])}" for e in rivals),
+            all_of([good["vdbe_softmax"], *(
+                any_of([negate(good[e]), at_most(conv["vdbe_softmax"], conv[e])])
+                for e in rivals)])))
         # Every figure the paper states: VDBE-Softmax ≈ 280 / 300 episodes, the others ≈ 350.
         stated = {"vdbe_softmax": paper_episode[learner], "softmax": 350, "vdbe": 350}
         for explorer, episode in stated.items():
@@ -195,19 +234,17 @@ def claim_5(t: ClaimTable) -> ClaimResult:
                 lo, hi, inside = _about(conv[explorer], episode)
                 checks.append(Check(
                     f"{name}: best {explorer} converges after about {episode} episodes"
-                    f" ({episode_text(conv[explorer])}; ±{ABOUT:.0%}: {lo:g}–{hi:g})", inside))
+                    f" ({_conv(found[explorer])}; ±{ABOUT:.0%}: {lo:g}–{hi:g})", inside))
         if learner == "qlearning" and "egreedy" in conv:
-            # "About as fast": within ±25 % of VDBE-Softmax or faster; "worse": beyond a tie.
-            egreedy_final = found["egreedy"].final_return
-            vs_final = found["vdbe_softmax"].final_return
-            egreedy_shown, vs_shown = _apart(egreedy_final, vs_final)
+            # "About as fast": within ±25 % of VDBE-Softmax or faster; "worse": apart.
+            egreedy, vs = final_estimate(found["egreedy"]), final_estimate(found["vdbe_softmax"])
             checks.append(Check(
                 f"{name}: ε-greedy converges about as fast (episode"
-                f" {episode_text(conv['egreedy'])} ≤ {1 + ABOUT:g} ×"
-                f" {episode_text(conv['vdbe_softmax'])}) to a worse return ({egreedy_shown} <"
-                f" {vs_shown} − {TIE})",
-                good["vdbe_softmax"] and conv["egreedy"] <= (1 + ABOUT) * conv["vdbe_softmax"]
-                and egreedy_final < vs_final - TIE))
+                f" {_conv(found['egreedy'])} ≤ {1 + ABOUT:g} × {_conv(found['vdbe_softmax'])})"
+                f" to a worse return ({_interval(egreedy)} below {_interval(vs)})",
+                all_of([good["vdbe_softmax"],
+                        at_most(conv["egreedy"], conv["vdbe_softmax"].scaled(1 + ABOUT)),
+                        less(egreedy, vs)])))
     return ClaimResult(
         5, "VDBE-Softmax converges fastest: its best average return after about 280 episodes "
            "(Q-learning) and 300 (SARSA); the others near 350; ε-greedy with Q-learning "
@@ -225,15 +262,16 @@ def claim_6(t: ClaimTable) -> ClaimResult:
             best = t.best(learner, explorer)
             if best is None:
                 continue
-            value = best.final_return
-            measured.append(f"{name} best {explorer} ({best.swept_param():g}) {value:.3f}")
-            shown, near = _apart(value, t.near)
+            value = final_estimate(best)
+            measured.append(f"{name} best {explorer} ({best.swept_param():g})"
+                            f" {best.final_return:.3f}")
             if explorer == "egreedy":
-                checks.append(Check(f"{name}: ε-greedy's best ({shown}) stays below {near}",
-                                    value < t.near))
+                checks.append(Check(f"{name}: ε-greedy's best ({_interval(value)}) stays below"
+                                    f" {t.near:.2f}", less(value, point(t.near))))
             else:
-                checks.append(Check(f"{name}: best {explorer} ({shown}) ends within {NEAR}"
-                                    f" of {t.best_return:.2f} (≥ {near})", value >= t.near))
+                checks.append(Check(f"{name}: best {explorer} ({_interval(value)}) ends within"
+                                    f" {NEAR} of {t.best_return:.2f} (≥ {t.near:.2f})",
+                                    _near(t, best)))
     return ClaimResult(6, "All methods but ε-greedy end at or near the best return, 0.86.",
                        "softmax, VDBE, VDBE-Softmax ≈ 0.86; ε-greedy lower", "; ".join(measured),
                        checks)
@@ -285,6 +323,8 @@ def evaluate_claims(rows: Iterable[SummaryRow | Mapping[str, Any]], best_return:
     for i, claim in enumerate(pooled):
         claim.replicate_verdicts = [claims[i].pooled_verdict for claims in scored]
         for j, check in enumerate(claim.checks):
+            outcomes = [claims[i].checks[j].passed for claims in scored]
             check.replicates = len(scored)
-            check.replicates_passed = sum(claims[i].checks[j].passed for claims in scored)
+            check.replicates_passed = sum(o is True for o in outcomes)
+            check.replicates_undecided = sum(o is None for o in outcomes)
     return pooled

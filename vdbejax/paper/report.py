@@ -10,8 +10,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from vdbejax.paper.claims import ABOUT, NEAR, STABLE, TIE, ClaimResult, stable_count
-from vdbejax.results.curves import CONVERGENCE_TEXT
+from vdbejax.paper.claim_table import mark
+from vdbejax.paper.claims import ABOUT, NEAR, STABLE, TIE, Check, ClaimResult, stable_count
+from vdbejax.results.solving import CONVERGENCE_TEXT
 
 
 def cap_message(meta: dict[str, Any]) -> str:
@@ -26,40 +27,79 @@ def cap_message(meta: dict[str, Any]) -> str:
 def headline_rule(replicates: int) -> str:
     """The rule that turns the pooled and the replicates' verdicts into the headline."""
     need = stable_count(replicates)
-    return (f"a claim's headline verdict is its pooled verdict when at least {need} of the"
-            f" {replicates} replicates ({STABLE:.0%}) give the same verdict, otherwise"
-            " **unstable**")
+    return (f"a claim's headline verdict is its pooled verdict when at least {STABLE:.0%} of"
+            f" the replicates that decide the claim ({need} of {replicates} when all do) give"
+            " the same verdict, otherwise **unstable**; a replicate whose verdict is undecided"
+            " (too small to decide the claim) is left out of that count, and a claim the"
+            " pooled agents leave undecided is undecided")
+
+
+#: How checks are decided, as ``report.md`` states it.
+DECISION_RULE = (
+    "Each check is decided by the 95% bootstrap intervals, never by a difference smaller"
+    " than their width: [x] holds (the intervals lie on its side of the bound, or apart from"
+    " the other setting's in its direction), [ ] fails (they lie on the other side), [?]"
+    " undecided (they overlap: the run is too small to decide it). A claim is reproduced when"
+    " every check holds, not reproduced when every check fails, partly when some hold and"
+    " some fail, and undecided otherwise.")
+
+
+def _replicate_outcomes(check: Check) -> str:
+    """`` — holds in k of R replicates`` (and how many leave it undecided)."""
+    if check.replicates is None:
+        return ""
+    undecided = (f", undecided in {check.replicates_undecided}"
+                 if check.replicates_undecided else "")
+    return f" — holds in {check.replicates_passed} of {check.replicates} replicates{undecided}"
+
+
+def _undecided(claims: Sequence[ClaimResult], agents: str) -> list[str]:
+    """The paragraph on the checks the pooled agents leave undecided."""
+    count = sum(c.undecided_count for c in claims)
+    if not count:
+        return ["**Undecided.** None: the intervals decide every check.", ""]
+    where = ", ".join(f"claim {c.number} ({c.undecided_count})" for c in claims
+                      if c.undecided_count)
+    return [f"**Undecided.** {count} checks ({where}): their intervals overlap the bound or"
+            f" the other setting's, so this run ({agents} per setting) is too small to decide"
+            " them; more agents would narrow the intervals.", ""]
 
 
 def _flips(claims: Sequence[ClaimResult]) -> list[str]:
-    """One item per claim whose verdict or some check differs between replicates."""
+    """One item per claim whose decided verdict or some decided check differs between
+    replicates (a replicate that leaves it undecided is no flip, but is named)."""
     lines = []
     for c in claims:
         flipping = [(j, k) for j, k in enumerate(c.checks, 1) if k.flips]
-        verdicts = dict.fromkeys(c.replicate_verdicts)
-        if len(verdicts) == 1 and not flipping:
+        verdicts = dict.fromkeys(v for v in c.replicate_verdicts if v != "undecided")
+        undecided = len(c.replicate_verdicts) - c.decided_replicates
+        if len(verdicts) <= 1 and not flipping:
             continue
         lines.append(f"- Claim {c.number}: " + (
             "its verdict flips: " + ", ".join(f"{v} in {c.replicate_verdicts.count(v)}"
                                               for v in verdicts) if len(verdicts) > 1 else
-            f"its verdict is {c.pooled_verdict} in every replicate") + ".")
-        lines += [f"  - check {j} holds in {k.replicates_passed} of {k.replicates}:"
-                  f" {k.description}" for j, k in flipping]
+            f"its verdict is {c.pooled_verdict} in every replicate that decides it")
+            + (f" (undecided in {undecided})" if undecided else "") + ".")
+        lines += [f"  - check {j} holds in {k.replicates_passed} of {k.replicates}"
+                  + (f" (undecided in {k.replicates_undecided})" if k.replicates_undecided
+                     else "") + f": {k.description}" for j, k in flipping]
     return lines
 
 
 def _summary_table(claims: Sequence[ClaimResult], replicates: int) -> list[str]:
     if not replicates:
-        lines = ["| # | verdict | checks passed |", "| --- | --- | --- |"]
+        lines = ["| # | verdict | checks passed | undecided |", "| --- | --- | --- | --- |"]
         return lines + [f"| {c.number} | **{c.verdict}** |"
-                        f" {sum(k.passed for k in c.checks)}/{len(c.checks)} |" for c in claims]
-    lines = ["| # | headline | pooled | checks passed (pooled) | replicates agreeing |"
-             " replicates' verdicts |", "| --- | --- | --- | --- | --- | --- |"]
+                        f" {c.passed_count}/{len(c.checks)} | {c.undecided_count} |"
+                        for c in claims]
+    lines = ["| # | headline | pooled | checks passed (pooled) | undecided (pooled) |"
+             " replicates agreeing | replicates' verdicts |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
     for c in claims:
         counts = ", ".join(f"{c.replicate_verdicts.count(v)} {v}"
                            for v in dict.fromkeys(c.replicate_verdicts))
         lines.append(f"| {c.number} | **{c.verdict}** | {c.pooled_verdict} |"
-                     f" {sum(k.passed for k in c.checks)}/{len(c.checks)} |"
+                     f" {c.passed_count}/{len(c.checks)} | {c.undecided_count} |"
                      f" {c.agreeing} of {replicates} | {counts} |")
     return lines
 
@@ -93,9 +133,11 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
         "",
         f"Final return = mean over the last 100 episodes and all agents; \"near\" = within {NEAR} "
         f"of the best return; {CONVERGENCE_TEXT}; a figure the paper gives as \"about\" a value "
-        f"must lie within ±{ABOUT:.0%} of it; returns within {TIE} are tied; settings are "
+        f"must lie within ±{ABOUT:.0%} of it; settings are "
         "ranked by the IQM of their agents' final returns, an explorer's best setting being "
         f"the first to converge among those within {TIE} of the highest IQM.",
+        "",
+        DECISION_RULE,
         "",
     ]
     if meta.get("step_cap"):
@@ -114,7 +156,8 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
                   f"{headline_rule(replicates)}.", ""]
         lines += (["**Flips between replicates.**", "", *flips, ""] if flips else
                   ["**Flips between replicates.** None: every check holds in all replicates"
-                   " or in none.", ""])
+                   " that decide it or in none.", ""])
+    lines += _undecided(claims, agents)
     lines += _summary_table(claims, replicates)
     for c in claims:
         title = c.verdict if not replicates else (
@@ -122,8 +165,6 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
             " agree)")
         lines += ["", f"## Claim {c.number}: {title}", "", f"> {c.claim}", "",
                   f"- Paper: {c.paper}", f"- Measured: {c.measured}", "- Checks:"]
-        lines += [f"  - [{'x' if k.passed else ' '}] {k.description}"
-                  + ("" if k.replicates is None else
-                     f" — holds in {k.replicates_passed} of {k.replicates} replicates")
+        lines += [f"  - {mark(k.passed)} {k.description}" + _replicate_outcomes(k)
                   for k in c.checks]
     return "\n".join(lines) + "\n"

@@ -11,7 +11,7 @@ import zipfile
 from pathlib import Path
 
 from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
-from vdbejax.envs.solvers import best_return
+from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, owners, paper_settings
 from vdbejax.methods.learners import PAPER_ALPHA
@@ -271,11 +271,14 @@ def reproduce(
     return Reproduction(result, summary, claims, best, out, elapsed)
 
 
-def saved_best_return(result: GridResult) -> float:
-    """The best possible return of a saved result's task.
+def saved_references(result: GridResult) -> float:
+    """The best possible return of a saved result's task, with ``meta["best_return"]`` and
+    ``meta["random_return"]`` (the uniformly random policy's expected return: the
+    convergence episode's zero) filled in where an older ``meta.json`` lacks them.
 
-    Read from ``meta.json`` (written by :func:`reproduce`); older table-cleaning results
-    without it are recomputed from their options with the exact solver.
+    Read from ``meta.json`` (written by :func:`~vdbejax.runs.run_grid`); older results
+    without them are recomputed with the exact solver from their task (``meta["task"]`` of
+    a sweep, else ``meta["mdp"]``) and options.
 
     Args:
       result: a result loaded with :meth:`GridResult.load`.
@@ -284,16 +287,23 @@ def saved_best_return(result: GridResult) -> float:
       the best return.
 
     Raises:
-      ValueError: neither is possible (unknown task).
+      ValueError: neither is possible (a task that cannot be built again).
     """
     meta = result.meta
-    if "best_return" in meta:
-        return float(meta["best_return"])
-    if meta.get("mdp") == "table_cleaning":
-        return best_return(make_mdp(max_steps=int(meta.get("max_steps", 100)),
-                                    invalid_action=meta.get("invalid_action", "noop")))
-    raise ValueError("meta.json has no best_return and the task is not table_cleaning: "
-                     "cannot draw the reference line or score the claims")
+    if "best_return" not in meta or "random_return" not in meta:
+        from vdbejax.studies.task_names import make_task
+
+        task = meta.get("task") or meta.get("mdp")
+        try:
+            mdp = make_task(str(task), max_steps=meta.get("max_steps"),
+                            invalid_action=meta.get("invalid_action", "noop"))
+        except ValueError as error:
+            raise ValueError(f"meta.json has no best_return and random_return, and its task"
+                             f" cannot be built again ({error}): cannot draw the reference"
+                             " line, measure convergence or score the claims") from None
+        meta.setdefault("best_return", best_return(mdp))
+        meta["random_return"] = uniform_random_return(mdp)
+    return float(meta["best_return"])
 
 
 def replot(
@@ -332,12 +342,11 @@ def replot(
         written.append(out / REPORT_FILE)
     with FolderLock(out):
         try:
+            best = saved_references(result)
             if paper:
-                write_outputs(result, out, saved_best_return(result), bands=bands)
+                write_outputs(result, out, best, bands=bands)
             else:
-                best = result.meta.get("best_return")
-                sweeps.write_outputs(result, out, None if best is None else float(best),
-                                     bands=bands)
+                sweeps.write_outputs(result, out, best, bands=bands)
         except OSError as error:
             raise ValueError(f"cannot write the outputs in {str(out)!r}:"
                              f" {describe_os_error(error)}") from None

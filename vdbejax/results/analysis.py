@@ -1,9 +1,10 @@
 """Statistics of a grid (:class:`~vdbejax.experiment.GridResult`): the summary table,
 pairwise comparisons, truncation diagnostics and ε(s) snapshots.
 
-The array-level statistics and their conventions (smoothing, final return, convergence
-episode, bootstrap intervals, IQM, probability of improvement) live in
-:mod:`vdbejax.results.stats` and are re-exported here.
+The array-level statistics and their conventions (smoothing, final return, bootstrap
+intervals, IQM, probability of improvement) live in :mod:`vdbejax.results.stats` and are
+re-exported here; the convergence episode (against the task's optimum, per agent, and its
+censored median per setting) in :mod:`vdbejax.results.solving`.
 """
 from __future__ import annotations
 
@@ -14,8 +15,8 @@ import numpy as np
 
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.policy import POLICY_COLUMNS, policy_summary
+from vdbejax.results.solving import episodes_to_converge, summarize_solving
 from vdbejax.results.stats import (  # noqa: F401  (re-exported: the historical home of these names)
-    FRACTION,
     LAST,
     LEVEL,
     NUM_RESAMPLES,
@@ -23,9 +24,6 @@ from vdbejax.results.stats import (  # noqa: F401  (re-exported: the historical 
     CurveStatistics,
     bootstrap_ci,
     bootstrap_indices,
-    convergence_ci,
-    convergence_episode,
-    convergence_episodes,
     curve_statistics,
     final_return,
     final_return_ci,
@@ -57,25 +55,49 @@ def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = L
     return (lengths >= max_steps).mean((-1,))
 
 
+def task_scale(result: GridResult, best: float | None = None,
+               baseline: float | None = None) -> tuple[float, float]:
+    """The task's exact best return and the uniformly random policy's expected return:
+    those given, else ``meta.json``'s ``best_return`` and ``random_return``.
+
+    Raises:
+      ValueError: one of them is neither given nor recorded.
+    """
+    best = result.meta.get("best_return") if best is None else best
+    baseline = result.meta.get("random_return") if baseline is None else baseline
+    if best is None or baseline is None:
+        raise ValueError("the result's meta has no best_return and random_return: the"
+                         " convergence episode needs the task's exact best return and the"
+                         " random policy's (vdbejax.envs.solvers.best_return,"
+                         " uniform_random_return); pass best= and baseline=")
+    return float(best), float(baseline)
+
+
 def summarize(
     result: GridResult, last: int = LAST, window: int = WINDOW,
-    statistics: CurveStatistics | None = None,
+    statistics: CurveStatistics | None = None, best: float | None = None,
+    baseline: float | None = None,
 ) -> list[SummaryRow]:
-    """One row per config: final return and convergence episode, each with its 95%
-    bootstrap CI over seeds, and diagnostics (:class:`~vdbejax.results.summary.SummaryRow`).
+    """One row per config: final return with its 95% bootstrap CI over agents, the
+    convergence episode (:func:`~vdbejax.results.solving.episodes_to_converge`: the median
+    over agents with censoring, and its interval) and diagnostics
+    (:class:`~vdbejax.results.summary.SummaryRow`).
 
     Args:
       result: the grid.
       last: episodes defining the final return.
-      window: smoothing window of the convergence criterion.
+      window: moving-average window of the convergence criterion.
       statistics: :func:`curve_statistics` of ``result.returns`` already computed (with
         this ``last`` and ``window``), e.g. to share them with Figure 3.
+      best, baseline: the task's exact best return and the random policy's expected
+        return (default: :func:`task_scale`, from ``result.meta``).
 
     Returns:
       one :class:`~vdbejax.results.summary.SummaryRow` per setting, in config order (the columns
       of :data:`SUMMARY_COLUMNS`: ``config, learner, explorer, param, final_return,
       final_ci_low, final_ci_high, final_iqm, convergence_episode, convergence_ci_low,
-      convergence_ci_high, truncated_fraction, mean_length, nonfinite_agents``; with
+      convergence_ci_high, agents_converged, convergence_budget, truncated_fraction,
+      mean_length, nonfinite_agents``; with
       ``episodes_cut`` and ``agents_cut`` for a task whose step limit is only a safety cap;
       the policy columns of :func:`~vdbejax.results.policy.policy_summary` for a run with
       policy evaluations).
@@ -88,11 +110,14 @@ def summarize(
         raise ValueError(f"statistics (window={statistics.window}, last={statistics.last}, "
                          f"{len(statistics.final)} settings) do not match window={window}, "
                          f"last={last} and the grid's {len(result.settings)} settings")
+    best, baseline = task_scale(result, best, baseline)
     max_steps = result.meta.get("max_steps")
     policy = (policy_summary(result) if result.policy_values is not None
               else [{}] * len(result.settings))
     rows = []
     for c, setting in enumerate(result.settings):
+        episodes, solved = _convergence_times(result, c, best, baseline, window)
+        convergence = summarize_solving(episodes, solved)
         episodes_cut = agents_cut = None
         if result.meta.get("step_cap"):  # a task without step limit: cuts at its cap
             cut = result.lengths[c] >= max_steps
@@ -107,9 +132,12 @@ def summarize(
             final_ci_low=float(statistics.final_low[c]),
             final_ci_high=float(statistics.final_high[c]),
             final_iqm=float(statistics.final_iqm[c]),
-            convergence_episode=float(statistics.convergence[c]),
-            convergence_ci_low=float(statistics.convergence_low[c]),
-            convergence_ci_high=float(statistics.convergence_high[c]),
+            convergence_episode=convergence.median,
+            convergence_ci_low=convergence.median_low,
+            convergence_ci_high=convergence.median_high,
+            agents_converged=convergence.solved,
+            convergence_budget=(convergence.budget if convergence.solved < convergence.agents
+                                else result.num_episodes),
             # Fraction over all seeds of the last episodes cut off at max_steps.
             truncated_fraction=float(
                 truncated_fraction(result.lengths[c], max_steps, last).mean()),
@@ -120,6 +148,25 @@ def summarize(
             **policy[c],
         ))
     return rows
+
+
+#: Agent-episodes converted to float64 at a time when finding convergence episodes (a
+#: bound on the memory of a wide or long run's summary; the results do not depend on it).
+CONVERGENCE_BLOCK = 1 << 22
+
+
+def _convergence_times(result: GridResult, c: int, best: float, baseline: float,
+                       window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Setting ``c``'s agents' convergence episodes and whether they converged, block of
+    agents by block of agents (:func:`~vdbejax.results.solving.episodes_to_converge`)."""
+    agents = result.returns.shape[1]
+    step = max(1, CONVERGENCE_BLOCK // max(1, result.num_episodes))
+    parts = [episodes_to_converge(
+        result.returns[c, i:i + step], best, baseline, window=window,
+        episodes_run=None if result.episodes_run is None else result.episodes_run[c, i:i + step])
+        for i in range(0, agents, step)]
+    return (np.concatenate([p.episodes for p in parts]),
+            np.concatenate([p.solved for p in parts]))
 
 
 def summary_columns(result: GridResult) -> list[str]:

@@ -219,10 +219,10 @@ def _convergence_episode(row: SummaryRow) -> tuple[float, float | None, float | 
 SENSITIVITY_METRICS: tuple[tuple[str, str, Callable[[SummaryRow], tuple[float, float | None,
                                                                         float | None]]], ...] = (
     ("final_return", "final return (last 100 ep.)", _final_return),
-    ("convergence_episode", "convergence episode", _convergence_episode),
+    ("convergence_episode", "convergence episode (median)", _convergence_episode),
 )
 #: The legend of a sensitivity plot's censored marks (no convergence episode).
-CENSORED_LABEL = "never converges (censored)"
+CENSORED_LABEL = "censored (> budget: half or more of the agents never converge)"
 LEARNER_STYLES = {"qlearning": ("tab:blue", "o"), "sarsa": ("tab:orange", "s")}
 
 

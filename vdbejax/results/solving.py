@@ -1,6 +1,17 @@
 """Episodes to solve a task, per agent, and honest summaries of censored samples (numpy only).
 
-Conventions (stated once, used by :mod:`vdbejax.studies.scaling` and notebook 03):
+Conventions (stated once, used by every report: the summary's convergence episode,
+:mod:`vdbejax.studies.bench`, :mod:`vdbejax.studies.depth`, :mod:`vdbejax.studies.scaling`
+and notebook 03):
+
+* **Converged** (:func:`episodes_to_converge`, the convergence episode of ``summary.csv``,
+  the sensitivity figure and the claims): solved, below, on the *normalised* returns of
+  :mod:`vdbejax.results.regret` — 0 the uniformly random policy's expected return, 1 the
+  exact best — with ``fraction`` = 0.9: the trailing moving average reaches
+  ``baseline + 0.9 × (best − baseline)``. An absolute reference: a setting that never
+  learns stays censored however flat its curve, and one that learns at once converges at
+  its first full window. The setting's convergence episode is the median over its agents
+  with censoring and its bootstrap interval (:func:`summarize_solving`).
 
 * **Solved**: an agent has solved the task at the first episode ``e`` (1-based) at which
   the trailing :func:`~vdbejax.results.stats.moving_average` of its returns over ``window``
@@ -36,6 +47,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from vdbejax.results import stats
+from vdbejax.results.regret import normalised_returns
 from vdbejax.validation import check_in_range, check_int
 
 #: Default fraction of the best return that counts as solved.
@@ -144,6 +156,53 @@ def episodes_to_solve(
     solved = np.any(reached, axis=-1)
     first = np.argmax(reached, axis=-1) + 1
     return SolveTimes(np.where(solved, first, run).astype(np.int64), solved)
+
+
+def convergence_threshold(best: float, baseline: float, fraction: float = FRACTION) -> float:
+    """The return at a normalised score of ``fraction``: ``baseline + fraction × (best −
+    baseline)`` (what :func:`episodes_to_converge` asks of the moving average, in returns)."""
+    return baseline + fraction * (best - baseline)
+
+
+def episodes_to_converge(
+    returns: Any,
+    best: float,
+    baseline: float,
+    *,
+    fraction: float = FRACTION,
+    window: int = WINDOW,
+    episodes_run: Any = None,
+) -> SolveTimes:
+    """First episode at which each agent's moving average of its normalised returns
+    (:func:`~vdbejax.results.regret.normalised_returns`) reaches ``fraction``: the
+    convergence episode of every report (see the module's conventions).
+
+    Args:
+      returns: ``[..., episodes]`` episode returns (one row per agent).
+      best: the task's exact best expected return (:func:`vdbejax.envs.solvers.best_return`).
+      baseline: the uniformly random policy's expected return
+        (:func:`vdbejax.envs.solvers.uniform_random_return`); below ``best``.
+      fraction, window, episodes_run: as :func:`episodes_to_solve`.
+
+    Returns:
+      :class:`SolveTimes`; agents that never converge are censored at their budget.
+
+    Raises:
+      ValueError: ``best`` not above ``baseline``, or a bad ``fraction``, ``window``,
+        ``episodes_run`` or ``returns``.
+    """
+    return episodes_to_solve(normalised_returns(returns, best, baseline), 1.0,
+                             fraction=fraction, window=window, episodes_run=episodes_run)
+
+
+#: The convergence episode's definition, as documents state it.
+CONVERGENCE_TEXT = (
+    f"convergence episode = the median over a setting's agents of the first episode at which"
+    f" an agent's {WINDOW}-episode moving average (full windows: from episode {WINDOW})"
+    f" reaches a normalised score of {FRACTION:g}"
+    " (0 = the uniformly random policy's expected return, 1 = the exact best), with a 95%"
+    " bootstrap interval over agents; an agent that never does is censored at its budget,"
+    " and the setting reads \"> budget\" while half or more of its agents are")
 
 
 def _check_sample(episodes: Any, solved: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -319,12 +378,15 @@ def solving_rows(
 
 
 __all__ = [
+    "CONVERGENCE_TEXT",
     "FRACTION",
     "TOLERANCE",
     "WINDOW",
     "SolveSummary",
     "SolveTimes",
     "censored_values",
+    "convergence_threshold",
+    "episodes_to_converge",
     "episodes_to_solve",
     "median_episodes",
     "solve_threshold",

@@ -1,4 +1,4 @@
-"""Statistics over learning curves (numpy only): smoothing, final return, convergence,
+"""Statistics over learning curves (numpy only): smoothing, final return,
 bootstrap intervals over seeds, interquartile mean and probability of improvement.
 
 Conventions (used everywhere, stated once):
@@ -6,9 +6,8 @@ Conventions (used everywhere, stated once):
 * **Smoothing**: trailing moving average over ``window`` episodes (the paper uses 20);
   the first ``window − 1`` points average the episodes available so far.
 * **Final return**: mean return over the last ``last`` episodes (default 100).
-* **Convergence episode**: the first episode (1-based) at which the moving average of the
-  seed-mean curve reaches ``L − (1 − fraction)·|L|``, with ``L`` the final return and
-  ``fraction = 0.95`` ("95% of its final level", also meaningful when ``L < 0``).
+* **Convergence episode**: per agent, against the task's optimum, and its median over a
+  setting's agents with censoring: :mod:`vdbejax.results.solving`.
 * **Bootstrap intervals** resample seeds with replacement (percentile method, ``level``
   0.95, 2000 resamples, fixed seed so that every figure and table is deterministic).
 * **Interquartile mean** (IQM, Agarwal et al. 2021, "rliable"): the mean of the middle
@@ -20,7 +19,7 @@ Conventions (used everywhere, stated once):
 Array layout: seeds on the first axis, episodes on the last (``[seeds, episodes]``).
 
 The pieces live in one module each and are re-exported here: the statistics of one curve
-(smoothing, final return, convergence episode) in :mod:`vdbejax.results.curves`; those of one value
+(smoothing, final return) in :mod:`vdbejax.results.curves`; those of one value
 per seed (bootstrap resamples and intervals, IQM, probability of improvement) in
 :mod:`vdbejax.results.bootstrap`. This module holds the intervals of curves and the per-setting
 statistics of a grid (:func:`curve_statistics`).
@@ -50,11 +49,8 @@ from vdbejax.results.bootstrap import (  # noqa: F401  (re-exported)
     weight_blocks,
 )
 from vdbejax.results.curves import (  # noqa: F401  (re-exported)
-    FRACTION,
     LAST,
     WINDOW,
-    convergence_episode,
-    convergence_episodes,
     convolve_full,
     final_return,
     moving_average,
@@ -116,43 +112,6 @@ def final_return_ci(
     return float(per_seed.mean()), low, high
 
 
-def convergence_ci(
-    returns: np.ndarray, window: int = WINDOW, last: int = LAST, fraction: float = FRACTION,
-    level: float = LEVEL, num_resamples: int = NUM_RESAMPLES, seed: int = 0,
-) -> tuple[float, float, float]:
-    """Convergence episode of the seed-mean curve, with a bootstrap interval.
-
-    Each resample of seeds gives a mean curve and hence a convergence episode; the
-    interval is the percentile interval of those episodes. A censored curve (no learning
-    to time, :func:`convergence_episodes`) is +∞, and so is an end of the interval that
-    falls among censored resamples (reported as "never").
-
-    Args:
-      returns: ``[seeds, episodes]`` episode returns.
-      window, last, fraction: see :func:`convergence_episodes`.
-      level, num_resamples, seed: bootstrap settings.
-
-    Returns:
-      ``(episode, low, high)``, +∞ where censored.
-    """
-    returns = np.asarray(returns, np.float64)
-    point = convergence_episode(returns.mean(0), window, last, fraction)
-    rows = rows_per_block(returns.shape[-1])  # resamples at once (all of them unless long)
-    episodes = np.concatenate([
-        convergence_episodes(weights[i:i + rows] @ returns, window, last, fraction)
-        for weights in _distinct_weights(len(returns), num_resamples, seed)
-        for i in range(0, len(weights), rows)])
-    if len(returns) == 1:  # every resample is the one seed: its episode, num_resamples times
-        episodes = np.repeat(episodes[:1], num_resamples)
-    censored = np.isinf(episodes)
-    # Censored resamples rank after every episode; an end interpolated towards one of
-    # them (beyond the run's episodes) is censored too.
-    beyond = float(returns.shape[-1] + 1)
-    low, high = _interval(np.where(censored, _CENSORED_RANK, episodes), level)
-    return (point, float(low) if low < beyond else np.inf,
-            float(high) if high < beyond else np.inf)
-
-
 def _distinct_weights(num_seeds: int, num_resamples: int, seed: int) -> Iterator[np.ndarray]:
     """:func:`weight_blocks`, except that one seed gives one row of weight 1: all its
     resamples are that seed (the same numbers; a percentile interval over two equal rows
@@ -161,11 +120,6 @@ def _distinct_weights(num_seeds: int, num_resamples: int, seed: int) -> Iterator
         yield np.ones((min(num_resamples, 2), 1))
         return
     yield from weight_blocks(num_seeds, num_resamples, seed)
-
-
-#: The order value a censored resample takes in :func:`convergence_ci`'s interval: finite,
-#: so that numpy's linear interpolation stays defined, and beyond any episode count.
-_CENSORED_RANK = 1e300
 
 
 @dataclasses.dataclass(frozen=True)
@@ -177,8 +131,6 @@ class CurveStatistics:
       window, last: the smoothing window and the final-return episodes used.
       final, final_low, final_high: final return and its 95% bootstrap interval, ``[C]``.
       final_iqm: interquartile mean of the seeds' final returns, ``[C]``.
-      convergence, convergence_low, convergence_high: convergence episode and its
-        interval, ``[C]`` float64 (whole numbers; +∞ where censored).
       curves: smoothed seed-mean learning curves, ``[C, episodes]``.
       band_low, band_high: pointwise bootstrap band of ``curves`` (``None`` unless asked).
     """
@@ -189,9 +141,6 @@ class CurveStatistics:
     final_low: np.ndarray
     final_high: np.ndarray
     final_iqm: np.ndarray
-    convergence: np.ndarray
-    convergence_low: np.ndarray
-    convergence_high: np.ndarray
     curves: np.ndarray
     band_low: np.ndarray | None = None
     band_high: np.ndarray | None = None
@@ -204,10 +153,10 @@ def curve_statistics(
     """:class:`CurveStatistics` of ``[settings, seeds, episodes]`` returns.
 
     Every setting uses the same bootstrap resamples (:func:`bootstrap_weights`) and the
-    same functions as one setting alone (:func:`final_return_ci`, :func:`convergence_ci`,
-    :func:`mean_curve_ci`), so the numbers are those, bit for bit; the per-setting curves
-    and bands run on ``workers`` threads (default: the CPU count), which numpy's array
-    operations let run in parallel.
+    same functions as one setting alone (:func:`final_return_ci`, :func:`mean_curve_ci`),
+    so the numbers are those, bit for bit; the per-setting curves and bands run on
+    ``workers`` threads (default: the CPU count), which numpy's array operations let run
+    in parallel.
 
     Args:
       returns: ``[C, seeds, episodes]`` episode returns.
@@ -215,7 +164,7 @@ def curve_statistics(
       last: episodes defining the final return (at most the episode count).
       bands: also the pointwise bootstrap band of every curve (Figure 3's shading).
       workers: threads (1: sequential; default: the CPU count with ``bands``, else 1, as
-        the convergence scan alone is too fine-grained to gain from threads).
+        the rest is too fine-grained to gain from threads).
 
     Returns:
       the statistics.
@@ -227,13 +176,12 @@ def curve_statistics(
         setting = returns[c]
         final = final_return_ci(setting, last)
         iqm = float(interquartile_mean(final_return(setting, last)))
-        convergence = convergence_ci(setting, window, last)
         if bands:
             curve, low, high = mean_curve_ci(setting, window)
         else:
             curve = moving_average(np.asarray(setting, np.float64).mean(0), window)
             low, high = None, None
-        return final, iqm, convergence, curve, low, high
+        return final, iqm, curve, low, high
 
     if workers is None:
         workers = (os.cpu_count() or 1) if bands else 1
@@ -243,17 +191,13 @@ def curve_statistics(
     else:
         with ThreadPoolExecutor(workers) as pool:
             rows = list(pool.map(one, range(len(returns))))
-    final_cis, iqms, convergence_cis, curves, lows, highs = (zip(*rows, strict=True) if rows
-                                                             else ([],) * 6)
+    final_cis, iqms, curves, lows, highs = zip(*rows, strict=True) if rows else ([],) * 5
     finals = np.array(final_cis).reshape(-1, 3)
-    convergences = np.array(convergence_cis).reshape(-1, 3)
     episodes = returns.shape[-1]
     return CurveStatistics(
         window=window, last=last,
         final=finals[:, 0], final_low=finals[:, 1], final_high=finals[:, 2],
         final_iqm=np.array(iqms, np.float64),
-        convergence=convergences[:, 0],
-        convergence_low=convergences[:, 1], convergence_high=convergences[:, 2],
         curves=np.array(curves, np.float64).reshape(-1, episodes),
         band_low=np.array(lows).reshape(-1, episodes) if bands else None,
         band_high=np.array(highs).reshape(-1, episodes) if bands else None,

@@ -8,9 +8,10 @@ claims, the sensitivity plot, the scaling study's parameter choice, the CLI) tak
 :class:`SummaryRow` objects and reads their attributes.
 
 Columns that older summaries lack (``final_iqm``, the convergence interval,
-``truncated_fraction``) and those written only for some grids (``episodes_cut`` and
-``agents_cut``, a task whose step limit is only a safety cap; the ``policy_gap`` and
-``optimal_fraction`` columns, a run that evaluates its policies) are ``None`` when absent.
+``agents_converged``, ``convergence_budget``, ``truncated_fraction``) and those written
+only for some grids (``episodes_cut`` and ``agents_cut``, a task whose step limit is only
+a safety cap; the ``policy_gap`` and ``optimal_fraction`` columns, a run that evaluates
+its policies) are ``None`` when absent.
 """
 from __future__ import annotations
 
@@ -38,6 +39,8 @@ SUMMARY_COLUMNS = [
     "convergence_episode",
     "convergence_ci_low",
     "convergence_ci_high",
+    "agents_converged",
+    "convergence_budget",
     "truncated_fraction",
     "mean_length",
     "nonfinite_agents",
@@ -61,10 +64,13 @@ class SummaryRow(Mapping[str, Any]):
       final_return, final_ci_low, final_ci_high: mean final return over the agents and
         its 95% bootstrap interval.
       final_iqm: interquartile mean of the agents' final returns.
-      convergence_episode, convergence_ci_low, convergence_ci_high: convergence episode
-        of the agents' mean curve and its 95% bootstrap interval (whole numbers as floats;
-        +∞, ``inf`` in ``summary.csv``, where censored: the setting shows no learning to
-        time, :func:`~vdbejax.results.curves.convergence_episodes`; :func:`episode_text`).
+      convergence_episode, convergence_ci_low, convergence_ci_high: the median over the
+        agents of their convergence episodes and its 95% bootstrap interval
+        (:mod:`vdbejax.results.solving`: against the task's optimum; the mean of the middle
+        two for an even count; +∞, ``inf`` in ``summary.csv``, where censored: half or more
+        of the agents never converge; :func:`episode_text`).
+      agents_converged: the agents that converged.
+      convergence_budget: the episodes a censored agent ran ("> budget").
       truncated_fraction: fraction of the last episodes cut off at ``max_steps`` (NaN
         when it is unknown).
       mean_length: mean episode length.
@@ -89,6 +95,8 @@ class SummaryRow(Mapping[str, Any]):
     convergence_episode: float
     convergence_ci_low: float | None = None
     convergence_ci_high: float | None = None
+    agents_converged: int | None = None
+    convergence_budget: int | None = None
     truncated_fraction: float | None = None
     mean_length: float
     nonfinite_agents: int
@@ -143,7 +151,8 @@ class SummaryRow(Mapping[str, Any]):
 
 
 _FIELDS = {field.name: field for field in dataclasses.fields(SummaryRow)}
-_INTEGERS = {"config", "nonfinite_agents", "episodes_cut", "agents_cut"}
+_INTEGERS = {"config", "nonfinite_agents", "episodes_cut", "agents_cut", "agents_converged",
+             "convergence_budget"}
 _TEXTS = {"learner", "explorer", "hyperparameters"}
 
 
@@ -174,7 +183,7 @@ def summary_row(row: SummaryRow | Mapping[str, Any]) -> SummaryRow:
             values[name] = (str(raw) if name in _TEXTS else int(raw) if name in _INTEGERS
                             else _episode(raw) if name == "convergence_episode" else float(raw))
         except (TypeError, ValueError):
-            kind = ("a whole number" if name in _INTEGERS else "a whole number or inf"
+            kind = ("a whole number" if name in _INTEGERS else "a number ≥ 1 or inf"
                     if name == "convergence_episode" else "a number")
             raise ValueError(f"summary row {dict(row)!r} is invalid: {name}={raw!r} must be"
                              f" {kind}") from None
@@ -182,19 +191,22 @@ def summary_row(row: SummaryRow | Mapping[str, Any]) -> SummaryRow:
 
 
 def _episode(raw: Any) -> float:
-    """A convergence episode's value: a whole number ≥ 1, or +∞ (censored)."""
+    """A convergence episode's value: a number ≥ 1 (a median: whole or halfway between two
+    whole numbers), or +∞ (censored)."""
     value = float(raw)
-    if not (math.isinf(value) and value > 0) and not (value.is_integer() and value >= 1):
+    if not (math.isinf(value) and value > 0) and not (math.isfinite(value) and value >= 1):
         raise ValueError(raw)
     return value
 
 
-def episode_text(episode: float | None) -> str:
-    """A convergence episode (or an end of its interval) as text: ``"never"`` where
-    censored (+∞), else the whole number."""
+def episode_text(episode: float | None, budget: int | None = None) -> str:
+    """A convergence episode (or an end of its interval) as text: ``"> budget"`` where
+    censored (+∞; ``"censored"`` when the budget is unknown), else the number."""
     if episode is None:
         return "?"
-    return "never" if math.isinf(episode) else f"{episode:g}"
+    if math.isinf(episode):
+        return "censored" if budget is None else f"> {budget}"
+    return f"{episode:g}"
 
 
 def summary_rows(rows: Iterable[SummaryRow | Mapping[str, Any]]) -> list[SummaryRow]:

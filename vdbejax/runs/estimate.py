@@ -15,7 +15,8 @@ Time has two parts:
   (a model's planning, say) is the user's to weigh;
 * **statistics and figures** (the result folder's summary, bands and figures): a
   forecast, since their work is fixed by the sizes: per setting and bootstrap resample,
-  a curve of ``episodes`` values is smoothed and searched (convergence, bands), which
+  a curve of ``episodes`` values is smoothed (bands; each agent's is searched once for its
+  convergence episode), which
   dominates the weighting of the seeds (:data:`STATISTICS_OPS_PER_SECOND`, measured with
   ``python -m benchmarks.estimate_rates``).
 

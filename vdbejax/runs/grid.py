@@ -30,6 +30,7 @@ import numpy as np
 from vdbejax.engine import agent_keys, broadcast_agents, check_params, text_progress
 from vdbejax.engine.distributed import gather_agents, process_checkpoint_path, take_agents
 from vdbejax.engine.programs import Programs
+from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import (
     AgentOptions,
@@ -325,14 +326,13 @@ def _collect(prepared: PreparedGrid, state: RunState, fingerprint: str, resumed_
     meta.pop("mdp_tables")
     ran = lengths[lengths > 0]
     meta["longest_episode"] = int(ran.max()) if ran.size else 0
-    # Episodes cut off at max_steps (on a task without a step limit, e.g. cruz2018, the
-    # safety cap: agents that would have looped forever).
-    cut = lengths >= mdp.max_steps
-    meta["truncated_episodes"] = int(cut.sum())
-    meta["agents_truncated"] = int(cut.any(axis=2).sum())
-    meta["truncated_episodes_by_config"] = cut.sum(axis=(1, 2)).tolist()
-    meta["hyperparameters"] = [agent_hyperparameters(make_agent(s, options)) for s in settings]
-    meta["parameter_names"] = {s.explorer: s.parameter for s in settings}
+    cut = lengths >= mdp.max_steps  # on a task without a step limit: the safety cap
+    # best and random returns: the references of the summary's convergence episode
+    meta.update(truncated_episodes=int(cut.sum()), agents_truncated=int(cut.any(axis=2).sum()),
+                truncated_episodes_by_config=cut.sum(axis=(1, 2)).tolist(),
+                hyperparameters=[agent_hyperparameters(make_agent(s, options)) for s in settings],
+                parameter_names={s.explorer: s.parameter for s in settings},
+                best_return=best_return(mdp), random_return=uniform_random_return(mdp))
     policy_values = collect_evaluations(state, mdp, prepared.run, shape, meta)
     return GridResult(settings, returns, lengths, nonfinite, meta,
                       episodes_run.astype(np.int64) if stopped_early else None, policy_values)

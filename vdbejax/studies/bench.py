@@ -29,8 +29,8 @@ from vdbejax.methods.agents import Setting, make_agent
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, mark, unmark
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.policy import policy_summary
-from vdbejax.results.regret import cumulative_regret, normalised_returns, run_scores
-from vdbejax.results.solving import episodes_to_solve, summarize_solving
+from vdbejax.results.regret import cumulative_regret, run_scores
+from vdbejax.results.solving import episodes_to_converge, summarize_solving
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task
@@ -337,8 +337,8 @@ def task_rows(task: BenchTask, methods: list[BenchMethod], result: GridResult,
     policy = policy_summary(result) if result.policy_values is not None else None
     regret = cumulative_regret(result.returns, task.best)[..., -1]
     last = max(1, result.num_episodes // 10)
-    solve = episodes_to_solve(normalised_returns(result.returns, task.best, task.baseline), 1.0,
-                              fraction=SOLVED, window=min(20, result.num_episodes))
+    solve = episodes_to_converge(result.returns, task.best, task.baseline, fraction=SOLVED,
+                                 window=min(20, result.num_episodes))
     for c, method in enumerate(methods):
         setting = result.settings[c]
         score_low, score_high = bootstrap_ci(scores[c])

@@ -38,7 +38,7 @@ import numpy as np
 from vdbejax.results import io
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, mark, unmark
 from vdbejax.results.policy import POLICY_COLUMNS
-from vdbejax.results.solving import WINDOW, summarize_solving
+from vdbejax.results.solving import WINDOW, convergence_threshold, summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task
@@ -217,7 +217,7 @@ def run_depth(
                 sys.stderr.write(f"[{i + 1}/{len(tasks)}] {task.name} ({task.mdp.num_states}"
                                  f" states, best {task.best:g}): {len(chosen)} methods ×"
                                  f" {seeds} agents, up to {episodes} episodes\n")
-            threshold = task.baseline + SOLVED * (task.best - task.baseline)
+            threshold = convergence_threshold(task.best, task.baseline, SOLVED)
             run = train_until_solved(
                 out / RUNS_FOLDER / task.folder, task.mdp, settings[task.name], seeds=seeds,
                 budget=episodes, stop=UntilSolved(best=task.best,

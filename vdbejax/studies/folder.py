@@ -104,6 +104,11 @@ def train_in_folder(
         result = saved_result(out, prepared.fingerprint) if prepared.run.resume else None
         if result is None:
             result = run_prepared(prepared.with_checkpoint(checkpoint))
+        elif "random_return" not in result.meta:  # reused from before it was recorded
+            from vdbejax.envs.solvers import best_return, uniform_random_return
+
+            result.meta.update(best_return=best_return(prepared.mdp),
+                               random_return=uniform_random_return(prepared.mdp))
         if annotate is not None:  # a reused result too: 100 agents may now be 5 × 20
             annotate(result)
         if not lock.held():
