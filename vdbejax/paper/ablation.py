@@ -91,9 +91,10 @@ def run_variant(
       seeds, episodes, seed: run size.
       replicates: independent groups of ``seeds`` agents (:mod:`vdbejax.results.replicates`).
       reuse: load a saved result of the same variant and size instead of rerunning (a
-        folder a killed run left half-written is continued from its checkpoint instead).
+        folder a killed run left half-written is continued from its checkpoint instead);
+        ``False`` retrains and replaces what the folder holds.
       progress: progress bar on stderr.
-      run: ``resume``, ``devices`` and ``memory_budget_bytes`` for the variant's run
+      run: ``resume``, ``overwrite``, ``devices`` and ``memory_budget_bytes`` for the variant's run
         (:class:`~vdbejax.runs.RunOptions`; its other fields are the variant's own).
       figures: draw the variant's figures (``False``: numbers and report only, and no
         figure of an earlier run is left in ``results_dir``; ``vdbejax plot --results
@@ -115,6 +116,7 @@ def run_variant(
         run = run.replace(resume=True)
     rep = reproduce(folder, seeds=seeds, episodes=episodes, seed=seed, replicates=replicates,
                     progress=progress, resume=run.resume, devices=run.devices,
+                    overwrite=run.overwrite or not reuse,
                     memory_budget_bytes=run.memory_budget_bytes, figures=figures,
                     **variant.options())
     meta = rep.result.meta
@@ -147,6 +149,7 @@ def ablate(
     resume: bool = False,
     devices: int | None = None,
     memory_budget_bytes: int | str | None = None,
+    overwrite: bool = False,
 ) -> list[VariantResult]:
     """Run every variant, score the claims, write ``REPRODUCTION.md`` (mode ``options``),
     ``ATTRIBUTION.md`` (mode ``attribution``) or ``FACTORIAL.md`` (mode ``factorial``)
@@ -174,6 +177,8 @@ def ablate(
         detail of which reading decides each claim (results in ``results_dir``'s
         ``attribution/`` and ``factorial/`` subfolders, reports beside the document).
       resume: an interrupted variant continues from its checkpoint.
+      overwrite: a variant's folder holding a finished result of another size or code is
+        retrained and replaced (without it that is refused in one line).
       devices, memory_budget_bytes: devices to shard over and per-device memory budget
         of every variant's run (speed only).
 
@@ -193,7 +198,8 @@ def ablate(
     if mode not in MODES:
         raise ValueError(f"mode={mode!r} is invalid: must be one of {', '.join(MODES)}")
     document, figures_dir = MODES[mode]
-    knobs = RunOptions(resume=resume, devices=devices, memory_budget_bytes=memory_budget_bytes)
+    knobs = RunOptions(resume=resume, overwrite=overwrite, devices=devices,
+                       memory_budget_bytes=memory_budget_bytes)
     # The run's size is checked before any folder is made (a refusal leaves nothing behind).
     check_int("seeds", seeds, 1, INT32_MAX)
     check_replicates(replicates, seeds)

@@ -133,6 +133,7 @@ def run_depth(
     seed: int = 0,
     quick: bool = False,
     resume: bool = False,
+    overwrite: bool = False,
     progress: bool = True,
     figure: bool = True,
     command: str | None = None,
@@ -153,6 +154,8 @@ def run_depth(
         given; the CLI refuses them).
       resume: continue an interrupted study (whole task folders reused, the interrupted
         one continued from its checkpoint).
+      overwrite: replace the finished results its folders hold (without it, a folder
+        holding one is refused in one line before it is trained again).
       progress: status lines and progress bars on stderr.
       figure: write ``depth.png``.
       command: the command line, recorded in ``depth.md`` and ``meta.json``.
@@ -193,8 +196,8 @@ def run_depth(
     out = check_writable_dir("out", out_dir)
     check_output_paths(out, [CSV_FILE, SLOPES_FILE, MARKDOWN_FILE, META_FILE]
                        + ([FIGURE_FILE] if figure else []))
-    knobs = RunOptions(resume=resume, memory_budget_bytes=memory_budget_bytes, devices=devices,
-                       progress=progress, chunk_episodes=auto_chunk(episodes))
+    knobs = RunOptions(resume=resume, overwrite=overwrite, memory_budget_bytes=memory_budget_bytes,
+                       devices=devices, progress=progress, chunk_episodes=auto_chunk(episodes))
     versions = version_info()  # the code that runs: read before training, not after
     started = time.perf_counter()
     with FolderLock(out):

@@ -127,6 +127,7 @@ def run_sweep(
     progress: bool = True,
     figures: bool = True,
     resume: bool = False,
+    overwrite: bool = False,
     memory_budget_bytes: int | str | None = None,
     devices: int | None = None,
 ) -> GridResult:
@@ -157,7 +158,10 @@ def run_sweep(
       progress: a progress bar on stderr.
       figures: write ``fig3.png`` and ``sensitivity.png``.
       resume: continue an interrupted run from ``out_dir/checkpoint.npz`` (written after
-        every chunk, removed once the results are saved).
+        every chunk, removed once the results are saved), or load ``out_dir``'s finished
+        result of this same run.
+      overwrite: replace a finished result (or an interrupted run's checkpoint) that
+        ``out_dir`` holds; without it that is refused.
       memory_budget_bytes: per-device memory budget (sequential batches when the agents
         do not fit); changes only the speed.
       devices: devices to shard the agents over (default all); changes only the speed.
@@ -174,13 +178,13 @@ def run_sweep(
     mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)
     grid_settings = sweep_settings(learners, explorers, axes, shared, exclude, settings)
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
-    check_int("seeds", seeds, 1, INT32_MAX)
-    check_int("episodes", episodes, 1, INT32_MAX)
-    check_replicates(replicates, seeds)
-    check_bool("progress", progress)
-    check_bool("figures", figures)
+    seeds = check_int("seeds", seeds, 1, INT32_MAX)  # plain ints (NumPy ones welcome)
+    episodes = check_int("episodes", episodes, 1, INT32_MAX)
+    replicates = check_replicates(replicates, seeds)
+    progress = check_bool("progress", progress)
+    figures = check_bool("figures", figures)
     run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
-                     memory_budget_bytes=memory_budget_bytes, devices=devices)
+                     overwrite=overwrite, memory_budget_bytes=memory_budget_bytes, devices=devices)
     prepared = prepare_grid(mdp, grid_settings, num_seeds=seeds * replicates, num_episodes=episodes,
                             seed=seed, run=run)
     best = best_return(mdp)
