@@ -183,3 +183,80 @@ def test_list_names_every_method_and_task_with_its_defaults(capsys, tmp_path):
     assert mine["parameters"] == {"eps": 0.25} and mine["swept"] == "eps"
     assert cli.main(["list", "bogus"]) == 2
     assert "must be one of learners, explorers, tasks" in one_error_line(capsys)
+
+
+# ------------------------------------------------------------------ point 14: rough edges
+def test_citation_file_names_this_version_and_the_paper():
+    import tomllib
+
+    version = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    text = (ROOT / "CITATION.cff").read_text(encoding="utf-8")
+    assert "cff-version: 1.2.0" in text and f'version: "{version}"' in text
+    assert "Action Selection Methods in a Robotic Reinforcement Learning Scenario" in text
+
+
+def test_the_estimate_states_no_empty_range_nor_a_zero_second_bound():
+    from vdbejax.runs import estimate
+
+    line = estimate.estimate_run(1, 2, 3, statistics=False).describe()
+    assert " to " not in line and "training ≥ 0 s" not in line, line
+    assert "(6 agent-steps)" in line
+
+
+def test_a_grid_results_repr_is_one_line(tmp_path):
+    import vdbejax
+    from vdbejax.envs.table_cleaning import make_mdp
+    from vdbejax.methods import Setting
+
+    grid = vdbejax.run_grid(make_mdp(max_steps=5), [Setting("qlearning", "egreedy", 0.1)],
+                            num_seeds=2, num_episodes=300)
+    assert repr(grid) == ("GridResult(1 settings × 2 agents × 300 episodes,"
+                          " task 'table_cleaning')")
+
+
+def test_plot_names_a_file_or_missing_folder_as_such(tmp_path, capsys):
+    (tmp_path / "returns.npz").write_bytes(b"")
+    assert cli.main(["plot", "--results", str(tmp_path / "returns.npz")]) == 2
+    assert "is a file" in one_error_line(capsys)
+    assert cli.main(["plot", "--results", str(tmp_path / "nothing")]) == 2
+    assert "does not exist" in one_error_line(capsys)
+
+
+def test_a_missing_gymnasium_is_said_once(monkeypatch):
+    import sys
+
+    from vdbejax.studies.task_names import make_task
+
+    monkeypatch.setitem(sys.modules, "gymnasium", None)  # import gymnasium fails
+    for task in ("frozenlake4", "gym:FrozenLake-v1"):
+        with pytest.raises(ValueError) as error:
+            make_task(task)
+        assert str(error.value).count("pip install") == 1, error.value
+
+
+def test_curves_that_coincide_still_show_every_colour():
+    import numpy as np
+
+    from vdbejax.experiment import GridResult
+    from vdbejax.methods import Setting
+    from vdbejax.results.plotting import figure3
+
+    settings = [Setting("qlearning", "vdbe_softmax", s) for s in (0.01, 0.1, 1.0)]
+    returns = np.zeros((3, 2, 30), np.float32)  # three identical curves
+    grid = GridResult(settings, returns, np.ones_like(returns, np.int32),
+                      np.zeros((3, 2), bool), {"mdp": "table_cleaning"})
+    lines = [line for line in figure3(grid, bands=False, window=5).axes[0].get_lines()
+             if line.get_label().startswith("σ")]
+    widths = [line.get_linewidth() for line in lines]
+    assert len({line.get_color() for line in lines}) == 3
+    assert widths == sorted(widths, reverse=True) and len(set(widths)) == 3
+
+
+def test_sensitivity_plots_the_swept_alpha_when_the_explorers_parameter_is_fixed(tmp_path):
+    from vdbejax.results.plotting import sensitivity
+
+    sweeps.run_sweep(tmp_path, **{**SWEEP, "axes": {"alpha": [0.1, 0.3, 0.8]}}, figures=False)
+    figure = sensitivity(io.read_csv(tmp_path / sweeps.SUMMARY_FILE))
+    assert figure.axes[1].get_xlabel().startswith("α")
+    drawn = [line for line in figure.axes[0].get_lines() if len(line.get_xdata()) == 3]
+    assert sorted(drawn[0].get_xdata()) == [0.1, 0.3, 0.8]

@@ -18,6 +18,8 @@ folder per task under ``runs/``, checkpointed and resumable):
 "Solved" is the benchmark's: a 20-episode moving average of the normalised return (0 =
 the uniformly random policy, 1 = the optimum) reaching 0.9. Per method and family the
 study fits, over the depths where at least half of its agents solved (a finite median),
+when there are at least :data:`MIN_FITTED_DEPTHS` of them (a line through two points fits
+any growth and has no error to show),
 the log-log slope of the median episodes to solve against N (the degree of a polynomial
 growth) and the log2-linear slope (the doubling rate of an exponential one), each with a
 95 % bootstrap interval over agents (each depth's agents resampled on their own; a
@@ -58,7 +60,9 @@ EPISODES = 1000
 METHODS = ("egreedy", "softmax", "vdbe", "vdbe_softmax", "max_boltzmann", "ucb1",
            "count_bonus", "optimistic_q", "ucb_h", "delayed_q", "rmax", "mbie_eb", "ucbvi",
            "dyna_q_plus", "q_lambda")
-QUICK_SIZES, QUICK_SEEDS, QUICK_EPISODES = (4, 6), 3, 100
+QUICK_SIZES, QUICK_SEEDS, QUICK_EPISODES = (4, 6, 8), 3, 100
+#: The fewest depths a growth slope is fitted over.
+MIN_FITTED_DEPTHS = 3
 QUICK_METHODS = ("egreedy", "vdbe", "ucb1", "rmax")
 RESAMPLES = 1000
 CSV_FILE, SLOPES_FILE, META_FILE, RUNS_FOLDER = "depth.csv", "depth_slopes.csv", "meta.json", "runs"
@@ -107,9 +111,9 @@ def _sizes(sizes: Sequence[int] | str) -> list[int]:
     else:
         values = list(sizes)
     parsed = sorted({check_int("sizes", v, 2, 256) for v in values})
-    if len(parsed) < 2:
-        raise ValueError(f"sizes={sizes!r} is invalid: need at least two distinct sizes (2..256)"
-                         " to fit a slope")
+    if len(parsed) < MIN_FITTED_DEPTHS:
+        raise ValueError(f"sizes={sizes!r} is invalid: need at least {MIN_FITTED_DEPTHS}"
+                         " distinct sizes (2..256) to fit a slope")
     return parsed
 
 
@@ -259,7 +263,7 @@ def growth_slopes(rows: Sequence[dict[str, Any]], methods: Sequence[BenchMethod]
                   families: Sequence[str], *, seed: int = 0) -> list[dict[str, Any]]:
     """Per (family, method): the log-log and log2-linear slopes of the median episodes to
     solve against N over the depths with a finite median, with 95 % bootstrap intervals
-    (module docstring); NaN with fewer than two such depths."""
+    (module docstring); NaN with fewer than :data:`MIN_FITTED_DEPTHS` such depths."""
     rng = np.random.default_rng(seed)
     slopes = []
     for family in families:
@@ -269,7 +273,7 @@ def growth_slopes(rows: Sequence[dict[str, Any]], methods: Sequence[BenchMethod]
             row = {"family": family, "method": method.name, "title": method.title,
                    "method_family": method.family, "sizes_fitted": len(fitted),
                    "largest_solved": max((r["size"] for r in fitted), default=0)}
-            if len(fitted) < 2:
+            if len(fitted) < MIN_FITTED_DEPTHS:
                 slopes.append(dict(row, **{k: math.nan for k in SLOPE_COLUMNS[6:]}))
                 continue
             n = np.array([r["size"] for r in fitted], np.float64)
