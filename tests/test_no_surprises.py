@@ -260,3 +260,56 @@ def test_sensitivity_plots_the_swept_alpha_when_the_explorers_parameter_is_fixed
     assert figure.axes[1].get_xlabel().startswith("α")
     drawn = [line for line in figure.axes[0].get_lines() if len(line.get_xdata()) == 3]
     assert sorted(drawn[0].get_xdata()) == [0.1, 0.3, 0.8]
+
+
+# ------------------------------------------------ point 11: every input read before training
+def test_ablate_refuses_a_notes_file_that_is_not_utf8_before_training(tmp_path, trainings,
+                                                                       capsys):
+    notes = tmp_path / "notes.md"
+    notes.write_bytes("café".encode("latin-1"))
+    out = tmp_path / "doc"
+    assert cli.main(["ablate", "--out", str(out), "--variants", "spec", "--seeds", "2",
+                     "--episodes", "12", "--replicates", "1", "--quiet",
+                     "--notes", str(notes)]) == 2
+    line = one_error_line(capsys)
+    assert str(notes) in line and "not UTF-8" in line, line
+    assert not trainings and not out.exists()
+
+
+# ------------------------------------------------- point 7: a faulty plug-in is one line
+PLUGIN = """
+import numpy as np
+from vdbejax.methods import Explorer, Table, explorer, select_action
+
+@explorer({name!r}, parameter="eps")
+class Faulty(Explorer):
+    eps: float = 0.1
+    def tables(self):
+        return {{"visits": Table("state", {init})}}
+    def select(self, q, tables, context, uniforms):
+        return select_action(q, self.eps, None, uniforms)
+"""
+
+
+@pytest.mark.parametrize("name, init, shown", [
+    ("faulty_string_init", "'zero'", "init='zero'"),
+    ("faulty_array_init", "np.zeros(3)", "not an array of shape (3,)")])
+def test_a_table_start_value_that_is_no_number_is_one_line(tmp_path, trainings, capsys,
+                                                           name, init, shown):
+    plugin = tmp_path / f"{name}.py"
+    plugin.write_text(PLUGIN.format(name=name, init=init))
+    out = tmp_path / "out"
+    assert cli.main(["run", "--plugin", str(plugin), "--learners", "qlearning", "--explorers",
+                     name, "--seeds", "2", "--episodes", "5", "--quiet", "--out", str(out)]) == 2
+    line = one_error_line(capsys)
+    assert f"explorer {name!r} table 'visits'" in line and shown in line, line
+    assert not trainings and not out.exists()
+
+
+def test_a_plug_in_that_exits_on_import_is_one_line(tmp_path, capsys):
+    plugin = tmp_path / "exits.py"
+    plugin.write_text("import sys\nsys.exit(3)\n")
+    assert cli.main(["run", "--plugin", str(plugin), "--learners", "qlearning", "--explorers",
+                     "egreedy", "--quiet", "--out", str(tmp_path / "out")]) == 2
+    line = one_error_line(capsys)
+    assert str(plugin) in line and "sys.exit(3)" in line, line

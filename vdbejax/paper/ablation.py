@@ -186,15 +186,15 @@ def ablate(
       the scored variants.
 
     Raises:
-      ValueError: no variants, duplicate names, or a missing notes file.
+      ValueError: no variants, duplicate names, or a notes file that is missing, unreadable
+        or not UTF-8 text (all before anything trains).
     """
     variants = list(variants)
     if not variants:
         raise ValueError("variants is empty: need at least one variant")
     if len({v.name for v in variants}) != len(variants):
         raise ValueError("variant names must be unique")
-    if notes is not None and not Path(notes).is_file():
-        raise ValueError(f"notes file {str(notes)!r} does not exist")
+    notes_text = read_notes(notes)  # read now: a bad file fails before anything trains
     if mode not in MODES:
         raise ValueError(f"mode={mode!r} is invalid: must be one of {', '.join(MODES)}")
     document, figures_dir = MODES[mode]
@@ -214,7 +214,28 @@ def ablate(
             and not Path(p).exists()]
     with _removed_if_refused(made):
         return _ablate(out_dir, figures_dir, results_dir, document, variants, seeds, episodes,
-                       seed, replicates, notes, reuse, progress, mode, sections, knobs)
+                       seed, replicates, notes, notes_text, reuse, progress, mode, sections,
+                       knobs)
+
+
+def read_notes(notes: str | os.PathLike | None) -> str | None:
+    """The notes file's text (None without one).
+
+    Raises:
+      ValueError: a missing or unreadable file, or one that is not UTF-8 text, naming it.
+    """
+    if notes is None:
+        return None
+    if not isinstance(notes, (str, os.PathLike)) or not Path(notes).is_file():
+        raise ValueError(f"notes file {str(notes)!r} does not exist")
+    try:
+        return Path(notes).read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:
+        raise ValueError(f"notes file {str(notes)!r} is not UTF-8 text (byte {error.start}:"
+                         f" {error.reason}): save it as UTF-8") from None
+    except OSError as error:
+        raise ValueError(f"notes file {str(notes)!r} is unreadable:"
+                         f" {error.strerror or error}") from None
 
 
 @contextlib.contextmanager
@@ -231,8 +252,9 @@ def _removed_if_refused(folders: list[Path]) -> Iterator[None]:
 
 def _ablate(out_dir: str | os.PathLike, figures_dir: str, results_dir: str | os.PathLike | None,
             document: str, variants: list[Variant], seeds: int, episodes: int, seed: int,
-            replicates: int, notes: str | os.PathLike | None, reuse: bool, progress: bool,
-            mode: str, sections: bool, knobs: RunOptions) -> list[VariantResult]:
+            replicates: int, notes: str | os.PathLike | None, text: str | None, reuse: bool,
+            progress: bool, mode: str, sections: bool, knobs: RunOptions
+            ) -> list[VariantResult]:
     """:func:`ablate` once its options are checked."""
     out = check_writable_dir("out", out_dir)
     figures = check_writable_dir("out", out / figures_dir)
@@ -251,7 +273,6 @@ def _ablate(out_dir: str | os.PathLike, figures_dir: str, results_dir: str | os.
             extra.append((title, SECTION_INTROS[section_mode], section_dir, [
                 _run_reporting(v, section_raw, out / section_dir, REPORT_ASSETS, size, reuse,
                                progress, knobs) for v in mode_variants(section_mode)]))
-    text = Path(notes).read_text() if notes is not None else None
     command = _command(out, raw, figures, variants, size, mode, sections, notes)
     io.atomic_write_text(out / document, render_document(results, figures_dir, command, text,
                                                          figures=mode == "options",
