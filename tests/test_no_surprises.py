@@ -313,3 +313,22 @@ def test_a_plug_in_that_exits_on_import_is_one_line(tmp_path, capsys):
                      "egreedy", "--quiet", "--out", str(tmp_path / "out")]) == 2
     line = one_error_line(capsys)
     assert str(plugin) in line and "sys.exit(3)" in line, line
+
+
+# --------------------------------------------------------------- point 13: vdbejax compare
+def test_compare_puts_two_folders_settings_side_by_side(finished, tmp_path, capsys):
+    import csv
+
+    other = tmp_path / "other"
+    sweeps.run_sweep(other, **{**SWEEP, "explorers": ["egreedy", "vdbe"]}, seed=1)
+    table = tmp_path / "compare.csv"
+    assert cli.main(["compare", str(finished), str(other), "--csv", str(table)]) == 0
+    text = capsys.readouterr().out
+    assert "| qlearning/egreedy/0.1 | " in text and "| qlearning/vdbe/1 | – |" in text
+    rows = list(csv.DictReader(table.open()))
+    assert [r["setting"] for r in rows] == ["qlearning/egreedy/0.1", "qlearning/vdbe/1"]
+    assert rows[0]["overlap"] in ("True", "False") and rows[1]["overlap"] == ""
+    a = io.read_csv(finished / "summary.csv")[0]
+    assert float(rows[0]["a_final"]) == pytest.approx(float(a["final_return"]), abs=1e-6)
+    assert cli.main(["compare", str(finished), str(tmp_path / "nothing")]) == 2
+    assert "has no summary.csv" in one_error_line(capsys)

@@ -1,4 +1,5 @@
-"""Commands that read only: ``list`` (what there is to run)."""
+"""Commands that read only: ``list`` (what there is to run) and ``compare`` (two result
+folders side by side)."""
 from __future__ import annotations
 
 import argparse
@@ -23,3 +24,24 @@ def list_command(args: argparse.Namespace) -> None:
     entries = catalog(args.kinds or KINDS)
     print(json.dumps(entries, indent=2, default=repr) if args.json else render_catalog(entries),
           end="\n" if args.json else "")
+
+
+def add_compare(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("compare", help="two result folders' settings side by side, with"
+                                       " intervals")
+    p.add_argument("a", metavar="A", help="a result folder")
+    p.add_argument("b", metavar="B", help="another result folder")
+    p.add_argument("--csv", default=None, help="also write the comparison as CSV to this file")
+
+
+def compare_command(args: argparse.Namespace) -> None:
+    from vdbejax.results import io
+    from vdbejax.results.compare import compare_folders, render_comparison
+
+    table = compare_folders(args.a, args.b)
+    print(render_comparison(table, args.a, args.b), end="")
+    if args.csv:
+        try:
+            io.write_csv(args.csv, table, list(table[0]) if table else ["setting"])
+        except OSError as error:
+            raise ValueError(f"cannot write {args.csv!r}: {error.strerror or error}") from None

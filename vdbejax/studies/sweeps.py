@@ -29,7 +29,7 @@ from vdbejax.results.replicates import (
     write_replicates,
 )
 from vdbejax.results.stats import CurveStatistics
-from vdbejax.results.summary import write_summary
+from vdbejax.results.summary import SUMMARY_FILE, write_summary
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.studies import train_in_folder
 from vdbejax.studies.sweep_file import (  # noqa: F401 (the sweep file's names, here since 0.1)
@@ -44,7 +44,6 @@ from vdbejax.studies.task_names import (
 )
 from vdbejax.validation import INT32_MAX, check_bool, check_int
 
-SUMMARY_FILE = "summary.csv"
 FIGURE_FILE = "fig3.png"
 SENSITIVITY_FILE = "sensitivity.png"
 
