@@ -156,7 +156,7 @@ def test_factorial_mode_and_sections_in_the_document(tmp_path):
                               progress=False)
     section = ("Factorial", "intro text", "factorial", [
         ablation.run_variant(v, tmp_path / "factorial" / v.name, seeds=2, episodes=12,
-                             figures=False)
+                             replicates=5, figures=False)  # the command's: reused
         for v in ablation.select_variants(names, "factorial")])
     doc = ablation.render_document(results, "ablation", "cmd", sections=[section])
     assert "## Factorial" in doc and "intro text" in doc

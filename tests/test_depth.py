@@ -46,9 +46,10 @@ def test_growth_slopes_recover_a_polynomial_and_an_exponential() -> None:
         assert s["exponent_low"] == pytest.approx(s["exponent"])
         assert s["doubling_high"] == pytest.approx(s["doubling"])
         assert s["sizes_fitted"] == 3 and s["largest_solved"] == 16
-    rows[-1]["median_episodes"] = math.inf  # rmax censored at N = 16: fitted over two
+    rows[-1]["median_episodes"] = math.inf  # rmax censored at N = 16: two depths, no fit
     slopes = {s["method"]: s for s in depth.growth_slopes(rows, methods, ["deepsea"])}
     assert slopes["rmax"]["sizes_fitted"] == 2 and slopes["rmax"]["largest_solved"] == 8
+    assert math.isnan(slopes["rmax"]["exponent"]) and math.isnan(slopes["rmax"]["doubling"])
 
 
 @pytest.fixture(scope="module")
@@ -97,7 +98,7 @@ def test_resume_reuses_whole_task_folders(quick: tuple[Path, depth.DepthResult])
 
 @pytest.mark.parametrize("args, message", [
     (["--families", "deepsea,nope"], "families='deepsea,nope' is invalid"),
-    (["--sizes", "8"], "need at least two distinct sizes"),
+    (["--sizes", "8,16"], "need at least 3 distinct sizes"),
     (["--sizes", "4,1"], "sizes=1 is invalid"),
     (["--methods", "nope"], "methods="),
     (["--episodes", "5"], "episodes=5 is invalid"),

@@ -1,6 +1,6 @@
-"""Every example runs as written: the README's Python blocks (one script, in a fresh
-process and an empty folder) and the docstrings' complete examples (those that begin with
-their imports)."""
+"""Every example runs as written: the Python blocks of the README and of every docs page
+(a page's blocks as one script, in a fresh process and an empty folder) and the docstrings'
+complete examples (those that begin with their imports)."""
 from __future__ import annotations
 
 import ast
@@ -17,11 +17,15 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "vdbejax"
 
 
-def readme_script() -> str:
-    blocks = re.findall(r"^```python\n(.*?)^```", (ROOT / "README.md").read_text("utf-8"),
-                        re.S | re.M)
-    assert len(blocks) >= 2
-    return "\n".join(blocks)
+def page_script(page: Path) -> str:
+    """A page's Python blocks, in order, as one script."""
+    return "\n".join(re.findall(r"^```python\n(.*?)^```", page.read_text("utf-8"),
+                                re.S | re.M))
+
+
+#: The README and every docs page with a Python block (issue 49: every one runs).
+PAGES = [p for p in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+         if page_script(p)]
 
 
 def docstring_examples() -> list[tuple[str, str]]:
@@ -49,10 +53,12 @@ def run_script(code: str, folder: Path) -> subprocess.CompletedProcess:
                           cwd=folder, timeout=900, env={**os.environ, "MPLBACKEND": "Agg"})
 
 
-def test_the_readme_python_examples_run_as_written(tmp_path):
-    done = run_script(readme_script(), tmp_path)
-    assert done.returncode == 0, done.stderr[-3000:]
-    assert (tmp_path / "out" / "paper" / "report.md").exists()
+@pytest.mark.parametrize("page", PAGES, ids=lambda page: page.name)
+def test_the_python_examples_of_every_page_run_as_written(tmp_path, page):
+    done = run_script(page_script(page), tmp_path)
+    assert done.returncode == 0, f"{page.name}: {done.stderr[-3000:]}"
+    if page.name == "README.md":
+        assert len(PAGES) > 2 and (tmp_path / "out" / "small" / "report.md").exists()
 
 
 def test_the_docstring_examples_are_found():

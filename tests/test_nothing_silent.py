@@ -49,7 +49,7 @@ def test_outputs_of_an_earlier_run_do_not_survive_a_rerun(tmp_path):
     out = tmp_path / "run"
     assert cli.main(sweep_args(out, "--long-csv")) == 0
     assert (out / "fig3.png").exists() and (out / "returns_long.csv").exists()
-    assert cli.main(sweep_args(out, "--no-figures", "--episodes", "12")) == 0
+    assert cli.main(sweep_args(out, "--no-figures", "--episodes", "12", "--overwrite")) == 0
     assert not (out / "fig3.png").exists() and not (out / "sensitivity.png").exists()
     assert not (out / "returns_long.csv").exists()  # it described the earlier run
 

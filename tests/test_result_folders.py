@@ -78,7 +78,7 @@ def test_a_run_stopped_while_saving_leaves_a_marker_that_loading_refuses(tmp_pat
 
     monkeypatch.setattr(GridResult, "write_files", killed)
     with pytest.raises(KeyboardInterrupt):
-        sweeps.run_sweep(tmp_path, **SWEEP)
+        sweeps.run_sweep(tmp_path, **SWEEP, overwrite=True)  # replaced (point 5)
     assert folder_lock.marked_stage(tmp_path) == "results"
     with pytest.raises(ValueError, match="half-written"):
         GridResult.load(tmp_path)

@@ -117,6 +117,14 @@ def check_bool(name: str, value: Any) -> bool:
     return bool(value)
 
 
+def json_plain(value: Any) -> Any:
+    """A NumPy scalar or array as the Python number or list JSON writes (``json.dumps``'s
+    ``default``: any other type is refused as JSON refuses it)."""
+    if isinstance(value, (np.generic, np.ndarray)):
+        return value.tolist()
+    raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
+
+
 def check_writable_dir(name: str, path: Any) -> Path:
     """Create folder ``path`` if needed and check files can be written into it.
 

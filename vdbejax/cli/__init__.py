@@ -15,6 +15,7 @@ from typing import Any
 
 from vdbejax import __version__
 from vdbejax import _interrupts as interrupts
+from vdbejax.cli.info_commands import add_compare, add_list, compare_command, list_command
 from vdbejax.cli.paper_commands import (
     ablate_command,
     add_ablate,
@@ -50,6 +51,8 @@ COMMANDS = {
     "scale": (add_scale, scale_command),
     "bench": (add_bench, bench_command),
     "depth": (add_depth, depth_command),
+    "list": (add_list, list_command),
+    "compare": (add_compare, compare_command),
 }
 
 

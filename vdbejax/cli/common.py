@@ -14,8 +14,12 @@ if TYPE_CHECKING:
 
 
 def add_run_flags(p: argparse.ArgumentParser, resume: str) -> None:
-    """The flags of every command that trains: --resume, --devices, --memory-budget."""
+    """The flags of every command that trains: --resume, --overwrite, --devices,
+    --memory-budget."""
     p.add_argument("--resume", action="store_true", help=resume)
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the finished results (or an interrupted run's checkpoint) the"
+                        " output folder holds; without it that is refused")
     p.add_argument("--devices", type=parse_cli_number, default=None,
                    help="devices to shard the agents over (default: all)")
     p.add_argument("--memory-budget", default=None,
@@ -32,7 +36,7 @@ def add_evaluate_flag(p: argparse.ArgumentParser, where: str) -> None:
 
 
 def run_flags(args: argparse.Namespace) -> dict[str, Any]:
-    return {"resume": args.resume, "devices": args.devices,
+    return {"resume": args.resume, "overwrite": args.overwrite, "devices": args.devices,
             "memory_budget_bytes": args.memory_budget}
 
 

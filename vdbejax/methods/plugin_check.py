@@ -352,6 +352,17 @@ def _count(name: str, value: Any, label: str = " num_uniforms") -> int:
     return int(value)
 
 
+def _is_number(value: Any) -> bool:
+    """A real number: a Python or NumPy one, or a 0-d array (a traced leaf) of one."""
+    if isinstance(value, (bool, np.bool_)):
+        return False
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return True
+    dtype = getattr(value, "dtype", None)
+    return (dtype is not None and np.ndim(value) == 0
+            and (jnp.issubdtype(dtype, jnp.integer) or jnp.issubdtype(dtype, jnp.floating)))
+
+
 def _table_values(name: str, specs: Any, row: Any, scalar: Any) -> dict[str, Any]:
     if not isinstance(specs, Mapping):
         raise ValueError(f"{name} tables() returned {type(specs).__name__}: must return"
@@ -361,6 +372,11 @@ def _table_values(name: str, specs: Any, row: Any, scalar: Any) -> dict[str, Any
         if not isinstance(spec, Table) or spec.per not in TABLE_KINDS:
             raise ValueError(f"{name} table {key!r}={spec!r} is invalid: must be"
                              " Table('state', 'pair' or 'stage', init)")
+        if not _is_number(spec.init):
+            shape = np.shape(spec.init) if hasattr(spec.init, "shape") else None
+            raise ValueError(f"{name} table {key!r} init={spec.init!r} is invalid: must be a"
+                             " number, every entry's start value"
+                             + (f" (not an array of shape {shape})" if shape else ""))
         values[key] = scalar if spec.per == "state" else row
     return values
 

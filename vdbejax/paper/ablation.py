@@ -90,9 +90,10 @@ def run_variant(
       seeds, episodes, seed: run size.
       replicates: independent groups of ``seeds`` agents (:mod:`vdbejax.results.replicates`).
       reuse: load a saved result of the same variant and size instead of rerunning (a
-        folder a killed run left half-written is continued from its checkpoint instead).
+        folder a killed run left half-written is continued from its checkpoint instead);
+        ``False`` retrains and replaces what the folder holds.
       progress: progress bar on stderr.
-      run: ``resume``, ``devices`` and ``memory_budget_bytes`` for the variant's run
+      run: ``resume``, ``overwrite``, ``devices`` and ``memory_budget_bytes`` for the variant's run
         (:class:`~vdbejax.runs.RunOptions`; its other fields are the variant's own).
       figures: draw the variant's figures (``False``: numbers and report only, and no
         figure of an earlier run is left in ``results_dir``; ``vdbejax plot --results
@@ -114,6 +115,7 @@ def run_variant(
         run = run.replace(resume=True)
     rep = reproduce(folder, seeds=seeds, episodes=episodes, seed=seed, replicates=replicates,
                     progress=progress, resume=run.resume, devices=run.devices,
+                    overwrite=run.overwrite or not reuse,
                     memory_budget_bytes=run.memory_budget_bytes, figures=figures,
                     **variant.options())
     meta = rep.result.meta
@@ -146,6 +148,7 @@ def ablate(
     resume: bool = False,
     devices: int | None = None,
     memory_budget_bytes: int | str | None = None,
+    overwrite: bool = False,
 ) -> list[VariantResult]:
     """Run every variant, score the claims, write ``REPRODUCTION.md`` (mode ``options``),
     ``ATTRIBUTION.md`` (mode ``attribution``) or ``FACTORIAL.md`` (mode ``factorial``)
@@ -173,6 +176,8 @@ def ablate(
         detail of which reading decides each claim (results in ``results_dir``'s
         ``attribution/`` and ``factorial/`` subfolders, reports beside the document).
       resume: an interrupted variant continues from its checkpoint.
+      overwrite: a variant's folder holding a finished result of another size or code is
+        retrained and replaced (without it that is refused in one line).
       devices, memory_budget_bytes: devices to shard over and per-device memory budget
         of every variant's run (speed only).
 
@@ -180,19 +185,20 @@ def ablate(
       the scored variants.
 
     Raises:
-      ValueError: no variants, duplicate names, or a missing notes file.
+      ValueError: no variants, duplicate names, or a notes file that is missing, unreadable
+        or not UTF-8 text (all before anything trains).
     """
     variants = list(variants)
     if not variants:
         raise ValueError("variants is empty: need at least one variant")
     if len({v.name for v in variants}) != len(variants):
         raise ValueError("variant names must be unique")
-    if notes is not None and not Path(notes).is_file():
-        raise ValueError(f"notes file {str(notes)!r} does not exist")
+    notes_text = read_notes(notes)  # read now: a bad file fails before anything trains
     if mode not in MODES:
         raise ValueError(f"mode={mode!r} is invalid: must be one of {', '.join(MODES)}")
     document, figures_dir = MODES[mode]
-    knobs = RunOptions(resume=resume, devices=devices, memory_budget_bytes=memory_budget_bytes)
+    knobs = RunOptions(resume=resume, overwrite=overwrite, devices=devices,
+                       memory_budget_bytes=memory_budget_bytes)
     # The run's size is checked before any folder is made (a refusal leaves nothing behind).
     check_int("seeds", seeds, 1, INT32_MAX)
     check_replicates(replicates, seeds)
@@ -207,7 +213,28 @@ def ablate(
             and not Path(p).exists()]
     with _removed_if_refused(made):
         return _ablate(out_dir, figures_dir, results_dir, document, variants, seeds, episodes,
-                       seed, replicates, notes, reuse, progress, mode, sections, knobs)
+                       seed, replicates, notes, notes_text, reuse, progress, mode, sections,
+                       knobs)
+
+
+def read_notes(notes: str | os.PathLike | None) -> str | None:
+    """The notes file's text (None without one).
+
+    Raises:
+      ValueError: a missing or unreadable file, or one that is not UTF-8 text, naming it.
+    """
+    if notes is None:
+        return None
+    if not isinstance(notes, (str, os.PathLike)) or not Path(notes).is_file():
+        raise ValueError(f"notes file {str(notes)!r} does not exist")
+    try:
+        return Path(notes).read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:
+        raise ValueError(f"notes file {str(notes)!r} is not UTF-8 text (byte {error.start}:"
+                         f" {error.reason}): save it as UTF-8") from None
+    except OSError as error:
+        raise ValueError(f"notes file {str(notes)!r} is unreadable:"
+                         f" {error.strerror or error}") from None
 
 
 @contextlib.contextmanager
@@ -224,8 +251,9 @@ def _removed_if_refused(folders: list[Path]) -> Iterator[None]:
 
 def _ablate(out_dir: str | os.PathLike, figures_dir: str, results_dir: str | os.PathLike | None,
             document: str, variants: list[Variant], seeds: int, episodes: int, seed: int,
-            replicates: int, notes: str | os.PathLike | None, reuse: bool, progress: bool,
-            mode: str, sections: bool, knobs: RunOptions) -> list[VariantResult]:
+            replicates: int, notes: str | os.PathLike | None, text: str | None, reuse: bool,
+            progress: bool, mode: str, sections: bool, knobs: RunOptions
+            ) -> list[VariantResult]:
     """:func:`ablate` once its options are checked."""
     out = check_writable_dir("out", out_dir)
     figures = check_writable_dir("out", out / figures_dir)
@@ -244,7 +272,6 @@ def _ablate(out_dir: str | os.PathLike, figures_dir: str, results_dir: str | os.
             extra.append((title, SECTION_INTROS[section_mode], section_dir, [
                 _run_reporting(v, section_raw, out / section_dir, REPORT_ASSETS, size, reuse,
                                progress, knobs) for v in mode_variants(section_mode)]))
-    text = Path(notes).read_text() if notes is not None else None
     command = _command(out, raw, figures, variants, size, mode, sections, notes)
     io.atomic_write_text(out / document, render_document(results, figures_dir, command, text,
                                                          figures=mode == "options",

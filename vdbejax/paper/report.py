@@ -24,6 +24,26 @@ def cap_message(meta: dict[str, Any]) -> str:
             f" {meta.get('longest_episode', '?'):,} steps")
 
 
+#: What each reading of the paper is (``reproduce(reading=…)``, ``--reading``).
+READING_TEXT = {
+    "textbook": "the paper's text, as docs/task.md specifies it",
+    "authors": "the first author's published code: its task table and agent details",
+}
+
+
+def reading_line(meta: dict[str, Any]) -> str:
+    """Which reading of the paper a run is (and the agent details it applies), in one
+    sentence; results saved before the reading was recorded are read from their task."""
+    reading = meta.get("reading") or {"table_cleaning": "textbook",
+                                      "cruz2018": "authors"}.get(meta.get("mdp", ""), "?")
+    other = {"textbook": "authors", "authors": "textbook"}.get(reading)
+    details = meta.get("details") or {}
+    return (f"Reading: **{reading}** ({READING_TEXT.get(reading, 'not recorded')})"
+            + (f", agent details {details}" if details else "")
+            + (f"; the other reading is `vdbejax reproduce --reading {other}`, and which detail"
+               " decides each claim is `vdbejax ablate --sections`" if other else "") + ".")
+
+
 def headline_rule(replicates: int) -> str:
     """The rule that turns the pooled and the replicates' verdicts into the headline."""
     need = stable_count(replicates)
@@ -125,6 +145,8 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
         agents = f"{meta.get('num_seeds', '?')} agents"
     lines = [
         "# Reproduction report: Cruz et al. (2018), claim by claim",
+        "",
+        reading_line(meta),
         "",
         f"Task `{meta.get('mdp', '?')}`, {agents} × "
         f"{meta.get('num_episodes', '?')} episodes per setting, root seed {meta.get('seed', '?')}, "

@@ -152,6 +152,7 @@ def reproduce(
     alpha: float = PAPER_ALPHA,
     chunk_episodes: int | None = None,
     resume: bool = False,
+    overwrite: bool = False,
     progress: bool = True,
     memory_budget_bytes: int | str | None = None,
     devices: int | None = None,
@@ -193,7 +194,9 @@ def reproduce(
       chunk_episodes: episodes per jitted chunk (checkpoint granularity; None: the plan's,
         :func:`~vdbejax.runs.plan.default_chunk_episodes`: 100 for the paper grid).
       resume: continue an interrupted run from ``out_dir/checkpoint.npz``
-        (bit-identically).
+        (bit-identically), or load ``out_dir``'s finished result of this same run.
+      overwrite: replace a finished result (or an interrupted run's checkpoint) that
+        ``out_dir`` holds; without it that is refused (:func:`~vdbejax.studies.train_in_folder`).
       progress: a progress bar and a closing status line on stderr.
       memory_budget_bytes: per-device memory budget, passed to
         :func:`~vdbejax.experiment.run_grid`; changes only the speed, never the results.
@@ -226,13 +229,14 @@ def reproduce(
     options = AgentOptions(alpha=alpha, q_init=q_init, tie_break=tie_break)
     settings = reading_settings(reading, details)
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
-    check_int("seeds", seeds, 1, INT32_MAX)  # named as the caller knows them
-    check_int("episodes", episodes, 1, INT32_MAX)
-    check_replicates(replicates, seeds)
-    check_bool("progress", progress)
-    check_bool("figures", figures)
+    # Plain ints from here on (a NumPy integer is welcome, and meta.json is JSON).
+    seeds = check_int("seeds", seeds, 1, INT32_MAX)
+    episodes = check_int("episodes", episodes, 1, INT32_MAX)
+    replicates = check_replicates(replicates, seeds)
+    progress = check_bool("progress", progress)
+    figures = check_bool("figures", figures)
     run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
-                     memory_budget_bytes=memory_budget_bytes, devices=devices)
+                     overwrite=overwrite, memory_budget_bytes=memory_budget_bytes, devices=devices)
     prepared = prepare_grid(mdp, settings, num_seeds=seeds * replicates, num_episodes=episodes,
                             seed=seed, options=options, run=run)
     best = best_return(mdp)
@@ -264,8 +268,10 @@ def reproduce(
     elapsed = time.perf_counter() - started
     out = Path(out_dir)
     if progress:
-        agents = f"{replicates} × {seeds}" if replicates > 1 else f"{seeds}"
-        print(f"{len(result.settings)} settings × {agents} agents × {episodes} episodes: "
+        agents = (f"{replicates} replicates × {seeds} agents" if replicates > 1
+                  else f"{seeds} agents")
+        print(f"{reading} reading: {len(result.settings)} settings × {agents} × {episodes}"
+              " episodes: "
               f"training {result.meta['elapsed_seconds']:.1f} s, total {elapsed:.1f} s "
               f"→ {out}", file=sys.stderr)
     return Reproduction(result, summary, claims, best, out, elapsed)

@@ -59,6 +59,12 @@ class GridResult:
         every = int(self.meta["evaluate_every"])
         return every * np.arange(1, self.policy_values.shape[2] + 1, dtype=np.int64)
 
+    def __repr__(self) -> str:
+        """One line: the sizes and the task, never the arrays (millions of numbers)."""
+        stopped = "" if self.episodes_run is None else ", stopped early"
+        return (f"GridResult({len(self.settings)} settings × {self.num_seeds} agents ×"
+                f" {self.num_episodes} episodes, task {self.meta.get('mdp', '?')!r}{stopped})")
+
     @property
     def num_seeds(self) -> int:
         return int(self.returns.shape[1])
@@ -201,6 +207,10 @@ class GridResult:
         from vdbejax.results.folder_lock import MARKER_FILE, marked_stage
 
         out = Path(out_dir)
+        if not out.is_dir():  # a file, or nothing: not a folder's missing files
+            what = "is a file" if out.exists() else "does not exist"
+            raise ValueError(f"results folder {str(out)!r} {what}: give the folder a run wrote"
+                             f" ({io.RETURNS_FILE}, {io.CONFIGS_FILE}, {io.META_FILE})")
         missing = [f for f in (io.RETURNS_FILE, io.CONFIGS_FILE) if not (out / f).exists()]
         if missing:
             raise ValueError(f"results folder {str(out)!r} lacks {', '.join(missing)}")

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from vdbejax.methods.agents import Setting
+from vdbejax.validation import json_plain
 
 RETURNS_FILE = "returns.npz"
 CONFIGS_FILE = "configs.csv"
@@ -176,8 +177,8 @@ def load_settings(path: str | os.PathLike) -> list[Setting]:
 
 
 def save_json(path: str | os.PathLike, data: dict[str, Any]) -> None:
-    """Write ``data`` as indented, key-sorted JSON atomically."""
-    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
+    """Write ``data`` as indented, key-sorted JSON atomically (NumPy scalars as numbers)."""
+    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True, default=json_plain) + "\n")
 
 
 def load_json(path: str | os.PathLike) -> dict[str, Any]:

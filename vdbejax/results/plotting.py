@@ -79,6 +79,12 @@ def curve_label(setting: Any, varying: Sequence[str]) -> str:
     return ", ".join(f"{_symbol(n)}={_fmt(values[n])}" for n in names) or setting.label
 
 
+def curve_width(index: int, curves: int) -> float:
+    """Line width of a panel's ``index``-th of ``curves`` curves, 2.4 down to 0.8 points:
+    curves that coincide (the paper's VDBE-Softmax ones) show as nested colour stripes."""
+    return 1.2 if curves <= 1 else 2.4 - 1.6 * index / (curves - 1)
+
+
 def _fmt(value: Any) -> str:
     return f"{value:g}" if isinstance(value, float) else str(value)
 
@@ -146,8 +152,8 @@ def figure3(
                                     color=style["color"], alpha=0.18, lw=0)
                 curve = statistics.curves[c] if smoothing == "trailing" else convolve_full(
                     result.returns[c].mean(0), window)[window - 1:]
-                ax.plot(episodes, curve, lw=1.2, label=curve_label(result.settings[c], varying),
-                        **style)
+                ax.plot(episodes, curve, lw=curve_width(k, len(indices)),
+                        label=curve_label(result.settings[c], varying), **style)
             if best_return is not None:
                 ax.axhline(best_return, label=f"best {best_return:.2f}", **BEST_STYLE)
             ax.set_title(_wrap(f"{learner_title(learner)} — {explorer_title(explorer)}", 4.0,
@@ -199,6 +205,28 @@ def _extra_values(hyperparameters: str, varying: Sequence[str]) -> str:
     return ", ".join(f"{_symbol(k)}={_fmt(v)}" for k, v in values.items() if k in varying)
 
 
+def _x_axis(rows: Sequence[SummaryRow]) -> str | None:
+    """A sensitivity column's x axis: ``None`` (the explorer's parameter) when it takes
+    several values, else the first numeric hyperparameter that does (α swept at one ε)."""
+    if len({r.param for r in rows}) > 1:
+        return None
+    values = [_parsed(r.hyperparameters) for r in rows]
+    for name in _differing(values):
+        if name and all(type(v.get(name)) in (int, float) for v in values):
+            return name
+    return None
+
+
+def _x_value(row: SummaryRow, axis: str | None) -> float:
+    return row.swept_param() if axis is None else float(_parsed(row.hyperparameters)[axis])
+
+
+def _line_key(row: SummaryRow, axis: str | None) -> str:
+    """The hyperparameters that tell a column's lines apart (all but ``axis``), as JSON."""
+    others = {k: v for k, v in _parsed(row.hyperparameters).items() if k != axis}
+    return row.hyperparameters if axis is None else json.dumps(others, sort_keys=True)
+
+
 def _parsed(hyperparameters: str) -> dict[str, Any]:
     """A summary row's hyperparameters (``configs.csv``'s JSON); ``{"": text}`` if not JSON."""
     try:
@@ -235,8 +263,9 @@ def sensitivity(
 ) -> plt.Figure:
     """Final return and convergence episode against each explorer's parameter.
 
-    One column per explorer (its own parameter on a log x axis), one row per metric, one
-    line per learner with its 95% bootstrap interval as error bars. A flat line near the
+    One column per explorer (x: its own parameter, or, where that takes one value, the
+    hyperparameter swept beside it, e.g. α; a log axis for positive values), one row per
+    metric, one line per learner with its 95% bootstrap interval as error bars. A flat line near the
     best return means "robust to parametrization".
 
     Args:
@@ -255,8 +284,6 @@ def sensitivity(
     swept = [r for r in summary_rows(rows) if r.param is not None]
     known = [e for e in EXPLORERS if any(r.explorer == e for r in swept)]  # built-ins first
     explorers = known + list(dict.fromkeys(r.explorer for r in swept if r.explorer not in known))
-    # One line per learner and per combination of the other hyperparameters.
-    lines = list(dict.fromkeys((r.learner, r.hyperparameters) for r in swept))
     columns = max(len(explorers), 1)
     fig, axes = plt.subplots(len(SENSITIVITY_METRICS), columns, squeeze=False,
                              figsize=(5.4 * columns, 6.4), sharey="row", layout="constrained")
@@ -264,19 +291,17 @@ def sensitivity(
         axes[0, 0].text(0.5, 0.5, "no swept parameter in these settings", ha="center")
     for col, explorer in enumerate(explorers):
         mine = [r for r in swept if r.explorer == explorer]
-        varying = _differing([_parsed(r.hyperparameters) for r in mine])
+        axis = _x_axis(mine)  # None: the explorer's parameter
+        varying = [n for n in _differing([_parsed(r.hyperparameters) for r in mine])
+                   if n != axis]
+        column_lines = list(dict.fromkeys((r.learner, _line_key(r, axis)) for r in mine))
         for row, (key, label, metric) in enumerate(SENSITIVITY_METRICS):
             ax = axes[row, col]
-            for k, (learner, extra) in enumerate(
-                    (learner, extra) for learner, extra in lines
-                    if any(r.learner == learner and r.hyperparameters == extra for r in mine)):
-                points = sorted((r for r in swept
-                                 if r.learner == learner and r.explorer == explorer
-                                 and r.hyperparameters == extra),
-                                key=SummaryRow.swept_param)
-                if not points:
-                    continue
-                x = np.array([r.swept_param() for r in points])
+            for k, (learner, extra) in enumerate(column_lines):
+                points = sorted((r for r in mine
+                                 if r.learner == learner and _line_key(r, axis) == extra),
+                                key=lambda r: _x_value(r, axis))
+                x = np.array([_x_value(r, axis) for r in points])
                 values = [metric(r) for r in points]
                 y = np.array([value for value, _, _ in values], np.float64)
                 # Intervals may be missing from older summaries: plot without error bars then.
@@ -302,14 +327,16 @@ def sensitivity(
                             ms=7, fillstyle="none", clip_on=False,
                             color=drawn.lines[0].get_color(), transform=ax.get_xaxis_transform(),
                             label=f"{name}: {CENSORED_LABEL}")
-            ax.set_xscale("log")
+            if all(_x_value(r, axis) > 0 for r in mine):
+                ax.set_xscale("log")
             if key == "final_return" and best_return is not None:
                 ax.axhline(best_return, label=f"best {best_return:.2f}", **BEST_STYLE)
             if row == 0:
                 ax.set_title(_wrap(explorer_title(explorer), 4.0, 10), fontsize=10)
             if row == len(SENSITIVITY_METRICS) - 1:
-                name = (parameter_names or {}).get(explorer) or parameter_name(explorer)
-                ax.set_xlabel(_symbol(name) + " (log scale)")
+                name = axis or (parameter_names or {}).get(explorer) or parameter_name(explorer)
+                ax.set_xlabel(_symbol(name) + (" (log scale)" if ax.get_xscale() == "log"
+                                               else ""))
             if col == 0:
                 ax.set_ylabel(label)
             ax.grid(alpha=0.3, which="both")

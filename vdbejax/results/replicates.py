@@ -36,8 +36,7 @@ REPLICATE_COLUMNS = ["replicate", "config", "learner", "explorer", "param", "fin
 
 def check_replicates(replicates: int, agents: int) -> int:
     """``replicates`` checked (a whole number ≥ 1 whose ``replicates × agents`` fits)."""
-    check_int("replicates", replicates, 1, max(1, INT32_MAX // max(1, agents)))
-    return int(replicates)
+    return check_int("replicates", replicates, 1, max(1, INT32_MAX // max(1, agents)))
 
 
 def annotate_replicates(meta: dict, replicates: int, per: int) -> None:

@@ -23,6 +23,8 @@ from typing import Any
 
 from vdbejax.results import io
 
+#: The summary file of a result folder (replicate 0's where it has replicates).
+SUMMARY_FILE = "summary.csv"
 #: ``summary.csv``'s columns, in order (``hyperparameters`` goes after ``param`` when a
 #: setting has values besides its swept parameter, ``episodes_cut`` and ``agents_cut`` at
 #: the end for a task whose step limit is only a safety cap:

@@ -165,8 +165,9 @@ class StudyEstimate:
 
 def _common(estimate: RunEstimate | StudyEstimate) -> str:
     """Training's bound with its agent-steps, and the statistics' forecast."""
-    return (f"training ≥ {duration(estimate.training_seconds)}"
-            f" ({count(estimate.fewest_steps)} to {count(estimate.most_steps)} agent-steps),"
+    fewest, most = count(estimate.fewest_steps), count(estimate.most_steps)
+    steps = fewest if fewest == most else f"{fewest} to {most}"
+    return (f"training ≥ {duration(estimate.training_seconds)} ({steps} agent-steps),"
             f" statistics and figures ≈ {duration(estimate.statistics_seconds)}")
 
 
@@ -188,7 +189,10 @@ def count(number: float) -> str:
 
 
 def duration(seconds: float) -> str:
-    """``"42 s"``, ``"3.5 min"`` or ``"2.1 h"``."""
+    """``"0.4 s"``, ``"42 s"``, ``"3.5 min"`` or ``"2.1 h"`` (two significant digits below
+    10 s: a short bound is not rounded to a vacuous "0 s")."""
+    if seconds < 10:
+        return f"{seconds:.2g} s"
     if seconds < 90:
         return f"{seconds:.0f} s"
     if seconds < 5400:

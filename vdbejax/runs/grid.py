@@ -52,7 +52,7 @@ from vdbejax.runs.options import RunOptions
 from vdbejax.runs.plan import RunPlan, make_plan
 from vdbejax.runs.state import RunState
 from vdbejax.runs.stop import StopPolicy
-from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int, check_writable_dir
+from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int, check_writable_dir, json_plain
 
 
 def grid_agents(settings: Sequence[Setting], num_seeds: int, seed: int = 0,
@@ -279,8 +279,7 @@ def run_prepared(prepared: PreparedGrid, programs: Programs | None = None) -> Gr
 
 def _failing_quietly(writer: CheckpointWriter) -> Callable[[RunState], None]:
     """The checkpoint stage: a checkpoint that cannot be written (disk full) stops the
-    checkpoints, not the run — what the run computes is still saved at its end (or kept
-    elsewhere, :func:`~vdbejax.results.folder_lock.save_run`)."""
+    checkpoints, not the run (what it computes is saved at its end, or kept elsewhere)."""
     failed: list[OSError] = []
 
     def write(state: RunState) -> None:
@@ -357,7 +356,8 @@ def nonfinite_message(settings: Sequence[Setting], nonfinite: np.ndarray,
 
 
 def _fingerprint(description: dict[str, Any]) -> str:
-    return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
+    text = json.dumps(description, sort_keys=True, default=json_plain)  # NumPy scalars too
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def _fingerprint_arrays(mdp: TabularMDP) -> str:

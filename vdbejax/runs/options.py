@@ -13,6 +13,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from vdbejax.engine.progress import ProgressCallback
 from vdbejax.runs.stop import FixedBudget, StopPolicy, check_stop
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, parse_bytes
@@ -33,6 +35,9 @@ class RunOptions:
       checkpoint: file written after every chunk (atomically), with its episode log
         beside it (:mod:`vdbejax.runs.checkpoint`).
       resume: continue from ``checkpoint`` if it exists.
+      overwrite: a result folder (:func:`~vdbejax.studies.train_in_folder`) may replace
+        the finished result (or discard the checkpoint) it already holds; without it that
+        is refused in one line.
       memory_budget_bytes: device memory the agents may use, per device (an int or a
         size such as ``"512M"``; default: half the free memory of the smallest device).
         Agents that do not fit run in sequential batches.
@@ -52,6 +57,7 @@ class RunOptions:
     progress: bool | ProgressCallback = False
     checkpoint: str | os.PathLike | None = None
     resume: bool = False
+    overwrite: bool = False
     memory_budget_bytes: int | str | None = None
     devices: int | None = None
     stop: StopPolicy = dataclasses.field(default_factory=FixedBudget)
@@ -66,6 +72,8 @@ class RunOptions:
         if self.chunk_episodes is not None:
             fix("chunk_episodes", check_int("chunk_episodes", self.chunk_episodes, 1,
                                             INT32_MAX))
+        if isinstance(self.progress, np.bool_):
+            fix("progress", bool(self.progress))
         if not (isinstance(self.progress, bool) or callable(self.progress)):
             raise ValueError(f"progress={self.progress!r} is invalid: must be True, False or a"
                              " callable progress(done, total, elapsed)")
@@ -76,7 +84,8 @@ class RunOptions:
             if Path(self.checkpoint).exists() and not Path(self.checkpoint).is_file():
                 raise ValueError(f"checkpoint={str(self.checkpoint)!r} is invalid: it exists"
                                  " and is not a file")
-        check_bool("resume", self.resume)
+        fix("resume", check_bool("resume", self.resume))
+        fix("overwrite", check_bool("overwrite", self.overwrite))
         if self.memory_budget_bytes is not None:
             fix("memory_budget_bytes", parse_bytes("memory_budget_bytes",
                                                    self.memory_budget_bytes))

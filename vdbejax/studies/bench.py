@@ -165,6 +165,7 @@ def run_bench(
     cost_limit: float = COST_LIMIT,
     quick: bool = False,
     resume: bool = False,
+    overwrite: bool = False,
     memory_budget_bytes: int | str | None = None,
     devices: int | None = None,
     progress: bool = True,
@@ -189,6 +190,8 @@ def run_bench(
       quick: the small benchmark of CI: :data:`QUICK_TASKS`, ``QUICK_METHODS``,
         ``QUICK_SEEDS``, ``QUICK_TUNE_SEEDS``, ``QUICK_EPISODES`` (override those arguments).
       resume: continue an interrupted benchmark (whole task folders are reused).
+      overwrite: replace the finished results its folders hold (without it, a folder
+        holding one is refused in one line before it is trained again).
       memory_budget_bytes, devices: as :class:`~vdbejax.runs.RunOptions` (speed only).
       progress: status lines and the run's progress bar on stderr.
       figures: write the figures.
@@ -217,8 +220,8 @@ def run_bench(
     seed = check_int("seed", seed, 0, UINT32_MAX - 1)
     cost_limit = check_in_range("cost_limit", cost_limit, 0.0, math.inf, low_open=True)
     chosen_methods = select_methods(methods)
-    knobs = RunOptions(resume=resume, memory_budget_bytes=memory_budget_bytes, devices=devices,
-                       progress=progress)
+    knobs = RunOptions(resume=resume, overwrite=overwrite, memory_budget_bytes=memory_budget_bytes,
+                       devices=devices, progress=progress)
     bench_tasks = make_tasks(tasks)
     ran = {t.name: [m for m in chosen_methods if t.cost(m) <= cost_limit] for t in bench_tasks}
     left_out = [{"task": t.name, "method": m.name, "cost": t.cost(m), "limit": cost_limit}

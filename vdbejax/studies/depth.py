@@ -18,6 +18,8 @@ folder per task under ``runs/``, checkpointed and resumable):
 "Solved" is the benchmark's: a 20-episode moving average of the normalised return (0 =
 the uniformly random policy, 1 = the optimum) reaching 0.9. Per method and family the
 study fits, over the depths where at least half of its agents solved (a finite median),
+when there are at least :data:`MIN_FITTED_DEPTHS` of them (a line through two points fits
+any growth and has no error to show),
 the log-log slope of the median episodes to solve against N (the degree of a polynomial
 growth) and the log2-linear slope (the doubling rate of an exponential one), each with a
 95 % bootstrap interval over agents (each depth's agents resampled on their own; a
@@ -59,7 +61,9 @@ EPISODES = 1000
 METHODS = ("egreedy", "softmax", "vdbe", "vdbe_softmax", "max_boltzmann", "ucb1",
            "count_bonus", "optimistic_q", "ucb_h", "delayed_q", "rmax", "mbie_eb", "ucbvi",
            "dyna_q_plus", "q_lambda")
-QUICK_SIZES, QUICK_SEEDS, QUICK_EPISODES = (4, 6), 3, 100
+QUICK_SIZES, QUICK_SEEDS, QUICK_EPISODES = (4, 6, 8), 3, 100
+#: The fewest depths a growth slope is fitted over.
+MIN_FITTED_DEPTHS = 3
 QUICK_METHODS = ("egreedy", "vdbe", "ucb1", "rmax")
 RESAMPLES = 1000
 CSV_FILE, SLOPES_FILE, META_FILE, RUNS_FOLDER = "depth.csv", "depth_slopes.csv", "meta.json", "runs"
@@ -108,9 +112,9 @@ def _sizes(sizes: Sequence[int] | str) -> list[int]:
     else:
         values = list(sizes)
     parsed = sorted({check_int("sizes", v, 2, 256) for v in values})
-    if len(parsed) < 2:
-        raise ValueError(f"sizes={sizes!r} is invalid: need at least two distinct sizes (2..256)"
-                         " to fit a slope")
+    if len(parsed) < MIN_FITTED_DEPTHS:
+        raise ValueError(f"sizes={sizes!r} is invalid: need at least {MIN_FITTED_DEPTHS}"
+                         " distinct sizes (2..256) to fit a slope")
     return parsed
 
 
@@ -134,6 +138,7 @@ def run_depth(
     seed: int = 0,
     quick: bool = False,
     resume: bool = False,
+    overwrite: bool = False,
     progress: bool = True,
     figure: bool = True,
     command: str | None = None,
@@ -155,6 +160,8 @@ def run_depth(
         given; the CLI refuses them).
       resume: continue an interrupted study (whole task folders reused, the interrupted
         one continued from its checkpoint).
+      overwrite: replace the finished results its folders hold (without it, a folder
+        holding one is refused in one line before it is trained again).
       progress: status lines and progress bars on stderr.
       figure: write ``depth.png``.
       command: the command line, recorded in ``depth.md`` and ``meta.json``.
@@ -204,8 +211,8 @@ def run_depth(
     out = check_writable_dir("out", out_dir)
     check_output_paths(out, [CSV_FILE, SLOPES_FILE, MARKDOWN_FILE, META_FILE]
                        + ([FIGURE_FILE] if figure else []))
-    knobs = RunOptions(resume=resume, memory_budget_bytes=memory_budget_bytes, devices=devices,
-                       progress=progress, chunk_episodes=auto_chunk(episodes),
+    knobs = RunOptions(resume=resume, overwrite=overwrite, memory_budget_bytes=memory_budget_bytes,
+                       devices=devices, progress=progress, chunk_episodes=auto_chunk(episodes),
                        evaluate_every=evaluate_every)
     versions = version_info()  # the code that runs: read before training, not after
     started = time.perf_counter()
@@ -271,7 +278,7 @@ def growth_slopes(rows: Sequence[dict[str, Any]], methods: Sequence[BenchMethod]
                   families: Sequence[str], *, seed: int = 0) -> list[dict[str, Any]]:
     """Per (family, method): the log-log and log2-linear slopes of the median episodes to
     solve against N over the depths with a finite median, with 95 % bootstrap intervals
-    (module docstring); NaN with fewer than two such depths."""
+    (module docstring); NaN with fewer than :data:`MIN_FITTED_DEPTHS` such depths."""
     rng = np.random.default_rng(seed)
     slopes = []
     for family in families:
@@ -281,7 +288,7 @@ def growth_slopes(rows: Sequence[dict[str, Any]], methods: Sequence[BenchMethod]
             row = {"family": family, "method": method.name, "title": method.title,
                    "method_family": method.family, "sizes_fitted": len(fitted),
                    "largest_solved": max((r["size"] for r in fitted), default=0)}
-            if len(fitted) < 2:
+            if len(fitted) < MIN_FITTED_DEPTHS:
                 slopes.append(dict(row, **{k: math.nan for k in SLOPE_COLUMNS[6:]}))
                 continue
             n = np.array([r["size"] for r in fitted], np.float64)

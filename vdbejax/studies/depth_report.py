@@ -29,7 +29,7 @@ def write_reports(out: Path, rows: Sequence[dict[str, Any]], slopes: Sequence[di
 
 def interval_text(row: dict[str, Any], name: str, digits: int = 2) -> str:
     """``"0.86 [0.85, 0.87]"`` for ``row[name]`` and its ``_low``/``_high``; ``"-"`` for NaN
-    (a slope over fewer than two depths)."""
+    (no slope: too few solved depths)."""
     value = row[name]
     if not math.isfinite(value):
         return "-"

@@ -7,11 +7,14 @@ created), then:
 1. checks the folder (created if needed, writable, no output path that is a folder), and
    announces a long run with its estimate (:mod:`vdbejax.runs.estimate`);
 2. locks it (:class:`~vdbejax.results.folder_lock.FolderLock`) until its last file is written;
-3. runs, checkpointing to ``checkpoint.npz`` after every chunk; with ``resume`` it
-   continues from there, or — if the folder already holds this run's whole result (same
-   fingerprint) — loads it instead of training again; without ``resume`` a checkpoint left
-   there by an interrupted run is refused in one line (its progress is not thrown away);
-4. removes the outputs an earlier run left (figures, the long CSV), saves
+3. refuses, in one line, to replace what the folder already holds unless ``overwrite``:
+   a finished result (``meta.json`` of a whole run) and, without ``resume``, a checkpoint
+   left by an interrupted run (its progress is not thrown away); ``resume`` continues only
+   the same run (same fingerprint): the folder's whole result is loaded instead of
+   training again, a checkpoint of another run is refused;
+4. runs, checkpointing to ``checkpoint.npz`` after every chunk (continuing from it with
+   ``resume``);
+5. removes the outputs an earlier run left (figures, the long CSV), saves
    ``returns.npz``, ``configs.csv``, ``meta.json`` (marked while written,
    :mod:`vdbejax.results.folder_lock`), removes the checkpoint, and writes the outputs.
 """
@@ -24,7 +27,13 @@ from typing import Any, TypeVar
 
 from vdbejax.engine.distributed import process_checkpoint_path
 from vdbejax.results import io
-from vdbejax.results.folder_lock import FolderLock, check_output_paths, rescue, save_run
+from vdbejax.results.folder_lock import (
+    FolderLock,
+    check_output_paths,
+    marked_stage,
+    rescue,
+    save_run,
+)
 from vdbejax.results.grid_result import GridResult
 from vdbejax.runs.checkpoint import log_path, remove_checkpoint
 from vdbejax.runs.estimate import announce, estimate_prepared
@@ -38,6 +47,42 @@ CHECKPOINT_FILE = "checkpoint.npz"
 def checkpoint_files() -> list[str]:
     """The checkpoint's two files in a result folder."""
     return [CHECKPOINT_FILE, log_path(CHECKPOINT_FILE).name]
+
+
+def finished_fingerprint(out: Path) -> str | None:
+    """The fingerprint of the whole run ``out`` holds (``""`` for one saved without a
+    fingerprint), or None: no ``meta.json``, an unreadable one, or a run whose saving was
+    cut off (its marker is still there, :mod:`vdbejax.results.folder_lock`)."""
+    meta_file = out / io.META_FILE
+    if not meta_file.is_file() or marked_stage(out) is not None:
+        return None
+    try:
+        meta = io.load_json(meta_file)
+    except (OSError, ValueError):
+        return None
+    return str(meta.get("fingerprint", "")) if isinstance(meta, dict) else None
+
+
+def check_replaceable(out: Path, prepared: PreparedGrid, name: str) -> None:
+    """Refuse to replace what ``out`` holds without ``prepared.run.overwrite`` (module
+    docstring, step 3)."""
+    run = prepared.run
+    if run.overwrite:
+        return
+    hint = "pass --overwrite (overwrite=True) to replace it, or choose another folder"
+    finished = finished_fingerprint(out)
+    if finished is not None and not run.resume:
+        raise ValueError(f"{name}={str(out)!r} holds a finished result ({io.META_FILE}): {hint};"
+                         " --resume (resume=True) loads it if it is this same run")
+    if finished is not None and finished != prepared.fingerprint:
+        raise ValueError(f"{name}={str(out)!r} holds the finished result of a different run"
+                         f" (fingerprint {finished or 'none'}, this run's"
+                         f" {prepared.fingerprint}): --resume continues only the same run; {hint}")
+    if not run.resume and process_checkpoint_path(out / CHECKPOINT_FILE).exists():
+        raise ValueError(
+            f"{name}={str(out)!r} holds the checkpoint of an interrupted run"
+            f" ({CHECKPOINT_FILE}): resume it (--resume, resume=True), or delete"
+            f" {' and '.join(checkpoint_files())} (or pass --overwrite) to start again")
 
 
 def saved_result(out: Path, fingerprint: str) -> GridResult | None:
@@ -73,7 +118,8 @@ def train_in_folder(
     Args:
       out_dir: the result folder (created if needed).
       prepared: the checked, planned run; its ``run.resume`` resumes (or reuses a saved
-        whole result of the same run).
+        whole result of the same run), its ``run.overwrite`` may replace what the folder
+        holds.
       write: writes the outputs: ``write(result, statistics)`` with the returns'
         :class:`~vdbejax.results.stats.CurveStatistics` (``None`` with ``statistics=False``).
       files: the files the outputs write (none may be a folder: checked before training).
@@ -87,7 +133,8 @@ def train_in_folder(
 
     Raises:
       ValueError: an unwritable folder, an output path that is a folder, a folder another
-        run holds, a checkpoint of another run; an operating-system error while writing
+        run holds, a finished result or checkpoint it may not replace (module docstring);
+        an operating-system error while writing
         (the computed results are kept, :func:`~vdbejax.results.folder_lock.save_run`).
     """
     out = check_writable_dir(name, out_dir)
@@ -96,11 +143,9 @@ def train_in_folder(
         announce(estimate_prepared(prepared, statistics=statistics), "run")
     with FolderLock(out, name) as lock:  # held from before training to the last file
         checkpoint = out / CHECKPOINT_FILE
-        if not prepared.run.resume and process_checkpoint_path(checkpoint).exists():
-            raise ValueError(
-                f"{name}={str(out)!r} holds the checkpoint of an interrupted run"
-                f" ({CHECKPOINT_FILE}): resume it (--resume, resume=True), or delete"
-                f" {' and '.join(checkpoint_files())} to start again")
+        check_replaceable(out, prepared, name)
+        if not prepared.run.resume:  # overwrite: an interrupted run's progress is given up
+            remove_checkpoint(process_checkpoint_path(checkpoint))
         result = saved_result(out, prepared.fingerprint) if prepared.run.resume else None
         if result is None:
             result = run_prepared(prepared.with_checkpoint(checkpoint))

@@ -122,6 +122,7 @@ def run_scaling(
     save_runs: bool = True,
     command: str | None = None,
     resume: bool = False,
+    overwrite: bool = False,
     memory_budget_bytes: int | str | None = None,
     devices: int | None = None,
 ) -> ScalingResult:
@@ -161,6 +162,8 @@ def run_scaling(
       resume: continue an interrupted study: variants whose result folder is whole are
         loaded, the interrupted one continues from its checkpoint
         (``runs/NxK/checkpoint.npz``), the others run.
+      overwrite: replace the finished results its folders hold (without it, a folder
+        holding one is refused in one line before it is trained again).
       memory_budget_bytes: per-device memory budget (sequential batches when the agents
         do not fit); changes only the speed.
       devices: devices to shard the agents over (default all); changes only the speed.
@@ -205,7 +208,8 @@ def run_scaling(
     settings = study_settings(chosen, learners)
     for setting in settings:  # unknown learners: one line before anything runs
         make_agent(setting)
-    knobs = RunOptions(resume=resume, memory_budget_bytes=memory_budget_bytes, devices=devices)
+    knobs = RunOptions(resume=resume, overwrite=overwrite, memory_budget_bytes=memory_budget_bytes,
+                       devices=devices)
     tasks = []
     for sections, goblets in parsed:  # every task built and solved before any folder or run
         size = f"{sections}x{goblets}"

@@ -29,7 +29,7 @@ from vdbejax.results.replicates import (
     write_replicates,
 )
 from vdbejax.results.stats import CurveStatistics
-from vdbejax.results.summary import write_summary
+from vdbejax.results.summary import SUMMARY_FILE, write_summary
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.studies import train_in_folder
 from vdbejax.studies.sweep_file import (  # noqa: F401 (the sweep file's names, here since 0.1)
@@ -44,7 +44,6 @@ from vdbejax.studies.task_names import (
 )
 from vdbejax.validation import INT32_MAX, check_bool, check_int
 
-SUMMARY_FILE = "summary.csv"
 FIGURE_FILE = "fig3.png"
 SENSITIVITY_FILE = "sensitivity.png"
 #: The learned policies' gap to the optimum (a run with ``evaluate_every``).
@@ -134,6 +133,7 @@ def run_sweep(
     progress: bool = True,
     figures: bool = True,
     resume: bool = False,
+    overwrite: bool = False,
     memory_budget_bytes: int | str | None = None,
     devices: int | None = None,
     evaluate_every: int | None = None,
@@ -165,7 +165,10 @@ def run_sweep(
       progress: a progress bar on stderr.
       figures: write ``fig3.png`` and ``sensitivity.png``.
       resume: continue an interrupted run from ``out_dir/checkpoint.npz`` (written after
-        every chunk, removed once the results are saved).
+        every chunk, removed once the results are saved), or load ``out_dir``'s finished
+        result of this same run.
+      overwrite: replace a finished result (or an interrupted run's checkpoint) that
+        ``out_dir`` holds; without it that is refused.
       memory_budget_bytes: per-device memory budget (sequential batches when the agents
         do not fit); changes only the speed.
       devices: devices to shard the agents over (default all); changes only the speed.
@@ -185,13 +188,13 @@ def run_sweep(
     mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)
     grid_settings = sweep_settings(learners, explorers, axes, shared, exclude, settings)
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
-    check_int("seeds", seeds, 1, INT32_MAX)
-    check_int("episodes", episodes, 1, INT32_MAX)
-    check_replicates(replicates, seeds)
-    check_bool("progress", progress)
-    check_bool("figures", figures)
+    seeds = check_int("seeds", seeds, 1, INT32_MAX)  # plain ints (NumPy ones welcome)
+    episodes = check_int("episodes", episodes, 1, INT32_MAX)
+    replicates = check_replicates(replicates, seeds)
+    progress = check_bool("progress", progress)
+    figures = check_bool("figures", figures)
     run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
-                     memory_budget_bytes=memory_budget_bytes, devices=devices,
+                     overwrite=overwrite, memory_budget_bytes=memory_budget_bytes, devices=devices,
                      evaluate_every=evaluate_every)
     prepared = prepare_grid(mdp, grid_settings, num_seeds=seeds * replicates, num_episodes=episodes,
                             seed=seed, run=run)

@@ -44,6 +44,10 @@ def load_plugins(plugins: Sequence[str]) -> None:
                 importlib.import_module(plugin)
         except ValueError:
             raise
+        except SystemExit as stop:  # a script's exit: not a way to end the run
+            raise ValueError(f"plugin={plugin!r} is invalid: it called sys.exit({stop.code!r})"
+                             " while being imported (a plug-in file only defines and"
+                             " registers its classes)") from None
         except Exception as error:
             raise ValueError(f"plugin={plugin!r} is invalid: cannot import it"
                              f" ({type(error).__name__}: {error})") from None
@@ -60,7 +64,7 @@ def _user_task(task: str) -> TabularMDP:
         mdp = function()
     except ValueError:
         raise
-    except Exception as error:
+    except (Exception, SystemExit) as error:  # sys.exit() in the task's file too
         raise ValueError(f"task={task!r} is invalid: cannot build it"
                          f" ({type(error).__name__}: {error})") from None
     if not isinstance(mdp, TabularMDP):
@@ -118,9 +122,9 @@ def make_task(task: str, *, max_steps: int | None = None,
                 return mdp
             return dataclasses.replace(mdp, max_steps=jax.device_put(np.int32(max_steps)))
         return make_suite_task(task, max_steps=max_steps, invalid_action=invalid_action)
-    except ImportError as error:  # gymnasium missing: the extra to install, in one line
+    except ImportError:  # gymnasium missing: the extra to install, said once, in one line
         raise ValueError(f"task={task!r} needs gymnasium: pip install 'vdbejax[gym]'"
-                         f" ({error})") from None
+                         ) from None
     except ValueError as error:  # named as the sweep names it
         text = str(error).replace(f"name={task!r}", f"task={task!r}", 1)
         if task.startswith("gym:"):

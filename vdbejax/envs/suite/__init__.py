@@ -96,8 +96,8 @@ DEFAULT_SUITE = ("riverswim", "riverswim_normalised", "sixarms", "chain", "deeps
                  "windy_gridworld", "cliff_walking", "frozenlake4", "frozenlake8", "taxi",
                  "table_cleaning", "cruz2018", "variant:3x1")
 #: Families whose name may carry a size (``family:N``), with their default size.
-_SIZED = {"riverswim": 6, "riverswim_normalised": 6, "chain": 5, "deepsea": 10,
-          "gaussian_bandit": 10, "bernoulli_bandit": 10, "testbed": 10}
+DEFAULT_SIZES = {"riverswim": 6, "riverswim_normalised": 6, "chain": 5, "deepsea": 10,
+                 "gaussian_bandit": 10, "bernoulli_bandit": 10, "testbed": 10}
 #: The table-cleaning tasks' default truncation (``vdbejax.studies.sweeps.make_task``'s).
 TABLE_CLEANING_HORIZON = 100
 
@@ -117,7 +117,7 @@ def _parse(name: object) -> tuple[str, tuple[int, ...]]:
         if x and sections.isdigit() and goblets.isdigit():  # as sweeps.make_task reads it
             return family, (int(sections), int(goblets))
         raise _invalid(name)
-    if family in _SIZED and colon:
+    if family in DEFAULT_SIZES and colon:
         if size.isdigit() and size.isascii() and str(int(size)) == size:
             return family, (int(size),)
         raise _invalid(name)
@@ -133,7 +133,7 @@ def task_info(name: str) -> TaskInfo:
       ValueError: an unknown name.
     """
     family, sizes = _parse(name)
-    size = sizes[0] if sizes else _SIZED.get(family)
+    size = sizes[0] if sizes else DEFAULT_SIZES.get(family)
     if family in ("riverswim", "riverswim_normalised"):
         normalised = family == "riverswim_normalised"
         return TaskInfo(
@@ -256,7 +256,7 @@ def make_suite_task(name: str, *, max_steps: int | None = None,
         raise ValueError(f"invalid_action={invalid_action!r} is invalid with name={name!r}:"
                          " only table_cleaning and variant:NxK have invalid actions")
     horizon = task_info(name).horizon if max_steps is None else max_steps
-    size = sizes[0] if sizes else _SIZED.get(family)
+    size = sizes[0] if sizes else DEFAULT_SIZES.get(family)
     if family == "riverswim":
         assert size is not None
         return river_swim.make_river_swim(size, max_steps=horizon, name=name)
@@ -301,5 +301,5 @@ def suite_tasks() -> dict[str, TaskInfo]:
     return {name: task_info(name) for name in DEFAULT_SUITE}
 
 
-__all__ = ["DEFAULT_SUITE", "NAMES", "TABLE_CLEANING_HORIZON", "TaskInfo", "make_suite_task",
-           "suite_tasks", "task_info"]
+__all__ = ["DEFAULT_SIZES", "DEFAULT_SUITE", "NAMES", "TABLE_CLEANING_HORIZON", "TaskInfo",
+           "make_suite_task", "suite_tasks", "task_info"]

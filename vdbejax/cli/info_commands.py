@@ -1,0 +1,47 @@
+"""Commands that read only: ``list`` (what there is to run) and ``compare`` (two result
+folders side by side)."""
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def add_list(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("list", help="list the learners, explorers and tasks with their"
+                                    " parameters and defaults")
+    p.add_argument("kinds", nargs="*", metavar="KIND",
+                   help="what to list: learners, explorers, tasks (default: all)")
+    p.add_argument("--plugin", action="append", default=[],
+                   help="a plug-in file or module to import first (its methods are listed too)")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+
+
+def list_command(args: argparse.Namespace) -> None:
+    from vdbejax.studies.catalog import KINDS, catalog, render_catalog
+    from vdbejax.studies.task_names import load_plugins
+
+    load_plugins(args.plugin)
+    entries = catalog(args.kinds or KINDS)
+    print(json.dumps(entries, indent=2, default=repr) if args.json else render_catalog(entries),
+          end="\n" if args.json else "")
+
+
+def add_compare(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("compare", help="two result folders' settings side by side, with"
+                                       " intervals")
+    p.add_argument("a", metavar="A", help="a result folder")
+    p.add_argument("b", metavar="B", help="another result folder")
+    p.add_argument("--csv", default=None, help="also write the comparison as CSV to this file")
+
+
+def compare_command(args: argparse.Namespace) -> None:
+    from vdbejax.results import io
+    from vdbejax.results.compare import compare_folders, render_comparison
+
+    table = compare_folders(args.a, args.b)
+    print(render_comparison(table, args.a, args.b), end="")
+    if args.csv:
+        try:
+            io.write_csv(args.csv, table, list(table[0]) if table else ["setting"])
+        except OSError as error:
+            raise ValueError(f"cannot write {args.csv!r}: {error.strerror or error}") from None

@@ -1,0 +1,99 @@
+"""Two result folders' settings side by side (``vdbejax compare A B``): each setting's
+final return with its 95 % bootstrap interval and its convergence episode, in both.
+
+A folder's summary is its pooled one (``summary_pooled.csv``) where it has replicates,
+else ``summary.csv`` (written by every run with statistics; ``vdbejax plot --results``
+writes it for a folder without). Settings are matched by learner, explorer, parameter and
+other hyperparameters; one that only one folder has is shown with a blank other side.
+"""
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+from vdbejax.results.replicates import POOLED_SUMMARY_FILE
+from vdbejax.results.summary import SUMMARY_FILE, SummaryRow, episode_text, read_summary
+
+
+def folder_summary(folder: str | os.PathLike, name: str) -> list[SummaryRow]:
+    """A result folder's summary rows (the pooled ones where it has replicates).
+
+    Raises:
+      ValueError: no summary in the folder, or an unreadable one, naming ``name``.
+    """
+    path = Path(folder)
+    for file in (POOLED_SUMMARY_FILE, SUMMARY_FILE):
+        if (path / file).is_file():
+            try:
+                return read_summary(path / file)
+            except (OSError, ValueError) as error:
+                raise ValueError(f"{name}={str(path / file)!r} is unreadable: {error}") from None
+    raise ValueError(f"{name}={str(path)!r} has no {SUMMARY_FILE}: give a result folder"
+                     " ('vdbejax plot --results FOLDER' writes the summary of one without)")
+
+
+def setting_text(row: SummaryRow) -> str:
+    """``learner/explorer/param`` and the other hyperparameters, if any."""
+    param = "default" if row.param is None else f"{row.param:g}"
+    extra = "" if row.hyperparameters in ("", "{}") else f" {row.hyperparameters}"
+    return f"{row.learner}/{row.explorer}/{param}{extra}"
+
+
+def compare_folders(a: str | os.PathLike, b: str | os.PathLike) -> list[dict[str, Any]]:
+    """The settings of folders ``a`` and ``b`` side by side, ``a``'s order first.
+
+    Returns:
+      one dict per setting: ``setting``; ``a_final``, ``a_low``, ``a_high``,
+      ``a_convergence`` and the same for ``b`` (NaN where the folder lacks the setting);
+      ``difference`` (b − a) and ``overlap`` (the two intervals overlap; None without both).
+
+    Raises:
+      ValueError: a folder without a readable summary.
+    """
+    sides = {"a": folder_summary(a, "a"), "b": folder_summary(b, "b")}
+    keyed = {side: {(r.learner, r.explorer, r.param, r.hyperparameters): r for r in rows}
+             for side, rows in sides.items()}
+    keys = list(dict.fromkeys([*keyed["a"], *keyed["b"]]))
+    table = []
+    for key in keys:
+        entry: dict[str, Any] = {"setting": setting_text(keyed["a"].get(key)
+                                                          or keyed["b"][key])}
+        for side in ("a", "b"):
+            row = keyed[side].get(key)
+            entry.update({f"{side}_final": row.final_return if row else math.nan,
+                          f"{side}_low": row.final_ci_low if row else math.nan,
+                          f"{side}_high": row.final_ci_high if row else math.nan,
+                          f"{side}_convergence": row.convergence_episode if row else math.nan})
+        both = key in keyed["a"] and key in keyed["b"]
+        entry["difference"] = entry["b_final"] - entry["a_final"]
+        entry["overlap"] = (entry["a_low"] <= entry["b_high"] and entry["b_low"] <= entry["a_high"]
+                            if both else None)
+        table.append(entry)
+    return table
+
+
+def render_comparison(table: list[dict[str, Any]], a: str, b: str) -> str:
+    """:func:`compare_folders` as a markdown table."""
+    def final(entry: dict[str, Any], side: str) -> str:
+        if math.isnan(entry[f"{side}_final"]):
+            return "–"
+        return (f"{entry[f'{side}_final']:.3f} [{entry[f'{side}_low']:.3f},"
+                f" {entry[f'{side}_high']:.3f}]")
+
+    def episode(entry: dict[str, Any], side: str) -> str:
+        value = entry[f"{side}_convergence"]
+        return "–" if math.isnan(value) else episode_text(value)
+
+    lines = [f"A = {a}, B = {b}: final return (mean of the last 100 episodes, 95 % bootstrap"
+             " interval over agents) and convergence episode per setting", "",
+             "| setting | A final | B final | B − A | intervals | A converges | B converges |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for entry in table:
+        overlap = {True: "overlap", False: "apart", None: "–"}[entry["overlap"]]
+        difference = "–" if math.isnan(entry["difference"]) else f"{entry['difference']:+.3f}"
+        lines.append(f"| {entry['setting']} | {final(entry, 'a')} | {final(entry, 'b')} |"
+                     f" {difference} | {overlap} | {episode(entry, 'a')} |"
+                     f" {episode(entry, 'b')} |")
+    return "\n".join(lines) + "\n"
