@@ -1,7 +1,7 @@
 """The paper grid through ``vdbejax.run_grid``, called again and again in one process
-(issue 21's "warm in-process grid time"): each call's wall time and the part of it spent
-getting its programs (every call traces and lowers them afresh; compiled programs are
-found again by the lowered module's digest).
+(the warm in-process grid time): each call's wall time and the part of it spent getting
+its programs (the first call traces them; later calls find them by their trace key,
+`vdbejax/engine/programs.py`).
 
     python -m benchmarks.in_process [--calls 4] [--seeds 20] [--episodes 1000] [--json]
 

@@ -63,11 +63,13 @@ def block_program_hlo(setting: Any, lanes: int, chunk_length: int = 64) -> str:
     from vdbejax.engine import lockstep
     from vdbejax.engine.driver import init_agents
     from vdbejax.engine.programs import Programs
+    from vdbejax.engine.state import for_task
     from vdbejax.envs.table_cleaning import make_mdp
     from vdbejax.experiment import grid_agents
 
     mdp = make_mdp()
     params, keys = grid_agents([setting], lanes)
+    params = for_task(params, mdp)  # the task's facts, as run_agents hands them
     agents = jax.eval_shape(init_agents, mdp, params, keys)
     args = (mdp, params.kinds[0], agents,
             jax.ShapeDtypeStruct((lanes, chunk_length), jnp.float32),

@@ -12,7 +12,7 @@ after another (run nothing else on the machine meanwhile), for this tree and, wi
   caches warm;
 * ``in-process``: :mod:`benchmarks.in_process` in a fresh process on that tree's
   vdbejax, ``run_grid`` called ``--calls`` times; calls 2 on are the warm in-process time,
-  split into getting the programs (each call traces and lowers them afresh) and the rest
+  split into getting the programs (found by their trace key after the first call) and the rest
   (running);
 
 and once per round ``numba-2t``: :mod:`benchmarks.compare`'s ``numba_parallel`` worker

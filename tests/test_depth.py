@@ -90,7 +90,8 @@ def test_solved_is_the_benchmarks_criterion(quick: tuple[Path, depth.DepthResult
 
 def test_resume_reuses_whole_task_folders(quick: tuple[Path, depth.DepthResult]) -> None:
     out, result = quick
-    again = depth.run_depth(out, quick=True, progress=False, resume=True)
+    again = depth.run_depth(out, quick=True, progress=False, resume=True,
+                            evaluate_every=100)  # the same run
     for name, run in result.runs.items():
         np.testing.assert_array_equal(again.runs[name].returns, run.returns)
     assert [r["median_text"] for r in again.rows] == [r["median_text"] for r in result.rows]
