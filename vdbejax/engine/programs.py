@@ -87,8 +87,9 @@ class Call:
     def trace_key(self) -> tuple:
         """What fixes the traced program in this process: :meth:`signature`, the code of
         the plug-in classes in the arguments' tree and JAX's configuration."""
-        return (self.signature(), plugin_code(jax.tree.structure(self.args)),
-                _jax_settings())
+        signature = self.signature()
+        treedef = signature[4]  # the arguments' tree, flattened once
+        return (signature, plugin_code(treedef), _jax_settings())
 
 
 def plugin_code(treedef: Any) -> tuple:
