@@ -108,8 +108,14 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
     real_get = Programs.get
 
     def counting_get(self: Any, function: Any, *args: Any, **kwargs: Any) -> Any:
-        blocks[0] += function is lockstep.block_program  # one block run per program got
-        return real_get(self, function, *args, **kwargs)
+        program = real_get(self, function, *args, **kwargs)
+        if function is not lockstep.block_program:
+            return program
+
+        def counted(*call_args: Any) -> Any:  # one host round trip per block run
+            blocks[0] += 1
+            return program(*call_args)
+        return counted
 
     def run() -> Any:
         return engine.run_agents(mdp, params, keys, episodes, chunk_episodes=episodes,
@@ -143,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="lanes of the block programs whose HLO is read")
     parser.add_argument("--repeats", type=int, default=2, help="timed calls (best kept)")
     parser.add_argument("--threads", type=int, default=None,
-                        help="the sequential strategy's threads (default: the CPUs)")
+                        help="worker threads (default: the CPUs)")
     parser.add_argument("--json", action="store_true", help="one JSON object")
     args = parser.parse_args(argv)
     for name in ("seeds", "episodes", "lanes", "repeats"):

@@ -97,6 +97,30 @@ def test_compaction_chunking_and_batch_position_do_not_change_results(mdp):
     np.testing.assert_array_equal(alone.lengths[0], base.lengths[1])
 
 
+def test_lockstep_groups_on_threads_give_the_same_bits(mdp):
+    """Groups run on several threads, or one after another, or as one batch: same bits."""
+    params, keys = _grid(3)
+    one = engine.run_agents(mdp, params, keys, 10, max_batch=64, threads=1,
+                            strategy="lockstep")
+    threaded = engine.run_agents(mdp, params, keys, 10, max_batch=2, threads=3,
+                                 strategy="lockstep")
+    default = engine.run_agents(mdp, params, keys, 10, strategy="lockstep")
+    _assert_same_run(one, threaded)
+    _assert_same_run(one, default)
+
+
+def test_cache_sized_batch_fits_the_state_in_the_cache():
+    from vdbejax.engine.lockstep import MAX_SAFE_BATCH, cache_sized_batch, state_bytes_per_lane
+
+    assert cache_sized_batch(3456, cache_bytes=512 * 1024) == 128  # 151 lanes fit
+    assert cache_sized_batch(4096, cache_bytes=512 * 1024) == 128  # exactly 128
+    assert cache_sized_batch(10, cache_bytes=512 * 1024) == MAX_SAFE_BATCH
+    assert cache_sized_batch(10**8, cache_bytes=512 * 1024) == 8
+    agents = engine.init_agents(make_mdp(), *_grid(1))
+    per_lane = state_bytes_per_lane(agents)
+    assert per_lane >= 4 * make_mdp().num_states * make_mdp().num_actions  # Q at least
+
+
 def _assert_same_run(a: engine.RunResult, b: engine.RunResult) -> None:
     np.testing.assert_array_equal(a.lengths, b.lengths)
     for leaf_a, leaf_b in zip(

@@ -26,3 +26,30 @@ def test_loop_body_finds_a_copy_of_a_table():
     body = loop_body(hlo, lanes=4, actions=2)
     assert body["table_copies"] == [{"dtype": "f32", "shape": "64", "bytes": 256}]
     assert body["fusions"] == 1
+
+
+def test_auto_strategy_rule():
+    from vdbejax.engine import auto_strategy
+    from vdbejax.engine.driver import LOCKSTEP_MIN_AGENTS_ON_CPU as MIN
+
+    assert auto_strategy(MIN - 1, backend="cpu")[0] == "sequential"
+    assert auto_strategy(MIN, backend="cpu") == (
+        "lockstep", f"cpu, {MIN} agents ≥ {MIN} (LOCKSTEP_MIN_AGENTS_ON_CPU)")
+    assert auto_strategy(1, backend="gpu") == ("lockstep", "backend gpu")
+    assert auto_strategy(1, backend="cpu", sharded=True)[0] == "lockstep"
+
+
+def test_the_lockstep_and_auto_rule_benchmarks_run(capsys):
+    import json
+
+    from benchmarks import auto_rule, lockstep
+
+    assert lockstep.main(["--seeds", "1", "--episodes", "3", "--lanes", "8", "--repeats", "1",
+                          "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    lock, seq = report["runs"]
+    assert lock["host_round_trips_per_chunk"] >= len(report["kinds"])  # a block per group
+    assert lock["agent_steps"] == seq["agent_steps"] > 0  # the same work, step for step
+    assert auto_rule.main(["--seeds", "1", "--episodes", "3", "--repeats", "1", "--json"]) == 0
+    row, = json.loads(capsys.readouterr().out)["rows"]
+    assert row["agents"] == 46 and row["auto_over_better"] > 0

@@ -90,6 +90,8 @@ def test_the_plan_is_stated_in_meta(reference):
     assert reference.meta["stop"] == {"policy": "fixed_budget"}
     lockstep = run_small(strategy="lockstep")
     assert lockstep.meta["plan"]["strategy"] == lockstep.meta["strategy"] == "lockstep"
+    assert lockstep.meta["plan"]["strategy_rule"] == "asked"
+    assert plan["strategy_rule"].startswith("auto: cpu, ")  # the rule and the agents it saw
     assert_same_curves(lockstep, reference)
 
 

@@ -148,7 +148,9 @@ def test_grid_larger_than_one_device_budget_runs_in_sharded_batches(four_devices
 def test_the_plan_states_the_sharding_and_refuses_what_it_cannot_do(four_devices):
     _, info = four_devices
     assert info["plan"] == {"devices": 4, "processes": 1, "sharded": True,
-                            "strategy": "lockstep", "compact": False, "agents_per_batch": 4,
+                            "strategy": "lockstep",
+                            "strategy_rule": "auto: agents sharded over several devices",
+                            "compact": False, "agents_per_batch": 4,
                             "memory_budget_bytes": info["plan"]["memory_budget_bytes"]}
     assert info["sequential"].startswith("strategy='sequential' is invalid with devices=4")
 

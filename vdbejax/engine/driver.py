@@ -22,7 +22,9 @@ from vdbejax.engine.lockstep import (
     DEFAULT_UNROLL,
     MAX_SAFE_BATCH,
     _next_power_of_two,
+    cache_sized_batch,
     run_chunk_lockstep,
+    state_bytes_per_lane,
 )
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.programs import compile_seconds as _compile_seconds
@@ -78,7 +80,7 @@ def run_agents(
     block_iterations: int = 256,
     unroll: int = DEFAULT_UNROLL,
     min_batch: int = 8,
-    max_batch: int = MAX_SAFE_BATCH,
+    max_batch: int | None = None,
     strategy: str = "auto",
     threads: int | None = None,
     keep_final_state: bool = True,
@@ -105,18 +107,17 @@ def run_agents(
       block_iterations: lockstep iterations between compaction checks.
       unroll: lockstep iterations per loop trip.
       min_batch: smallest batch (lanes) compaction shrinks to.
-      max_batch: agents run in groups of at most this many lanes, one group after
-        another (keeps each group's Q tables cache-sized, so throughput per agent-step
-        does not fall as the number of agents grows).
+      max_batch: agents run in groups of at most this many lanes (default: on a CPU,
+        :func:`~vdbejax.engine.lockstep.cache_sized_batch` of the agents' state, so a
+        group's tables stay in one core's cache; elsewhere :data:`MAX_SAFE_BATCH`).
 
       strategy: ``"sequential"`` (native step loops of a few agents side by side; agents are
         spread over ``threads`` threads; the fast choice on CPU), ``"lockstep"`` (all
         agents of a batch advance together, one vectorised step per iteration, with
-        compaction and groups as above; for accelerators and sharded agents), or
-        ``"auto"``: sequential when the default backend is the CPU and the agents are not
-        sharded over several devices, lockstep otherwise.
-      threads: worker threads of the sequential strategy (default: the CPUs this
-        process may use).
+        compaction and groups as above; for accelerators, sharded agents and large
+        batches), or ``"auto"`` (:func:`auto_strategy`).
+      threads: worker threads on a CPU (default: the CPUs this process may use): the
+        sequential strategy's work items, or the lockstep strategy's groups, run on them.
       keep_final_state: ``False`` leaves :attr:`RunResult.final_state` ``None``, which
         spares gathering every agent's tables on the host at the end (large tasks).
       programs: the compiled programs to share with other calls of one study
@@ -139,17 +140,18 @@ def run_agents(
     check_int("block_iterations", block_iterations, 1)
     check_int("unroll", unroll, 1)
     check_int("min_batch", min_batch, 1)
-    check_int("max_batch", max_batch, 1)
+    if max_batch is not None:
+        check_int("max_batch", max_batch, 1)
     check_choice("strategy", strategy, (*STRATEGIES, "auto"))
     check_params(params, mdp.num_actions)
     params = for_task(params, mdp)
     if threads is None:
         threads = available_cpus()
     check_int("threads", threads, 1)
+    num_agents = int(np.shape(keys)[0])
     if strategy == "auto":
-        strategy = _auto_strategy(params, keys)
+        strategy, _ = auto_strategy(num_agents, sharded=_is_sharded(params, keys))
     keys = jnp.asarray(keys, jnp.uint32)
-    num_agents = int(keys.shape[0])
     chunk = min(chunk_episodes, num_episodes)
     buffer = chunk_buffer_length(chunk)
     returns = np.zeros((num_agents, num_episodes), np.float32)
@@ -189,12 +191,17 @@ def run_agents(
 
     def lockstep_chunks() -> Generator[list[Any], None, None]:
         nonlocal agents
+        assert agents is not None  # lockstep: the agents' state is here
+        on_cpu = jax.default_backend() == "cpu"
+        lanes = max_batch
+        if lanes is None:
+            lanes = (cache_sized_batch(state_bytes_per_lane(agents)) if on_cpu
+                     else MAX_SAFE_BATCH)
         for first, end in bounds:
-            assert agents is not None  # lockstep: the agents' state is here
             agents, *outputs = run_chunk_lockstep(
                 mdp, params, agents, first, end, buffer, compact=compact,
                 block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
-                max_batch=max_batch, programs=programs,
+                max_batch=lanes, programs=programs, threads=threads if on_cpu else 1,
             )
             yield outputs
 
@@ -257,15 +264,40 @@ def available_cpus() -> int:
         return os.cpu_count() or 1
 
 
-def _auto_strategy(params: AgentParams, keys: Any) -> str:
-    """``"sequential"`` on a CPU backend with unsharded agents, else ``"lockstep"``."""
-    if jax.default_backend() != "cpu":
-        return "lockstep"
+#: The ``auto`` rule on a CPU: the lockstep strategy from this many agents in one call,
+#: the sequential one below. Measured once (``python -m benchmarks.auto_rule``, paper
+#: grid, both strategies in one sitting on 2 cores, ``benchmarks/RESULTS.md``), not timed
+#: at run time.
+LOCKSTEP_MIN_AGENTS_ON_CPU = 4096
+
+
+def auto_strategy(num_agents: int, *, backend: str | None = None,
+                  sharded: bool = False) -> tuple[str, str]:
+    """The strategy ``"auto"`` runs, and why: lockstep on an accelerator or for agents
+    sharded over several devices; on a CPU, lockstep from
+    :data:`LOCKSTEP_MIN_AGENTS_ON_CPU` agents, sequential below.
+
+    Returns:
+      ``(strategy, reason)``; the reason is one line for ``meta.json``.
+    """
+    backend = jax.default_backend() if backend is None else backend
+    if sharded:
+        return "lockstep", "agents sharded over several devices"
+    if backend != "cpu":
+        return "lockstep", f"backend {backend}"
+    if num_agents >= LOCKSTEP_MIN_AGENTS_ON_CPU:
+        return "lockstep", (f"cpu, {num_agents} agents ≥ {LOCKSTEP_MIN_AGENTS_ON_CPU}"
+                            " (LOCKSTEP_MIN_AGENTS_ON_CPU)")
+    return "sequential", (f"cpu, {num_agents} agents < {LOCKSTEP_MIN_AGENTS_ON_CPU}"
+                          " (LOCKSTEP_MIN_AGENTS_ON_CPU)")
+
+
+def _is_sharded(params: AgentParams, keys: Any) -> bool:
     for leaf in jax.tree.leaves((params, keys)):
         sharding = getattr(leaf, "sharding", None)
         if sharding is not None and len(sharding.device_set) > 1:
-            return "lockstep"
-    return "sequential"
+            return True
+    return False
 
 
 def compile_seconds() -> float:

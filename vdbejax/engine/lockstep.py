@@ -17,7 +17,9 @@ batch advance together, one vectorised step per loop iteration.
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -38,6 +40,45 @@ Array = jax.Array
 #: CPU backend rounded some Q updates differently in the last bit (deterministically, but
 #: depending on the lane; cause not found), so larger batches are split.
 MAX_SAFE_BATCH = 2048
+
+#: Level-2 cache assumed where the OS does not say (bytes; one core's, as on AMD Zen 3).
+DEFAULT_L2_BYTES = 512 * 1024
+
+
+def l2_cache_bytes() -> int:
+    """One core's level-2 cache (Linux's sysfs; else :data:`DEFAULT_L2_BYTES`)."""
+    root = Path("/sys/devices/system/cpu/cpu0/cache")
+    try:
+        for index in sorted(root.glob("index*")):
+            if (index / "level").read_text().strip() == "2":
+                size = (index / "size").read_text().strip().upper()
+                scale = {"K": 1024, "M": 1024 * 1024}.get(size[-1:], 1)
+                return int(size.rstrip("KM")) * scale
+    except (OSError, ValueError):
+        pass
+    return DEFAULT_L2_BYTES
+
+
+def cache_sized_batch(bytes_per_lane: int, cache_bytes: int | None = None) -> int:
+    """Lanes of a CPU lockstep group: the largest power of two whose agents' state fits
+    one core's level-2 cache, between 8 and :data:`MAX_SAFE_BATCH`.
+
+    Every iteration reads and writes a row of each lane's tables at a random state, so a
+    group whose tables spill to the shared level-3 cache pays its latency on every access
+    (paper task, 3.4 kB per agent: ~1.7× more time per agent-step at 2,048 lanes than at
+    128, ``benchmarks/RESULTS.md``).
+    """
+    cache = l2_cache_bytes() if cache_bytes is None else cache_bytes
+    fits = max(1, cache // max(1, bytes_per_lane))
+    return int(min(MAX_SAFE_BATCH, max(8, 1 << (fits.bit_length() - 1))))
+
+
+def state_bytes_per_lane(agents: AgentState) -> int:
+    """Bytes of one agent's state (its tables and scalars) in a batch."""
+    leaves = jax.tree.leaves(agents)
+    lanes = max(1, int(agents.episode.shape[0]))
+    return sum(int(np.prod(leaf.shape)) * leaf.dtype.itemsize for leaf in leaves) // lanes
+
 
 #: Lockstep iterations per while-loop trip (amortises XLA's per-trip overhead).
 DEFAULT_UNROLL = 1
@@ -151,9 +192,9 @@ def _run_chunk_compacting(
     chunk_length: int,
     *,
     block_iterations: int,
-    unroll: int,
     min_batch: int,
-    programs: Programs,
+    support: Any,
+    block: Callable[[tuple], Any],
 ) -> tuple[AgentState, Array, Array, int, int]:
     """:func:`run_chunk` with compaction of the still-active agents between blocks.
 
@@ -162,6 +203,8 @@ def _run_chunk_compacting(
     power-of-two size (at least ``min_batch``; padding lanes duplicate a real agent and are
     never written back), so few shapes are compiled. Each agent's computation depends only
     on its own lane, hence the results are identical to :func:`run_chunk`.
+
+    ``block(args)`` gets the block program for ``args`` (one per batch size).
 
     Returns:
       ``(agents, returns, lengths, iterations, lane_iterations)``.
@@ -174,17 +217,15 @@ def _run_chunk_compacting(
     size = num_agents
     iterations = lane_iterations = 0
     start, end = jnp.int32(chunk_start), jnp.int32(chunk_end)
-    block = jnp.int32(block_iterations)
-    support = start_support(mdp)
+    iterations_per_block = jnp.int32(block_iterations)
 
     def written_back() -> tuple[AgentState, Array, Array]:
         """The full batch with the current batch's rows written back (padding dropped)."""
         return cur if index is None else _scatter_rows(full, jnp.asarray(index), cur)
 
     while True:
-        args = (mdp, cur_params, *cur, start, end, block, support)
-        cur_agents, cur_returns, cur_lengths, done_iterations, active = programs.get(
-            block_program, args, {"unroll": unroll})(*args)
+        args = (mdp, cur_params, *cur, start, end, iterations_per_block, support)
+        cur_agents, cur_returns, cur_lengths, done_iterations, active = block(args)(*args)
         cur = (cur_agents, cur_returns, cur_lengths)
         done_iterations = int(done_iterations)
         iterations += done_iterations
@@ -224,55 +265,74 @@ def run_chunk_lockstep(
     min_batch: int,
     max_batch: int,
     programs: Programs,
+    threads: int = 1,
 ) -> tuple[AgentState, Array, Array, int, int]:
-    """One chunk of the lockstep strategy: kind after kind, in groups of at most
-    ``max_batch`` lanes.
+    """One chunk of the lockstep strategy: kind by kind, in groups of at most
+    ``max_batch`` lanes, the groups spread over ``threads`` threads.
 
-    Groups run one after another: a group's tables stay cache-sized, and per-agent results
-    do not depend on the grouping (options as in :func:`~vdbejax.engine.run_agents`).
+    A group's tables stay cache-sized (:func:`cache_sized_batch`), and per-agent results
+    do not depend on the grouping (options as in :func:`~vdbejax.engine.run_agents`). On a
+    CPU a group's loop is one native function on one core: groups on ``threads`` threads
+    use the others (XLA runs a program outside the GIL).
 
     Returns:
       ``(agents, returns, lengths, iterations, lane_iterations)``.
     """
     num_agents = int(agents.episode.shape[0])
-    pieces: list[list[Any]] = []
-    order: list[np.ndarray] = []
-    iterations = lane_iterations = 0
+    groups: list[tuple[Agent, np.ndarray]] = []
     kinds = np.asarray(params.kind)
     for k, agent in enumerate(params.kinds):
         members = np.flatnonzero(kinds == k)
-        for lo in range(0, members.size, max_batch):
-            rows = members[lo:lo + max_batch]
-            order.append(rows)
-            first, count = int(rows[0]), rows.size
-            part: Callable[[Any], Any]
-            if count == num_agents:
-                part = _whole
-            elif int(rows[-1]) - first + 1 == count:  # contiguous: a slice (keeps sharding)
-                part = partial(_row_slice, first=first, count=count)
-            else:
-                part = partial(_row_gather, rows=rows)
-            if compact:
-                *piece, group_iterations, group_lanes = _run_chunk_compacting(
-                    mdp, part(agent), part(agents), chunk_start, chunk_end, chunk_length,
-                    block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
-                    programs=programs,
-                )
-            else:
-                *piece, run_iterations = run_chunk(
-                    mdp, part(agent), part(agents), jnp.int32(chunk_start),
-                    jnp.int32(chunk_end), chunk_length, unroll, programs,
-                )
-                group_iterations = int(run_iterations)
-                group_lanes = group_iterations * count
-            pieces.append(piece)
-            iterations += group_iterations
-            lane_iterations += group_lanes
+        groups.extend((agent, members[lo:lo + max_batch])
+                      for lo in range(0, members.size, max_batch))
+
+    support = start_support(mdp)
+    block_programs: dict[tuple, Any] = {}
+
+    def run_group(group: tuple[Agent, np.ndarray]) -> tuple[Any, int, int]:
+        agent, rows = group
+        first, count = int(rows[0]), rows.size
+        part: Callable[[Any], Any]
+        if count == num_agents:
+            part = _whole
+        elif int(rows[-1]) - first + 1 == count:  # contiguous: a slice (keeps sharding)
+            part = partial(_row_slice, first=first, count=count)
+        else:
+            part = partial(_row_gather, rows=rows)
+        if compact:
+            def block(args: tuple) -> Any:  # one lookup per kind, batch size and placement
+                episode = args[2].episode
+                key = (id(agent), episode.shape, getattr(episode, "sharding", None),
+                       getattr(jax.tree.leaves(args[1])[0], "sharding", None))
+                if key not in block_programs:
+                    block_programs[key] = programs.get(block_program, args, {"unroll": unroll})
+                return block_programs[key]
+
+            *piece, group_iterations, group_lanes = _run_chunk_compacting(
+                mdp, part(agent), part(agents), chunk_start, chunk_end, chunk_length,
+                block_iterations=block_iterations, min_batch=min_batch, support=support,
+                block=block,
+            )
+            return piece, group_iterations, group_lanes
+        *piece, run_iterations = run_chunk(
+            mdp, part(agent), part(agents), jnp.int32(chunk_start), jnp.int32(chunk_end),
+            chunk_length, unroll, programs,
+        )
+        return piece, int(run_iterations), int(run_iterations) * count
+
+    if threads > 1 and len(groups) > 1:
+        with ThreadPoolExecutor(max_workers=min(threads, len(groups))) as pool:
+            done = list(pool.map(run_group, groups))
+    else:
+        done = [run_group(group) for group in groups]
+    pieces = [piece for piece, _, _ in done]
+    iterations = sum(group_iterations for _, group_iterations, _ in done)
+    lane_iterations = sum(group_lanes for _, _, group_lanes in done)
     if len(pieces) == 1:
         agents, returns, lengths = pieces[0]
     else:
         agents, returns, lengths = jax.tree.map(lambda *leaves: jnp.concatenate(leaves), *pieces)
-        rows_order = np.concatenate(order)
+        rows_order = np.concatenate([rows for _, rows in groups])
         if not np.array_equal(rows_order, np.arange(num_agents)):
             inverse = jnp.asarray(np.argsort(rows_order), jnp.int32)
             agents, returns, lengths = _gather_rows((agents, returns, lengths), inverse)

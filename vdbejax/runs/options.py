@@ -44,10 +44,11 @@ class RunOptions:
       devices: devices to shard the agents over (default: all of ``jax.devices()``).
       stop: the stop policy (:class:`~vdbejax.runs.stop.FixedBudget` or
         :class:`~vdbejax.runs.stop.UntilSolved`).
-      strategy: the engine strategy, ``"auto"`` (sequential on a CPU, lockstep on
-        accelerators and for sharded agents), ``"sequential"`` or ``"lockstep"``.
-      threads: worker threads of the sequential strategy (default: the CPUs this process
-        may use).
+      strategy: the engine strategy, ``"auto"`` (:func:`~vdbejax.engine.auto_strategy`:
+        lockstep on accelerators, for sharded agents and for large batches on a CPU,
+        sequential otherwise; ``meta.json`` states the rule that chose),
+        ``"sequential"`` or ``"lockstep"``.
+      threads: worker threads on a CPU (default: the CPUs this process may use).
       evaluate_every: every this many episodes, the exact expected return of each
         agent's greedy policy (:mod:`vdbejax.runs.evaluation`), kept beside the returns
         (``GridResult.policy_values``); None: no evaluation. It changes no return.

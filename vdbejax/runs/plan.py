@@ -26,7 +26,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from vdbejax.engine import AgentState, RunResult, run_agents
+from vdbejax.engine import AgentState, RunResult, auto_strategy, run_agents
 from vdbejax.engine.distributed import (
     agent_mesh,
     local_devices,
@@ -59,6 +59,8 @@ class RunPlan:
       batch_size: agents per sequential batch.
       memory_budget_bytes: the per-device budget the batch size was computed for.
       strategy: the engine strategy asked of every batch.
+      strategy_rule: why: ``"asked"`` (the options named it) or ``"auto: …"``
+        (:func:`~vdbejax.engine.auto_strategy`'s reason).
       compact: the lockstep strategy's compaction.
       chunk_episodes: episodes per engine chunk.
       threads: worker threads of the sequential strategy (None: the engine's default).
@@ -73,6 +75,7 @@ class RunPlan:
     compact: bool
     chunk_episodes: int
     threads: int | None
+    strategy_rule: str = "asked"
 
     @property
     def sharded(self) -> bool:
@@ -81,7 +84,8 @@ class RunPlan:
     def describe(self) -> dict[str, Any]:
         """The plan as ``meta.json`` states it."""
         return {"devices": len(self.devices), "processes": jax.process_count(),
-                "sharded": self.sharded, "strategy": self.strategy, "compact": self.compact,
+                "sharded": self.sharded, "strategy": self.strategy,
+                "strategy_rule": self.strategy_rule, "compact": self.compact,
                 "agents_per_batch": self.batch_size,
                 "memory_budget_bytes": int(self.memory_budget_bytes)}
 
@@ -169,9 +173,6 @@ def make_plan(mdp: TabularMDP, params: AgentParams, num_agents: int, num_episode
         raise ValueError(f"strategy='sequential' is invalid with devices={len(local)}: agents"
                          " sharded over several devices run the lockstep strategy (use"
                          " devices=1 for the sequential one)")
-    if strategy == "auto":
-        strategy = ("sequential" if jax.default_backend() == "cpu" and not sharded
-                    else "lockstep")
     budget = (default_memory_budget(local) if run.memory_budget_bytes is None
               else int(run.memory_budget_bytes))
     chunk = (default_chunk_episodes(num_agents, num_episodes) if run.chunk_episodes is None
@@ -187,7 +188,12 @@ def make_plan(mdp: TabularMDP, params: AgentParams, num_agents: int, num_episode
         max(len(rows), 1),
         bytes_per_agent(mdp, min(chunk, num_episodes), table_layout(params)),
         budget, len(local), fixed_bytes=mdp_bytes(mdp))
+    strategy_rule = "asked"
+    if strategy == "auto":  # per batch: a batch is one engine call
+        strategy, why = auto_strategy(min(batch_size, max(len(rows), 1)), sharded=sharded)
+        strategy_rule = f"auto: {why}"
     return RunPlan(devices=tuple(devices), local=tuple(local), rows=rows,
                    batch_size=batch_size, memory_budget_bytes=budget, strategy=strategy,
+                   strategy_rule=strategy_rule,
                    compact=not sharded, chunk_episodes=chunk,
                    threads=run.threads)
