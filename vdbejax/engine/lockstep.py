@@ -183,6 +183,15 @@ def _row_gather(tree: Any, rows: np.ndarray) -> Any:
     return _gather_rows(tree, jnp.asarray(rows, jnp.int32))
 
 
+def _on_one_cpu(tree: Any) -> bool:
+    """Every leaf a JAX array on one CPU device (its rows can be viewed on the host)."""
+    for leaf in jax.tree.leaves(tree):
+        devices = getattr(getattr(leaf, "sharding", None), "device_set", None)
+        if not devices or len(devices) != 1 or next(iter(devices)).platform != "cpu":
+            return False
+    return True
+
+
 def _run_chunk_compacting(
     mdp: TabularMDP,
     params: Agent,
@@ -210,14 +219,15 @@ def _run_chunk_compacting(
       ``(agents, returns, lengths, iterations, lane_iterations)``.
     """
     num_agents = int(agents.episode.shape[0])
-    full = (agents, jnp.zeros((num_agents, chunk_length), jnp.float32),
-            jnp.zeros((num_agents, chunk_length), jnp.int32))
+    zeros = np.zeros if isinstance(agents.episode, np.ndarray) else jnp.zeros
+    full = (agents, zeros((num_agents, chunk_length), np.float32),
+            zeros((num_agents, chunk_length), np.int32))
     index = None  # rows of the full batch held by the current batch (None: all, in order)
     cur_params, cur = params, full
     size = num_agents
     iterations = lane_iterations = 0
-    start, end = jnp.int32(chunk_start), jnp.int32(chunk_end)
-    iterations_per_block = jnp.int32(block_iterations)
+    start, end = np.int32(chunk_start), np.int32(chunk_end)
+    iterations_per_block = np.int32(block_iterations)
 
     def written_back() -> tuple[AgentState, Array, Array]:
         """The full batch with the current batch's rows written back (padding dropped)."""
@@ -288,6 +298,8 @@ def run_chunk_lockstep(
 
     support = start_support(mdp)
     block_programs: dict[tuple, Any] = {}
+    if _on_one_cpu(agents):  # groups cut as host views: no dispatch per leaf and group
+        agents, params = jax.tree.map(np.asarray, (agents, params))
 
     def run_group(group: tuple[Agent, np.ndarray]) -> tuple[Any, int, int]:
         agent, rows = group
