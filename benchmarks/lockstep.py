@@ -1,7 +1,8 @@
 """Where the lockstep strategy's time goes (issue 46): its loop body, its trips, its speed.
 
     python -m benchmarks.lockstep [--seeds 1000] [--episodes 50] [--lanes 2048]
-                                  [--repeats 2] [--threads N] [--json]
+                                  [--repeats 2] [--threads N] [--group-lanes 64,2048]
+                                  [--json]
 
 For each kind of agent of the paper grid, the lockstep block program at ``--lanes`` lanes
 is compiled and its optimized HLO read: XLA operations (fusions) per loop iteration, and
@@ -9,7 +10,9 @@ the bytes of table-sized buffers (more elements than lanes × actions) copied pe
 iteration. Then the paper grid at ``--seeds`` seeds × ``--episodes`` episodes runs with
 the lockstep and the sequential strategy, one after the other in this process (each
 once to get its programs, then ``--repeats`` timed calls, best kept): loop trips
-(iterations) and host round trips (blocks run) per chunk, and agent-steps/s of each.
+(iterations) and host round trips (blocks run) per chunk, and agent-steps/s of each;
+``--group-lanes`` times the lockstep again with groups of other sizes than the
+cache-sized default (:func:`vdbejax.engine.lockstep.cache_sized_batch`).
 """
 from __future__ import annotations
 
@@ -92,7 +95,7 @@ def kind_rows(lanes: int) -> list[dict[str, Any]]:
 
 
 def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
-               threads: int | None) -> dict[str, Any]:
+               threads: int | None, max_batch: int | None = None) -> dict[str, Any]:
     """The paper grid with ``strategy``: programs got once, then the best of ``repeats``
     calls (one chunk); its loop trips and host round trips (blocks run)."""
     from vdbejax import engine
@@ -119,7 +122,8 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
 
     def run() -> Any:
         return engine.run_agents(mdp, params, keys, episodes, chunk_episodes=episodes,
-                                 strategy=strategy, threads=threads, keep_final_state=False)
+                                 strategy=strategy, threads=threads, keep_final_state=False,
+                                 max_batch=max_batch)
 
     run()
     best, result, trips = float("inf"), None, 0
@@ -137,7 +141,7 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
     return {"strategy": strategy, "agents": len(keys), "episodes": episodes,
             "seconds": round(best, 3), "agent_steps": steps,
             "agent_steps_per_s": round(steps / best),
-            "loop_trips_per_chunk": int(result.iterations),
+            "max_batch": max_batch, "loop_trips_per_chunk": int(result.iterations),
             "host_round_trips_per_chunk": trips if strategy == "lockstep" else None}
 
 
@@ -150,8 +154,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=2, help="timed calls (best kept)")
     parser.add_argument("--threads", type=int, default=None,
                         help="worker threads (default: the CPUs)")
+    parser.add_argument("--group-lanes", default="",
+                        help="also time the lockstep with groups of these many lanes"
+                             " (comma-separated; default: the cache-sized groups only)")
     parser.add_argument("--json", action="store_true", help="one JSON object")
     args = parser.parse_args(argv)
+    try:
+        group_lanes = [int(part) for part in args.group_lanes.split(",") if part]
+    except ValueError:
+        parser.exit(2, f"--group-lanes must be comma-separated integers, got"
+                       f" {args.group_lanes!r}\n")
+    if any(lanes < 1 for lanes in group_lanes):
+        parser.exit(2, f"--group-lanes must be at least 1, got {args.group_lanes!r}\n")
     for name in ("seeds", "episodes", "lanes", "repeats"):
         if getattr(args, name) < 1:
             parser.exit(2, f"--{name} must be at least 1, got {getattr(args, name)}\n")
@@ -164,6 +178,9 @@ def main(argv: list[str] | None = None) -> int:
     lock, seq = report["runs"]
     report["lockstep_over_sequential"] = round(
         lock["agent_steps_per_s"] / seq["agent_steps_per_s"], 3)
+    report["group_lanes"] = [
+        timed_grid("lockstep", args.seeds, args.episodes, args.repeats, args.threads, lanes)
+        for lanes in group_lanes]
     if args.json:
         print(json.dumps(report))
         return 0
@@ -180,6 +197,9 @@ def main(argv: list[str] | None = None) -> int:
               f"loop trips {run['loop_trips_per_chunk']:,}"
               + ("" if trips is None else f", host round trips {trips:,}"))
     print(f"  lockstep / sequential: {report['lockstep_over_sequential']:.2f}×")
+    for run in report["group_lanes"]:
+        print(f"  lockstep, groups of {run['max_batch']:>5,} lanes: {run['seconds']:>7.2f} s  "
+              f"{run['agent_steps_per_s'] / 1e6:>6.2f} M agent-steps/s")
     return 0
 
 

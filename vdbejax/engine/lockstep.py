@@ -317,7 +317,9 @@ def run_chunk_lockstep(
                 key = (id(agent), episode.shape, getattr(episode, "sharding", None),
                        getattr(jax.tree.leaves(args[1])[0], "sharding", None))
                 if key not in block_programs:
-                    block_programs[key] = programs.get(block_program, args, {"unroll": unroll})
+                    block_programs[key] = programs.get(  # the batch's buffers updated in place
+                        block_program, args, {"unroll": unroll},
+                        donate=("agents", "returns", "lengths"))
                 return block_programs[key]
 
             *piece, group_iterations, group_lanes = _run_chunk_compacting(
