@@ -105,8 +105,13 @@ def test_lockstep_groups_on_threads_give_the_same_bits(mdp):
     threaded = engine.run_agents(mdp, params, keys, 10, max_batch=2, threads=3,
                                  strategy="lockstep")
     default = engine.run_agents(mdp, params, keys, 10, strategy="lockstep")
+    # Blocks of a known trip count (the accelerators' default) overshoot harmlessly.
+    fixed = engine.run_agents(mdp, params, keys, 10, strategy="lockstep", block_iterations=7,
+                              fixed_blocks=True)
     _assert_same_run(one, threaded)
     _assert_same_run(one, default)
+    _assert_same_run(one, fixed)
+    assert fixed.iterations % 7 == 0 and fixed.iterations >= one.iterations
 
 
 def test_cache_sized_batch_fits_the_state_in_the_cache():

@@ -86,6 +86,7 @@ def run_agents(
     keep_final_state: bool = True,
     programs: Programs | None = None,
     chunk_states: bool = True,
+    fixed_blocks: bool | None = None,
 ) -> RunResult:
     """Train a batch of agents for ``num_episodes`` episodes each.
 
@@ -125,9 +126,13 @@ def run_agents(
         way a program traced before in this process for the same plug-in code is reused).
       chunk_states: ``False`` hands ``on_chunk`` ``None`` for the agents (no copy of
         every agent's tables after each chunk, when only the episodes are wanted).
+      fixed_blocks: the lockstep strategy's blocks are exactly ``block_iterations``
+        iterations, loops of known trip count (default: on accelerators, where a loop
+        condition that depends on the data costs a round trip to the host per
+        iteration; on a CPU the condition is free and a block stops when its lanes do).
 
-    None of ``compact`` … ``threads`` change the results, only the speed, as long as
-    ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
+    None of ``compact`` … ``threads`` nor ``fixed_blocks`` change the results, only the
+    speed, as long as ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
 
     Every kind's learner is first set for the task (:func:`~vdbejax.engine.state.for_task`:
     the facts of ``mdp`` a method's convention depends on).
@@ -202,6 +207,7 @@ def run_agents(
                 mdp, params, agents, first, end, buffer, compact=compact,
                 block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
                 max_batch=lanes, programs=programs, threads=threads if on_cpu else 1,
+                fixed_blocks=not on_cpu if fixed_blocks is None else fixed_blocks,
             )
             yield outputs
 

@@ -143,13 +143,15 @@ def _run_chunk(mdp: TabularMDP, params: Agent, agents: AgentState, chunk_start: 
 
 
 def block_program(mdp: TabularMDP, params: Agent, agents: AgentState, returns: Array,
-               lengths: Array, chunk_start: Array, chunk_end: Array, max_iterations: Array,
-               start_support: Any, *, unroll: int
-               ) -> tuple[AgentState, Array, Array, Array, Array]:
-    """Up to ``max_iterations`` lockstep iterations; also returns each lane's activity."""
+                  lengths: Array, chunk_start: Array, chunk_end: Array, max_iterations: Array,
+                  start_support: Any, *, unroll: int, fixed_iterations: int | None = None
+                  ) -> tuple[AgentState, Array, Array, Array, Array]:
+    """Up to ``max_iterations`` lockstep iterations, or exactly ``fixed_iterations``
+    (static: a loop of known trip count, see :func:`~vdbejax.engine.step.run_loop`);
+    also returns each lane's activity."""
     agents, returns, lengths, iterations = run_loop(
         mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations, unroll,
-        start_support,
+        start_support, fixed_iterations=fixed_iterations,
     )
     return agents, returns, lengths, iterations, agents.episode < chunk_end
 
@@ -276,6 +278,7 @@ def run_chunk_lockstep(
     max_batch: int,
     programs: Programs,
     threads: int = 1,
+    fixed_blocks: bool = False,
 ) -> tuple[AgentState, Array, Array, int, int]:
     """One chunk of the lockstep strategy: kind by kind, in groups of at most
     ``max_batch`` lanes, the groups spread over ``threads`` threads.
@@ -283,7 +286,9 @@ def run_chunk_lockstep(
     A group's tables stay cache-sized (:func:`cache_sized_batch`), and per-agent results
     do not depend on the grouping (options as in :func:`~vdbejax.engine.run_agents`). On a
     CPU a group's loop is one native function on one core: groups on ``threads`` threads
-    use the others (XLA runs a program outside the GIL).
+    use the others (XLA runs a program outside the GIL). ``fixed_blocks``: each block is
+    exactly ``block_iterations`` iterations, a loop of known trip count (on accelerators,
+    where a data-dependent loop condition costs a round trip to the host per iteration).
 
     Returns:
       ``(agents, returns, lengths, iterations, lane_iterations)``.
@@ -318,7 +323,8 @@ def run_chunk_lockstep(
                        getattr(jax.tree.leaves(args[1])[0], "sharding", None))
                 if key not in block_programs:
                     block_programs[key] = programs.get(  # the batch's buffers updated in place
-                        block_program, args, {"unroll": unroll},
+                        block_program, args, {"unroll": unroll, "fixed_iterations":
+                                              block_iterations if fixed_blocks else None},
                         donate=("agents", "returns", "lengths"))
                 return block_programs[key]
 

@@ -303,8 +303,12 @@ def run_loop(
     support: tuple[Array, Array],
     table_rows: Array | None = None,
     stop_at_first_finish: Array | None = None,
+    fixed_iterations: int | None = None,
 ) -> tuple[AgentState, Array, Array, Array]:
-    """``while`` any agent is active and fewer than ``max_iterations`` iterations ran.
+    """``while`` any agent is active and fewer than ``max_iterations`` iterations ran;
+    or, with ``fixed_iterations`` (static), exactly that many iterations, rounded up to
+    a multiple of ``unroll`` (a loop of known trip count: on an accelerator no iteration
+    waits for the host to read the loop's condition).
 
     The body runs ``unroll`` iterations (fewer loop trips); iterations of an agent that
     is no longer active change nothing, so overshooting is harmless. ``table_rows``:
@@ -339,10 +343,14 @@ def run_loop(
         return agents, returns, lengths, iterations + unroll, base
 
     zero = jnp.asarray(0, jnp.int32)
-    agents, returns, lengths, iterations, _ = jax.lax.while_loop(
-        cond, body, (agents, returns.reshape(-1), lengths.reshape(-1), zero,
-                     draw_base(agents.key, agents.counter))
-    )
+    start = (agents, returns.reshape(-1), lengths.reshape(-1), zero,
+             draw_base(agents.key, agents.counter))
+    if fixed_iterations is None:
+        agents, returns, lengths, iterations, _ = jax.lax.while_loop(cond, body, start)
+    else:
+        trips = -(-fixed_iterations // unroll)
+        agents, returns, lengths, iterations, _ = jax.lax.fori_loop(
+            0, trips, lambda _, carry: body(carry), start)
     agents = dataclasses.replace(
         agents, q=agents.q.reshape(q_shape),
         tables={name: table.reshape(table_shapes[name]) for name, table in agents.tables.items()},
