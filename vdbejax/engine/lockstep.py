@@ -194,7 +194,7 @@ def _on_one_cpu(tree: Any) -> bool:
     return True
 
 
-def _run_chunk_compacting(
+def _run_stream(
     mdp: TabularMDP,
     params: Agent,
     agents: AgentState,
@@ -202,18 +202,22 @@ def _run_chunk_compacting(
     chunk_end: int,
     chunk_length: int,
     *,
+    lanes: int,
     block_iterations: int,
     min_batch: int,
     support: Any,
     block: Callable[[tuple], Any],
 ) -> tuple[AgentState, Array, Array, int, int]:
-    """:func:`run_chunk` with compaction of the still-active agents between blocks.
+    """:func:`run_chunk` of a stream of agents of one kind through a batch of at most
+    ``lanes`` lanes, refilled and compacted between blocks.
 
-    The batch runs ``block_iterations`` lockstep iterations at a time. When at most half
-    of its lanes are still active, the active agents are gathered into a batch of the next
-    power-of-two size (at least ``min_batch``; padding lanes duplicate a real agent and are
-    never written back), so few shapes are compiled. Each agent's computation depends only
-    on its own lane, hence the results are identical to :func:`run_chunk`.
+    The batch holds the first ``lanes`` agents and runs ``block_iterations`` lockstep
+    iterations at a time. Between blocks, a lane whose agent has finished the chunk takes
+    the next waiting agent (the finished one is written back). Once no agent waits and at
+    most half of the lanes are active, the active agents are gathered into a batch of the
+    next power-of-two size (at least ``min_batch``; padding lanes duplicate a real agent
+    and are never written back), so few shapes are compiled. Each agent's computation
+    depends only on its own lane, hence the results are identical to :func:`run_chunk`.
 
     ``block(args)`` gets the block program for ``args`` (one per batch size).
 
@@ -224,9 +228,13 @@ def _run_chunk_compacting(
     zeros = np.zeros if isinstance(agents.episode, np.ndarray) else jnp.zeros
     full = (agents, zeros((num_agents, chunk_length), np.float32),
             zeros((num_agents, chunk_length), np.int32))
-    index = None  # rows of the full batch held by the current batch (None: all, in order)
+    size = min(lanes, num_agents)
+    waiting = size  # the next agent to take a lane
+    # Rows of ``full`` the batch holds (None: all of them, in order).
+    index = None if size == num_agents else np.arange(size, dtype=np.int32)
     cur_params, cur = params, full
-    size = num_agents
+    if index is not None:
+        cur_params, cur = _gather_rows((params, full), jnp.asarray(index))
     iterations = lane_iterations = 0
     start, end = np.int32(chunk_start), np.int32(chunk_end)
     iterations_per_block = np.int32(block_iterations)
@@ -245,20 +253,29 @@ def _run_chunk_compacting(
         active = np.array(active)
         if index is not None:
             active &= index < num_agents  # padding lanes do not count
+        free = np.flatnonzero(~active)
+        if index is not None and waiting < num_agents and free.size:
+            # Refill: finished agents written back, the next ones in their lanes.
+            full = written_back()
+            take = min(free.size, num_agents - waiting)
+            index = index.copy()
+            index[free[:take]] = np.arange(waiting, waiting + take, dtype=np.int32)
+            waiting += take
+            cur_params, cur = _gather_rows((params, full), jnp.asarray(index))
+            continue
         num_active = int(active.sum())
         if num_active == 0:
             break
         target = max(_next_power_of_two(num_active), min_batch)
         if target * 2 > size:
             continue
-        # Write the current batch back, then gather the active agents.
+        # Compaction: the current batch written back, then the active agents gathered.
         full = written_back()
         keep = np.flatnonzero(active) if index is None else index[active]
         index = np.full(target, num_agents, np.int32)
         index[: keep.size] = keep
         gather = np.where(index < num_agents, index, keep[0]).astype(np.int32)
-        cur_params = _gather_rows(params, jnp.asarray(gather))
-        cur = _gather_rows(full, jnp.asarray(gather))
+        cur_params, cur = _gather_rows((params, full), jnp.asarray(gather))
         size = target
     return (*written_back(), iterations, lane_iterations)
 
@@ -298,8 +315,14 @@ def run_chunk_lockstep(
     kinds = np.asarray(params.kind)
     for k, agent in enumerate(params.kinds):
         members = np.flatnonzero(kinds == k)
-        groups.extend((agent, members[lo:lo + max_batch])
-                      for lo in range(0, members.size, max_batch))
+        if members.size == 0:
+            continue
+        if compact:  # streams through batches of max_batch lanes, a few per kind for threads
+            streams = max(1, min(threads, -(-members.size // max_batch)))
+            groups.extend((agent, rows) for rows in np.array_split(members, streams))
+        else:
+            groups.extend((agent, members[lo:lo + max_batch])
+                          for lo in range(0, members.size, max_batch))
 
     support = start_support(mdp)
     block_programs: dict[tuple, Any] = {}
@@ -328,10 +351,10 @@ def run_chunk_lockstep(
                         donate=("agents", "returns", "lengths"))
                 return block_programs[key]
 
-            *piece, group_iterations, group_lanes = _run_chunk_compacting(
+            *piece, group_iterations, group_lanes = _run_stream(
                 mdp, part(agent), part(agents), chunk_start, chunk_end, chunk_length,
-                block_iterations=block_iterations, min_batch=min_batch, support=support,
-                block=block,
+                lanes=max_batch, block_iterations=block_iterations, min_batch=min_batch,
+                support=support, block=block,
             )
             return piece, group_iterations, group_lanes
         *piece, run_iterations = run_chunk(
