@@ -7,8 +7,7 @@ For each size of the paper grid (``--seeds`` agents per setting, 46 settings), t
 strategies run one after another in this process, each once to get its programs, then
 ``--repeats`` timed calls (best kept; ``benchmarks.lockstep.timed_grid``). It prints
 agent-steps/s of each, lockstep / sequential, and auto / the better of the two: the data
-:data:`vdbejax.engine.driver.LOCKSTEP_MIN_AGENTS_ON_CPU` was set from (the smallest
-number of agents from which the lockstep strategy is the faster; ``benchmarks/RESULTS.md``).
+:func:`vdbejax.engine.auto_strategy`'s CPU rule was set from (``benchmarks/RESULTS.md``).
 """
 from __future__ import annotations
 
@@ -56,15 +55,11 @@ def main(argv: list[str] | None = None) -> int:
             parser.exit(2, f"--{name} must be at least 1, got {value}\n")
 
     import vdbejax  # noqa: F401  (its XLA setting before JAX starts)
-    from vdbejax.engine.driver import LOCKSTEP_MIN_AGENTS_ON_CPU
-
     rows = measure(seeds, args.episodes, args.repeats, args.threads)
     if args.json:
-        print(json.dumps({"lockstep_min_agents_on_cpu": LOCKSTEP_MIN_AGENTS_ON_CPU,
-                          "rows": rows}))
+        print(json.dumps({"rows": rows}))
         return 0
-    print(f"paper grid, {args.episodes} episodes; M agent-steps/s "
-          f"(auto: lockstep from {LOCKSTEP_MIN_AGENTS_ON_CPU:,} agents)")
+    print(f"paper grid, {args.episodes} episodes; M agent-steps/s")
     print(f"{'agents':>8} {'sequential':>11} {'lockstep':>9} {'auto':>7} "
           f"{'lock/seq':>9} {'auto/better':>12}")
     for row in rows:

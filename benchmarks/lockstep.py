@@ -11,8 +11,8 @@ iteration. Then the paper grid at ``--seeds`` seeds × ``--episodes`` episodes r
 the lockstep and the sequential strategy, one after the other in this process (each
 once to get its programs, then ``--repeats`` timed calls, best kept): loop trips
 (iterations) and host round trips (blocks run) per chunk, and agent-steps/s of each;
-``--group-lanes`` times the lockstep again with groups of other sizes than the
-cache-sized default (:func:`vdbejax.engine.lockstep.cache_sized_batch`).
+``--group-lanes`` times the lockstep again with batches of other sizes than
+:data:`vdbejax.engine.MAX_SAFE_BATCH`.
 """
 from __future__ import annotations
 
@@ -121,9 +121,10 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
         return counted
 
     def run() -> Any:
+        lanes = {} if max_batch is None else {"max_batch": max_batch}
         return engine.run_agents(mdp, params, keys, episodes, chunk_episodes=episodes,
                                  strategy=strategy, threads=threads, keep_final_state=False,
-                                 max_batch=max_batch)
+                                 **lanes)
 
     run()
     best, result, trips = float("inf"), None, 0
@@ -156,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="worker threads (default: the CPUs)")
     parser.add_argument("--group-lanes", default="",
                         help="also time the lockstep with groups of these many lanes"
-                             " (comma-separated; default: the cache-sized groups only)")
+                             " (comma-separated)")
     parser.add_argument("--json", action="store_true", help="one JSON object")
     args = parser.parse_args(argv)
     try:

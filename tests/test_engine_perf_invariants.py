@@ -114,18 +114,6 @@ def test_lockstep_groups_on_threads_give_the_same_bits(mdp):
     assert fixed.iterations % 7 == 0 and fixed.iterations >= one.iterations
 
 
-def test_cache_sized_batch_fits_the_state_in_the_cache():
-    from vdbejax.engine.lockstep import MAX_SAFE_BATCH, cache_sized_batch, state_bytes_per_lane
-
-    assert cache_sized_batch(3456, cache_bytes=512 * 1024) == 128  # 151 lanes fit
-    assert cache_sized_batch(4096, cache_bytes=512 * 1024) == 128  # exactly 128
-    assert cache_sized_batch(10, cache_bytes=512 * 1024) == MAX_SAFE_BATCH
-    assert cache_sized_batch(10**8, cache_bytes=512 * 1024) == 8
-    agents = engine.init_agents(make_mdp(), *_grid(1))
-    per_lane = state_bytes_per_lane(agents)
-    assert per_lane >= 4 * make_mdp().num_states * make_mdp().num_actions  # Q at least
-
-
 def _assert_same_run(a: engine.RunResult, b: engine.RunResult) -> None:
     np.testing.assert_array_equal(a.lengths, b.lengths)
     for leaf_a, leaf_b in zip(

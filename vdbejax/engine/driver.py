@@ -22,9 +22,7 @@ from vdbejax.engine.lockstep import (
     DEFAULT_UNROLL,
     MAX_SAFE_BATCH,
     _next_power_of_two,
-    cache_sized_batch,
     run_chunk_lockstep,
-    state_bytes_per_lane,
 )
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.programs import compile_seconds as _compile_seconds
@@ -80,7 +78,7 @@ def run_agents(
     block_iterations: int = 256,
     unroll: int = DEFAULT_UNROLL,
     min_batch: int = 8,
-    max_batch: int | None = None,
+    max_batch: int = MAX_SAFE_BATCH,
     strategy: str = "auto",
     threads: int | None = None,
     keep_final_state: bool = True,
@@ -108,9 +106,7 @@ def run_agents(
       block_iterations: lockstep iterations between compaction checks.
       unroll: lockstep iterations per loop trip.
       min_batch: smallest batch (lanes) compaction shrinks to.
-      max_batch: agents run in groups of at most this many lanes (default: on a CPU,
-        :func:`~vdbejax.engine.lockstep.cache_sized_batch` of the agents' state, so a
-        group's tables stay in one core's cache; elsewhere :data:`MAX_SAFE_BATCH`).
+      max_batch: lanes of a lockstep batch (larger groups of agents stream through it).
 
       strategy: ``"sequential"`` (native step loops of a few agents side by side; agents are
         spread over ``threads`` threads; the fast choice on CPU), ``"lockstep"`` (all
@@ -145,8 +141,7 @@ def run_agents(
     check_int("block_iterations", block_iterations, 1)
     check_int("unroll", unroll, 1)
     check_int("min_batch", min_batch, 1)
-    if max_batch is not None:
-        check_int("max_batch", max_batch, 1)
+    check_int("max_batch", max_batch, 1)
     check_choice("strategy", strategy, (*STRATEGIES, "auto"))
     check_params(params, mdp.num_actions)
     params = for_task(params, mdp)
@@ -198,15 +193,11 @@ def run_agents(
         nonlocal agents
         assert agents is not None  # lockstep: the agents' state is here
         on_cpu = jax.default_backend() == "cpu"
-        lanes = max_batch
-        if lanes is None:
-            lanes = (cache_sized_batch(state_bytes_per_lane(agents)) if on_cpu
-                     else MAX_SAFE_BATCH)
         for first, end in bounds:
             agents, *outputs = run_chunk_lockstep(
                 mdp, params, agents, first, end, buffer, compact=compact,
                 block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
-                max_batch=lanes, programs=programs, threads=threads if on_cpu else 1,
+                max_batch=max_batch, programs=programs, threads=threads if on_cpu else 1,
                 fixed_blocks=not on_cpu if fixed_blocks is None else fixed_blocks,
             )
             yield outputs
@@ -270,18 +261,13 @@ def available_cpus() -> int:
         return os.cpu_count() or 1
 
 
-#: The ``auto`` rule on a CPU: the lockstep strategy from this many agents in one call,
-#: the sequential one below. Measured once (``python -m benchmarks.auto_rule``, paper
-#: grid, both strategies in one sitting on 2 cores, ``benchmarks/RESULTS.md``), not timed
-#: at run time.
-LOCKSTEP_MIN_AGENTS_ON_CPU = 4096
-
-
 def auto_strategy(num_agents: int, *, backend: str | None = None,
                   sharded: bool = False) -> tuple[str, str]:
     """The strategy ``"auto"`` runs, and why: lockstep on an accelerator or for agents
-    sharded over several devices; on a CPU, lockstep from
-    :data:`LOCKSTEP_MIN_AGENTS_ON_CPU` agents, sequential below.
+    sharded over several devices; sequential on a CPU, at every number of agents
+    (``python -m benchmarks.auto_rule``: on 2 cores the sequential strategy was the faster
+    at 920, 9,200 and 46,000 agents, ``benchmarks/RESULTS.md``; measured once, not timed
+    at run time).
 
     Returns:
       ``(strategy, reason)``; the reason is one line for ``meta.json``.
@@ -291,11 +277,7 @@ def auto_strategy(num_agents: int, *, backend: str | None = None,
         return "lockstep", "agents sharded over several devices"
     if backend != "cpu":
         return "lockstep", f"backend {backend}"
-    if num_agents >= LOCKSTEP_MIN_AGENTS_ON_CPU:
-        return "lockstep", (f"cpu, {num_agents} agents ≥ {LOCKSTEP_MIN_AGENTS_ON_CPU}"
-                            " (LOCKSTEP_MIN_AGENTS_ON_CPU)")
-    return "sequential", (f"cpu, {num_agents} agents < {LOCKSTEP_MIN_AGENTS_ON_CPU}"
-                          " (LOCKSTEP_MIN_AGENTS_ON_CPU)")
+    return "sequential", f"cpu, {num_agents} agents (sequential is the faster on a CPU)"
 
 
 def _is_sharded(params: AgentParams, keys: Any) -> bool:

@@ -19,7 +19,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -40,45 +39,6 @@ Array = jax.Array
 #: CPU backend rounded some Q updates differently in the last bit (deterministically, but
 #: depending on the lane; cause not found), so larger batches are split.
 MAX_SAFE_BATCH = 2048
-
-#: Level-2 cache assumed where the OS does not say (bytes; one core's, as on AMD Zen 3).
-DEFAULT_L2_BYTES = 512 * 1024
-
-
-def l2_cache_bytes() -> int:
-    """One core's level-2 cache (Linux's sysfs; else :data:`DEFAULT_L2_BYTES`)."""
-    root = Path("/sys/devices/system/cpu/cpu0/cache")
-    try:
-        for index in sorted(root.glob("index*")):
-            if (index / "level").read_text().strip() == "2":
-                size = (index / "size").read_text().strip().upper()
-                scale = {"K": 1024, "M": 1024 * 1024}.get(size[-1:], 1)
-                return int(size.rstrip("KM")) * scale
-    except (OSError, ValueError):
-        pass
-    return DEFAULT_L2_BYTES
-
-
-def cache_sized_batch(bytes_per_lane: int, cache_bytes: int | None = None) -> int:
-    """Lanes of a CPU lockstep group: the largest power of two whose agents' state fits
-    one core's level-2 cache, between 8 and :data:`MAX_SAFE_BATCH`.
-
-    Every iteration reads and writes a row of each lane's tables at a random state, so a
-    group whose tables spill to the shared level-3 cache pays its latency on every access
-    (paper task, 3.4 kB per agent: ~1.7× more time per agent-step at 2,048 lanes than at
-    128, ``benchmarks/RESULTS.md``).
-    """
-    cache = l2_cache_bytes() if cache_bytes is None else cache_bytes
-    fits = max(1, cache // max(1, bytes_per_lane))
-    return int(min(MAX_SAFE_BATCH, max(8, 1 << (fits.bit_length() - 1))))
-
-
-def state_bytes_per_lane(agents: AgentState) -> int:
-    """Bytes of one agent's state (its tables and scalars) in a batch."""
-    leaves = jax.tree.leaves(agents)
-    lanes = max(1, int(agents.episode.shape[0]))
-    return sum(int(np.prod(leaf.shape)) * leaf.dtype.itemsize for leaf in leaves) // lanes
-
 
 #: Lockstep iterations per while-loop trip (amortises XLA's per-trip overhead).
 DEFAULT_UNROLL = 1
@@ -300,8 +260,9 @@ def run_chunk_lockstep(
     """One chunk of the lockstep strategy: kind by kind, in groups of at most
     ``max_batch`` lanes, the groups spread over ``threads`` threads.
 
-    A group's tables stay cache-sized (:func:`cache_sized_batch`), and per-agent results
-    do not depend on the grouping (options as in :func:`~vdbejax.engine.run_agents`). On a
+    With ``compact``, a group is a stream of a kind's agents through a batch of
+    ``max_batch`` lanes (:func:`_run_stream`). Per-agent results do not depend on the
+    grouping (options as in :func:`~vdbejax.engine.run_agents`). On a
     CPU a group's loop is one native function on one core: groups on ``threads`` threads
     use the others (XLA runs a program outside the GIL). ``fixed_blocks``: each block is
     exactly ``block_iterations`` iterations, a loop of known trip count (on accelerators,
