@@ -99,15 +99,15 @@ def settings_bytes(num_settings: int) -> int:
 
 
 def check_run_size(num_agents: int, num_episodes: int, checkpoint: Any = None,
-                   available_bytes: int | None = None, num_settings: int = 0) -> int:
+                   num_settings: int = 0, available_bytes: int | None = None) -> int:
     """Refuse, before anything is allocated, a run whose settings and results cannot fit.
 
     Args:
       num_agents: agents of the run.
       num_episodes: episodes per agent.
       checkpoint: the checkpoint path, if any (its episode log needs disk space).
-      available_bytes: free host memory (default: ``MemAvailable``).
       num_settings: the run's settings (:func:`settings_bytes`; 0: the results only).
+      available_bytes: free host memory (default: ``MemAvailable``).
 
     Returns:
       the estimated host bytes of the settings and the results.

@@ -112,8 +112,7 @@ class PreparedGrid:
         """The same run, checkpointed to ``path`` (its folder must exist or be creatable)."""
         run = self.run.replace(checkpoint=path)
         check_writable_dir("checkpoint folder", Path(path).parent)
-        check_run_size(self.num_agents, self.num_episodes, path,  # the log's disk space
-                       num_settings=len(self.settings))
+        check_run_size(self.num_agents, self.num_episodes, path)  # the log's disk space
         return dataclasses.replace(self, run=run)
 
 
@@ -162,8 +161,7 @@ def prepare_grid(
             raise ValueError(f"settings holds {s!r}: must hold Setting(learner, explorer, param)")
     if run.checkpoint is not None:  # fail before training
         check_writable_dir("checkpoint folder", Path(run.checkpoint).parent)
-    check_run_size(len(settings) * num_seeds, num_episodes, run.checkpoint,  # before allocating
-                   num_settings=len(settings))
+    check_run_size(len(settings) * num_seeds, num_episodes, run.checkpoint, len(settings))
     stop = run.stop.resolve(mdp)
     window = getattr(stop, "window", None)
     if stop.checks_chunks and window is not None and window > num_episodes:
