@@ -304,9 +304,18 @@ def write_csv(path: str | os.PathLike, columns: Columns) -> None:
 def _csv_values(values: np.ndarray) -> Any:
     if np.issubdtype(values.dtype, np.floating):
         return np.char.mod("%.6g", values).astype(object)
-    if values.dtype == object:
-        return [f"{v:.6g}" if isinstance(v, (float, np.floating)) else v for v in values]
-    return values
+    if values.dtype != object:
+        return values.tolist()  # Python numbers: the csv module writes them fastest
+    # A column of the setting's values repeats a few objects: each is formatted once.
+    ids = np.fromiter(map(id, values), np.int64, len(values))
+    _, first, inverse = np.unique(ids, return_index=True, return_inverse=True)
+    texts = np.empty(len(first), dtype=object)
+    texts[:] = [_csv_text(values[i]) for i in first]
+    return texts[inverse]
+
+
+def _csv_text(value: Any) -> Any:
+    return f"{value:.6g}" if isinstance(value, (float, np.floating)) else value
 
 
 def write_parquet(path: str | os.PathLike, columns: Columns) -> None:
