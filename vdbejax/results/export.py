@@ -31,7 +31,7 @@ from __future__ import annotations
 import csv
 import io as text_io
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -306,12 +306,18 @@ def _csv_values(values: np.ndarray) -> Any:
         return np.char.mod("%.6g", values).astype(object)
     if values.dtype != object:
         return values.tolist()  # Python numbers: the csv module writes them fastest
-    # A column of the setting's values repeats a few objects: each is formatted once.
+    distinct, inverse = _distinct(values)
+    texts = np.empty(len(distinct), dtype=object)
+    texts[:] = [_csv_text(value) for value in distinct]
+    return texts[inverse]
+
+
+def _distinct(values: np.ndarray) -> tuple[list[Any], np.ndarray]:
+    """An object column as its distinct objects and each row's index among them: a column
+    of the settings' values repeats a few objects, each then converted once."""
     ids = np.fromiter(map(id, values), np.int64, len(values))
     _, first, inverse = np.unique(ids, return_index=True, return_inverse=True)
-    texts = np.empty(len(first), dtype=object)
-    texts[:] = [_csv_text(values[i]) for i in first]
-    return texts[inverse]
+    return [values[i] for i in first], inverse.reshape(-1)
 
 
 def _csv_text(value: Any) -> Any:
@@ -332,14 +338,17 @@ def _arrow(pyarrow: Any, values: np.ndarray) -> Any:
     float64, of booleans as bool, anything else as text."""
     if values.dtype != object:
         return pyarrow.array(values)
-    present = [v for v in values if v is not None]
+    distinct, inverse = _distinct(values)
+    present = [v for v in distinct if v is not None]
+    convert: Callable[[Any], Any]
     if all(isinstance(v, (bool, np.bool_)) for v in present):
-        return pyarrow.array(list(values), type=pyarrow.bool_())
-    if all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
-           for v in present):
-        return pyarrow.array([None if v is None else float(v) for v in values],
-                             type=pyarrow.float64())
-    return pyarrow.array([None if v is None else str(v) for v in values], type=pyarrow.string())
+        kind, convert = pyarrow.bool_(), bool
+    elif all(isinstance(v, (int, float, np.integer, np.floating)) for v in present):
+        kind, convert = pyarrow.float64(), float
+    else:
+        kind, convert = pyarrow.string(), str
+    converted = pyarrow.array([None if v is None else convert(v) for v in distinct], type=kind)
+    return converted.take(pyarrow.array(inverse))
 
 
 def _pyarrow() -> tuple[Any, Any]:
