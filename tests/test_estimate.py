@@ -29,7 +29,7 @@ def test_the_paper_grid_is_not_announced() -> None:
 
 def test_memory_counts_the_results_as_the_size_check_does() -> None:
     run = estimate.estimate_run(4, 25, 5000, statistics=False)
-    assert run.memory_bytes == check_run_size(100, 5000)
+    assert run.memory_bytes == check_run_size(100, 5000, num_settings=4)
     assert run.statistics_seconds == 0.0
     with_statistics = estimate.estimate_run(4, 25, 5000)
     assert with_statistics.memory_bytes > run.memory_bytes
@@ -140,3 +140,65 @@ def test_a_long_study_is_announced_whole_before_its_folder_is_made(
                   estimate.estimate_task(task.mdp, 2, 2, 10**6, statistics=False)]
     assert f"training ≥ {estimate.duration(sum(p.training_seconds for p in parts))}" in err
     assert not (tmp_path / "b").exists()
+
+
+MILLION_AXES = ["--axis", "alpha=" + ",".join(f"{0.001 * (i + 1):.3f}" for i in range(1000)),
+                "--axis", "sigma=" + ",".join(str(i + 1) for i in range(1000))]
+
+
+def test_a_sweep_of_a_million_settings_is_refused_before_any_is_made(tmp_path, monkeypatch):
+    # Issue 49, point 9: 10⁶ settings passed MAX_SETTINGS and took > 7 GiB before any
+    # estimate. Counted from the axes, its settings and results are checked first.
+    import time
+    import tracemalloc
+
+    from vdbejax.runs import batching
+    from vdbejax.studies.sweeps import run_sweep
+
+    monkeypatch.setattr(batching, "_host_available_bytes", lambda: 8 * 2**30)
+    axes = {"alpha": [0.001 * (i + 1) for i in range(1000)], "sigma": list(range(1, 1001))}
+    started = time.perf_counter()
+    tracemalloc.start()
+    try:
+        with pytest.raises(ValueError) as refused:
+            run_sweep(tmp_path / "big", learners=["qlearning"], explorers=["vdbe"], axes=axes,
+                      seeds=1, episodes=1000, progress=False)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 16 * 2**20  # nothing of the million settings was made
+    assert time.perf_counter() - started < 10
+    message = str(refused.value)
+    assert message.startswith("the run is too large for this machine: 1,000,000 settings")
+    assert "the settings ≈ 3.8 GiB" in message and "8.0 GiB are free" in message
+    fit = 8 * 2**30 // (batching.SETTING_BYTES + batching.result_bytes(1, 1000))
+    assert f"at most {fit:,} settings of this size fit" in message
+    assert not (tmp_path / "big").exists()
+
+
+def test_the_cli_refuses_it_in_one_line(tmp_path, capsys, monkeypatch):
+    from vdbejax.runs import batching
+
+    monkeypatch.setattr(batching, "_host_available_bytes", lambda: 8 * 2**30)
+    args = ["run", "--out", str(tmp_path / "big"), "--learners", "qlearning", "--explorers",
+            "vdbe", *MILLION_AXES]
+    assert cli.main(args) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: the run is too large"), lines
+    assert "1,000,000 settings (20,000,000 agents) × 1,000 episodes" in lines[0]
+    assert not (tmp_path / "big").exists()
+
+
+def test_the_printed_plan_states_the_settings_memory(tmp_path, capsys, monkeypatch) -> None:
+    text = estimate.estimate_run(10**6, 1, 10).describe()
+    assert "memory ≈ 5.0 GiB (the 1,000,000 settings ≈ 3.8 GiB)" in text
+    monkeypatch.setattr(estimate, "LONG_SECONDS", 0.0)
+    monkeypatch.setattr(estimate, "LARGE_SWEEP_SETTINGS", 2)  # a large sweep: announced first
+    args = ["run", "--out", str(tmp_path / "r"), "--learners", "qlearning", "--explorers",
+            "egreedy", "--axis", "epsilon=0.1,0.2", "--seeds", "2", "--episodes", "10"]
+    assert cli.main(args) == 0
+    first, second = capsys.readouterr().err.strip().splitlines()[:2]
+    assert first.startswith("a sweep of 2 settings (4 agents × 10 episodes): preparing them ≈")
+    assert "(the settings ≈ 8.0 KiB)" in first
+    assert second.startswith("a long run: 4 agents × 10 episodes")
+    assert "(the 2 settings ≈ 8.0 KiB)" in second

@@ -9,7 +9,6 @@ import pytest
 from vdbejax import cli
 from vdbejax.experiment import GridResult
 from vdbejax.methods import Setting
-from vdbejax.results import io
 from vdbejax.studies.sweeps import run_sweep
 
 
@@ -52,7 +51,7 @@ def test_dataframe_matches_the_arrays(folder):
 def test_long_csv_from_the_cli(folder, tmp_path, capsys):
     out = tmp_path / "plotted"
     assert cli.main(["plot", "--results", str(folder), "--out", str(out), "--long-csv"]) == 0
-    path = out / io.LONG_CSV_FILE
+    path = out / "returns_long.csv"
     assert str(path) in capsys.readouterr().out
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
@@ -67,5 +66,5 @@ def test_records_of_a_result_without_recorded_hyperparameters():
                         np.zeros((2, 2, 3), np.float32), np.ones((2, 2, 3), np.int32),
                         np.zeros((2, 2), bool), {})
     records = result.to_records()
-    assert records["explorer.epsilon"][0] == 0.1 and records["explorer.epsilon"][-1] == ""
+    assert records["explorer.epsilon"][0] == 0.1 and records["explorer.epsilon"][-1] is None
     assert records["explorer.sigma"][-1] == 1.0

@@ -15,7 +15,14 @@ from typing import Any
 
 from vdbejax import __version__
 from vdbejax import _interrupts as interrupts
-from vdbejax.cli.info_commands import add_compare, add_list, compare_command, list_command
+from vdbejax.cli.info_commands import (
+    add_compare,
+    add_export,
+    add_list,
+    compare_command,
+    export_command,
+    list_command,
+)
 from vdbejax.cli.paper_commands import (
     ablate_command,
     add_ablate,
@@ -53,6 +60,7 @@ COMMANDS = {
     "depth": (add_depth, depth_command),
     "list": (add_list, list_command),
     "compare": (add_compare, compare_command),
+    "export": (add_export, export_command),
 }
 
 

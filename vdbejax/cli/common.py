@@ -5,12 +5,9 @@ from __future__ import annotations
 import argparse
 import gc
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from vdbejax.validation import parse_cli_number
-
-if TYPE_CHECKING:
-    from vdbejax.results.grid_result import GridResult
 
 
 def add_run_flags(p: argparse.ArgumentParser, resume: str) -> None:
@@ -40,16 +37,12 @@ def run_flags(args: argparse.Namespace) -> dict[str, Any]:
             "memory_budget_bytes": args.memory_budget}
 
 
-def write_long_csv(result: GridResult, out: str) -> Path:
-    """``returns_long.csv`` of a result (GridResult.to_records) into ``out``."""
-    from vdbejax.results import io
+def write_long_csv(folder: str, out: str) -> list[Path]:
+    """``--long-csv``: the returns table of the runs in ``folder`` as ``returns_long.csv``
+    in ``out`` (:func:`vdbejax.results.export.export_results`, replacing an earlier one)."""
+    from vdbejax.results.export import export_results
 
-    path = Path(out) / io.LONG_CSV_FILE
-    try:
-        io.write_columns_csv(path, result.to_records())
-    except OSError as error:
-        raise ValueError(f"cannot write {str(path)!r}: {error.strerror or error}") from None
-    return path
+    return export_results(folder, out, tables=["returns"], overwrite=True)
 
 
 def refuse_sizes_with_quick(quick: bool, given: list[str], what: str) -> None:

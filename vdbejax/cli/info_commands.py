@@ -45,3 +45,30 @@ def compare_command(args: argparse.Namespace) -> None:
             io.write_csv(args.csv, table, list(table[0]) if table else ["setting"])
         except OSError as error:
             raise ValueError(f"cannot write {args.csv!r}: {error.strerror or error}") from None
+
+
+def add_export(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "export", help="any result folder's returns, summaries and policy evaluations as long"
+                       " tables (CSV, or Parquet with pyarrow)",
+        description="Every run in FOLDER (and below it) as returns_long, summaries_long and"
+                    " evaluations_long tables: one row per setting × agent × episode, per"
+                    " setting, per setting × agent × evaluation (docs/analysis.md).")
+    p.add_argument("folder", metavar="FOLDER",
+                   help="a result folder: what run, reproduce, bench, depth, scale or ablate wrote")
+    p.add_argument("--format", default="csv", help="csv (default) or parquet (needs pyarrow)")
+    p.add_argument("--out", default=None, help="the folder to write into (default: FOLDER)")
+    p.add_argument("--tables", default=None,
+                   help="comma-separated: returns, summaries, evaluations (default: all)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the tables an earlier export wrote there")
+
+
+def export_command(args: argparse.Namespace) -> None:
+    from vdbejax.results.export import TABLE_FILES, export_results
+
+    tables = (tuple(TABLE_FILES) if args.tables is None
+              else [name for name in args.tables.split(",") if name])
+    for path in export_results(args.folder, args.out, format=args.format, tables=tables,
+                               overwrite=args.overwrite):
+        print(path)

@@ -57,7 +57,7 @@ def reproduce_command(args: argparse.Namespace) -> None:
     for claim in rep.claims:
         print(f"claim {claim.number}: {claim.verdict}")
     if args.long_csv:
-        print(write_long_csv(rep.result, args.out))
+        print(*write_long_csv(args.out, args.out), sep="\n")
     print(f"elapsed: {rep.elapsed_seconds:.1f} s"
           f" (training {rep.result.meta['elapsed_seconds']:.1f} s)")
 
@@ -80,10 +80,7 @@ def plot_command(args: argparse.Namespace) -> None:
 
     written = replot(args.results, args.out, bands=args.bands)
     if args.long_csv:
-        from vdbejax.results.grid_result import GridResult
-
-        written.append(write_long_csv(GridResult.load(args.results),
-                                       args.results if args.out is None else args.out))
+        written += write_long_csv(args.results, args.results if args.out is None else args.out)
     for path in written:
         print(path)
 

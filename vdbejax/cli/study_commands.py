@@ -135,7 +135,7 @@ def run_command(args: argparse.Namespace) -> None:
               f" [{row.final_ci_low:.3f}, {row.final_ci_high:.3f}]")
     print(f"training {result.meta['elapsed_seconds']:.1f} s → {args.out}")
     if args.long_csv:
-        print(write_long_csv(result, args.out))
+        print(*write_long_csv(args.out, args.out), sep="\n")
 
 
 def add_sweep_file(sub: argparse._SubParsersAction) -> None:

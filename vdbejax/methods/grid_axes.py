@@ -2,7 +2,8 @@
 
 :func:`sweep` builds them (each axis applied to the pairs that have its field),
 :func:`setting_of` states one setting's explorer parameter (its class default where none
-is given), and :data:`MAX_SETTINGS` bounds a grid before any setting is made.
+is given), :func:`sweep_size` counts them before any is made, and :data:`MAX_SETTINGS`
+bounds a grid.
 """
 from __future__ import annotations
 
@@ -36,8 +37,39 @@ def setting_of(learner: str, explorer: str, values: Mapping[str, Any]) -> Settin
 
 
 #: Most settings one grid holds (:func:`sweep`): each costs host memory before training
-#: (its agent, label and summary row), and a grid's config index is int32 in the engine.
+#: (its agent, label and summary row: :data:`vdbejax.runs.batching.SETTING_BYTES`, checked
+#: against the machine's memory before any is made), and a grid's config index is int32
+#: in the engine.
 MAX_SETTINGS = 1_000_000
+
+
+def sweep_size(learners: Sequence[str], explorers: Sequence[str],
+               axes: Mapping[str, Sequence[Any]] | None = None) -> int:
+    """The number of settings :func:`sweep` makes of these names and axes, counted from
+    the axes' sizes before any setting is made (so that a run can estimate and refuse a
+    sweep too large for the machine first).
+
+    Raises:
+      ValueError: an empty list, an unknown explorer, or more than :data:`MAX_SETTINGS`.
+    """
+    axes = dict(axes or {})
+    for name, values in (("learners", learners), ("explorers", explorers)):
+        if isinstance(values, str) or not values:
+            raise ValueError(f"{name}={values!r} is invalid: must be a non-empty list of names")
+    for name, values in axes.items():
+        if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or not values:
+            raise ValueError(f"axis {name}={values!r} is invalid: must be a non-empty list"
+                             " of values")
+    for explorer in explorers:
+        explorer_class(explorer)  # an unknown name: its one-line error before any other
+    count = sum(math.prod(len(axes[name]) for name in axes if owners(name, learner, explorer))
+                for learner in learners for explorer in explorers)
+    if count > MAX_SETTINGS:  # counted before any is made: 10⁸ would take minutes and GBs
+        sizes = ", ".join(f"{name} ({len(values)})" for name, values in axes.items())
+        raise ValueError(f"the sweep is too large: {len(learners)} learners × {len(explorers)}"
+                         f" explorers × the axes {sizes} make {count:,} settings, more than"
+                         f" the {MAX_SETTINGS:,} one grid holds: split it into several runs")
+    return count
 
 
 def sweep(learners: Sequence[str], explorers: Sequence[str],
@@ -67,22 +99,7 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
     """
     axes = dict(axes or {})
     shared = dict(shared or {})
-    for name, values in (("learners", learners), ("explorers", explorers)):
-        if isinstance(values, str) or not values:
-            raise ValueError(f"{name}={values!r} is invalid: must be a non-empty list of names")
-    for name, values in axes.items():
-        if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or not values:
-            raise ValueError(f"axis {name}={values!r} is invalid: must be a non-empty list"
-                             " of values")
-    for explorer in explorers:
-        explorer_class(explorer)  # an unknown name: its one-line error before any other
-    count = sum(math.prod(len(axes[name]) for name in axes if owners(name, learner, explorer))
-                for learner in learners for explorer in explorers)
-    if count > MAX_SETTINGS:  # counted before any is made: 10⁸ would take minutes and GBs
-        sizes = ", ".join(f"{name} ({len(values)})" for name, values in axes.items())
-        raise ValueError(f"the sweep is too large: {len(learners)} learners × {len(explorers)}"
-                         f" explorers × the axes {sizes} make {count:,} settings, more than"
-                         f" the {MAX_SETTINGS:,} one grid holds: split it into several runs")
+    sweep_size(learners, explorers, axes)
     used: set[str] = set()
     settings = []
     for learner in learners:
@@ -101,4 +118,4 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
     return settings
 
 
-__all__ = ["MAX_SETTINGS", "setting_of", "sweep"]
+__all__ = ["MAX_SETTINGS", "setting_of", "sweep", "sweep_size"]

@@ -89,8 +89,9 @@ class GridResult:
     def to_records(self, all_hyperparameters: bool = False) -> dict[str, np.ndarray]:
         """The curves in long format, one row per agent-episode, as columns: ``config``,
         ``setting`` (its label), ``learner``, ``explorer``, ``param``, the hyperparameters
-        (:meth:`hyperparameters`; blank where a config has no such field), ``seed``,
-        ``episode`` (1-based), ``return`` and ``length``.
+        (:meth:`hyperparameters`; None where a config has no such field), ``seed``
+        (``replicate`` too, with several), ``episode`` (1-based), ``return`` and ``length``:
+        the returns table of :func:`vdbejax.results.export.export_results` for this run.
 
         Args:
           all_hyperparameters: a column for every hyperparameter; by default only for
@@ -100,30 +101,9 @@ class GridResult:
           ``{column: array}``, all of length configs × seeds × episodes, in the order
           config, seed, episode.
         """
-        configs, seeds, episodes = self.returns.shape
-        per_config = [self.hyperparameters(c) for c in range(configs)]
-        names = sorted({name for values in per_config for name in values})
-        if not all_hyperparameters:
-            names = [n for n in names if len({repr(v.get(n, "")) for v in per_config}) > 1]
-        rows = seeds * episodes
+        from vdbejax.results.export import hyperparameter_names, returns_columns
 
-        def repeat(values: list[Any]) -> np.ndarray:
-            return np.repeat(np.asarray(values, dtype=object), rows)
-
-        records = {
-            "config": np.repeat(np.arange(configs), rows),
-            "setting": repeat([s.label for s in self.settings]),
-            "learner": repeat([s.learner for s in self.settings]),
-            "explorer": repeat([s.explorer for s in self.settings]),
-            "param": repeat(["" if s.param is None else s.param for s in self.settings]),
-        }
-        for name in names:
-            records[name] = repeat([values.get(name, "") for values in per_config])
-        records["seed"] = np.tile(np.repeat(np.arange(seeds), episodes), configs)
-        records["episode"] = np.tile(np.arange(1, episodes + 1), configs * seeds)
-        records["return"] = self.returns.reshape(-1)
-        records["length"] = self.lengths.reshape(-1)
-        return records
+        return returns_columns(self, hyperparameter_names([self], all_hyperparameters))
 
     def to_dataframe(self, all_hyperparameters: bool = False) -> Any:
         """:meth:`to_records` as a ``pandas.DataFrame`` (long format: one row per

@@ -5,13 +5,15 @@ run killed at any moment never leaves a half-written result.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
 import os
 import secrets
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -27,6 +29,15 @@ RESULT_FILES = (RETURNS_FILE, CONFIGS_FILE, META_FILE)
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically (temporary file + rename)."""
+    with atomic_file(path) as f:
+        f.write(data)
+
+
+@contextlib.contextmanager
+def atomic_file(path: str | os.PathLike) -> Iterator[BinaryIO]:
+    """A binary file that becomes ``path`` when the block ends without an exception
+    (written to a temporary file in the same folder and renamed into place; removed on any
+    exception, Ctrl-C included)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     # The writer's pid in the name lets a later run remove what a killed one left behind
@@ -41,7 +52,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
             except FileExistsError:
                 continue
         with os.fdopen(fd, "wb") as f:
-            f.write(data)
+            yield f
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
@@ -98,22 +109,6 @@ def write_csv(path: str | os.PathLike, rows: list[dict[str, Any]], columns: list
     writer.writeheader()
     for row in rows:
         writer.writerow({c: _format(row[c]) for c in columns})
-    atomic_write_text(path, buffer.getvalue())
-
-
-LONG_CSV_FILE = "returns_long.csv"
-
-
-def write_columns_csv(path: str | os.PathLike, columns: dict[str, np.ndarray]) -> None:
-    """Write equal-length ``columns`` as a CSV (header = their names) atomically; floats
-    with 6 significant digits."""
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(list(columns))
-    formatted = [np.char.mod("%.6g", values).astype(object)
-                 if np.issubdtype(values.dtype, np.floating) else values
-                 for values in columns.values()]
-    writer.writerows(zip(*formatted, strict=True))
     atomic_write_text(path, buffer.getvalue())
 
 

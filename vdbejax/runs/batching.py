@@ -4,7 +4,7 @@ A run's agents are independent, so they can run in any grouping with the same re
 When the per-device memory of all agents (Q tables, VDBE ε tables, chunk buffers) exceeds
 the budget, the run's plan (:mod:`vdbejax.runs.plan`) runs them in sequential batches of
 at most :func:`agents_per_batch` agents; :func:`check_run_size` refuses, before anything
-is allocated, a run whose results cannot fit the host.
+is allocated, a run whose settings and results cannot fit the host.
 """
 from __future__ import annotations
 
@@ -71,6 +71,14 @@ def _host_available_bytes() -> int:
 RESULT_BYTES_PER_EPISODE = 16
 #: Host bytes per agent besides its episodes (hyperparameters, key, progress, summary).
 RESULT_BYTES_PER_AGENT = 512
+#: Host bytes per setting of a grid, besides its agents' results: the :class:`Setting`,
+#: its agent while the grid's hyperparameters are stacked, its entries in the run's
+#: fingerprint and ``meta.json``, its label and summary row. A sweep of 10⁵ settings (one
+#: agent each) peaked ≈ 2 KiB per setting above the process's start while it was prepared
+#: (``resource.getrusage``, 2026-12-05); twice that covers what the finished run keeps of
+#: each (its hyperparameter record, label and summary row). Its agents' hyperparameters
+#: and keys are in :data:`RESULT_BYTES_PER_AGENT`.
+SETTING_BYTES = 4096
 #: Bytes per agent-episode of a checkpoint's episode log (returns and lengths).
 LOG_BYTES_PER_EPISODE = 8
 
@@ -85,25 +93,41 @@ def log_bytes(num_agents: int, num_episodes: int) -> int:
     return num_agents * num_episodes * LOG_BYTES_PER_EPISODE
 
 
+def settings_bytes(num_settings: int) -> int:
+    """Host bytes of a grid's settings themselves (:data:`SETTING_BYTES` each)."""
+    return num_settings * SETTING_BYTES
+
+
 def check_run_size(num_agents: int, num_episodes: int, checkpoint: Any = None,
-                   available_bytes: int | None = None) -> int:
-    """Refuse, before anything is allocated, a run whose results cannot fit.
+                   num_settings: int = 0, available_bytes: int | None = None) -> int:
+    """Refuse, before anything is allocated, a run whose settings and results cannot fit.
 
     Args:
       num_agents: agents of the run.
       num_episodes: episodes per agent.
       checkpoint: the checkpoint path, if any (its episode log needs disk space).
+      num_settings: the run's settings (:func:`settings_bytes`; 0: the results only).
       available_bytes: free host memory (default: ``MemAvailable``).
 
     Returns:
-      the estimated host bytes of the results.
+      the estimated host bytes of the settings and the results.
 
     Raises:
-      ValueError: the results need more memory than is free, or the checkpoint log more
-        disk space: one line with the estimate and the limit.
+      ValueError: they need more memory than is free, or the checkpoint log more disk
+        space: one line with the sizes, the estimate, the limit and what fits.
     """
-    needed = result_bytes(num_agents, num_episodes)
+    results = result_bytes(num_agents, num_episodes)
+    needed = results + settings_bytes(num_settings)
     available = _host_available_bytes() if available_bytes is None else available_bytes
+    if needed > available and num_settings:
+        per_setting = needed / num_settings  # the same agents and episodes per setting
+        fit = int(available // per_setting)
+        raise ValueError(
+            f"the run is too large for this machine: {num_settings:,} settings"
+            f" ({num_agents:,} agents) × {num_episodes:,} episodes need ≈ {_size(needed)} of"
+            f" memory (the settings ≈ {_size(settings_bytes(num_settings))}, their results ≈"
+            f" {_size(results)}), but {_size(available)} are free: at most {fit:,} settings of"
+            " this size fit; use fewer settings, seeds or episodes, or split the run")
     if needed > available:
         raise ValueError(
             f"num_seeds × num_episodes is too large: {num_agents:,} agents × {num_episodes:,}"

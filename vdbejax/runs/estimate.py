@@ -38,7 +38,7 @@ from vdbejax.engine import available_cpus
 from vdbejax.envs.solvers import shortest_episode
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.results.bootstrap import NUM_RESAMPLES
-from vdbejax.runs.batching import _size, log_bytes, result_bytes
+from vdbejax.runs.batching import _size, log_bytes, result_bytes, settings_bytes
 from vdbejax.runs.evaluation import evaluation_operations
 
 if TYPE_CHECKING:
@@ -62,6 +62,12 @@ EVALUATION_OPS_PER_SECOND = 2.5e8
 STATISTICS_BYTES_PER_SETTING_EPISODE = 64
 #: A run whose estimate exceeds this is announced before it starts.
 LONG_SECONDS = 60.0
+#: Seconds to prepare one setting before training (its agent made, checked and stacked
+#: with the others: 10⁵ settings took 150 s on a busy 2-core machine, 2026-12-05).
+PREPARE_SECONDS_PER_SETTING = 1.5e-3
+#: A sweep of at least this many settings is announced before its settings are made
+#: (:func:`announce_settings`): preparing them takes about 15 s or more.
+LARGE_SWEEP_SETTINGS = 10_000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,7 +76,9 @@ class RunEstimate:
 
     Attributes:
       agents, episodes, settings: the work's size (``episodes``: the budget).
-      memory_bytes: host memory of the results and their statistics.
+      memory_bytes: host memory of the settings, the results and their statistics.
+      settings_bytes: the settings' share of it (:data:`~vdbejax.runs.batching.SETTING_BYTES`
+        each: a sweep of 10⁶ settings takes gigabytes before any agent trains).
       disk_bytes: the checkpoint's episode log at its largest.
       training_seconds: a lower bound of the training's wall time.
       statistics_seconds: a forecast of the statistics' and figures' (0 without them).
@@ -90,6 +98,7 @@ class RunEstimate:
     most_steps: int = 0
     evaluations: int = 0
     evaluation_operations: int = 0
+    settings_bytes: int = 0
 
     @property
     def evaluation_seconds(self) -> float:
@@ -114,7 +123,8 @@ class RunEstimate:
                       f" ≤ {count(self.evaluation_operations)} multiply-adds)"
                       if self.evaluations else "")
         return (f"{self.agents:,} agents × {self.episodes:,} episodes: {_common(self)}"
-                f"{evaluation}, memory ≈ {_size(self.memory_bytes)}, checkpoint ≈"
+                f"{evaluation}, memory ≈ {_size(self.memory_bytes)} (the {self.settings:,}"
+                f" settings ≈ {_size(self.settings_bytes)}), checkpoint ≈"
                 f" {_size(self.disk_bytes)} of disk")
 
 
@@ -180,6 +190,21 @@ def announce(estimate: RunEstimate | StudyEstimate, what: str) -> None:
                          " --resume continues\n")
 
 
+def announce_settings(settings: int, agents: int, episodes: int) -> None:
+    """Write ``a sweep of N settings: …`` to stderr for a sweep of at least
+    :data:`LARGE_SWEEP_SETTINGS` settings, before any is made: the time to prepare them and
+    the memory of the settings and their results (the run's own estimate follows once
+    they are made)."""
+    if settings < LARGE_SWEEP_SETTINGS:
+        return
+    memory = result_bytes(agents, episodes) + settings_bytes(settings)
+    sys.stderr.write(f"a sweep of {settings:,} settings ({agents:,} agents × {episodes:,}"
+                     f" episodes): preparing them ≈"
+                     f" {duration(settings * PREPARE_SECONDS_PER_SETTING)} before training,"
+                     f" memory ≈ {_size(memory)} (the settings ≈ {_size(settings_bytes(settings))})"
+                     "\n")
+
+
 def count(number: float) -> str:
     """``"950"``, ``"1.5 k"``, ``"3.2 M"`` or ``"4.0 G"``."""
     for scale, suffix in ((1e9, " G"), (1e6, " M"), (1e3, " k")):
@@ -224,7 +249,7 @@ def estimate_run(settings: int, seeds: int, episodes: int, *, statistics: bool =
     steps = float(agents) * fewest * steps_per_episode
     training = max(steps / (MAX_STEPS_PER_SECOND * max(cores, 1)),
                    fewest * steps_per_episode / MAX_LANE_STEPS_PER_SECOND) if agents else 0.0
-    memory = result_bytes(agents, episodes)
+    memory = result_bytes(agents, episodes) + settings_bytes(settings)
     seconds = 0.0
     if statistics:
         memory += settings * episodes * STATISTICS_BYTES_PER_SETTING_EPISODE
@@ -235,7 +260,8 @@ def estimate_run(settings: int, seeds: int, episodes: int, *, statistics: bool =
     return RunEstimate(agents=agents, episodes=episodes, settings=settings,
                        memory_bytes=int(memory), disk_bytes=int(disk),
                        training_seconds=training, statistics_seconds=seconds,
-                       fewest_steps=int(steps), most_steps=int(agents * episodes * max_steps))
+                       fewest_steps=int(steps), most_steps=int(agents * episodes * max_steps),
+                       settings_bytes=settings_bytes(settings))
 
 
 def estimate_task(mdp: TabularMDP, settings: int, seeds: int, episodes: int, *,

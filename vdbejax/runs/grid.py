@@ -161,7 +161,7 @@ def prepare_grid(
             raise ValueError(f"settings holds {s!r}: must hold Setting(learner, explorer, param)")
     if run.checkpoint is not None:  # fail before training
         check_writable_dir("checkpoint folder", Path(run.checkpoint).parent)
-    check_run_size(len(settings) * num_seeds, num_episodes, run.checkpoint)  # before allocating
+    check_run_size(len(settings) * num_seeds, num_episodes, run.checkpoint, len(settings))
     stop = run.stop.resolve(mdp)
     window = getattr(stop, "window", None)
     if stop.checks_chunks and window is not None and window > num_episodes:

@@ -14,7 +14,7 @@ created), then:
    training again, a checkpoint of another run is refused;
 4. runs, checkpointing to ``checkpoint.npz`` after every chunk (continuing from it with
    ``resume``);
-5. removes the outputs an earlier run left (figures, the long CSV), saves
+5. removes the outputs an earlier run left (figures, exported tables), saves
    ``returns.npz``, ``configs.csv``, ``meta.json`` (marked while written,
    :mod:`vdbejax.results.folder_lock`), removes the checkpoint, and writes the outputs.
 """
@@ -27,6 +27,7 @@ from typing import Any, TypeVar
 
 from vdbejax.engine.distributed import process_checkpoint_path
 from vdbejax.results import io
+from vdbejax.results.export import EXPORT_FILES
 from vdbejax.results.folder_lock import (
     FolderLock,
     check_output_paths,
@@ -160,8 +161,8 @@ def train_in_folder(
             raise ValueError(f"{name}={str(out)!r}: its lock file was deleted during the run, so"
                              f" another run may be writing there; {rescue(result)}")
         # Outputs of an earlier run that this one may not write (figures of a run with
-        # figures beside one without, a long CSV) must not outlive it.
-        for stale in {*files, io.LONG_CSV_FILE} - set(io.RESULT_FILES):
+        # figures beside one without, exported tables) must not outlive it.
+        for stale in {*files, *EXPORT_FILES} - set(io.RESULT_FILES):
             (out / stale).unlink(missing_ok=True)
         value = save_run(result, out, lambda stats: write(result, stats), bands=bands,
                          statistics=statistics, outputs=files, on_saved=lambda: remove_checkpoint(

@@ -16,6 +16,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from vdbejax.methods.grid_axes import sweep_size
 from vdbejax.results import io
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.replicates import (
@@ -31,6 +32,8 @@ from vdbejax.results.replicates import (
 from vdbejax.results.stats import CurveStatistics
 from vdbejax.results.summary import SUMMARY_FILE, write_summary
 from vdbejax.runs import RunOptions, prepare_grid
+from vdbejax.runs.batching import check_run_size
+from vdbejax.runs.estimate import announce_settings
 from vdbejax.studies import train_in_folder
 from vdbejax.studies.sweep_file import (  # noqa: F401 (the sweep file's names, here since 0.1)
     SWEEP_KEYS,
@@ -186,12 +189,19 @@ def run_sweep(
 
     load_plugins(list(plugins))
     mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)
-    grid_settings = sweep_settings(learners, explorers, axes, shared, exclude, settings)
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
     seeds = check_int("seeds", seeds, 1, INT32_MAX)  # plain ints (NumPy ones welcome)
     episodes = check_int("episodes", episodes, 1, INT32_MAX)
     replicates = check_replicates(replicates, seeds)
     progress = check_bool("progress", progress)
+    # Counted from the axes before any setting is made: a sweep too large for the machine
+    # is refused, and a large one announced, before its settings take the memory.
+    planned = (sweep_size(learners, explorers, axes) if learners or explorers or axes else 0) \
+        + (len(settings) if isinstance(settings, Sequence) else 0)
+    check_run_size(planned * seeds * replicates, episodes, num_settings=planned)
+    if progress:
+        announce_settings(planned, planned * seeds * replicates, episodes)
+    grid_settings = sweep_settings(learners, explorers, axes, shared, exclude, settings)
     figures = check_bool("figures", figures)
     run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
                      overwrite=overwrite, memory_budget_bytes=memory_budget_bytes, devices=devices,
