@@ -5,6 +5,7 @@ run killed at any moment never leaves a half-written result.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
@@ -48,7 +49,8 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         _fsync_dir(path.parent)  # make the rename itself survive a power loss
     except BaseException:
         if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
+            with contextlib.suppress(OSError):  # the first error says why (a folder made
+                os.unlink(tmp)  # unwritable); the run's one line names the file left
         raise
 
 
