@@ -271,6 +271,11 @@ def run_prepared(prepared: PreparedGrid, programs: Programs | None = None) -> Gr
                      prepared.keys[plan.rows], plan, state, prepared.stop,
                      checkpoint=None if writer is None else _failing_quietly(writer),
                      progress=progress, programs=programs, evaluate_every=run.evaluate_every)
+    except KeyboardInterrupt as stop:  # Ctrl-C in a Python session, after the running chunk
+        if writer is not None and writer.path.exists():
+            stop.add_note(f"vdbejax: the checkpoint {str(writer.path)!r} keeps the episodes run"
+                          " so far: the same call with resume=True continues from there")
+        raise
     finally:
         if writer is not None:
             writer.close()
