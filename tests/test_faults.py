@@ -5,6 +5,7 @@ Rerun the audit with ``pytest tests/test_faults.py``."""
 from __future__ import annotations
 
 import errno
+import os
 import shutil
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from vdbejax import cli
 from vdbejax.experiment import GridResult
 from vdbejax.results import io
 from vdbejax.runs import checkpoint as checkpoints
+from vdbejax.studies.sweeps import run_sweep
 
 RUN = ["--learners", "qlearning", "--explorers", "egreedy,vdbe", "--seeds", "2", "--episodes",
        "40", "--chunk-episodes", "10", "--quiet", "--no-figures"]
@@ -93,3 +95,90 @@ def test_a_folder_deleted_mid_run_is_noticed_and_the_results_kept(tmp_path, monk
     line = one_line(capsys)
     assert "lock file was deleted" in line
     np.testing.assert_array_equal(GridResult.load(rescued(line)).returns, clean.returns)
+
+
+def frozen_once_returns_are_written(monkeypatch, folder: Path) -> None:
+    """From the moment ``returns.npz`` is in ``folder`` on, nothing in it can be written or
+    removed, as after ``chattr +i``: PermissionError (EPERM)."""
+    real_write, real_unlink = io.atomic_write_bytes, Path.unlink
+    frozen: list[bool] = []
+
+    def denied(path) -> PermissionError:
+        return PermissionError(errno.EPERM, "Operation not permitted", str(path))
+
+    def write(path, data):
+        if frozen and Path(path).parent == folder:
+            raise denied(path)
+        real_write(path, data)
+        if Path(path) == folder / io.RETURNS_FILE:
+            frozen.append(True)
+
+    def unlink(path, missing_ok=False):
+        if frozen and path.parent == folder:
+            raise denied(path)
+        real_unlink(path, missing_ok=missing_ok)
+
+    monkeypatch.setattr(io, "atomic_write_bytes", write)
+    monkeypatch.setattr(Path, "unlink", unlink)
+
+
+def test_a_folder_made_unwritable_while_saving_is_one_line_naming_what_it_left(
+        tmp_path, monkeypatch, capsys, clean):
+    # The lock file cannot be removed either: the lock is given back all the same, and the
+    # file is named at the end of the run's one line (issue 49, point 6).
+    out = tmp_path / "out"
+    frozen_once_returns_are_written(monkeypatch, out)
+    assert run(out) == 2  # returned: no traceback
+    line = one_line(capsys)
+    assert "Operation not permitted" in line and str(out) in line
+    assert line.endswith(f"could not remove {out / '.vdbejax.lock'} (Operation not permitted)")
+    np.testing.assert_array_equal(GridResult.load(rescued(line)).returns, clean.returns)
+    left = {p.name for p in out.iterdir()}
+    assert {".vdbejax.lock", ".vdbejax-writing", io.RETURNS_FILE, "checkpoint.npz"} <= left
+    with pytest.raises(ValueError, match=r"lacks configs\.csv"):
+        GridResult.load(out)  # half-written (and marked so)
+    monkeypatch.undo()  # writable again: the checkpoint resumes, the lock file is reused
+    assert run(out, "--resume") == 0
+    np.testing.assert_array_equal(GridResult.load(out).returns, clean.returns)
+    assert not (out / ".vdbejax.lock").exists()
+
+
+def no_space_for_the_lock(monkeypatch) -> None:
+    """A full disk: the lock file is created (an inode) but its pid cannot be written."""
+
+    def pwrite(fd, data, offset):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "pwrite", pwrite)
+
+
+def test_a_full_disk_is_one_line_and_leaves_no_folder_and_no_lock(tmp_path, monkeypatch,
+                                                                   capsys):
+    no_space_for_the_lock(monkeypatch)
+    out = tmp_path / "new" / "out"
+    assert run(out) == 2
+    line = one_line(capsys)
+    assert line == (f"error: out={str(out)!r} cannot be locked for writing: No space left on"
+                    " device")
+    assert not out.exists()  # the folder this run made is gone again
+    kept = tmp_path / "kept"  # a folder the user made stays, without a lock file
+    kept.mkdir()
+    with pytest.raises(ValueError, match="cannot be locked for writing: No space left"):
+        run_sweep(kept, learners=["qlearning"], explorers=["egreedy"], seeds=1, episodes=5,
+                  progress=False, figures=False)
+    assert list(kept.iterdir()) == []
+
+
+def test_a_full_disk_while_probing_the_folder_leaves_no_folder(tmp_path, monkeypatch,
+                                                               capsys):
+    real = Path.write_bytes
+
+    def write_bytes(path, data):
+        if path.name.startswith(".write-test-"):
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, data)
+
+    monkeypatch.setattr(Path, "write_bytes", write_bytes)
+    assert run(tmp_path / "a" / "b") == 2
+    assert "No space left on device" in one_line(capsys)
+    assert list(tmp_path.iterdir()) == []

@@ -268,7 +268,12 @@ def test_the_plan_sizes_chunks_by_agent_episodes_and_results_do_not_change():
     calls = []
     planned = run_small(num_episodes=120, chunk_episodes=None,
                         progress=lambda done, total, t: calls.append(done))
-    assert calls == [0, len(SETTINGS) * 3 * 120]  # 12 agents: one chunk of all 120 episodes
+    # 12 agents: a chunk of up to all 120 episodes, cut by time (vdbejax.engine.chunks):
+    # the first chunk is one episode, the next ones at most four times the previous.
+    agents = len(SETTINGS) * 3
+    assert calls[:2] == [0, agents] and calls[-1] == agents * 120, calls
+    episodes = np.diff(calls) // agents
+    assert (episodes[1:] <= 4 * episodes[:-1]).all(), calls
     chunked = run_small(num_episodes=120, chunk_episodes=7)
     assert (planned.returns == chunked.returns).all()
     assert (planned.lengths == chunked.lengths).all()

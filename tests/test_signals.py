@@ -290,3 +290,73 @@ def test_a_signal_the_parent_ignores_stays_ignored(tmp_path):
     _, err = run.communicate(timeout=300)
     assert run.returncode == 0 and "interrupted" not in err, (run.returncode, err)
     assert (out / "returns.npz").exists()
+
+
+_PYTHON_SESSION_RUN = """
+import signal, sys
+signal.signal(signal.SIGINT, signal.default_int_handler)  # an interactive session's Ctrl-C
+from vdbejax.studies.sweeps import run_sweep
+
+# UCBVI plans at every episode: 2 agents x 200,000 episodes take minutes, and the chunks
+# of 10,000 episodes the plan once ran (agent-episodes alone) took half a minute each.
+run_sweep(sys.argv[1], learners=["ucbvi"], explorers=["greedy"], seeds=2, episodes=200_000,
+          progress=False, figures=False)
+"""
+
+
+def test_ctrl_c_in_a_python_session_stops_a_run_after_its_chunk_of_about_a_second(tmp_path):
+    # Issue 49, point 10: from Python (no command-line handler, no watchdog) Ctrl-C is
+    # Python's KeyboardInterrupt, which waits for the native call that runs: the plan's
+    # chunks last about a second (vdbejax.engine.chunks), so the run stops within seconds,
+    # its checkpoint kept and its folder unlocked.
+    out = tmp_path / "out"
+    run = subprocess.Popen([sys.executable, "-c", _PYTHON_SESSION_RUN, str(out)],
+                           stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not (out / "checkpoint.npz").exists() and time.time() < deadline:
+        time.sleep(0.05)  # the first chunk has run: training
+    time.sleep(0.5)
+    sent = time.monotonic()
+    run.send_signal(signal.SIGINT)
+    _, err = run.communicate(timeout=120)
+    waited = time.monotonic() - sent
+    assert run.returncode == -signal.SIGINT, (run.returncode, err)  # Python's own exit
+    assert err.rstrip().endswith("KeyboardInterrupt\nvdbejax: the checkpoint"
+                                 f" {str(out / 'checkpoint.npz')!r} keeps the episodes run so"
+                                 " far: the same call with resume=True continues from there"), err
+    assert waited < 15.0, waited  # about a second; a chunk of the old plan took 30 s here
+    with np.load(out / "checkpoint.npz") as data:
+        assert 0 < data["episodes_done"].max() < 200_000
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoint.npz", "checkpoint.npz.episodes"]
+
+
+def test_a_timed_schedule_keeps_the_plans_chunk_ends_and_sizes_chunks_by_time():
+    from vdbejax.engine.chunks import GROWTH, OVERHEAD_RATIO, ChunkSchedule
+
+    assert list(ChunkSchedule(3, 20, 8)) == [(3, 11), (11, 19), (19, 20)]  # fixed
+    now = [0.0]
+    schedule = ChunkSchedule(0, 1000, 100, seconds=1.0, clock=lambda: now[0])
+    schedule.start()
+    ends = []
+
+    def run_chunk(c, seconds_per_episode, overhead=0.0):
+        first, end = schedule[c]
+        now[0] += (end - first) * seconds_per_episode
+        schedule.received(c)
+        now[0] += overhead
+        schedule.handled(c)
+        ends.append(end)
+
+    run_chunk(0, 0.01)  # unmeasured: one episode
+    assert ends == [1]
+    run_chunk(1, 0.01)  # measured at 0.01 s an episode: 100, but at most GROWTH × 1
+    assert ends == [1, 1 + GROWTH]
+    for c in range(2, 5):
+        run_chunk(c, 0.01)
+    assert ends[-1] == 100  # every multiple of the plan's chunk still ends a chunk
+    run_chunk(5, 0.01)
+    assert schedule[5] == (100, 200)  # 100 episodes of 0.01 s: one second
+    run_chunk(6, 0.125, overhead=2.0)  # slower episodes and a checkpoint of 2 s
+    first, end = schedule[7]
+    assert end - first == OVERHEAD_RATIO * 2.0 / 0.125  # training ≥ 4 × the checkpoint
+    assert list(schedule)[-1][1] == 1000

@@ -101,10 +101,10 @@ def in_import(frame: Any) -> bool:
 
 
 #: Releases of what this process holds (folder locks): run before a watchdog's exit.
-_held: dict[int, Callable[[], None]] = {}
+_held: dict[int, Callable[[], object]] = {}
 
 
-def hold(key: int, release: Callable[[], None]) -> None:
+def hold(key: int, release: Callable[[], object]) -> None:
     """Register ``release`` (under ``key``, e.g. ``id(lock)``) to run if a watchdog ends
     the process."""
     _held[key] = release

@@ -5,6 +5,8 @@ is allowed, so the CLI can print it and exit 2.
 """
 from __future__ import annotations
 
+import contextlib
+import itertools
 import math
 import operator
 import os
@@ -136,12 +138,16 @@ def check_writable_dir(name: str, path: Any) -> Path:
         _fail(name, path, "must be a folder path")
     _interrupts.raise_pending()  # a stop the command line recorded: before any folder exists
     folder = Path(path)
+    made = list(itertools.takewhile(lambda p: not p.exists(), (folder, *folder.parents)))
     try:
         folder.mkdir(parents=True, exist_ok=True)
         probe = folder / f".write-test-{os.getpid()}"
         probe.write_bytes(b"")
         probe.unlink()
     except OSError as error:
+        for created in made:  # a full disk: the folders made here go again, deepest first
+            with contextlib.suppress(OSError):
+                created.rmdir()
         _fail(name, str(folder), f"must be a writable folder ({error.strerror or error})")
     return folder
 

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vdbejax.engine.chunks import ChunkSchedule
 from vdbejax.engine.lockstep import (
     DEFAULT_UNROLL,
     MAX_SAFE_BATCH,
@@ -85,6 +86,7 @@ def run_agents(
     programs: Programs | None = None,
     chunk_states: bool = True,
     fixed_blocks: bool | None = None,
+    chunk_seconds: float | None = None,
 ) -> RunResult:
     """Train a batch of agents for ``num_episodes`` episodes each.
 
@@ -126,6 +128,9 @@ def run_agents(
         iterations, loops of known trip count (default: on accelerators, where a loop
         condition that depends on the data costs a round trip to the host per
         iteration; on a CPU the condition is free and a block stops when its lanes do).
+      chunk_seconds: size chunks by time: about this many seconds each, every multiple
+        of ``chunk_episodes`` still a chunk end (:mod:`~vdbejax.engine.chunks`; a stop
+        waits for the chunk that runs). None: chunks of ``chunk_episodes``.
 
     None of ``compact`` … ``threads`` nor ``fixed_blocks`` change the results, only the
     speed, as long as ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
@@ -183,9 +188,8 @@ def run_agents(
         assert agents is not None  # created above unless the sequential strategy holds them
         return agents
 
-    bounds = [(first, min(first + chunk, num_episodes))
-              for first in range(done, num_episodes, chunk)]
-    if sequential is not None and bounds and not sequential.prepare(buffer):
+    bounds = ChunkSchedule(done, num_episodes, chunk, chunk_seconds)
+    if sequential is not None and bounds.exists(0) and not sequential.prepare(buffer):
         # not compiled natively: lockstep is faster
         strategy, agents, sequential = "lockstep", sequential.agents(), None
 
@@ -210,11 +214,13 @@ def run_agents(
     chunks = (lockstep_chunks() if sequential is None else
               sequential.run_chunks(bounds, buffer, ahead=0 if wait else 1,
                                     snapshots=states and not wait))
+    bounds.start()
     try:
         # strict=False: zip stops at the last bound without asking ``chunks`` for more (a
         # strict zip would resume the generator once past its last chunk).
-        for (first, end), (chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes) in zip(
-                bounds, chunks, strict=False):
+        for c, ((first, end), (chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes)
+                ) in enumerate(zip(bounds, chunks, strict=False)):
+            bounds.received(c)
             returns[:, first:end] = np.asarray(chunk_returns)[:, : end - first]
             lengths[:, first:end] = np.asarray(chunk_lengths)[:, : end - first]
             iterations += chunk_iterations
@@ -226,6 +232,7 @@ def run_agents(
             if progress:
                 progress(done * num_agents, num_episodes * num_agents,
                          time.perf_counter() - started)
+            bounds.handled(c)
     finally:  # the workers stop (and none is left running) whatever happens here
         chunks.close()
     if keep_final_state:

@@ -27,6 +27,7 @@ import jax
 import numpy as np
 
 from vdbejax import _xla_flags
+from vdbejax.engine.chunks import ChunkSchedule
 from vdbejax.engine.lane_loops import _run_sequential, lanes_for
 from vdbejax.engine.programs import Call, Programs
 from vdbejax.engine.state import AgentState, init_agents
@@ -262,7 +263,7 @@ class _SequentialRun:
         return (np.asarray(returns)[: index.size], np.asarray(lengths)[: index.size],
                 int(iterations), int(lanes), copy)
 
-    def run_chunks(self, bounds: list[tuple[int, int]], chunk_length: int, ahead: int,
+    def run_chunks(self, bounds: ChunkSchedule, chunk_length: int, ahead: int,
                    snapshots: bool = False
                    ) -> Generator[tuple[np.ndarray, np.ndarray, int, int], None, None]:
         """Advance every agent chunk by chunk (after :meth:`prepare`); yields each chunk's
@@ -270,13 +271,14 @@ class _SequentialRun:
         chunk_length]`` buffers, Σ agent iterations (steps, plus one per episode start
         after a truncation) and Σ loop iterations × lanes (idle lanes included).
 
-        ``bounds``: each chunk's ``(first, end)`` episodes. Up to ``ahead`` later chunks
-        run while a chunk is handed out, so no thread waits for the slowest item at each
-        chunk's end. :meth:`agents` returns the state at the end of the chunk just handed
-        out with ``snapshots`` (from copies each item takes at its chunk's end) or with
-        ``ahead=0`` (every item waits there until the next chunk is asked for); otherwise
-        only once the last chunk is handed out. An item's chunks run in
-        order; items start most costly first by the steps of the latest chunk known when
+        ``bounds``: each chunk's ``(first, end)`` episodes (decided as each is queued).
+        Up to ``ahead`` later chunks run while a chunk is handed out, so no thread waits
+        for the slowest item at each chunk's end. :meth:`agents` returns the state at the
+        end of the chunk just handed out with ``snapshots`` (from copies each item takes
+        at its chunk's end) or with ``ahead=0`` (every item waits there until the next
+        chunk is asked for); otherwise only once the last chunk is handed out. An item's
+        chunks run in order; items start most costly first by the steps of the latest
+        chunk known when
         they are queued (their order only affects the balance).
         """
         num_agents = int(self.keys.shape[0])
@@ -300,9 +302,9 @@ class _SequentialRun:
                                                 pending.get((c - 1, k)), snapshots)
 
         try:
-            queued = 0
-            for c in range(len(bounds)):
-                while queued < min(len(bounds), c + 1 + (0 if pool is None else ahead)):
+            queued, c = 0, 0
+            while bounds.exists(c):
+                while queued < c + 1 + (0 if pool is None else ahead) and bounds.exists(queued):
                     queue(queued)
                     queued += 1
                 returns = np.zeros((num_agents, chunk_length), np.float32)
@@ -321,6 +323,7 @@ class _SequentialRun:
                     self._hold(copies)
                 costs = lengths.sum(axis=1)
                 yield returns, lengths, iterations, lane_iterations
+                c += 1
         finally:
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=True)

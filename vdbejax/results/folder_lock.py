@@ -23,6 +23,7 @@ import errno
 import json
 import os
 import re
+import warnings
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -48,25 +49,49 @@ _TEMPORARY = re.compile(r"^\..+\.(\d+)\.[^.]+\.tmp$")
 class FolderLock:
     """Exclusive use of a result folder by this process (``with FolderLock(folder): …``).
 
+    Args:
+      folder: the result folder.
+      name: its parameter name in error messages.
+      created: the caller made ``folder`` for this run: a lock that cannot be taken (a
+        full disk) removes it again.
+
     Raises (on entry):
-      ValueError: another process (or another writer of this one) holds the folder.
+      ValueError: another process (or another writer of this one) holds the folder, or
+        the lock file cannot be written (what was made for it is removed again).
+
+    On exit the lock is given back even when its file cannot be removed (a folder made
+    unwritable during the run): the file is named at the end of the one-line
+    ``ValueError`` the run is failing with, or in a ``RuntimeWarning`` after a run that
+    saved its results (an unlocked lock file is harmless: the next run takes it).
     """
 
-    def __init__(self, folder: str | os.PathLike, name: str = "out") -> None:
+    def __init__(self, folder: str | os.PathLike, name: str = "out", *,
+                 created: bool = False) -> None:
         self.folder = Path(folder)
         self.name = name
+        self.created = created
         self._fd: int | None = None
 
     def __enter__(self) -> FolderLock:
         self.acquire()
         return self
 
-    def __exit__(self, *exc: Any) -> None:
-        self.release()
+    def __exit__(self, kind: Any, error: BaseException | None, traceback: Any) -> None:
+        not_removed = self.release()
+        if isinstance(error, ValueError):  # the run's one line, with what it left
+            left = left_behind(self.folder, not_removed)
+            if left:
+                raise ValueError(f"{error}; {left}") from None
+        elif error is None and not_removed:
+            warnings.warn(f"{self.name}={str(self.folder)!r}: the results are saved, but"
+                          f" {left_behind(self.folder, not_removed, temporaries=False)}",
+                          RuntimeWarning,
+                          stacklevel=2)
 
     def acquire(self) -> None:
         """Take the lock, then remove the temporary files of dead writers."""
         path = self.folder / LOCK_FILE
+        existed = path.exists()
         while True:
             try:
                 fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
@@ -90,8 +115,15 @@ class FolderLock:
             if _same_file(path, fd):
                 break
             os.close(fd)  # its holder removed it on release: lock the file there now
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        try:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, str(os.getpid()).encode(), 0)
+        except OSError as error:  # a full disk: undo what this lock made, then one line
+            os.close(fd)
+            left = left_behind(self.folder, self._undo_failed_lock(path, existed))
+            raise ValueError(f"{self.name}={str(self.folder)!r} cannot be locked for writing:"
+                             f" {describe_os_error(error)}"
+                             f"{'; ' + left if left else ''}") from None
         self._fd = fd
         interrupts.hold(id(self), self.release)  # released too if a watchdog ends the process
         remove_stale_temporaries(self.folder)
@@ -102,17 +134,63 @@ class FolderLock:
         return self._fd is not None and (fcntl is None
                                          or _same_file(self.folder / LOCK_FILE, self._fd))
 
-    def release(self) -> None:
+    def _undo_failed_lock(self, path: Path, existed: bool) -> dict[Path, str]:
+        """Remove the lock file (unless it was there before) and the folder (if the caller
+        made it); returns what could not be removed, with why."""
+        not_removed: dict[Path, str] = {}
+        for target, remove in ((path, None if existed else path.unlink),
+                               (self.folder, self.folder.rmdir if self.created else None)):
+            if remove is None:
+                continue
+            try:
+                remove()
+            except FileNotFoundError:
+                pass
+            except OSError as error:
+                not_removed[target] = error.strerror or str(error)
+        return not_removed
+
+    def release(self) -> dict[Path, str]:
         """Give the lock back and remove the lock file (a writer that opened it meanwhile
-        finds it gone once it holds it, and locks a new one: :meth:`acquire`)."""
+        finds it gone once it holds it, and locks a new one: :meth:`acquire`).
+
+        Returns:
+          the lock file, with why, if it could not be removed (the lock is given back
+          all the same); else nothing.
+        """
         interrupts.let_go(id(self))
+        not_removed: dict[Path, str] = {}
         if self._fd is not None:
-            if fcntl is not None:
-                if _same_file(self.folder / LOCK_FILE, self._fd):
-                    (self.folder / LOCK_FILE).unlink(missing_ok=True)
-                fcntl.flock(self._fd, fcntl.LOCK_UN)
-            os.close(self._fd)
-            self._fd = None
+            fd, self._fd = self._fd, None
+            try:
+                if fcntl is not None:
+                    path = self.folder / LOCK_FILE
+                    if _same_file(path, fd):
+                        try:
+                            path.unlink(missing_ok=True)
+                        except OSError as error:  # a folder made unwritable meanwhile
+                            not_removed[path] = error.strerror or str(error)
+                    fcntl.flock(fd, fcntl.LOCK_UN)
+            finally:
+                os.close(fd)
+        return not_removed
+
+
+def left_behind(folder: str | os.PathLike, not_removed: dict[Path, str], *,
+                temporaries: bool = True) -> str:
+    """What a failed run leaves in ``folder`` that is this process's to remove, for the
+    end of its one-line error ("" when nothing is left): the files in ``not_removed``
+    (with why) and, with ``temporaries``, this process's temporary files."""
+    names = [f"{path} ({why})" for path, why in not_removed.items()]
+    try:
+        entries = sorted(Path(folder).iterdir()) if temporaries else []
+    except OSError:
+        entries = []
+    for entry in entries:
+        match = _TEMPORARY.match(entry.name)
+        if match and int(match.group(1)) == os.getpid() and entry not in not_removed:
+            names.append(str(entry))
+    return f"could not remove {', '.join(names)}" if names else ""
 
 
 def _same_file(path: Path, fd: int) -> bool:

@@ -59,7 +59,8 @@ def atomic_file(path: str | os.PathLike) -> Iterator[BinaryIO]:
         _fsync_dir(path.parent)  # make the rename itself survive a power loss
     except BaseException:
         if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
+            with contextlib.suppress(OSError):  # the first error says why (a folder made
+                os.unlink(tmp)  # unwritable); the run's one line names the file left
         raise
 
 

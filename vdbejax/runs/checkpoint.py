@@ -23,12 +23,14 @@ log belongs to the small file (a random id).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import os
 import secrets
 import struct
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -157,6 +159,22 @@ class CheckpointWriter:
         if self._log is not None:
             self._log.close()
             self._log = None
+
+
+@contextlib.contextmanager
+def writing(writer: CheckpointWriter | None) -> Iterator[None]:
+    """Close ``writer`` (if any) when the run ends; a Ctrl-C that ends it names the
+    checkpoint that resumes it (Python's ``KeyboardInterrupt`` in a Python session)."""
+    try:
+        yield
+    except KeyboardInterrupt as stop:
+        if writer is not None and writer.path.exists():
+            stop.add_note(f"vdbejax: the checkpoint {str(writer.path)!r} keeps the episodes run"
+                          " so far: the same call with resume=True continues from there")
+        raise
+    finally:
+        if writer is not None:
+            writer.close()
 
 
 def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],

@@ -45,7 +45,7 @@ from vdbejax.methods.agents import (
 from vdbejax.results.folder_lock import describe_os_error, remove_stale_temporaries
 from vdbejax.results.grid_result import GridResult
 from vdbejax.runs.batching import check_run_size
-from vdbejax.runs.checkpoint import CheckpointWriter, load_checkpoint, remove_checkpoint
+from vdbejax.runs.checkpoint import CheckpointWriter, load_checkpoint, remove_checkpoint, writing
 from vdbejax.runs.driver import drive
 from vdbejax.runs.evaluation import collect_evaluations, evaluations
 from vdbejax.runs.options import RunOptions
@@ -266,14 +266,11 @@ def run_prepared(prepared: PreparedGrid, programs: Programs | None = None) -> Gr
              if state is None else state)
     resumed_from = int(state.episodes_done.sum())
     progress = text_progress() if run.progress is True else (run.progress or None)
-    try:
+    with writing(writer):  # closed at the end; a Ctrl-C names the checkpoint
         done = drive(prepared.mdp, take_agents(prepared.params, plan.rows),
                      prepared.keys[plan.rows], plan, state, prepared.stop,
                      checkpoint=None if writer is None else _failing_quietly(writer),
                      progress=progress, programs=programs, evaluate_every=run.evaluate_every)
-    finally:
-        if writer is not None:
-            writer.close()
     return _collect(prepared, state, fingerprint, resumed_from, done)
 
 

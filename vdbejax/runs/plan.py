@@ -62,8 +62,13 @@ class RunPlan:
       strategy_rule: why: ``"asked"`` (the options named it) or ``"auto: …"``
         (:func:`~vdbejax.engine.auto_strategy`'s reason).
       compact: the lockstep strategy's compaction.
-      chunk_episodes: episodes per engine chunk.
+      chunk_episodes: episodes per engine chunk (with ``chunk_seconds``: the most
+        between two of its multiples).
       threads: worker threads of the sequential strategy (None: the engine's default).
+      chunk_seconds: the engine sizes chunks to about this many seconds
+        (:mod:`vdbejax.engine.chunks`): a stop waits for one chunk. None: chunks of
+        ``chunk_episodes`` (the user's chunk, or a stop policy's: its chunks decide where
+        agents stop).
     """
 
     devices: tuple[jax.Device, ...]
@@ -76,6 +81,7 @@ class RunPlan:
     chunk_episodes: int
     threads: int | None
     strategy_rule: str = "asked"
+    chunk_seconds: float | None = None
 
     @property
     def sharded(self) -> bool:
@@ -98,6 +104,7 @@ class RunPlan:
         options: dict[str, Any] = dict(chunk_episodes=self.chunk_episodes, strategy=self.strategy,
                                        compact=self.compact, threads=self.threads,
                                        on_chunk=on_chunk, chunk_states=chunk_states,
+                                       chunk_seconds=self.chunk_seconds,
                                        keep_final_state=keep_final_state, programs=programs)
         if not self.sharded:
             return run_agents(mdp, params, keys, num_episodes, initial=initial, **options)
@@ -133,6 +140,11 @@ class RunPlan:
 CHUNK_AGENT_EPISODES = 20_000
 #: The episodes of a chunk the plan sizes: at least (the paper grid's chunk), at most.
 CHUNK_EPISODES_MIN, CHUNK_EPISODES_MAX = 100, 10_000
+
+
+#: Seconds a chunk lasts when the plan sizes the chunks (a Ctrl-C waits for the chunk that
+#: runs: one native call).
+CHUNK_SECONDS = 1.0
 
 
 def default_chunk_episodes(num_agents: int, num_episodes: int) -> int:
@@ -195,5 +207,6 @@ def make_plan(mdp: TabularMDP, params: AgentParams, num_agents: int, num_episode
     return RunPlan(devices=tuple(devices), local=tuple(local), rows=rows,
                    batch_size=batch_size, memory_budget_bytes=budget, strategy=strategy,
                    strategy_rule=strategy_rule,
-                   compact=not sharded, chunk_episodes=chunk,
-                   threads=run.threads)
+                   compact=not sharded, chunk_episodes=chunk, threads=run.threads,
+                   chunk_seconds=(CHUNK_SECONDS if run.chunk_episodes is None
+                                  and not run.stop.checks_chunks else None))

@@ -138,11 +138,12 @@ def train_in_folder(
         an operating-system error while writing
         (the computed results are kept, :func:`~vdbejax.results.folder_lock.save_run`).
     """
+    made = isinstance(out_dir, (str, os.PathLike)) and not os.path.lexists(out_dir)
     out = check_writable_dir(name, out_dir)
     check_output_paths(out, [*io.RESULT_FILES, *files, *checkpoint_files()], name)
     if prepared.run.progress:
         announce(estimate_prepared(prepared, statistics=statistics), "run")
-    with FolderLock(out, name) as lock:  # held from before training to the last file
+    with FolderLock(out, name, created=made) as lock:  # held until the last file is written
         checkpoint = out / CHECKPOINT_FILE
         check_replaceable(out, prepared, name)
         if not prepared.run.resume:  # overwrite: an interrupted run's progress is given up
