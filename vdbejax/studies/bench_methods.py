@@ -17,10 +17,10 @@ the benchmark's ``meta.json``.
 it, every episode), costs :func:`episode_cost` ``= S (S + t) A (H + 1)`` products per
 agent-episode, whatever it learns: its sampled ``[S + t, S, A]`` table, drawn once and read
 by each of the H stages, with ``t = 1`` where the task has terminal outcomes (PSRL's
-"terminal" outcome, Osband et al.'s prior) and 0 where it has none. Given a cost limit (:data:`COST_LIMIT`: none by
-default), the benchmark leaves such a method out of a task where that exceeds it: it is
-stated in the report and ``meta.json``, and the method's aggregate covers the tasks it
-ran.
+"terminal" outcome, Osband et al.'s prior) and 0 where it has none. Given a cost limit
+(:data:`COST_LIMIT`: none by default), the benchmark leaves such a method out of a task
+where that exceeds it: it is stated in the report and ``meta.json``, and the method's
+aggregate covers the tasks it ran.
 """
 from __future__ import annotations
 
