@@ -136,17 +136,19 @@ def test_a_cost_limit_of_1e7_would_leave_psrl_out_of_the_two_largest_tasks() -> 
     over = [t.name for t in bench.make_tasks(DEFAULT_SUITE) if t.cost(psrl) > 1e7]
     assert over == ["taxi", "variant:3x1"]
     taxi = bench.make_tasks("taxi")[0]
-    assert taxi.cost(psrl) == 500 * 501 * 6 * 201
+    assert taxi.cost(psrl) == 500 * 501 * 6 * 201  # a "terminal" outcome: Taxi has them
+    riverswim = bench.make_tasks("riverswim")[0]
+    assert riverswim.cost(psrl) == 6 * 6 * 2 * 21  # none: RiverSwim never terminates
     assert all(taxi.cost(m) == 0 for m in METHODS if m.name != "psrl")
 
 
 def test_a_method_over_the_cost_limit_is_left_out_and_said(tmp_path: Path) -> None:
-    # PSRL costs 36·37·2·7 ≈ 1.9e4 on DeepSea 6 and 5·6·2·1001 ≈ 6.0e4 on the chain
+    # PSRL costs 36·37·2·7 ≈ 1.9e4 on DeepSea 6 and 5·5·2·1001 ≈ 5.0e4 on the chain
     result = bench.run_bench(tmp_path / "b", tasks="deepsea:6,chain", methods="egreedy,psrl",
                              seeds=2, episodes=10, tune=False, cost_limit=3e4, progress=False)
     ran = {(r["task"], r["method"]) for r in result.rows}
     assert ran == {("deepsea:6", "egreedy"), ("deepsea:6", "psrl"), ("chain", "egreedy")}
-    assert result.meta["left_out"] == [{"task": "chain", "method": "psrl", "cost": 60060.0,
+    assert result.meta["left_out"] == [{"task": "chain", "method": "psrl", "cost": 50050.0,
                                         "limit": 3e4}]
     assert len(GridResult.load(tmp_path / "b" / "runs" / "chain").settings) == 1
     by_method = {a["method"]: a for a in result.aggregate}

@@ -12,7 +12,7 @@ import pytest
 from vdbejax import cli
 from vdbejax.envs.solvers import best_return
 from vdbejax.results.regret import normalised_returns
-from vdbejax.results.solving import episodes_to_solve
+from vdbejax.results.solving import episodes_to_converge
 from vdbejax.studies import depth
 from vdbejax.studies.bench import SOLVED
 from vdbejax.studies.bench_methods import select_methods
@@ -60,7 +60,8 @@ def quick(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, depth.DepthRe
 
 def test_quick_study_writes_its_report(quick: tuple[Path, depth.DepthResult]) -> None:
     out, result = quick
-    for name in ("depth.md", "depth.csv", "depth_slopes.csv", "depth.png", "meta.json"):
+    for name in ("depth.md", "depth.csv", "depth_slopes.csv", "depth.png",
+                 "depth_policy_gap.png", "meta.json"):
         assert (out / name).is_file(), name
     families, sizes = depth.FAMILIES, depth.QUICK_SIZES
     assert len(result.rows) == len(families) * len(sizes) * len(depth.QUICK_METHODS)
@@ -82,8 +83,9 @@ def test_solved_is_the_benchmarks_criterion(quick: tuple[Path, depth.DepthResult
         family, size = name.split(":")
         task = depth.depth_task(family.replace("chain_deterministic", "chain"), int(size))
         returns = np.where(np.isnan(run.returns), 0.0, run.returns)
-        expected = episodes_to_solve(normalised_returns(returns, task.best, task.baseline),
-                                     1.0, fraction=SOLVED, episodes_run=run.episodes_run)
+        expected = episodes_to_converge(normalised_returns(returns, task.best, task.baseline),
+                                        1.0, 0.0, fraction=SOLVED,
+                                        episodes_run=run.episodes_run)
         np.testing.assert_array_equal(run.solve.solved, expected.solved)
         np.testing.assert_array_equal(run.solve.episodes, expected.episodes)
 

@@ -20,7 +20,7 @@ from small_grid import (
 from vdbejax import cli
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import GridResult
-from vdbejax.results.solving import episodes_to_solve
+from vdbejax.results.solving import episodes_to_converge
 from vdbejax.runs import FixedBudget, RunOptions, RunState, UntilSolved, prepare_grid, run_prepared
 from vdbejax.runs.checkpoint import load_checkpoint
 
@@ -64,7 +64,8 @@ def test_run_options_are_checked_when_made(field, value, match):
     ({"fraction": 0}, "fraction=0 is invalid"),
     ({"window": 0}, "window=0 is invalid"),
     ({"max_seconds": -1}, "max_seconds=-1 is invalid"),
-    ({"best": 0}, "best=0 is invalid"),
+    ({"best": 0, "baseline": 0}, "best=0 and baseline=0 are invalid"),
+    ({"best": 1.0}, "give both"),
 ])
 def test_stop_policies_are_checked_when_made(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -113,8 +114,9 @@ def test_until_solved_equals_the_fixed_budget_up_to_each_stop(until):
     assert stops is not None and stops.shape == (len(SETTINGS), SEEDS)
     assert (stops < 160).any() and (stops == 160).any()
     assert (stops % 16 == 0).all()  # agents leave at a chunk's end
-    best = until.meta["stop"]["best"]
-    solve = episodes_to_solve(until.returns, best, fraction=0.5, episodes_run=stops)
+    stop = until.meta["stop"]
+    solve = episodes_to_converge(until.returns, stop["best"], stop["baseline"], fraction=0.5,
+                                 episodes_run=stops)
     np.testing.assert_array_equal(solve.solved[stops < 160], True)
     assert_fixed_budget_up_to_each_stop(until, fixed, stops)
     assert until.meta["stopped"] == "episodes"  # some agent ran the whole budget

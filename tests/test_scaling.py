@@ -16,9 +16,9 @@ from small_grid import assert_fixed_budget_up_to_each_stop
 from vdbejax import cli
 from vdbejax.envs import solvers
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import run_grid
+from vdbejax.experiment import GridResult, run_grid
 from vdbejax.methods.agents import Setting
-from vdbejax.results.solving import episodes_to_solve
+from vdbejax.results.solving import convergence_threshold, episodes_to_converge
 from vdbejax.studies import scaling, scaling_adaptive, scaling_report, scaling_study
 
 REPO = Path(__file__).resolve().parents[1]
@@ -35,7 +35,7 @@ SEEDS, EPISODES, CHUNK, SEED = 3, 360, 40, 5
 @pytest.fixture(scope="module")
 def task():
     mdp = make_mdp()
-    return mdp, solvers.best_return(mdp)
+    return mdp, solvers.best_return(mdp), solvers.uniform_random_return(mdp)
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +46,8 @@ def fixed(task):
 @pytest.fixture(scope="module")
 def adaptive(task):
     return scaling.run_until_solved(task[0], SETTINGS, num_seeds=SEEDS, max_episodes=EPISODES,
-                                    seed=SEED, chunk_episodes=CHUNK, best=task[1])
+                                    seed=SEED, chunk_episodes=CHUNK, best=task[1],
+                                    baseline=task[2])
 
 
 def test_adaptive_stopping_equals_the_fixed_budget_up_to_each_stop(adaptive, fixed, task):
@@ -57,7 +58,7 @@ def test_adaptive_stopping_equals_the_fixed_budget_up_to_each_stop(adaptive, fix
     assert (stop % CHUNK == 0).all()  # agents leave at the end of a chunk
     assert_fixed_budget_up_to_each_stop(run, fixed, stop)
     # The same solve episodes as measured on the fixed run's full curves.
-    full = episodes_to_solve(fixed.returns, task[1])
+    full = episodes_to_converge(fixed.returns, task[1], task[2])
     np.testing.assert_array_equal(run.solve.solved, full.solved)
     np.testing.assert_array_equal(run.solve.episodes, full.episodes)
     # A solved agent stops at the end of the chunk in which it solved.
@@ -72,7 +73,7 @@ def test_adaptive_stopping_equals_the_fixed_budget_up_to_each_stop(adaptive, fix
 def test_stop_episodes_depend_on_the_chunk_but_solve_episodes_do_not(adaptive, task):
     other = scaling.run_until_solved(task[0], SETTINGS[:2], num_seeds=SEEDS,
                                      max_episodes=EPISODES, seed=SEED, chunk_episodes=25,
-                                     best=task[1])
+                                     best=task[1], baseline=task[2])
     np.testing.assert_array_equal(other.solve.episodes, adaptive.solve.episodes[:2])
     assert other.stopped == "solved" and (other.episodes_run % 25 == 0).all()
     common = np.minimum(other.episodes_run, adaptive.episodes_run[:2])
@@ -84,7 +85,8 @@ def test_stop_episodes_depend_on_the_chunk_but_solve_episodes_do_not(adaptive, t
 
 def test_a_seconds_budget_censors_every_remaining_agent_at_one_episode(task):
     run = scaling.run_until_solved(task[0], SETTINGS[3:], num_seeds=2, max_episodes=10_000,
-                                   max_seconds=1e-6, chunk_episodes=CHUNK, best=task[1])
+                                   max_seconds=1e-6, chunk_episodes=CHUNK, best=task[1],
+                                   baseline=task[2])
     assert run.stopped == "seconds" and run.chunks == 1
     assert (run.episodes_run == CHUNK).all() and not run.solve.solved.any()
 
@@ -93,12 +95,13 @@ def test_a_seconds_budget_censors_every_remaining_agent_at_one_episode(task):
     ({"num_seeds": 0}, "num_seeds=0 is invalid"),
     ({"max_episodes": 0}, "max_episodes=0 is invalid"),
     ({"max_seconds": -1}, "max_seconds=-1 is invalid"),
-    ({"best": -0.5}, "best=-0.5 is invalid"),
+    ({"best": -1.5}, "best=-1.5 and baseline=-1.047"),
+    ({"baseline": None}, "give both"),
     ({"fraction": 2.0}, "fraction=2.0 is invalid"),
     ({"chunk_episodes": 0}, "chunk_episodes=0 is invalid"),
 ])
 def test_run_until_solved_bad_inputs(task, kwargs, match):
-    options = dict(num_seeds=2, max_episodes=10, best=task[1])
+    options = dict(num_seeds=2, max_episodes=10, best=task[1], baseline=task[2])
     options.update(kwargs)
     with pytest.raises(ValueError, match=match) as error:
         scaling.run_until_solved(task[0], SETTINGS[:1], **options)
@@ -138,6 +141,15 @@ def test_scale_cli_end_to_end(tmp_path, capsys):
     assert {r["explorer"] for r in rows} == {m.explorer for m in scaling.METHODS}
     assert {r["learner"] for r in rows} == {"qlearning", "sarsa"}
     assert all(r["size"] == "2x1" and r["states"] == "60" and r["agents"] == "2" for r in rows)
+    # Solved is the one rule of every report: a normalised score of 0.9 (0 = random policy).
+    mdp = make_mdp()
+    best, random = solvers.best_return(mdp), solvers.uniform_random_return(mdp)
+    assert float(rows[0]["random_return"]) == pytest.approx(random, rel=1e-4)
+    assert float(rows[0]["threshold"]) == pytest.approx(convergence_threshold(best, random), rel=1e-4)
+    solved = scaling_adaptive.adaptive_run(GridResult.load(out / "runs" / "2x1"))
+    expected = episodes_to_converge(solved.returns, best, random,
+                                    episodes_run=solved.episodes_run)
+    np.testing.assert_array_equal(solved.solve.episodes, expected.episodes)
     vdbe_softmax = next(r for r in rows if r["learner"] == "qlearning"
                         and r["explorer"] == "vdbe_softmax")
     assert vdbe_softmax["solved"] == "2" and 20 <= float(vdbe_softmax["median_episodes"]) <= 300

@@ -15,9 +15,7 @@ from vdbejax.results.solving import (
     SolveSummary,
     convergence_threshold,
     episodes_to_converge,
-    episodes_to_solve,
     median_episodes,
-    solve_threshold,
     solving_rows,
     summarize_solving,
 )
@@ -36,32 +34,32 @@ def step_curve(length: int, jump: int, low: float = 0.0, high: float = 1.0) -> n
 def test_solved_at_the_first_full_window_above_the_threshold():
     # Window 5, threshold 0.9: episodes 11..15 are 1.0, so the mean of episodes 11..15 is
     # the first that reaches 0.9 (episode 14's window holds one 0: 0.8).
-    times = episodes_to_solve(step_curve(50, 10), best=1.0, fraction=0.9, window=5)
+    times = episodes_to_converge(step_curve(50, 10), 1.0, 0.0, fraction=0.9, window=5)
     assert times.solved.item() and times.episodes.item() == 15
 
 
-def test_the_threshold_is_a_fraction_of_the_best_return_and_returns_may_be_negative():
-    # best 0.8 → threshold 0.72; failures score −1. With window 4, three successes and a
+def test_the_threshold_is_a_normalised_score_and_returns_may_be_negative():
+    # best 0.8, random 0 → threshold 0.72; failures score −1. With window 4, three successes and a
     # failure average (3 · 0.8 − 1) / 4 = 0.35 < 0.72; four successes in a row: 0.8.
     curve = np.array([-1, -1, 0.8, 0.8, 0.8, -1, 0.8, 0.8, 0.8, 0.8, 0.8], np.float32)
-    times = episodes_to_solve(curve, best=0.8, fraction=0.9, window=4)
+    times = episodes_to_converge(curve, 0.8, 0.0, fraction=0.9, window=4)
     assert times.solved.item() and times.episodes.item() == 10
-    assert solve_threshold(0.8, 0.9) == pytest.approx(0.72)
+    assert convergence_threshold(0.8, 0.0, 0.9) == pytest.approx(0.72)
     # 0.7 ≥ 0.9 × 0.8 fails; a lower fraction accepts it.
     flat = np.full(30, 0.7, np.float32)
-    assert not episodes_to_solve(flat, best=0.8, window=4).solved.item()
-    assert episodes_to_solve(flat, best=0.8, fraction=0.85, window=4).episodes.item() == 4
+    assert not episodes_to_converge(flat, 0.8, 0.0, window=4).solved.item()
+    assert episodes_to_converge(flat, 0.8, 0.0, fraction=0.85, window=4).episodes.item() == 4
 
 
 def test_never_solved_is_censored_at_the_budget():
-    times = episodes_to_solve(np.full(40, 0.5, np.float32), best=1.0, window=5)
+    times = episodes_to_converge(np.full(40, 0.5, np.float32), 1.0, 0.0, window=5)
     assert not times.solved.item() and times.episodes.item() == 40
 
 
 def test_solved_exactly_at_the_last_episode():
-    times = episodes_to_solve(step_curve(15, 10), best=1.0, fraction=0.9, window=5)
+    times = episodes_to_converge(step_curve(15, 10), 1.0, 0.0, fraction=0.9, window=5)
     assert times.solved.item() and times.episodes.item() == 15
-    one_short = episodes_to_solve(step_curve(14, 10), best=1.0, fraction=0.9, window=5)
+    one_short = episodes_to_converge(step_curve(14, 10), 1.0, 0.0, fraction=0.9, window=5)
     assert not one_short.solved.item() and one_short.episodes.item() == 14
 
 
@@ -70,9 +68,9 @@ def test_partial_windows_at_the_start_do_not_count():
     curve = np.zeros(30, np.float32)
     curve[0] = 1.0
     assert stats.moving_average(curve, 5)[0] == 1.0
-    assert not episodes_to_solve(curve, best=1.0, window=5).solved.item()
+    assert not episodes_to_converge(curve, 1.0, 0.0, window=5).solved.item()
     # A whole run shorter than the window is never solved.
-    short = episodes_to_solve(np.ones(3, np.float32), best=1.0, window=5)
+    short = episodes_to_converge(np.ones(3, np.float32), 1.0, 0.0, window=5)
     assert not short.solved.item() and short.episodes.item() == 3
 
 
@@ -80,17 +78,17 @@ def test_float32_returns_at_the_threshold_count():
     # float32(0.9) < 0.9 in float64: the tolerance accepts returns equal to the threshold.
     curve = np.full(10, 0.9, np.float32)
     assert float(curve[0]) < 0.9
-    assert episodes_to_solve(curve, best=1.0, fraction=0.9, window=3).episodes.item() == 3
+    assert episodes_to_converge(curve, 1.0, 0.0, fraction=0.9, window=3).episodes.item() == 3
 
 
 def test_moving_average_is_stats_trailing_one():
     rng = np.random.default_rng(1)
     curves = rng.uniform(-1, 1, size=(6, 200)).astype(np.float32)
-    best, window = 0.5, 7
-    times = episodes_to_solve(curves, best, fraction=0.9, window=window)
-    smoothed = stats.moving_average(curves, window)
+    best, baseline, window = 0.5, -0.3, 7
+    times = episodes_to_converge(curves, best, baseline, fraction=0.9, window=window)
+    smoothed = stats.moving_average((curves.astype(np.float64) - baseline) / 0.8, window)
     for row, episode, solved in zip(smoothed, times.episodes, times.solved):
-        hits = np.flatnonzero(row[window - 1:] >= 0.45 - 1e-6) + window
+        hits = np.flatnonzero(row[window - 1:] >= 0.9 - 1e-6) + window
         assert solved == bool(hits.size)
         assert episode == (hits[0] if hits.size else 200)
 
@@ -98,21 +96,20 @@ def test_moving_average_is_stats_trailing_one():
 def test_batched_shapes_and_episodes_run_ignore_the_padding():
     curves = np.stack([step_curve(60, 10), step_curve(60, 30), np.zeros(60, np.float32)])
     curves[0, 20:] = np.nan  # agent 0 stopped after 20 episodes: NaN padding
-    times = episodes_to_solve(curves[None], best=1.0, window=5,
+    times = episodes_to_converge(curves[None], 1.0, 0.0, window=5,
                               episodes_run=np.array([[20, 60, 45]]))
     assert times.episodes.shape == (1, 3)
     np.testing.assert_array_equal(times.episodes, [[15, 35, 45]])
     np.testing.assert_array_equal(times.solved, [[True, True, False]])
     # A solve after an agent's stop does not count.
-    late = episodes_to_solve(step_curve(60, 30), best=1.0, window=5, episodes_run=34)
+    late = episodes_to_converge(step_curve(60, 30), 1.0, 0.0, window=5, episodes_run=34)
     assert not late.solved.item() and late.episodes.item() == 34
 
 
 @pytest.mark.parametrize("kwargs,match", [
-    ({"best": 0.0}, "best=0.0 is invalid"),
-    ({"best": -0.5}, "best=-0.5 is invalid"),
-    ({"best": float("nan")}, "best=nan is invalid"),
-    ({"best": "x"}, "best='x' is invalid"),
+    ({"best": 0.0}, "best=0.0 and baseline=0.0 are invalid"),
+    ({"best": -0.5}, "best=-0.5 and baseline=0.0 are invalid"),
+    ({"best": float("nan")}, "best=nan and baseline=0.0 are invalid"),
     ({"best": 1.0, "fraction": 0.0}, "fraction=0.0 is invalid"),
     ({"best": 1.0, "fraction": 1.5}, "fraction=1.5 is invalid"),
     ({"best": 1.0, "window": 0}, "window=0 is invalid"),
@@ -122,7 +119,7 @@ def test_batched_shapes_and_episodes_run_ignore_the_padding():
 ])
 def test_bad_inputs_are_one_line_value_errors(kwargs, match):
     with pytest.raises(ValueError, match=match) as error:
-        episodes_to_solve(np.zeros(10, np.float32), **kwargs)
+        episodes_to_converge(np.zeros(10, np.float32), baseline=0.0, **kwargs)
     assert "\n" not in str(error.value)
 
 
@@ -206,12 +203,12 @@ def test_solving_rows_of_a_grid():
         np.stack([step_curve(40, 5), step_curve(40, 8)]),          # both solve
         np.stack([step_curve(40, 5), np.zeros(40, np.float32)]),   # one of two: censored
     ])
-    rows = solving_rows(returns, 1.0, ["fast", "half"], window=5)
+    rows = solving_rows(returns, 1.0, 0.0, ["fast", "half"], window=5)
     assert [r["setting"] for r in rows] == ["fast", "half"]
     assert rows[0]["solved"] == 2 and rows[0]["median_episodes"] == 11.5
     assert rows[1]["solved"] == 1 and rows[1]["median_text"] == "> 40"
     with pytest.raises(ValueError, match="must be \\[settings, agents, episodes\\]"):
-        solving_rows(returns[0], 1.0)
+        solving_rows(returns[0], 1.0, 0.0)
     assert isinstance(summarize_solving([1], [True]), SolveSummary)
 
 

@@ -169,7 +169,8 @@ def add_scale(sub: argparse._SubParsersAction) -> None:
         "scale", help="episodes to solve of every exploration method on growing task variants;"
                       " writes scaling.csv, scaling.md, scaling.png",
         description="Each variant trains until every agent has solved it (20-episode moving"
-                    " average >= fraction x the exact best return) or the budget is spent;"
+                    " average of the normalised return >= fraction; 0 = the uniformly random"
+                    " policy's expected return, 1 = the exact best) or the budget is spent;"
                     " solved agents leave the batch.")
     number = parse_cli_number
     p.add_argument("--out", required=True, help="output folder")
@@ -191,7 +192,8 @@ def add_scale(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated explorers of vdbejax.studies.scaling.METHODS"
                         " (default all)")
     p.add_argument("--fraction", type=number, default=0.9,
-                   help="solved = moving average >= fraction x best return (default 0.9)")
+                   help="solved = moving average of the normalised return (0 = random"
+                        " policy, 1 = best) >= fraction (default 0.9)")
     p.add_argument("--window", type=number, default=20, help="moving-average window (default 20)")
     p.add_argument("--chunk-episodes", type=number, default=None,
                    help="episodes between stop checks (default max(100, budget/100))")

@@ -4,23 +4,21 @@ Conventions (stated once, used by every report: the summary's convergence episod
 :mod:`vdbejax.studies.bench`, :mod:`vdbejax.studies.depth`, :mod:`vdbejax.studies.scaling`
 and notebook 03):
 
-* **Converged** (:func:`episodes_to_converge`, the convergence episode of ``summary.csv``,
-  the sensitivity figure and the claims): solved, below, on the *normalised* returns of
-  :mod:`vdbejax.results.regret` — 0 the uniformly random policy's expected return, 1 the
-  exact best — with ``fraction`` = 0.9: the trailing moving average reaches
-  ``baseline + 0.9 × (best − baseline)``. An absolute reference: a setting that never
-  learns stays censored however flat its curve, and one that learns at once converges at
-  its first full window. The setting's convergence episode is the median over its agents
-  with censoring and its bootstrap interval (:func:`summarize_solving`).
-
-* **Solved**: an agent has solved the task at the first episode ``e`` (1-based) at which
-  the trailing :func:`~vdbejax.results.stats.moving_average` of its returns over ``window``
-  episodes (default :data:`~vdbejax.results.stats.WINDOW` = 20, the paper's smoothing) reaches
-  the threshold ``fraction × best`` (default ``fraction`` = 0.9), with ``best`` the exact
-  best return of the task (:func:`vdbejax.envs.solvers.best_return`; it must be > 0, as on every
-  table-cleaning task). Only full windows count (``e ≥ window``): the moving average's
-  partial windows at the start would let one lucky first episode "solve" the task.
-  Returns are float32, so the comparison allows :data:`TOLERANCE`.
+* **Converged**, or **solved** (one rule, :func:`episodes_to_converge`: the convergence
+  episode of ``summary.csv``, the sensitivity figure and the claims, and the episodes to
+  solve of ``bench``, ``depth`` and ``scale``, whose stop policy
+  :class:`~vdbejax.runs.UntilSolved` applies it during training): the first episode ``e``
+  (1-based) at which the trailing :func:`~vdbejax.results.stats.moving_average` over
+  ``window`` episodes (default :data:`~vdbejax.results.stats.WINDOW` = 20, the paper's
+  smoothing) of an agent's *normalised* returns (:mod:`vdbejax.results.regret`: 0 the
+  uniformly random policy's expected return, 1 the exact best) reaches ``fraction`` = 0.9,
+  i.e. its returns' average reaches ``baseline + 0.9 × (best − baseline)``
+  (:func:`convergence_threshold`). An absolute reference: a setting that never learns stays
+  censored however flat its curve, and one that learns at once converges at its first full
+  window. Only full windows count (``e ≥ window``): the moving average's partial windows at
+  the start would let one lucky first episode "solve" the task. Returns are float32, so
+  the comparison allows :data:`TOLERANCE`. A setting's convergence episode is the median
+  over its agents with censoring and its bootstrap interval (:func:`summarize_solving`).
 * **Censored**: an agent that never reaches the threshold within the episodes it ran is
   censored at that count (its budget): all we know is that it needs more.
 * **Fraction solved**: the mean of the solved indicators, with the percentile bootstrap
@@ -50,7 +48,7 @@ from vdbejax.results import stats
 from vdbejax.results.regret import normalised_returns
 from vdbejax.validation import check_in_range, check_int
 
-#: Default fraction of the best return that counts as solved.
+#: Default normalised score that counts as solved (0 = random policy, 1 = the exact best).
 FRACTION = 0.9
 #: Default moving-average window (the paper's smoothing, :data:`vdbejax.results.stats.WINDOW`).
 WINDOW = stats.WINDOW
@@ -58,32 +56,8 @@ WINDOW = stats.WINDOW
 TOLERANCE = 1e-6
 
 
-def solve_threshold(best: float, fraction: float = FRACTION) -> float:
-    """The return a moving average must reach: ``fraction × best``.
-
-    Args:
-      best: the task's exact best return (> 0).
-      fraction: in (0, 1].
-
-    Returns:
-      the threshold.
-
-    Raises:
-      ValueError: ``best`` not a finite number > 0, or ``fraction`` outside (0, 1].
-    """
-    try:
-        value = float(best)
-    except (TypeError, ValueError):
-        value = math.nan
-    if not math.isfinite(value) or value <= 0:
-        raise ValueError(f"best={best!r} is invalid: must be a finite best return > 0"
-                         " (the threshold fraction × best needs a positive best return)")
-    fraction = check_in_range("fraction", fraction, 0.0, 1.0, low_open=True)
-    return fraction * value
-
-
 class SolveTimes(NamedTuple):
-    """Per-agent result of :func:`episodes_to_solve`.
+    """Per-agent result of :func:`episodes_to_converge`.
 
     Attributes:
       episodes: int64 ``[...]``: the 1-based solve episode, or the censoring point (the
@@ -112,38 +86,10 @@ def _episodes_run(episodes_run: Any, shape: tuple[int, ...], length: int) -> np.
                          f" shape {shape}") from None
 
 
-def episodes_to_solve(
-    returns: Any,
-    best: float,
-    *,
-    fraction: float = FRACTION,
-    window: int = WINDOW,
-    episodes_run: Any = None,
-) -> SolveTimes:
-    """First episode at which each agent's moving average reaches ``fraction × best``.
-
-    Args:
-      returns: ``[..., episodes]`` episode returns (one row per agent).
-      best: the task's exact best return (> 0).
-      fraction: the share of ``best`` to reach (default 0.9).
-      window: moving-average window (default 20); only full windows count.
-      episodes_run: int ``[...]`` episodes each agent actually ran (the rest of its row is
-        ignored: padding of an agent stopped early); default every column.
-
-    Returns:
-      :class:`SolveTimes`: the solve episode (1-based, ``≥ window``) and ``solved``;
-      unsolved agents are censored at their ``episodes_run``.
-
-    Raises:
-      ValueError: a bad ``best``, ``fraction``, ``window``, ``episodes_run`` or ``returns``.
-    """
-    threshold = solve_threshold(best, fraction)
+def _first_window_reaching(values: np.ndarray, threshold: float, window: int,
+                           episodes_run: Any) -> SolveTimes:
+    """First full window of ``values`` ``[..., episodes]`` whose mean reaches ``threshold``."""
     window = check_int("window", window, 1)
-    values = np.asarray(returns)
-    if values.ndim < 1 or not (np.issubdtype(values.dtype, np.floating)
-                               or np.issubdtype(values.dtype, np.integer)):
-        raise ValueError(f"returns has shape {values.shape} and dtype {values.dtype}: must be"
-                         " a numeric [..., episodes] array")
     length = values.shape[-1]
     run = _episodes_run(episodes_run, values.shape[:-1], length)
     if length == 0:
@@ -182,17 +128,27 @@ def episodes_to_converge(
       best: the task's exact best expected return (:func:`vdbejax.envs.solvers.best_return`).
       baseline: the uniformly random policy's expected return
         (:func:`vdbejax.envs.solvers.uniform_random_return`); below ``best``.
-      fraction, window, episodes_run: as :func:`episodes_to_solve`.
+      fraction: the normalised score to reach, in (0, 1] (default 0.9).
+      window: moving-average window (default 20); only full windows count.
+      episodes_run: int ``[...]`` episodes each agent actually ran (the rest of its row is
+        ignored: padding of an agent stopped early); default every column.
 
     Returns:
-      :class:`SolveTimes`; agents that never converge are censored at their budget.
+      :class:`SolveTimes`: the episode (1-based, ``≥ window``) and ``solved``; agents that
+      never converge are censored at their ``episodes_run``.
 
     Raises:
       ValueError: ``best`` not above ``baseline``, or a bad ``fraction``, ``window``,
         ``episodes_run`` or ``returns``.
     """
-    return episodes_to_solve(normalised_returns(returns, best, baseline), 1.0,
-                             fraction=fraction, window=window, episodes_run=episodes_run)
+    fraction = check_in_range("fraction", fraction, 0.0, 1.0, low_open=True)
+    values = np.asarray(returns)
+    if values.ndim < 1 or not (np.issubdtype(values.dtype, np.floating)
+                               or np.issubdtype(values.dtype, np.integer)):
+        raise ValueError(f"returns has shape {values.shape} and dtype {values.dtype}: must be"
+                         " a numeric [..., episodes] array")
+    return _first_window_reaching(normalised_returns(values, best, baseline), fraction, window,
+                                  episodes_run)
 
 
 #: The convergence episode's definition, as documents state it.
@@ -339,6 +295,7 @@ def summarize_solving(
 def solving_rows(
     returns: Any,
     best: float,
+    baseline: float,
     labels: list[str] | None = None,
     *,
     fraction: float = FRACTION,
@@ -349,9 +306,9 @@ def solving_rows(
 
     Args:
       returns: ``[C, agents, episodes]`` (e.g. :attr:`vdbejax.experiment.GridResult.returns`).
-      best: the task's exact best return (> 0).
+      best, baseline: the task's exact best and uniformly random returns.
       labels: one name per setting (default ``"0"``, ``"1"``, …).
-      fraction, window: the solve criterion (:func:`episodes_to_solve`).
+      fraction, window: the solve criterion (:func:`episodes_to_converge`).
       episodes_run: int ``[C, agents]`` episodes each agent ran (default: all).
 
     Returns:
@@ -364,8 +321,8 @@ def solving_rows(
     labels = [str(c) for c in range(values.shape[0])] if labels is None else list(labels)
     if len(labels) != values.shape[0]:
         raise ValueError(f"labels has {len(labels)} names for {values.shape[0]} settings")
-    times = episodes_to_solve(values, best, fraction=fraction, window=window,
-                              episodes_run=episodes_run)
+    times = episodes_to_converge(values, best, baseline, fraction=fraction, window=window,
+                                 episodes_run=episodes_run)
     rows = []
     for c, label in enumerate(labels):
         s = summarize_solving(times.episodes[c], times.solved[c])
@@ -387,9 +344,7 @@ __all__ = [
     "censored_values",
     "convergence_threshold",
     "episodes_to_converge",
-    "episodes_to_solve",
     "median_episodes",
-    "solve_threshold",
     "solving_rows",
     "summarize_solving",
 ]

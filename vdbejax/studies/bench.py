@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from vdbejax.engine.state import task_facts
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Setting, make_agent
@@ -86,7 +87,7 @@ class BenchTask:
     def cost(self, method: BenchMethod) -> float:
         """The method's products per agent-episode on this task (the cost rule)."""
         return method.episode_cost(self.mdp.num_states, self.mdp.num_actions,
-                                   int(self.mdp.max_steps))
+                                   int(self.mdp.max_steps), task_facts(self.mdp).terminates)
 
     @functools.cached_property
     def scale(self) -> TaskScale:

@@ -14,11 +14,13 @@ the benchmark's ``meta.json``.
 
 **The one cost rule.** A method whose planning works on a dense model, ``dense_model``
 (PSRL: a Dirichlet draw over every successor of every pair and a backward induction over
-it, every episode), costs :func:`episode_cost` ``= S (S + 1) A (H + 1)`` products per
-agent-episode, whatever it learns. Given a cost limit (:data:`COST_LIMIT`: none by
-default), the benchmark leaves such a method out of a task where that exceeds it: it is
-stated in the report and ``meta.json``, and the method's aggregate covers the tasks it
-ran.
+it, every episode), costs :func:`episode_cost` ``= S (S + t) A (H + 1)`` products per
+agent-episode, whatever it learns: its sampled ``[S + t, S, A]`` table, drawn once and read
+by each of the H stages, with ``t = 1`` where the task has terminal outcomes (PSRL's
+"terminal" outcome, Osband et al.'s prior) and 0 where it has none. Given a cost limit
+(:data:`COST_LIMIT`: none by default), the benchmark leaves such a method out of a task
+where that exceeds it: it is stated in the report and ``meta.json``, and the method's
+aggregate covers the tasks it ran.
 """
 from __future__ import annotations
 
@@ -72,7 +74,7 @@ class BenchMethod:
       fixed: other hyperparameters; a value ``("r_max", x)`` means ``x`` units.
       discounted: uses ``γ = 1 − 1/H`` (else the finite-horizon ``γ = 1`` and ``horizon = H``).
       td: a TD learner (``α`` = :data:`ALPHA`).
-      dense_model: its planning works on a dense ``[S + 1, S, A]`` model every episode
+      dense_model: its planning works on a dense ``[S + t, S, A]`` model every episode
         (see the module's cost rule).
     """
 
@@ -89,12 +91,15 @@ class BenchMethod:
     td: bool = True
     dense_model: bool = False
 
-    def episode_cost(self, num_states: int, num_actions: int, horizon: int) -> float:
-        """Products per agent-episode of a ``dense_model`` method, ``S (S + 1) A (H + 1)``
-        (its draw and its H stages); 0 for the others."""
+    def episode_cost(self, num_states: int, num_actions: int, horizon: int,
+                     terminates: bool) -> float:
+        """Products per agent-episode of a ``dense_model`` method, ``S (S + t) A (H + 1)``
+        with ``t = 1`` if the task ``terminates`` (has terminal outcomes), else 0 (its draw
+        and its H stages); 0 for the others."""
         if not self.dense_model:
             return 0.0
-        return float(num_states) * (num_states + 1) * num_actions * (horizon + 1)
+        outcomes = num_states + (1 if terminates else 0)
+        return float(num_states) * outcomes * num_actions * (horizon + 1)
 
     def candidates(self, scale: TaskScale) -> list[Setting]:
         """The tuning candidates on a task of this ``scale`` (one if nothing is tuned)."""

@@ -186,8 +186,9 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
     left_out = meta.get("left_out", [])
     titles = {m["name"]: m["title"] for m in meta["methods"]}
     if left_out:
-        lines += ["", f"**Left out by the cost rule** (a dense-model method costs S (S + 1) A"
-                      f" (H + 1) products per agent-episode; limit"
+        lines += ["", f"**Left out by the cost rule** (a dense-model method costs S (S + t) A"
+                      f" (H + 1) products per agent-episode, t = 1 on a task with terminal"
+                      f" outcomes, else 0; limit"
                       f" {meta['options']['cost_limit']:.3g}): "
                   + "; ".join(f"{titles[x['method']]} on {x['task']} ({x['cost']:.3g})"
                               for x in left_out)

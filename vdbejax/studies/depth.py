@@ -40,13 +40,18 @@ import numpy as np
 from vdbejax.results import io
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, mark, unmark
 from vdbejax.results.policy import POLICY_COLUMNS
-from vdbejax.results.solving import WINDOW, convergence_threshold, summarize_solving
+from vdbejax.results.solving import WINDOW, summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task
 from vdbejax.studies.bench import SOLVED, BenchTask
 from vdbejax.studies.bench_methods import BenchMethod, select_methods
-from vdbejax.studies.depth_report import FIGURE_FILE, MARKDOWN_FILE, write_reports
+from vdbejax.studies.depth_report import (
+    FIGURE_FILE,
+    MARKDOWN_FILE,
+    POLICY_FIGURE_FILE,
+    write_reports,
+)
 from vdbejax.studies.scaling_adaptive import AdaptiveRun, train_until_solved
 from vdbejax.studies.scaling_study import auto_chunk
 from vdbejax.validation import INT32_MAX, UINT32_MAX, check_bool, check_int, check_writable_dir
@@ -204,13 +209,14 @@ def run_depth(
             make_agent(setting)
     check_run_size(len(chosen) * seeds, episodes)  # every task's grid: refused before the folder
     if progress:
-        fewest = UntilSolved(best=1.0).fewest_episodes(episodes)
+        fewest = UntilSolved().fewest_episodes(episodes)
         announce(StudyEstimate(tuple(
             estimate_task(task.mdp, len(chosen), seeds, episodes, statistics=False,
                           fewest_episodes=fewest) for _, _, task in tasks)), "study")
     out = check_writable_dir("out", out_dir)
     check_output_paths(out, [CSV_FILE, SLOPES_FILE, MARKDOWN_FILE, META_FILE]
-                       + ([FIGURE_FILE] if figure else []))
+                       + ([FIGURE_FILE] if figure else [])
+                       + ([POLICY_FIGURE_FILE] if figure and evaluate_every else []))
     knobs = RunOptions(resume=resume, overwrite=overwrite, memory_budget_bytes=memory_budget_bytes,
                        devices=devices, progress=progress, chunk_episodes=auto_chunk(episodes),
                        evaluate_every=evaluate_every)
@@ -224,11 +230,10 @@ def run_depth(
                 sys.stderr.write(f"[{i + 1}/{len(tasks)}] {task.name} ({task.mdp.num_states}"
                                  f" states, best {task.best:g}): {len(chosen)} methods ×"
                                  f" {seeds} agents, up to {episodes} episodes\n")
-            threshold = convergence_threshold(task.best, task.baseline, SOLVED)
             run = train_until_solved(
                 out / RUNS_FOLDER / task.folder, task.mdp, settings[task.name], seeds=seeds,
-                budget=episodes, stop=UntilSolved(best=task.best,
-                                                  fraction=threshold / task.best),
+                budget=episodes, stop=UntilSolved(best=task.best, baseline=task.baseline,
+                                                  fraction=SOLVED),
                 seed=seed, options=knobs, task=task.name)
             runs[task.name] = run
             rows.extend(_task_rows(family, size, task, chosen, run))
@@ -270,6 +275,7 @@ def _task_rows(family: str, size: int, task: BenchTask, methods: list[BenchMetho
             "agent_episodes": int(run.episodes_run[c].sum()),
             "agent_steps": int(run.lengths[c].sum(dtype=np.int64)),
             "_episodes": np.where(run.solve.solved[c], run.solve.episodes[c], np.inf),
+            "_span": task.best - task.baseline,
             **(run.policy[c] if run.policy is not None else {})})
     return rows
 

@@ -37,7 +37,7 @@ from typing import Any
 from vdbejax.methods.agents import Setting, make_agent, parameter_name
 from vdbejax.results import io
 from vdbejax.results.folder_lock import FolderLock, mark, unmark
-from vdbejax.results.solving import FRACTION, WINDOW, solve_threshold, summarize_solving
+from vdbejax.results.solving import FRACTION, WINDOW, convergence_threshold, summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task
@@ -145,7 +145,8 @@ def run_scaling(
       seed: root seed.
       learners: learner names.
       methods: explorer names of :data:`METHODS` (default all).
-      fraction, window: the solve criterion (:mod:`vdbejax.results.solving`).
+      fraction, window: the solve criterion (:mod:`vdbejax.results.solving`): the moving
+        average of the normalised returns reaching ``fraction``.
       chunk_episodes: episodes between stop checks (default :func:`auto_chunk` of the
         budget: a solved agent runs at most 1 % of the budget past its solve episode).
       max_steps: episode truncation (default 100, :func:`vdbejax.studies.sweeps.make_task`).
@@ -174,7 +175,12 @@ def run_scaling(
     Raises:
       ValueError: any invalid input, before training.
     """
-    from vdbejax.envs.solvers import best_return, start_states, steps_to_goal
+    from vdbejax.envs.solvers import (
+        best_return,
+        start_states,
+        steps_to_goal,
+        uniform_random_return,
+    )
     from vdbejax.runs.grid import version_info
     from vdbejax.studies.sweeps import make_task
 
@@ -214,16 +220,16 @@ def run_scaling(
     for sections, goblets in parsed:  # every task built and solved before any folder or run
         size = f"{sections}x{goblets}"
         mdp = make_task(f"variant:{size}", max_steps=max_steps)
-        best = best_return(mdp)
-        threshold = solve_threshold(best, fraction)
+        best, baseline = best_return(mdp), uniform_random_return(mdp)
+        UntilSolved(best=best, baseline=baseline)  # one line before training: best > baseline
         shortest = int(steps_to_goal(mdp)[start_states(mdp)].max())
-        tasks.append((size, mdp, best, threshold, shortest))
+        tasks.append((size, mdp, best, baseline, shortest))
     tasks.sort(key=lambda task: task[1].num_states)
     # The largest variant's results must fit: refused here, before the folder is made.
     check_run_size(len(settings) * seeds, max(variant_budget(
         task[1].num_states, episodes, episodes_per_state) for task in tasks))
     if progress:  # settings none solves drop out: only the smallest variant runs them all
-        stop = UntilSolved(best=1.0, fraction=fraction, window=window, max_seconds=seconds)
+        stop = UntilSolved(fraction=fraction, window=window, max_seconds=seconds)
         announce(StudyEstimate(tuple(
             estimate_task(task[1], len(settings), seeds, budget, statistics=False,
                           fewest_episodes=stop.fewest_episodes(budget) if i == 0 else 0)
@@ -241,11 +247,12 @@ def run_scaling(
         order = {s: i for i, s in enumerate(settings)}
         dropped_on: dict[Setting, str] = {}
         started = time.perf_counter()
-        for size, mdp, best, threshold, shortest in tasks:
+        for size, mdp, best, baseline, shortest in tasks:
             budget = variant_budget(mdp.num_states, episodes, episodes_per_state)
             chunk = auto_chunk(budget) if chunk_episodes is None else chunk_episodes
             base = {"size": size, "states": int(mdp.num_states), "actions": int(mdp.num_actions),
-                    "best_return": float(best), "threshold": float(threshold)}
+                    "best_return": float(best), "random_return": float(baseline),
+                    "threshold": convergence_threshold(float(best), float(baseline), fraction)}
             for setting in settings:
                 if setting in dropped_on:
                     rows.append(dict(base, **_setting_columns(setting, order[setting]), status=(
@@ -263,8 +270,8 @@ def run_scaling(
                                  f" {seeds} agents, up to {budget} episodes\n")
             run = train_until_solved(
                 out / RUNS_FOLDER / size, mdp, remaining, seeds=seeds, budget=budget,
-                stop=UntilSolved(best=best, fraction=fraction, window=window,
-                                 max_seconds=seconds),
+                stop=UntilSolved(best=best, baseline=baseline, fraction=fraction,
+                                 window=window, max_seconds=seconds),
                 seed=seed, options=knobs.replace(chunk_episodes=chunk, progress=progress),
                 task=f"variant:{size}")
             runs[size] = run

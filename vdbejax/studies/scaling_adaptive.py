@@ -2,8 +2,9 @@
 
 :func:`run_until_solved` is :func:`~vdbejax.run_grid` with the stop policy
 :class:`~vdbejax.runs.UntilSolved`: chunk by chunk until every agent has solved the task
-(:mod:`vdbejax.results.solving`: its 20-episode moving average reaches 0.9 × the exact best return)
-or a budget of episodes or wall-clock seconds is spent. After each chunk the solved agents
+(:mod:`vdbejax.results.solving`: its 20-episode moving average reaches a normalised score of
+0.9, 0 the uniformly random policy's expected return and 1 the exact best) or a budget of
+episodes or wall-clock seconds is spent. After each chunk the solved agents
 leave the batch — they cost no more compute — and the others continue from their state.
 Every agent draws from its own random stream, so an agent's returns do not depend on when
 the others stop: up to its stop episode they equal, bit for bit, those of a fixed-budget
@@ -23,7 +24,7 @@ from vdbejax.engine.progress import ProgressCallback
 from vdbejax.methods.agents import AgentOptions, Setting
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.policy import policy_summary
-from vdbejax.results.solving import FRACTION, WINDOW, SolveTimes, episodes_to_solve
+from vdbejax.results.solving import FRACTION, WINDOW, SolveTimes, episodes_to_converge
 from vdbejax.runs.options import RunOptions
 
 
@@ -38,7 +39,8 @@ class AdaptiveRun:
       episodes_run: int64 ``[configs, seeds]``: episodes each agent ran (its stop episode).
       solve: :class:`~vdbejax.results.solving.SolveTimes` ``[configs, seeds]``.
       nonfinite: bool ``[configs, seeds]``.
-      best: the exact best return; ``fraction``, ``window``: the solve criterion.
+      best, baseline: the exact best return and the uniformly random policy's;
+        ``fraction``, ``window``: the solve criterion (a normalised score).
       max_episodes, max_seconds: the budget.
       stopped: ``"solved"`` (every agent), ``"episodes"`` or ``"seconds"`` (budget spent).
       elapsed_seconds: wall clock of the training (engine programs included).
@@ -55,6 +57,7 @@ class AdaptiveRun:
     solve: SolveTimes
     nonfinite: np.ndarray
     best: float
+    baseline: float
     fraction: float
     window: int
     max_episodes: int
@@ -84,6 +87,7 @@ def run_until_solved(
     max_episodes: int,
     max_seconds: float | None = None,
     best: float | None = None,
+    baseline: float | None = None,
     fraction: float = FRACTION,
     window: int = WINDOW,
     seed: int = 0,
@@ -97,7 +101,8 @@ def run_until_solved(
 
     :func:`~vdbejax.run_grid` with the stop policy :class:`~vdbejax.runs.UntilSolved`:
     after each chunk of ``chunk_episodes`` episodes, an agent whose moving average has
-    reached ``fraction × best`` (:func:`~vdbejax.results.solving.episodes_to_solve`) stops at the
+    reached a normalised score of ``fraction``
+    (:func:`~vdbejax.results.solving.episodes_to_converge`) stops at the
     end of that chunk (its stop episode, :attr:`AdaptiveRun.episodes_run`). The run ends
     when no agent is left, after ``max_episodes`` episodes, or after the first chunk that
     ends past ``max_seconds`` of wall clock (then every remaining agent is censored there;
@@ -114,7 +119,9 @@ def run_until_solved(
       max_episodes: episode budget per agent.
       max_seconds: wall-clock budget of the whole run (None: no limit).
       best: the exact best return (default :func:`vdbejax.envs.solvers.best_return` of ``mdp``).
-      fraction, window: the solve criterion.
+      baseline: the uniformly random policy's expected return, given with ``best``
+        (default :func:`vdbejax.envs.solvers.uniform_random_return` of ``mdp``).
+      fraction, window: the solve criterion (a normalised score, 0.9 by default).
       seed: root seed.
       options: values shared by every agent (α, γ, …).
       chunk_episodes: episodes between stop checks (the results do not depend on it; the
@@ -135,7 +142,8 @@ def run_until_solved(
     from vdbejax.validation import INT32_MAX, check_int
 
     check_int("max_episodes", max_episodes, 1, INT32_MAX)  # named as the caller knows it
-    stop = UntilSolved(best=best, fraction=fraction, window=window, max_seconds=max_seconds)
+    stop = UntilSolved(best=best, baseline=baseline, fraction=fraction, window=window,
+                       max_seconds=max_seconds)
     run = (RunOptions() if run is None else run).replace(
         stop=stop, chunk_episodes=chunk_episodes, threads=threads, progress=progress)
     compiled_before = compile_seconds()
@@ -147,15 +155,20 @@ def run_until_solved(
 def adaptive_run(result: GridResult, compile_seconds: float = 0.0) -> AdaptiveRun:
     """The :class:`AdaptiveRun` view of a result trained :class:`~vdbejax.runs.UntilSolved`."""
     stop = result.meta["stop"]
+    if stop.get("baseline") is None:
+        raise ValueError("the result's stop policy has no baseline: it was trained before"
+                         " 'solved' became a normalised score of 0.9; train it again")
     max_episodes = result.num_episodes
     episodes_run = (np.full(result.returns.shape[:2], max_episodes, np.int64)
                     if result.episodes_run is None else result.episodes_run)
-    solve = episodes_to_solve(result.returns, stop["best"], fraction=stop["fraction"],
-                              window=stop["window"], episodes_run=episodes_run)
+    solve = episodes_to_converge(result.returns, stop["best"], stop["baseline"],
+                                 fraction=stop["fraction"], window=stop["window"],
+                                 episodes_run=episodes_run)
     return AdaptiveRun(
         settings=list(result.settings), returns=result.returns, lengths=result.lengths,
         episodes_run=episodes_run, solve=solve, nonfinite=result.nonfinite,
-        best=float(stop["best"]), fraction=float(stop["fraction"]), window=int(stop["window"]),
+        best=float(stop["best"]), baseline=float(stop["baseline"]),
+        fraction=float(stop["fraction"]), window=int(stop["window"]),
         max_episodes=max_episodes, max_seconds=stop["max_seconds"], stopped=result.meta["stopped"],
         elapsed_seconds=float(result.meta["elapsed_seconds"]), compile_seconds=compile_seconds,
         chunks=int(result.meta["batches"]),

@@ -33,7 +33,8 @@ RUNS_FOLDER = "runs"
 
 #: ``scaling.csv``'s columns: one row per variant × setting.
 ROW_COLUMNS = [
-    "size", "config", "states", "actions", "best_return", "threshold", "learner", "explorer",
+    "size", "config", "states", "actions", "best_return", "random_return", "threshold", "learner",
+    "explorer",
     "param", "method", "status", "agents", "solved", "fraction_solved", "fraction_low",
     "fraction_high",
     "median_episodes", "median_low", "median_high", "budget", "median_text", "agent_episodes",
@@ -41,7 +42,8 @@ ROW_COLUMNS = [
 ]
 #: The fields of a variant's record in ``meta.json``'s ``variants`` (besides ``threshold``).
 VARIANT_COLUMNS = [
-    "size", "states", "actions", "best_return", "shortest_solution", "settings_run", "agents",
+    "size", "states", "actions", "best_return", "random_return", "shortest_solution",
+    "settings_run", "agents",
     "budget_episodes", "chunk_episodes", "episodes_reached", "stopped", "agent_episodes",
     "fixed_budget_agent_episodes", "agent_steps", "training_seconds", "compile_seconds",
     "steps_per_second",
@@ -99,7 +101,7 @@ def load_scaling(out_dir: str | Path) -> tuple[list[dict[str, Any]], list[dict[s
                 row[key] = int(value)
             elif ((key in ROW_COLUMNS[ROW_COLUMNS.index("fraction_solved"):]
                    and key != "median_text")
-                  or key in ("best_return", "threshold")):
+                  or key in ("best_return", "random_return", "threshold")):
                 row[key] = float(value)
             else:
                 row[key] = value
@@ -145,8 +147,10 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
     if meta.get("command"):
         lines += [f"Command: `{meta['command']}`", ""]
     lines += [
-        f"Solved = the {options['window']}-episode moving average of an agent's returns reaches"
-        f" {options['fraction']:g} × the variant's exact best return (full windows only);"
+        f"Solved = the {options['window']}-episode moving average of an agent's normalised"
+        f" returns reaches {options['fraction']:g} (0 = the uniformly random policy's expected"
+        " return, 1 = the variant's exact best; full windows only; `threshold`: that score"
+        " in returns);"
         f" {options['seeds']} agents per setting; episode budget per variant"
         + (f" max({options['episodes']}, {options['episodes_per_state']:g} × states)"
            if options.get("episodes_per_state") else f" {options['episodes']}")
@@ -156,7 +160,8 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
         " \"-\": not run. Exponent: slope of log(median) against log(states) over the variants"
         " with a median (how many in brackets; 1 = proportional to the states).", "",
         "## Variants", ""]
-    columns = ["size", "states", "actions", "best_return", "shortest_solution", "settings_run",
+    columns = ["size", "states", "actions", "best_return", "random_return", "threshold",
+               "shortest_solution", "settings_run",
                "budget_episodes", "episodes_reached", "stopped", "agent_episodes",
                "fixed_budget_agent_episodes",
                "training_seconds", "compile_seconds", "steps_per_second"]
