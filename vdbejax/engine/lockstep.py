@@ -146,8 +146,11 @@ def _row_gather(tree: Any, rows: np.ndarray) -> Any:
 
 
 def _on_one_cpu(tree: Any) -> bool:
-    """Every leaf a JAX array on one CPU device (its rows can be viewed on the host)."""
+    """Every leaf a host array or a JAX array on one CPU device (its rows can be viewed
+    on the host)."""
     for leaf in jax.tree.leaves(tree):
+        if isinstance(leaf, np.ndarray | np.generic):
+            continue
         devices = getattr(getattr(leaf, "sharding", None), "device_set", None)
         if not devices or len(devices) != 1 or next(iter(devices)).platform != "cpu":
             return False
@@ -272,6 +275,8 @@ def run_chunk_lockstep(
       ``(agents, returns, lengths, iterations, lane_iterations)``.
     """
     num_agents = int(agents.episode.shape[0])
+    if _on_one_cpu((agents, params)):  # groups cut as host views: no dispatch per leaf
+        agents, params = jax.tree.map(np.asarray, (agents, params))
     groups: list[tuple[Agent, np.ndarray]] = []
     kinds = np.asarray(params.kind)
     for k, agent in enumerate(params.kinds):
@@ -287,8 +292,6 @@ def run_chunk_lockstep(
 
     support = start_support(mdp)
     block_programs: dict[tuple, Any] = {}
-    if _on_one_cpu(agents):  # groups cut as host views: no dispatch per leaf and group
-        agents, params = jax.tree.map(np.asarray, (agents, params))
 
     def run_group(group: tuple[Agent, np.ndarray]) -> tuple[Any, int, int]:
         agent, rows = group
