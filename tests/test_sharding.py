@@ -205,6 +205,10 @@ TWO_PROCESS_SCRIPT = textwrap.dedent(
     jax.distributed.initialize(coordinator_address="127.0.0.1:" + port, num_processes=2,
                                process_id=process_id)
     from small_grid import run_small
+    jax.devices()  # the backend's start waits for both processes: the lag starts after it
+    if process_id == 1:  # shares end far apart: past the collectives' own 30 s wait
+        import time
+        time.sleep(35)
     result = run_small(checkpoint=out + "/ckpt.npz")
     assert result.meta["devices"] == 4 and result.meta["processes"] == 2, result.meta
     result.save(out + f"/process{{process_id}}")

@@ -29,6 +29,9 @@ from vdbejax.validation import check_int
 
 #: Name of the mesh axis that agents are split along.
 AGENT_AXIS = "agents"
+#: How long a process that finished its share waits for the others before the gather
+#: (shares of unequal work end far apart; the collectives' own wait is 30 s).
+GATHER_WAIT_SECONDS = 7 * 24 * 3600
 
 Tree = TypeVar("Tree")
 
@@ -129,11 +132,28 @@ def gather_agents(local: np.ndarray, num_agents: int) -> np.ndarray:
         return local
     from jax.experimental import multihost_utils
 
+    _wait_for_every_process()
     sizes = [len(share) for share in _process_shares(num_agents)]
     padded = np.zeros((max(sizes), *local.shape[1:]), local.dtype)
     padded[: local.shape[0]] = local  # equal shapes for the all-gather
     everything = np.asarray(multihost_utils.process_allgather(padded))
     return np.concatenate([everything[p, :size] for p, size in enumerate(sizes)])
+
+
+_gathers = 0  # barriers passed: each gather's barrier has its own name
+
+
+def _wait_for_every_process() -> None:
+    """Block until every process reached its gather: a barrier of the distributed
+    service (its wait is :data:`GATHER_WAIT_SECONDS`), so the all-gather's collectives,
+    which give up after 30 s, start together."""
+    from jax._src import distributed  # the service's client (JAX's own savers use it)
+
+    global _gathers
+    _gathers += 1
+    client = distributed.global_state.client
+    if client is not None:
+        client.wait_at_barrier(f"vdbejax_gather_{_gathers}", GATHER_WAIT_SECONDS * 1000)
 
 
 def process_checkpoint_path(path: str | os.PathLike) -> Path:
