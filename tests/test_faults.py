@@ -169,6 +169,20 @@ def test_a_full_disk_is_one_line_and_leaves_no_folder_and_no_lock(tmp_path, monk
     assert list(kept.iterdir()) == []
 
 
+@pytest.mark.parametrize("command", [
+    ["bench", "--quick", "--quiet"],
+    ["depth", "--quick", "--quiet"],
+    ["scale", "--sizes", "2x1", "--seeds", "2", "--episodes", "300", "--quiet"],
+])
+def test_every_study_on_a_full_disk_leaves_no_folder(tmp_path, monkeypatch, capsys, command):
+    no_space_for_the_lock(monkeypatch)
+    out = tmp_path / "new" / "study"
+    assert cli.main([command[0], "--out", str(out), *command[1:]]) == 2
+    assert one_line(capsys) == (f"error: out={str(out)!r} cannot be locked for writing: No"
+                                " space left on device")
+    assert not out.exists()  # the folder this command made is gone again
+
+
 def test_a_full_disk_while_probing_the_folder_leaves_no_folder(tmp_path, monkeypatch,
                                                                capsys):
     real = Path.write_bytes

@@ -31,6 +31,7 @@ from types import ModuleType
 from typing import Any, TypeVar
 
 from vdbejax import _interrupts as interrupts
+from vdbejax.validation import check_writable_dir
 
 fcntl: ModuleType | None
 try:
@@ -44,6 +45,15 @@ MARKER_FILE = ".vdbejax-writing"
 STAGES = ("results", "outputs")
 T = TypeVar("T")
 _TEMPORARY = re.compile(r"^\..+\.(\d+)\.[^.]+\.tmp$")
+
+
+def output_folder(path: Any, name: str = "out") -> tuple[Path, FolderLock]:
+    """A command's output folder, made writable (``check_writable_dir``), and its lock
+    (not yet taken), which removes the folder again if this call made it and the lock
+    cannot be taken (a full disk)."""
+    made = isinstance(path, (str, os.PathLike)) and not os.path.lexists(path)
+    out = check_writable_dir(name, path)
+    return out, FolderLock(out, name, created=made)
 
 
 class FolderLock:

@@ -27,7 +27,7 @@ from vdbejax.engine.state import task_facts
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Setting, make_agent
-from vdbejax.results.folder_lock import FolderLock, check_output_paths, mark, unmark
+from vdbejax.results.folder_lock import check_output_paths, mark, output_folder, unmark
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.policy import policy_summary
 from vdbejax.results.regret import cumulative_regret, run_scores
@@ -50,7 +50,6 @@ from vdbejax.validation import (
     check_bool,
     check_in_range,
     check_int,
-    check_writable_dir,
 )
 
 #: Agents per method and task in the reported run, and per candidate in tuning.
@@ -252,14 +251,14 @@ def run_bench(
             parts.append(estimate_task(task.mdp, len(ran[task.name]), seeds, episodes,
                                        statistics=False))
         announce(StudyEstimate(tuple(parts)), "study")
-    out = check_writable_dir("out", out_dir)
+    out, lock = output_folder(out_dir)
     check_output_paths(out, output_files([t.name for t in bench_tasks], figures,
                                          evaluated=evaluate_every is not None))
     from vdbejax.runs.grid import version_info
 
     versions = version_info()  # the code that runs: read before training, not after
     started = time.perf_counter()
-    with FolderLock(out):
+    with lock:
         runs: dict[str, GridResult] = {}
         chosen: dict[str, dict[str, Any]] = {}
         budget = {"agent_episodes": 0, "agent_steps": 0, "seconds": 0.0}

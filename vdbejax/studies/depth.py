@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from vdbejax.results import io
-from vdbejax.results.folder_lock import FolderLock, check_output_paths, mark, unmark
+from vdbejax.results.folder_lock import check_output_paths, mark, output_folder, unmark
 from vdbejax.results.policy import POLICY_COLUMNS
 from vdbejax.results.solving import WINDOW, summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved
@@ -54,7 +54,7 @@ from vdbejax.studies.depth_report import (
 )
 from vdbejax.studies.scaling_adaptive import AdaptiveRun, train_until_solved
 from vdbejax.studies.scaling_study import auto_chunk
-from vdbejax.validation import INT32_MAX, UINT32_MAX, check_bool, check_int, check_writable_dir
+from vdbejax.validation import INT32_MAX, UINT32_MAX, check_bool, check_int
 
 FAMILIES = ("deepsea", "chain")
 SIZES = (4, 8, 16, 32)
@@ -213,7 +213,7 @@ def run_depth(
         announce(StudyEstimate(tuple(
             estimate_task(task.mdp, len(chosen), seeds, episodes, statistics=False,
                           fewest_episodes=fewest) for _, _, task in tasks)), "study")
-    out = check_writable_dir("out", out_dir)
+    out, lock = output_folder(out_dir)
     check_output_paths(out, [CSV_FILE, SLOPES_FILE, MARKDOWN_FILE, META_FILE]
                        + ([FIGURE_FILE] if figure else [])
                        + ([POLICY_FIGURE_FILE] if figure and evaluate_every else []))
@@ -222,7 +222,7 @@ def run_depth(
                        evaluate_every=evaluate_every)
     versions = version_info()  # the code that runs: read before training, not after
     started = time.perf_counter()
-    with FolderLock(out):
+    with lock:
         rows: list[dict[str, Any]] = []
         runs: dict[str, AdaptiveRun] = {}
         for i, (family, size, task) in enumerate(tasks):

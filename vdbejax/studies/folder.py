@@ -29,9 +29,9 @@ from vdbejax.engine.distributed import process_checkpoint_path
 from vdbejax.results import io
 from vdbejax.results.export import EXPORT_FILES
 from vdbejax.results.folder_lock import (
-    FolderLock,
     check_output_paths,
     marked_stage,
+    output_folder,
     rescue,
     save_run,
 )
@@ -39,7 +39,6 @@ from vdbejax.results.grid_result import GridResult
 from vdbejax.runs.checkpoint import log_path, remove_checkpoint
 from vdbejax.runs.estimate import announce, estimate_prepared
 from vdbejax.runs.grid import PreparedGrid, run_prepared
-from vdbejax.validation import check_writable_dir
 
 T = TypeVar("T")
 CHECKPOINT_FILE = "checkpoint.npz"
@@ -138,12 +137,11 @@ def train_in_folder(
         an operating-system error while writing
         (the computed results are kept, :func:`~vdbejax.results.folder_lock.save_run`).
     """
-    made = isinstance(out_dir, (str, os.PathLike)) and not os.path.lexists(out_dir)
-    out = check_writable_dir(name, out_dir)
+    out, lock = output_folder(out_dir, name)
     check_output_paths(out, [*io.RESULT_FILES, *files, *checkpoint_files()], name)
     if prepared.run.progress:
         announce(estimate_prepared(prepared, statistics=statistics), "run")
-    with FolderLock(out, name, created=made) as lock:  # held until the last file is written
+    with lock:  # held until the last file is written
         checkpoint = out / CHECKPOINT_FILE
         check_replaceable(out, prepared, name)
         if not prepared.run.resume:  # overwrite: an interrupted run's progress is given up

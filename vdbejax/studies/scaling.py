@@ -36,7 +36,7 @@ from typing import Any
 
 from vdbejax.methods.agents import Setting, make_agent, parameter_name
 from vdbejax.results import io
-from vdbejax.results.folder_lock import FolderLock, mark, unmark
+from vdbejax.results.folder_lock import mark, output_folder, unmark
 from vdbejax.results.solving import FRACTION, WINDOW, convergence_threshold, summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
@@ -86,7 +86,6 @@ from vdbejax.validation import (
     check_in_range,
     check_int,
     check_positive,
-    check_writable_dir,
 )
 
 
@@ -236,8 +235,8 @@ def run_scaling(
             for i, task in enumerate(tasks)
             for budget in [variant_budget(task[1].num_states, episodes, episodes_per_state)])),
             "study")
-    out = check_writable_dir("out", out_dir)
-    with FolderLock(out):  # the study's folder, held to its last file
+    out, lock = output_folder(out_dir)
+    with lock:  # the study's folder, held to its last file
 
         versions = version_info()  # the code that runs: read before training, not after
         rows: list[dict[str, Any]] = []
