@@ -26,7 +26,7 @@ import numpy as np
 
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.state import AgentState
-from vdbejax.engine.step import run_loop, start_support
+from vdbejax.engine.step import optimal_buffer, run_loop, start_support
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Agent, AgentParams
 
@@ -52,7 +52,7 @@ def run_chunk(
     chunk_length: int,
     unroll: int = DEFAULT_UNROLL,
     programs: Programs | None = None,
-) -> tuple[AgentState, Array, Array, Array]:
+) -> tuple[AgentState, Array, Array, Array, Array | None]:
     """Advance a batch of agents until each has completed ``chunk_end`` episodes.
 
     One jitted program, no compaction (see :func:`run_agents` for the compacting
@@ -73,9 +73,11 @@ def run_chunk(
     batch (:func:`run_agents` splits larger ones into groups).
 
     Returns:
-      ``(agents, returns, lengths, iterations)``: returns/lengths are
+      ``(agents, returns, lengths, iterations, optimal)``: returns/lengths are
       ``[agents, chunk_length]`` (episodes past ``chunk_end`` stay 0), ``iterations``
-      the number of lockstep iterations executed (a multiple of ``unroll``).
+      the number of lockstep iterations executed (a multiple of ``unroll``), ``optimal``
+      the episodes' counts of optimal actions where ``mdp.optimal_action`` is set (else
+      ``None``).
     """
     if isinstance(params, AgentParams):
         if len(params.kinds) != 1:
@@ -91,26 +93,27 @@ def run_chunk(
 
 def _run_chunk(mdp: TabularMDP, params: Agent, agents: AgentState, chunk_start: Array,
                chunk_end: Array, start_support: Any, *, chunk_length: int,
-               unroll: int) -> tuple[AgentState, Array, Array, Array]:
+               unroll: int) -> tuple[AgentState, Array, Array, Array, Array | None]:
     num_agents = agents.episode.shape[0]
     returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
     lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
     big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
     return run_loop(
-        mdp, params, agents, returns, lengths, chunk_start, chunk_end, big, unroll, start_support
+        mdp, params, agents, returns, lengths, chunk_start, chunk_end, big, unroll, start_support,
+        optimal=optimal_buffer(mdp, num_agents, chunk_length),
     )
 
 
 def block_program(mdp: TabularMDP, params: Agent, agents: AgentState, returns: Array,
-               lengths: Array, chunk_start: Array, chunk_end: Array, max_iterations: Array,
-               start_support: Any, *, unroll: int
-               ) -> tuple[AgentState, Array, Array, Array, Array]:
+               lengths: Array, optimal: Array | None, chunk_start: Array, chunk_end: Array,
+               max_iterations: Array, start_support: Any, *, unroll: int
+               ) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
     """Up to ``max_iterations`` lockstep iterations; also returns each lane's activity."""
-    agents, returns, lengths, iterations = run_loop(
+    agents, returns, lengths, iterations, optimal = run_loop(
         mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations, unroll,
-        start_support,
+        start_support, optimal=optimal,
     )
-    return agents, returns, lengths, iterations, agents.episode < chunk_end
+    return agents, returns, lengths, iterations, agents.episode < chunk_end, optimal
 
 
 @jax.jit
@@ -154,7 +157,7 @@ def _run_chunk_compacting(
     unroll: int,
     min_batch: int,
     programs: Programs,
-) -> tuple[AgentState, Array, Array, int, int]:
+) -> tuple[AgentState, Array, Array, Array | None, int, int]:
     """:func:`run_chunk` with compaction of the still-active agents between blocks.
 
     The batch runs ``block_iterations`` lockstep iterations at a time. When at most half
@@ -164,11 +167,12 @@ def _run_chunk_compacting(
     on its own lane, hence the results are identical to :func:`run_chunk`.
 
     Returns:
-      ``(agents, returns, lengths, iterations, lane_iterations)``.
+      ``(agents, returns, lengths, optimal, iterations, lane_iterations)``.
     """
     num_agents = int(agents.episode.shape[0])
     full = (agents, jnp.zeros((num_agents, chunk_length), jnp.float32),
-            jnp.zeros((num_agents, chunk_length), jnp.int32))
+            jnp.zeros((num_agents, chunk_length), jnp.int32),
+            optimal_buffer(mdp, num_agents, chunk_length))
     index = None  # rows of the full batch held by the current batch (None: all, in order)
     cur_params, cur = params, full
     size = num_agents
@@ -177,15 +181,15 @@ def _run_chunk_compacting(
     block = jnp.int32(block_iterations)
     support = start_support(mdp)
 
-    def written_back() -> tuple[AgentState, Array, Array]:
+    def written_back() -> tuple[AgentState, Array, Array, Array | None]:
         """The full batch with the current batch's rows written back (padding dropped)."""
         return cur if index is None else _scatter_rows(full, jnp.asarray(index), cur)
 
     while True:
         args = (mdp, cur_params, *cur, start, end, block, support)
-        cur_agents, cur_returns, cur_lengths, done_iterations, active = programs.get(
-            block_program, args, {"unroll": unroll})(*args)
-        cur = (cur_agents, cur_returns, cur_lengths)
+        (cur_agents, cur_returns, cur_lengths, done_iterations, active,
+         cur_optimal) = programs.get(block_program, args, {"unroll": unroll})(*args)
+        cur = (cur_agents, cur_returns, cur_lengths, cur_optimal)
         done_iterations = int(done_iterations)
         iterations += done_iterations
         lane_iterations += done_iterations * size
@@ -224,7 +228,7 @@ def run_chunk_lockstep(
     min_batch: int,
     max_batch: int,
     programs: Programs,
-) -> tuple[AgentState, Array, Array, int, int]:
+) -> tuple[AgentState, Array, Array, Array | None, int, int]:
     """One chunk of the lockstep strategy: kind after kind, in groups of at most
     ``max_batch`` lanes.
 
@@ -232,7 +236,7 @@ def run_chunk_lockstep(
     do not depend on the grouping (options as in :func:`~vdbejax.engine.run_agents`).
 
     Returns:
-      ``(agents, returns, lengths, iterations, lane_iterations)``.
+      ``(agents, returns, lengths, optimal, iterations, lane_iterations)``.
     """
     num_agents = int(agents.episode.shape[0])
     pieces: list[list[Any]] = []
@@ -259,21 +263,24 @@ def run_chunk_lockstep(
                     programs=programs,
                 )
             else:
-                *piece, run_iterations = run_chunk(
+                *piece, run_iterations, optimal = run_chunk(
                     mdp, part(agent), part(agents), jnp.int32(chunk_start),
                     jnp.int32(chunk_end), chunk_length, unroll, programs,
                 )
+                piece.append(optimal)
                 group_iterations = int(run_iterations)
                 group_lanes = group_iterations * count
             pieces.append(piece)
             iterations += group_iterations
             lane_iterations += group_lanes
     if len(pieces) == 1:
-        agents, returns, lengths = pieces[0]
+        agents, returns, lengths, optimal = pieces[0]
     else:
-        agents, returns, lengths = jax.tree.map(lambda *leaves: jnp.concatenate(leaves), *pieces)
+        agents, returns, lengths, optimal = jax.tree.map(
+            lambda *leaves: jnp.concatenate(leaves), *pieces)
         rows_order = np.concatenate(order)
         if not np.array_equal(rows_order, np.arange(num_agents)):
             inverse = jnp.asarray(np.argsort(rows_order), jnp.int32)
-            agents, returns, lengths = _gather_rows((agents, returns, lengths), inverse)
-    return agents, returns, lengths, iterations, lane_iterations
+            agents, returns, lengths, optimal = _gather_rows(
+                (agents, returns, lengths, optimal), inverse)
+    return agents, returns, lengths, optimal, iterations, lane_iterations
