@@ -151,3 +151,14 @@ def test_the_cli_flag_writes_the_columns(tmp_path, capsys):
     header = (out / "summary.csv").read_text().splitlines()[0].split(",")
     assert set(OPTIMAL_ACTION_COLUMNS) <= set(header)
     assert "optimal_actions" in np.load(out / "returns.npz").files
+
+
+def test_a_replicate_keeps_its_agents_record():
+    from vdbejax.results.replicates import replicate
+
+    mdp = make_suite_task("bernoulli_bandit:4")
+    result = run_grid(mdp, [Setting("sample_average", "egreedy", 0.1)], num_seeds=4,
+                      num_episodes=10, record_optimal=True)
+    result.meta.update(replicates=2, agents_per_replicate=2)
+    second = replicate(result, 1)
+    assert np.array_equal(second.optimal_actions, result.optimal_actions[:, 2:])
