@@ -76,7 +76,7 @@ def block_program_hlo(setting: Any, lanes: int, chunk_length: int = 64) -> str:
     agents = jax.eval_shape(init_agents, mdp, params, keys)
     args = (mdp, params.kinds[0], agents,
             jax.ShapeDtypeStruct((lanes, chunk_length), jnp.float32),
-            jax.ShapeDtypeStruct((lanes, chunk_length), jnp.int32),
+            jax.ShapeDtypeStruct((lanes, chunk_length), jnp.int32), None,  # no optimal record
             jnp.int32(0), jnp.int32(1), jnp.int32(1), lockstep.start_support(mdp))
     return str(Programs().get(lockstep.block_program, args, {"unroll": 1}).as_text())
 

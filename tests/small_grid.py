@@ -61,3 +61,23 @@ def budget_for(mdp: Any, agents: int, chunk_episodes: int = 8) -> int:
     from vdbejax.runs.batching import bytes_per_agent, mdp_bytes
 
     return mdp_bytes(mdp) + agents * bytes_per_agent(mdp, chunk_episodes)
+
+
+def interrupt_then_resume(mdp: Any, settings: Any, run: Any, stop_at: int,
+                          **grid: Any) -> GridResult:
+    """Run a checkpointed grid (``run``: its RunOptions), kill it once ``stop_at``
+    agent-episodes are done (an exception from its progress callback), then resume it."""
+    import pytest
+
+    from vdbejax.runs import prepare_grid, run_prepared
+
+    class Stop(Exception):
+        pass
+
+    def stop_after(done: int, total: int, elapsed: float) -> None:
+        if done >= stop_at:
+            raise Stop
+
+    with pytest.raises(Stop):
+        run_prepared(prepare_grid(mdp, settings, run=run.replace(progress=stop_after), **grid))
+    return run_prepared(prepare_grid(mdp, settings, run=run.replace(resume=True), **grid))

@@ -163,3 +163,31 @@ def test_a_method_over_the_cost_limit_is_left_out_and_said(tmp_path: Path) -> No
     assert not (tmp_path / "c").exists()
     with pytest.raises(ValueError, match="cost_limit="):
         bench.run_bench(tmp_path / "d", quick=True, cost_limit=0, progress=False)
+
+
+def test_the_bandits_group_ranks_its_methods_with_optimal_actions(tmp_path: Path) -> None:
+    from vdbejax.studies.bench_methods import (
+        BANDIT_METHODS,
+        BANDIT_TASKS,
+        SUITE_METHODS,
+        group_defaults,
+    )
+
+    assert group_defaults("bandits", None, None) == (BANDIT_TASKS, BANDIT_METHODS)
+    assert group_defaults("suite", None, "vdbe") == (None, "vdbe")
+    assert [m.name for m in select_methods(None)] == list(SUITE_METHODS)  # the suite's 20
+    assert set(BANDIT_METHODS) <= {m.name for m in METHODS}
+    with pytest.raises(ValueError, match=r"^group='nope' is invalid: must be one of suite,"):
+        bench.run_bench(tmp_path / "x", group="nope", progress=False)
+    result = bench.run_bench(tmp_path / "b", group="bandits", tasks="bernoulli_bandit:3",
+                             methods="egreedy,thompson", seeds=3, episodes=30, tune=False,
+                             progress=False, figures=False)
+    assert result.meta["options"]["group"] == "bandits"
+    for row in result.rows:
+        assert 0 <= row["optimal_actions_ci_low"] <= row["optimal_actions"] <= 1
+        assert row["reward_per_step"] == pytest.approx(row["final_return"])
+    header = (tmp_path / "b" / "ranking.csv").read_text().splitlines()[0]
+    assert "optimal_actions" in header and "reward_per_step" in header
+    assert "% optimal action [95 % CI]" in (tmp_path / "b" / "bench.md").read_text()
+    run = GridResult.load(tmp_path / "b" / "runs" / "bernoulli_bandit-3")
+    assert run.optimal_actions is not None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import numpy as np
 import pytest
+from small_grid import interrupt_then_resume
 
 from vdbejax import cli
 from vdbejax.engine.state import init_agents
@@ -133,19 +134,8 @@ def test_a_stop_policy_and_a_resume_keep_the_evaluations(tmp_path):
     run = RunOptions(evaluate_every=10, checkpoint=tmp_path / "c.npz")
     prepared = prepare_grid(mdp, settings, num_seeds=2, num_episodes=40, run=run)
     whole = run_prepared(prepared)
-
-    class Stop(Exception):
-        pass
-
-    def stop_after_first(done, total, elapsed):
-        if done >= 2 * 2 * 20:
-            raise Stop
-
-    with pytest.raises(Stop):
-        run_prepared(prepare_grid(mdp, settings, num_seeds=2, num_episodes=40,
-                                  run=run.replace(progress=stop_after_first)))
-    resumed = run_prepared(prepare_grid(mdp, settings, num_seeds=2, num_episodes=40,
-                                        run=run.replace(resume=True)))
+    resumed = interrupt_then_resume(mdp, settings, run, 2 * 2 * 20, num_seeds=2,
+                                    num_episodes=40)
     assert resumed.meta["resumed_from_agent_episodes"] > 0
     assert np.array_equal(resumed.policy_values, whole.policy_values)
 

@@ -11,13 +11,13 @@ from vdbejax.runs.grid import (
     PreparedGrid,
     git_commit,
     grid_agents,
-    nonfinite_message,
     prepare_grid,
     run_grid,
     run_prepared,
     version_info,
 )
 from vdbejax.runs.options import RunOptions
+from vdbejax.runs.state import nonfinite_message
 
 __all__ = [
     "GridResult",

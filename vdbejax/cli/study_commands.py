@@ -59,6 +59,10 @@ def add_run(sub: argparse._SubParsersAction) -> None:
                         " agent-episodes, at most 10,000)")
     add_evaluate_flag(p, "policy_values in returns.npz, the policy_gap and optimal_fraction"
                          " columns of summary.csv, policy_gap.png")
+    p.add_argument("--record-optimal", action="store_true", default=None,
+                   help="record each episode's fraction of steps whose action is optimal"
+                        " (optimal_actions in returns.npz; the optimal_actions and"
+                        " reward_per_step columns of summary.csv); the returns are the same")
     add_run_flags(p, "continue from OUT/checkpoint.npz (or reuse OUT's whole result)")
     p.add_argument("--no-figures", action="store_true", help="no fig3.png / sensitivity.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -98,7 +102,7 @@ def run_command(args: argparse.Namespace) -> None:
 
     spec = read_sweep_file(args.config) if args.config else {}
     for key in ("task", "seeds", "replicates", "episodes", "seed", "max_steps",
-                "invalid_action", "chunk_episodes", "evaluate_every"):
+                "invalid_action", "chunk_episodes", "evaluate_every", "record_optimal"):
         if getattr(args, key) is not None:
             spec[key] = getattr(args, key)
     for key in ("learners", "explorers"):
@@ -258,12 +262,15 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
                     " candidates run on the reported seeds (docs/BENCHMARK.md).")
     number = parse_cli_number
     p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--group", default="suite", choices=("suite", "bandits"),
+                   help="suite (default): the suite's tasks (vdbejax.envs.suite.DEFAULT_SUITE)"
+                        " and 20 methods; bandits: three 10-armed bandits and the methods that"
+                        " make sense on them, with %% optimal action and reward per step")
     p.add_argument("--tasks", default=None,
-                   help="comma-separated task names (default: the suite,"
-                        " vdbejax.envs.suite.DEFAULT_SUITE)")
+                   help="comma-separated task names (default: the group's)")
     p.add_argument("--methods", default=None,
                    help="comma-separated names of vdbejax.studies.bench_methods.METHODS"
-                        " (default all)")
+                        " (default: the group's)")
     p.add_argument("--seeds", type=number, default=None,
                    help="agents per method and task in the reported run (default 10)")
     p.add_argument("--tune-seeds", type=number, default=None,
@@ -294,7 +301,9 @@ def bench_command(args: argparse.Namespace) -> None:
     _, values = size_values(args, ["tasks", "methods", "seeds", "tune_seeds", "episodes"],
                             {"seeds": bench.SEEDS, "tune_seeds": bench.TUNE_SEEDS,
                              "episodes": bench.EPISODES}, "benchmark")
-    command = "vdbejax bench --out " + args.out + (" --quick" if args.quick else "".join(
+    command = "vdbejax bench --out " + args.out + (
+        f" --group {args.group}" if args.group != "suite" else "") + (
+        " --quick" if args.quick else "".join(
         f" --{k.replace('_', '-')} {v}" for k, v in values.items() if v is not None)) + (
         f" --seed {args.seed}" + (" --no-tune" if args.no_tune else "")
         + (f" --cost-limit {args.cost_limit}" if args.cost_limit is not None else "")
@@ -303,8 +312,8 @@ def bench_command(args: argparse.Namespace) -> None:
         values["cost_limit"] = args.cost_limit
     result = bench.run_bench(args.out, seed=args.seed, tune=not args.no_tune, quick=args.quick,
                              progress=not args.quiet, figures=not args.no_figures,
-                             command=command, evaluate_every=args.evaluate_every, **values,
-                             **run_flags(args))
+                             command=command, evaluate_every=args.evaluate_every,
+                             group=args.group, **values, **run_flags(args))
     for row in result.aggregate:
         print(f"{row['title']}: IQM score {row['iqm']:.3f} [{row['iqm_low']:.3f},"
               f" {row['iqm_high']:.3f}], mean rank {row['mean_rank']:.1f}")

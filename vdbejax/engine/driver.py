@@ -54,6 +54,8 @@ class RunResult:
         agent-iterations paid for, idle lanes included; lower with compaction).
       strategy: the strategy that ran (``"sequential"`` or ``"lockstep"``; the last one
         if the sequential strategy fell back, see :func:`native_step_loops`).
+      optimal: int32 ``[agents, episodes]`` each episode's steps whose action is optimal
+        (with ``optimal_action``), else ``None``.
     """
 
     returns: np.ndarray
@@ -63,6 +65,7 @@ class RunResult:
     final_state: AgentState | None
     lane_iterations: int = 0
     strategy: str = "lockstep"
+    optimal: np.ndarray | None = None
 
 
 def run_agents(
@@ -73,8 +76,8 @@ def run_agents(
     *,
     chunk_episodes: int = 100,
     progress: ProgressCallback | None = None,
-    on_chunk: Callable[[int, AgentState | None, np.ndarray, np.ndarray], None] | None = None,
-    initial: tuple[int, AgentState, np.ndarray, np.ndarray] | None = None,
+    on_chunk: Callable[..., None] | None = None,
+    initial: tuple[Any, ...] | None = None,
     compact: bool = True,
     block_iterations: int = 256,
     unroll: int = DEFAULT_UNROLL,
@@ -87,6 +90,7 @@ def run_agents(
     chunk_states: bool = True,
     fixed_blocks: bool | None = None,
     chunk_seconds: float | None = None,
+    optimal_action: Any | None = None,
 ) -> RunResult:
     """Train a batch of agents for ``num_episodes`` episodes each.
 
@@ -99,8 +103,10 @@ def run_agents(
         results do not depend on it).
       progress: called as ``progress(done_agent_episodes, total, elapsed_seconds)``.
       on_chunk: called after each chunk with ``(episodes_done, agents, returns, lengths)``
-        (numpy arrays covering episodes ``[0, episodes_done)``); used for checkpoints.
-      initial: resume from ``(episodes_done, agents, returns, lengths)``.
+        (numpy arrays covering episodes ``[0, episodes_done)``), and ``optimal`` after
+        them with ``optimal_action``; used for checkpoints.
+      initial: resume from ``(episodes_done, agents, returns, lengths)`` (and
+        ``optimal`` after them with ``optimal_action``).
       compact: between blocks of ``block_iterations`` lockstep iterations, gather the
         still-active agents into a smaller power-of-two batch (at least ``min_batch``
         lanes) once at most half the lanes are active, so finished agents stop costing
@@ -131,6 +137,9 @@ def run_agents(
       chunk_seconds: size chunks by time: about this many seconds each, every multiple
         of ``chunk_episodes`` still a chunk end (:mod:`~vdbejax.engine.chunks`; a stop
         waits for the chunk that runs). None: chunks of ``chunk_episodes``.
+      optimal_action: bool ``[S, A]``, the actions that count as optimal: each episode's
+        steps taking one are counted (:attr:`RunResult.optimal`). ``None`` (default):
+        no count, the same programs and results as without it.
 
     None of ``compact`` … ``threads`` nor ``fixed_blocks`` change the results, only the
     speed, as long as ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
@@ -150,6 +159,7 @@ def run_agents(
     check_choice("strategy", strategy, (*STRATEGIES, "auto"))
     check_params(params, mdp.num_actions)
     params = for_task(params, mdp)
+    mdp = with_optimal_action(mdp, optimal_action)
     if threads is None:
         threads = available_cpus()
     check_int("threads", threads, 1)
@@ -161,6 +171,7 @@ def run_agents(
     buffer = chunk_buffer_length(chunk)
     returns = np.zeros((num_agents, num_episodes), np.float32)
     lengths = np.zeros((num_agents, num_episodes), np.int32)
+    optimal = None if optimal_action is None else np.zeros_like(lengths)
     if programs is None:
         programs = Programs()
     agents: AgentState | None
@@ -170,7 +181,9 @@ def run_agents(
         if strategy != "sequential" or not created_in_items(mdp, params):
             agents = programs.get(init_agents, (mdp, params, keys))(mdp, params, keys)
     else:
-        done, agents, returns[:, : initial[0]], lengths[:, : initial[0]] = initial
+        done, agents, returns[:, : initial[0]], lengths[:, : initial[0]] = initial[:4]
+        if optimal is not None:
+            optimal[:, :done] = initial[4]
         agents = jax.tree.map(jnp.asarray, agents)
     iterations = lane_iterations = 0
     started = time.perf_counter()
@@ -218,17 +231,19 @@ def run_agents(
     try:
         # strict=False: zip stops at the last bound without asking ``chunks`` for more (a
         # strict zip would resume the generator once past its last chunk).
-        for c, ((first, end), (chunk_returns, chunk_lengths, chunk_iterations, chunk_lanes)
-                ) in enumerate(zip(bounds, chunks, strict=False)):
+        for c, ((first, end), (chunk_returns, chunk_lengths, chunk_optimal, chunk_iterations,
+                               chunk_lanes)) in enumerate(zip(bounds, chunks, strict=False)):
             bounds.received(c)
             returns[:, first:end] = np.asarray(chunk_returns)[:, : end - first]
             lengths[:, first:end] = np.asarray(chunk_lengths)[:, : end - first]
+            if optimal is not None:
+                optimal[:, first:end] = np.asarray(chunk_optimal)[:, : end - first]
             iterations += chunk_iterations
             lane_iterations += chunk_lanes
             done = end
             if on_chunk:
                 on_chunk(done, current_agents() if states else None, returns[:, :done],
-                         lengths[:, :done])
+                         lengths[:, :done], *(() if optimal is None else (optimal[:, :done],)))
             if progress:
                 progress(done * num_agents, num_episodes * num_agents,
                          time.perf_counter() - started)
@@ -245,7 +260,24 @@ def run_agents(
             nonfinite = np.asarray(agents.nonfinite)
         else:
             nonfinite = sequential.nonfinite_flags()
-    return RunResult(returns, lengths, nonfinite, iterations, final, lane_iterations, strategy)
+    return RunResult(returns, lengths, nonfinite, iterations, final, lane_iterations, strategy,
+                     optimal)
+
+
+def with_optimal_action(mdp: TabularMDP, optimal_action: Any | None) -> TabularMDP:
+    """``mdp`` carrying the mask of optimal actions its steps are counted against
+    (:attr:`~vdbejax.envs.tabular.TabularMDP.optimal_action`), or as it is for ``None``.
+
+    Raises:
+      ValueError: a mask that is not ``[S, A]`` or not boolean.
+    """
+    if optimal_action is None:
+        return mdp
+    mask = np.asarray(optimal_action)
+    if mask.shape != (mdp.num_states, mdp.num_actions) or mask.dtype != np.bool_:
+        raise ValueError(f"optimal_action has shape {mask.shape} and dtype {mask.dtype}: must"
+                         f" be bool [{mdp.num_states}, {mdp.num_actions}] (states, actions)")
+    return dataclasses.replace(mdp, optimal_action=jax.device_put(mask))
 
 
 def chunk_buffer_length(chunk_episodes: int) -> int:

@@ -14,7 +14,7 @@ from vdbejax import _pytree
 from vdbejax.engine.lanes import at_lane
 from vdbejax.engine.packing import _pack, _unpack
 from vdbejax.engine.state import AgentState
-from vdbejax.engine.step import UNROLLED_LANES_MAX, KindSwitch, run_loop
+from vdbejax.engine.step import UNROLLED_LANES_MAX, KindSwitch, optimal_buffer, run_loop
 from vdbejax.engine.work_items import LANES
 from vdbejax.envs.tabular import TabularMDP
 
@@ -38,7 +38,7 @@ def lanes_for(rows: int) -> int:
 def _run_sequential(mdp: TabularMDP, agent: Any, agents: AgentState, chunk_start: Array,
                     chunk_end: Array, count: Array, support: Any, kind: Array | None = None,
                     *, chunk_length: int, lanes: int
-                    ) -> tuple[AgentState, Array, Array, Array, Array]:
+                    ) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
     """:func:`_chunk_loops` as one native call: its whole body inside a ``while`` loop of
     one trip, which XLA's CPU backend compiles into one function (the loop's contents are
     not dispatched operation by operation, and none waits for a thread of the pool that
@@ -46,13 +46,14 @@ def _run_sequential(mdp: TabularMDP, agent: Any, agents: AgentState, chunk_start
     num_agents = agents.episode.shape[0]
     zero = jnp.asarray(0, jnp.int32)
     outputs = (agents, jnp.zeros((num_agents, chunk_length), jnp.float32),
-               jnp.zeros((num_agents, chunk_length), jnp.int32), zero, zero)
+               jnp.zeros((num_agents, chunk_length), jnp.int32), zero, zero,
+               optimal_buffer(mdp, num_agents, chunk_length))
 
     def once(carry: tuple) -> tuple:
-        _, agents, returns, lengths, _, _ = carry
+        _, agents, returns, lengths, _, _, optimal = carry
         return (jnp.asarray(True), *_chunk_loops(
             mdp, agent, agents, returns, lengths, chunk_start, chunk_end, count, support,
-            lanes=lanes, kind=kind))
+            lanes=lanes, kind=kind, optimal=optimal))
 
     return jax.lax.while_loop(lambda carry: ~carry[0], once,
                               (jnp.asarray(False), *outputs))[1:]
@@ -60,11 +61,13 @@ def _run_sequential(mdp: TabularMDP, agent: Any, agents: AgentState, chunk_start
 
 def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array,
                  lengths: Array, chunk_start: Array, chunk_end: Array, count: Array,
-                 support: Any, *, lanes: int, kind: Array | None = None
-                 ) -> tuple[AgentState, Array, Array, Array, Array]:
+                 support: Any, *, lanes: int, kind: Array | None = None,
+                 optimal: Array | None = None
+                 ) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
     """Agents ``0 .. count-1`` of the batch run their own step loops to ``chunk_end``,
     ``lanes`` agents at a time side by side, writing their episodes into the zeroed
-    ``[agents, chunk_length]`` buffers ``returns`` and ``lengths``.
+    ``[agents, chunk_length]`` buffers ``returns`` and ``lengths`` (and ``optimal``, the
+    counts of optimal actions, where the task's ``optimal_action`` mask is set).
 
     The step is :func:`lockstep_iteration` on a batch of ``lanes`` lanes, whose table
     accesses are unrolled dynamic slices, so XLA's CPU backend compiles the loop into one
@@ -80,7 +83,7 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
     donated): a loop indexes them at its agents' rows.
 
     Returns:
-      ``(agents, returns, lengths, iterations, lane_iterations)``: the agents' active
+      ``(agents, returns, lengths, iterations, lane_iterations, optimal)``: the agents' active
       iterations (steps, plus one per episode start after a truncation) and the loops'
       iterations × ``lanes``.
     """
@@ -105,17 +108,17 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
     def refill(carry: tuple) -> tuple:
         """Run the lanes until one finishes; hand finished lanes the next agents."""
         (tables, packed, lane_packed, lane_agent, rows, waiting_from, returns, lengths,
-         trips) = carry
+         optimal, trips) = carry
         real = rows < count
         lane_state = dataclasses.replace(_unpack(lane_packed, fields_layout), q=tables[0],
                                          tables=tables[1])
         lane_params = _unpack(lane_agent, agent_layout)
         if kind is not None:
             lane_params = KindSwitch(kinds=lane_params, kind=kind)
-        lane_state, returns, lengths, loop_trips = run_loop(
+        lane_state, returns, lengths, loop_trips, optimal = run_loop(
             mdp, lane_params, lane_state, returns, lengths,
             chunk_start, jnp.where(real, chunk_end, 0), big, 1, support, table_rows=rows,
-            stop_at_first_finish=waiting_from < count,
+            stop_at_first_finish=waiting_from < count, optimal=optimal,
         )
         tables = (lane_state.q, lane_state.tables)
         finished = real & (lane_state.episode >= chunk_end)
@@ -133,7 +136,7 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
         lane_packed = jnp.where(finished[:, None], lane_rows(packed, rows), lane_packed)
         lane_agent = jnp.where(finished[:, None], lane_rows(agent_packed, rows), lane_agent)
         return (tables, packed, lane_packed, lane_agent, rows, waiting_from, returns, lengths,
-                trips + loop_trips * lanes)
+                optimal, trips + loop_trips * lanes)
 
     def any_lane_busy(carry: tuple) -> Array:
         return jnp.any(carry[4] < count)
@@ -142,12 +145,12 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
     rows = jnp.where(lane < count, lane, num_agents)
     zero = jnp.asarray(0, jnp.int32)
     started = agents.counter
-    tables, packed, *_, returns, lengths, lane_iterations = jax.lax.while_loop(
+    tables, packed, *_, returns, lengths, optimal, lane_iterations = jax.lax.while_loop(
         any_lane_busy, refill,
         ((agents.q, agents.tables), packed, lane_rows(packed, rows),
          lane_rows(agent_packed, rows), rows, jnp.asarray(lanes, jnp.int32), returns,
-         lengths, zero))
+         lengths, optimal, zero))
     agents = dataclasses.replace(_unpack(packed, fields_layout), q=tables[0], tables=tables[1])
     real_rows = jnp.arange(num_agents) < count
     iterations = jnp.sum(jnp.where(real_rows, agents.counter - started, 0)).astype(jnp.int32)
-    return agents, returns, lengths, iterations, lane_iterations
+    return agents, returns, lengths, iterations, lane_iterations, optimal

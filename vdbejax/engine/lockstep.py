@@ -27,7 +27,7 @@ import numpy as np
 
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.state import AgentState
-from vdbejax.engine.step import run_loop, start_support
+from vdbejax.engine.step import optimal_buffer, run_loop, start_support
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Agent, AgentParams
 
@@ -53,7 +53,7 @@ def run_chunk(
     chunk_length: int,
     unroll: int = DEFAULT_UNROLL,
     programs: Programs | None = None,
-) -> tuple[AgentState, Array, Array, Array]:
+) -> tuple[AgentState, Array, Array, Array, Array | None]:
     """Advance a batch of agents until each has completed ``chunk_end`` episodes.
 
     One jitted program, no compaction (see :func:`run_agents` for the compacting
@@ -74,9 +74,11 @@ def run_chunk(
     batch (:func:`run_agents` splits larger ones into groups).
 
     Returns:
-      ``(agents, returns, lengths, iterations)``: returns/lengths are
+      ``(agents, returns, lengths, iterations, optimal)``: returns/lengths are
       ``[agents, chunk_length]`` (episodes past ``chunk_end`` stay 0), ``iterations``
-      the number of lockstep iterations executed (a multiple of ``unroll``).
+      the number of lockstep iterations executed (a multiple of ``unroll``), ``optimal``
+      the episodes' counts of optimal actions where ``mdp.optimal_action`` is set (else
+      ``None``).
     """
     if isinstance(params, AgentParams):
         if len(params.kinds) != 1:
@@ -92,28 +94,30 @@ def run_chunk(
 
 def _run_chunk(mdp: TabularMDP, params: Agent, agents: AgentState, chunk_start: Array,
                chunk_end: Array, start_support: Any, *, chunk_length: int,
-               unroll: int) -> tuple[AgentState, Array, Array, Array]:
+               unroll: int) -> tuple[AgentState, Array, Array, Array, Array | None]:
     num_agents = agents.episode.shape[0]
     returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
     lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
     big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
     return run_loop(
-        mdp, params, agents, returns, lengths, chunk_start, chunk_end, big, unroll, start_support
+        mdp, params, agents, returns, lengths, chunk_start, chunk_end, big, unroll, start_support,
+        optimal=optimal_buffer(mdp, num_agents, chunk_length),
     )
 
 
 def block_program(mdp: TabularMDP, params: Agent, agents: AgentState, returns: Array,
-                  lengths: Array, chunk_start: Array, chunk_end: Array, max_iterations: Array,
-                  start_support: Any, *, unroll: int, fixed_iterations: int | None = None
-                  ) -> tuple[AgentState, Array, Array, Array, Array]:
+                  lengths: Array, optimal: Array | None, chunk_start: Array,
+                  chunk_end: Array, max_iterations: Array, start_support: Any, *, unroll: int,
+                  fixed_iterations: int | None = None
+                  ) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
     """Up to ``max_iterations`` lockstep iterations, or exactly ``fixed_iterations``
     (static: a loop of known trip count, see :func:`~vdbejax.engine.step.run_loop`);
     also returns each lane's activity."""
-    agents, returns, lengths, iterations = run_loop(
+    agents, returns, lengths, iterations, optimal = run_loop(
         mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations, unroll,
-        start_support, fixed_iterations=fixed_iterations,
+        start_support, fixed_iterations=fixed_iterations, optimal=optimal,
     )
-    return agents, returns, lengths, iterations, agents.episode < chunk_end
+    return agents, returns, lengths, iterations, agents.episode < chunk_end, optimal
 
 
 @jax.jit
@@ -170,7 +174,7 @@ def _run_stream(
     min_batch: int,
     support: Any,
     block: Callable[[tuple], Any],
-) -> tuple[AgentState, Array, Array, int, int]:
+) -> tuple[AgentState, Array, Array, Array | None, int, int]:
     """:func:`run_chunk` of a stream of agents of one kind through a batch of at most
     ``lanes`` lanes, refilled and compacted between blocks.
 
@@ -185,12 +189,13 @@ def _run_stream(
     ``block(args)`` gets the block program for ``args`` (one per batch size).
 
     Returns:
-      ``(agents, returns, lengths, iterations, lane_iterations)``.
+      ``(agents, returns, lengths, optimal, iterations, lane_iterations)``.
     """
     num_agents = int(agents.episode.shape[0])
     zeros = np.zeros if isinstance(agents.episode, np.ndarray) else jnp.zeros
     full = (agents, zeros((num_agents, chunk_length), np.float32),
-            zeros((num_agents, chunk_length), np.int32))
+            zeros((num_agents, chunk_length), np.int32),
+            optimal_buffer(mdp, num_agents, chunk_length, zeros))
     size = min(lanes, num_agents)
     waiting = size  # the next agent to take a lane
     # Rows of ``full`` the batch holds (None: all of them, in order).
@@ -202,14 +207,15 @@ def _run_stream(
     start, end = np.int32(chunk_start), np.int32(chunk_end)
     iterations_per_block = np.int32(block_iterations)
 
-    def written_back() -> tuple[AgentState, Array, Array]:
+    def written_back() -> tuple[AgentState, Array, Array, Array | None]:
         """The full batch with the current batch's rows written back (padding dropped)."""
         return cur if index is None else _scatter_rows(full, jnp.asarray(index), cur)
 
     while True:
         args = (mdp, cur_params, *cur, start, end, iterations_per_block, support)
-        cur_agents, cur_returns, cur_lengths, done_iterations, active = block(args)(*args)
-        cur = (cur_agents, cur_returns, cur_lengths)
+        (cur_agents, cur_returns, cur_lengths, done_iterations, active,
+         cur_optimal) = block(args)(*args)
+        cur = (cur_agents, cur_returns, cur_lengths, cur_optimal)
         done_iterations = int(done_iterations)
         iterations += done_iterations
         lane_iterations += done_iterations * size
@@ -259,7 +265,7 @@ def run_chunk_lockstep(
     programs: Programs,
     threads: int = 1,
     fixed_blocks: bool = False,
-) -> tuple[AgentState, Array, Array, int, int]:
+) -> tuple[AgentState, Array, Array, Array | None, int, int]:
     """One chunk of the lockstep strategy: kind by kind, in groups of at most
     ``max_batch`` lanes, the groups spread over ``threads`` threads.
 
@@ -272,7 +278,7 @@ def run_chunk_lockstep(
     where a data-dependent loop condition costs a round trip to the host per iteration).
 
     Returns:
-      ``(agents, returns, lengths, iterations, lane_iterations)``.
+      ``(agents, returns, lengths, optimal, iterations, lane_iterations)``.
     """
     num_agents = int(agents.episode.shape[0])
     if _on_one_cpu((agents, params)):  # groups cut as host views: no dispatch per leaf
@@ -312,7 +318,7 @@ def run_chunk_lockstep(
                     block_programs[key] = programs.get(  # the batch's buffers updated in place
                         block_program, args, {"unroll": unroll, "fixed_iterations":
                                               block_iterations if fixed_blocks else None},
-                        donate=("agents", "returns", "lengths"))
+                        donate=("agents", "returns", "lengths", "optimal"))
                 return block_programs[key]
 
             *piece, group_iterations, group_lanes = _run_stream(
@@ -321,11 +327,11 @@ def run_chunk_lockstep(
                 support=support, block=block,
             )
             return piece, group_iterations, group_lanes
-        *piece, run_iterations = run_chunk(
+        *piece, run_iterations, optimal = run_chunk(
             mdp, part(agent), part(agents), jnp.int32(chunk_start), jnp.int32(chunk_end),
             chunk_length, unroll, programs,
         )
-        return piece, int(run_iterations), int(run_iterations) * count
+        return [*piece, optimal], int(run_iterations), int(run_iterations) * count
 
     if threads > 1 and len(groups) > 1:
         with ThreadPoolExecutor(max_workers=min(threads, len(groups))) as pool:
@@ -336,11 +342,13 @@ def run_chunk_lockstep(
     iterations = sum(group_iterations for _, group_iterations, _ in done)
     lane_iterations = sum(group_lanes for _, _, group_lanes in done)
     if len(pieces) == 1:
-        agents, returns, lengths = pieces[0]
+        agents, returns, lengths, optimal = pieces[0]
     else:
-        agents, returns, lengths = jax.tree.map(lambda *leaves: jnp.concatenate(leaves), *pieces)
+        agents, returns, lengths, optimal = jax.tree.map(
+            lambda *leaves: jnp.concatenate(leaves), *pieces)
         rows_order = np.concatenate([rows for _, rows in groups])
         if not np.array_equal(rows_order, np.arange(num_agents)):
             inverse = jnp.asarray(np.argsort(rows_order), jnp.int32)
-            agents, returns, lengths = _gather_rows((agents, returns, lengths), inverse)
-    return agents, returns, lengths, iterations, lane_iterations
+            agents, returns, lengths, optimal = _gather_rows(
+                (agents, returns, lengths, optimal), inverse)
+    return agents, returns, lengths, optimal, iterations, lane_iterations

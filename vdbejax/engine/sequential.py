@@ -255,20 +255,23 @@ class _SequentialRun:
         assert items is not None  # formed by prepare()
         index, state = items[k]
         executable, agent = self.item_programs[k]
-        new_state, returns, lengths, iterations, lanes = executable(  # state donated
+        new_state, returns, lengths, iterations, lanes, optimal = executable(  # state donated
             *self._arguments(agent, state, index, chunk))
         items[k] = (index, new_state)
         copy = (jax.tree.map(lambda leaf: np.array(np.asarray(leaf)[: index.size]), new_state)
                 if snapshot else None)
         return (np.asarray(returns)[: index.size], np.asarray(lengths)[: index.size],
+                None if optimal is None else np.asarray(optimal)[: index.size],
                 int(iterations), int(lanes), copy)
 
     def run_chunks(self, bounds: ChunkSchedule, chunk_length: int, ahead: int,
                    snapshots: bool = False
-                   ) -> Generator[tuple[np.ndarray, np.ndarray, int, int], None, None]:
+                   ) -> Generator[tuple[np.ndarray, np.ndarray, np.ndarray | None, int, int],
+                                  None, None]:
         """Advance every agent chunk by chunk (after :meth:`prepare`); yields each chunk's
-        ``(returns, lengths, iterations, lane_iterations)``: numpy ``[agents,
-        chunk_length]`` buffers, Σ agent iterations (steps, plus one per episode start
+        ``(returns, lengths, optimal, iterations, lane_iterations)``: numpy ``[agents,
+        chunk_length]`` buffers (``optimal`` ``None`` unless the task's ``optimal_action``
+        mask is set), Σ agent iterations (steps, plus one per episode start
         after a truncation) and Σ loop iterations × lanes (idle lanes included).
 
         ``bounds``: each chunk's ``(first, end)`` episodes (decided as each is queued).
@@ -278,8 +281,7 @@ class _SequentialRun:
         at its chunk's end) or with ``ahead=0`` (every item waits there until the next
         chunk is asked for); otherwise only once the last chunk is handed out. An item's
         chunks run in order; items start most costly first by the steps of the latest
-        chunk known when
-        they are queued (their order only affects the balance).
+        chunk known when they are queued (their order only affects the balance).
         """
         num_agents = int(self.keys.shape[0])
         items = self.items  # formed by prepare(); the list itself is updated in place
@@ -309,20 +311,24 @@ class _SequentialRun:
                     queued += 1
                 returns = np.zeros((num_agents, chunk_length), np.float32)
                 lengths = np.zeros((num_agents, chunk_length), np.int32)
+                optimal = (None if self.mdp.optimal_action is None
+                           else np.zeros((num_agents, chunk_length), np.int32))
                 iterations = lane_iterations = 0
                 copies = []
                 for k, (index, _) in enumerate(items):
                     output = pending.pop((c, k))
-                    item_returns, item_lengths, item_iterations, item_lanes, copy = (
-                        output if pool is None else output.result())
+                    (item_returns, item_lengths, item_optimal, item_iterations, item_lanes,
+                     copy) = output if pool is None else output.result()
                     returns[index], lengths[index] = item_returns, item_lengths
+                    if optimal is not None:
+                        optimal[index] = item_optimal
                     iterations += item_iterations
                     lane_iterations += item_lanes
                     copies.append((index, copy))
                 if snapshots:
                     self._hold(copies)
                 costs = lengths.sum(axis=1)
-                yield returns, lengths, iterations, lane_iterations
+                yield returns, lengths, optimal, iterations, lane_iterations
                 c += 1
         finally:
             if pool is not None:

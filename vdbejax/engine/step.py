@@ -21,6 +21,7 @@ loop natively.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -112,7 +113,8 @@ def lockstep_iteration(
     support: tuple[Array, Array],
     table_rows: Array | None = None,
     base: Array | None = None,
-) -> tuple[AgentState, Array, Array]:
+    optimal: Array | None = None,
+) -> tuple[AgentState, Array, Array, Array | None]:
     """One lockstep iteration of a batch of one kind: every agent advances by one step.
 
     ``agents.q``, every table of ``agents.tables``, ``returns`` and ``lengths`` are flat
@@ -133,9 +135,11 @@ def lockstep_iteration(
         strategy updates a work item's buffers in place this way).
       base: each agent's :func:`~vdbejax.engine.state.draw_base` of its key and counter,
         if the caller carries it (:func:`run_loop`); else computed here.
+      optimal: flat ``[B·L]`` buffer counting each episode's steps whose action is one
+        of ``mdp.optimal_action`` (a task that has that mask), else ``None``.
 
     Returns:
-      ``(agents, returns, lengths)`` after the iteration.
+      ``(agents, returns, lengths, optimal)`` after the iteration.
     """
     kinds = agent.kinds if isinstance(agent, KindSwitch) else (agent,)
     num_agents = agents.episode.shape[0]
@@ -265,6 +269,11 @@ def lockstep_iteration(
     out = table_lane * chunk_length + slot
     returns = put_where(returns, out, episode_return, done)
     lengths = put_where(lengths, out, length, done)
+    if optimal is not None:  # the running episode's slot (only a learning lane's is real)
+        assert mdp.optimal_action is not None  # (the run hands the mask with the buffer)
+        hit = take(mdp.optimal_action.reshape(-1), s * A + a)
+        counted = take(optimal, jnp.clip(out, 0, optimal.shape[0] - 1))
+        optimal = put_where(optimal, out, counted + 1, learn & hit)
 
     def keep(new: Array, old: Array) -> Array:
         return jnp.where(active, new, old)
@@ -287,7 +296,7 @@ def lockstep_iteration(
         # freshly drawn one inside the step's fusions).
         nonfinite=agents.nonfinite | (learn & ~finite) | (active & ~resetting & ~valid_a),
     )
-    return agents, returns, lengths
+    return agents, returns, lengths, optimal
 
 
 def run_loop(
@@ -304,7 +313,8 @@ def run_loop(
     table_rows: Array | None = None,
     stop_at_first_finish: Array | None = None,
     fixed_iterations: int | None = None,
-) -> tuple[AgentState, Array, Array, Array]:
+    optimal: Array | None = None,
+) -> tuple[AgentState, Array, Array, Array, Array | None]:
     """``while`` any agent is active and fewer than ``max_iterations`` iterations ran;
     or, with ``fixed_iterations`` (static), exactly that many iterations, rounded up to
     a multiple of ``unroll`` (a loop of known trip count: on an accelerator no iteration
@@ -314,7 +324,12 @@ def run_loop(
     is no longer active change nothing, so overshooting is harmless. ``table_rows``:
     see :func:`lockstep_iteration`. ``stop_at_first_finish`` (a boolean scalar): where
     true, the loop also stops as soon as one agent has finished the chunk (so that its
-    lane can take another agent).
+    lane can take another agent). ``optimal``: the buffer of :func:`lockstep_iteration`
+    (``[B, L]``), or ``None`` (no record: the same program as without it).
+
+    Returns:
+      ``(agents, returns, lengths, iterations, optimal)`` (``optimal`` last: a program
+      without it has the outputs, and the lowered module, of one before it existed).
     """
     q_shape, out_shape = agents.q.shape, returns.shape
     table_shapes = {name: table.shape for name, table in agents.tables.items()}
@@ -324,7 +339,7 @@ def run_loop(
     )
 
     def cond(carry: tuple) -> Array:
-        agents, _, _, iterations, _ = carry
+        agents, _, _, _, iterations, _ = carry
         active = agents.episode < chunk_end
         go = jnp.any(active) & (iterations < max_iterations)
         if stop_at_first_finish is not None:
@@ -332,27 +347,41 @@ def run_loop(
         return go
 
     def body(carry: tuple) -> tuple:
-        agents, returns, lengths, iterations, base = carry
+        agents, returns, lengths, optimal, iterations, base = carry
         for _ in range(unroll):
-            agents, returns, lengths = lockstep_iteration(
+            agents, returns, lengths, optimal = lockstep_iteration(
                 mdp, agent, agents, returns, lengths, chunk_start, chunk_end, support,
-                table_rows, base,
+                table_rows, base, optimal,
             )
             # The next iteration's hash, carried: the loop's buffers hold it once.
             base = draw_base(agents.key, agents.counter)
-        return agents, returns, lengths, iterations + unroll, base
+        return agents, returns, lengths, optimal, iterations + unroll, base
 
     zero = jnp.asarray(0, jnp.int32)
-    start = (agents, returns.reshape(-1), lengths.reshape(-1), zero,
+    flat_optimal = None if optimal is None else optimal.reshape(-1)
+    start = (agents, returns.reshape(-1), lengths.reshape(-1), flat_optimal, zero,
              draw_base(agents.key, agents.counter))
     if fixed_iterations is None:
-        agents, returns, lengths, iterations, _ = jax.lax.while_loop(cond, body, start)
+        agents, returns, lengths, optimal, iterations, _ = jax.lax.while_loop(
+            cond, body, start)
     else:
         trips = -(-fixed_iterations // unroll)
-        agents, returns, lengths, iterations, _ = jax.lax.fori_loop(
+        agents, returns, lengths, optimal, iterations, _ = jax.lax.fori_loop(
             0, trips, lambda _, carry: body(carry), start)
     agents = dataclasses.replace(
         agents, q=agents.q.reshape(q_shape),
         tables={name: table.reshape(table_shapes[name]) for name, table in agents.tables.items()},
     )
-    return agents, returns.reshape(out_shape), lengths.reshape(out_shape), iterations
+    optimal = None if optimal is None else optimal.reshape(out_shape)
+    return (agents, returns.reshape(out_shape), lengths.reshape(out_shape), iterations,
+            optimal)
+
+
+def optimal_buffer(mdp: TabularMDP, num_agents: int, chunk_length: int,
+                   zeros: Callable[..., Any] = jnp.zeros) -> Any:
+    """A chunk's zeroed ``[agents, chunk_length]`` counts of optimal actions, for a task
+    whose ``optimal_action`` mask is set (a run that records them), else ``None``;
+    ``zeros``: ``np.zeros`` for a host buffer."""
+    if mdp.optimal_action is None:
+        return None
+    return zeros((num_agents, chunk_length), np.int32)

@@ -42,6 +42,10 @@ class TabularMDP:
       reward_noise: the outcomes' noise models (:mod:`vdbejax.envs.reward_noise`; ``reward``
         then holds their means), or ``None`` when every reward is its mean: no leaf, no
         draw, the bits and fingerprint of a task without noise.
+      optimal_action: bool ``[S, A]``, the actions a run counts as optimal when it records
+        the fraction of optimal actions (set on the engine's copy of the task by
+        :func:`vdbejax.runs.optimal_actions.with_optimal_actions`), or ``None``: no
+        record, no leaf (the task's program, bits and fingerprint as without it).
     """
 
     next_state: Array
@@ -53,6 +57,7 @@ class TabularMDP:
     name: str = static_field("mdp")
     state_codes: Array | None = None
     reward_noise: RewardNoise | None = None
+    optimal_action: Array | None = None
 
     @property
     def num_states(self) -> int:

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.optimal_actions import OPTIMAL_ACTION_COLUMNS, optimal_action_summary
 from vdbejax.results.policy import POLICY_COLUMNS, policy_summary
 from vdbejax.results.solving import episodes_to_converge, summarize_solving
 from vdbejax.results.stats import (  # noqa: F401  (re-exported: the historical home of these names)
@@ -100,7 +101,9 @@ def summarize(
       mean_length, nonfinite_agents``; with
       ``episodes_cut`` and ``agents_cut`` for a task whose step limit is only a safety cap;
       the policy columns of :func:`~vdbejax.results.policy.policy_summary` for a run with
-      policy evaluations).
+      policy evaluations; the columns of
+      :func:`~vdbejax.results.optimal_actions.optimal_action_summary` over the same
+      ``last`` episodes for a run that records optimal actions).
     """
     last = min(last, result.num_episodes)
     if statistics is None:
@@ -114,6 +117,8 @@ def summarize(
     max_steps = result.meta.get("max_steps")
     policy = (policy_summary(result) if result.policy_values is not None
               else [{}] * len(result.settings))
+    optimal = (optimal_action_summary(result, last) if result.optimal_actions is not None
+               else [{}] * len(result.settings))
     rows = []
     for c, setting in enumerate(result.settings):
         episodes, solved = _convergence_times(result, c, best, baseline, window)
@@ -146,6 +151,7 @@ def summarize(
             episodes_cut=episodes_cut,
             agents_cut=agents_cut,
             **policy[c],
+            **optimal[c],
         ))
     return rows
 
@@ -173,11 +179,14 @@ def summary_columns(result: GridResult) -> list[str]:
     """:data:`SUMMARY_COLUMNS`, ``hyperparameters`` when a setting of ``result`` has values
     besides its swept parameter, and ``episodes_cut`` / ``agents_cut`` for a task whose
     step limit is only a safety cap (``meta["step_cap"]``, the authors' reading), and
-    :data:`~vdbejax.results.policy.POLICY_COLUMNS` for a run with policy evaluations."""
+    :data:`~vdbejax.results.policy.POLICY_COLUMNS` for a run with policy evaluations, and
+    :data:`~vdbejax.results.optimal_actions.OPTIMAL_ACTION_COLUMNS` for one that records
+    optimal actions."""
     extra = ["hyperparameters"] if any(s.hyperparameters for s in result.settings) else []
     capped = ["episodes_cut", "agents_cut"] if result.meta.get("step_cap") else []
     policy = POLICY_COLUMNS if result.policy_values is not None else []
-    return SUMMARY_COLUMNS[:4] + extra + SUMMARY_COLUMNS[4:] + capped + policy
+    optimal = OPTIMAL_ACTION_COLUMNS if result.optimal_actions is not None else []
+    return SUMMARY_COLUMNS[:4] + extra + SUMMARY_COLUMNS[4:] + capped + policy + optimal
 
 
 def probability_of_improvement_matrix(

@@ -7,7 +7,8 @@ tuning pool), ``depth`` and ``scale`` one per task or size, ``ablate`` one per v
 and writes up to three tables, one row per observation:
 
 * ``returns_long`` — per run × setting × agent × episode: ``return`` and ``length``
-  (NaN and 0 past an agent's stop, under a stop policy);
+  (NaN and 0 past an agent's stop, under a stop policy), and ``optimal_actions`` for runs
+  that record them (``record_optimal``; blank for the others);
 * ``summaries_long`` — per run × setting × ``scope``: the columns of ``summary.csv``
   (:mod:`vdbejax.results.summary`); ``scope`` is ``all agents``, or with replicates
   ``replicate 0`` (``summary.csv``), ``pooled`` (``summary_pooled.csv``) and ``replicate
@@ -105,6 +106,8 @@ def returns_columns(result: GridResult, names: Sequence[str]) -> Columns:
     columns["episode"] = np.tile(np.arange(1, episodes + 1), configs * seeds)
     columns["return"] = result.returns.reshape(-1)
     columns["length"] = result.lengths.reshape(-1)
+    if result.optimal_actions is not None:
+        columns["optimal_actions"] = result.optimal_actions.reshape(-1)
     return columns
 
 

@@ -18,6 +18,7 @@ from vdbejax.methods.agents import (
     with_parameter_names,
 )
 from vdbejax.results import io, manifest
+from vdbejax.results.record_checks import check_optimal_actions, check_policy_values
 from vdbejax.validation import check_writable_dir
 
 
@@ -40,6 +41,9 @@ class GridResult:
         ``meta["optimal_return"]`` the optimum V* (:mod:`vdbejax.runs.evaluation`; the
         gaps: :func:`vdbejax.results.policy.policy_gaps`).
         ``None``: a run without ``evaluate_every``.
+      optimal_actions: float32 ``[configs, seeds, episodes]``, the fraction of each
+        episode's steps whose action is optimal (NaN for an episode not run;
+        :mod:`vdbejax.runs.optimal_actions`). ``None``: a run without ``record_optimal``.
     """
 
     settings: list[Setting]
@@ -49,6 +53,7 @@ class GridResult:
     meta: dict[str, Any]
     episodes_run: np.ndarray | None = None
     policy_values: np.ndarray | None = None
+    optimal_actions: np.ndarray | None = None
 
     @property
     def evaluation_episodes(self) -> np.ndarray:
@@ -90,8 +95,9 @@ class GridResult:
         """The curves in long format, one row per agent-episode, as columns: ``config``,
         ``setting`` (its label), ``learner``, ``explorer``, ``param``, the hyperparameters
         (:meth:`hyperparameters`; None where a config has no such field), ``seed``
-        (``replicate`` too, with several), ``episode`` (1-based), ``return`` and ``length``:
-        the returns table of :func:`vdbejax.results.export.export_results` for this run.
+        (``replicate`` too, with several), ``episode`` (1-based), ``return`` and ``length``
+        (and ``optimal_actions``, in a run that records them): the returns table of
+        :func:`vdbejax.results.export.export_results` for this run.
 
         Args:
           all_hyperparameters: a column for every hyperparameter; by default only for
@@ -166,8 +172,9 @@ class GridResult:
                                   "nonfinite": self.nonfinite}
         if self.episodes_run is not None:
             arrays["episodes_run"] = self.episodes_run
-        if self.policy_values is not None:
-            arrays["policy_values"] = self.policy_values
+        for name in ("policy_values", "optimal_actions"):  # the records a run kept
+            if getattr(self, name) is not None:
+                arrays[name] = getattr(self, name)
         meta = dict(self.meta, **{manifest.META_KEY: manifest.MANIFEST_FILE})
         io.atomic_savez(out / io.RETURNS_FILE, **arrays)
         io.save_settings(out / io.CONFIGS_FILE, self.settings)
@@ -207,6 +214,7 @@ class GridResult:
                              else np.zeros(returns.shape[:2], bool))
                 episodes_run = data.get("episodes_run")
                 policy_values = data.get("policy_values")
+                optimal_actions = data.get("optimal_actions")
         except Exception as error:
             raise ValueError(f"results file {str(returns_path)!r} is unreadable:"
                              f" {type(error).__name__}: {error}") from None
@@ -225,8 +233,10 @@ class GridResult:
                             episodes_run)
         settings = with_parameter_names(settings, meta.get("parameter_names", {}))
         _check_against_meta(out, meta, settings, returns, lengths, nonfinite, episodes_run)
-        _check_policy_values(returns_path, meta, returns, policy_values)
-        return cls(settings, returns, lengths, nonfinite, meta, episodes_run, policy_values)
+        check_policy_values(returns_path, meta, returns, policy_values)
+        check_optimal_actions(returns_path, returns, lengths, optimal_actions)
+        return cls(settings, returns, lengths, nonfinite, meta, episodes_run, policy_values,
+                   optimal_actions)
 
 
 def _check_saved_arrays(path: Path, num_settings: int, returns: np.ndarray, lengths: np.ndarray,
@@ -264,24 +274,6 @@ def _check_saved_arrays(path: Path, num_settings: int, returns: np.ndarray, leng
              " nonfinite flags do not account for")
     if lengths.size and lengths[ran].size and lengths[ran].min() < 1:
         fail("episode lengths must be at least 1")
-
-
-def _check_policy_values(path: Path, meta: dict[str, Any], returns: np.ndarray,
-                         policy_values: np.ndarray | None) -> None:
-    """One-line errors for policy evaluations that cannot belong to the saved run."""
-    if policy_values is None:
-        return
-    every = meta.get("evaluate_every")
-    if not isinstance(every, int) or every < 1 or not isinstance(
-            meta.get("optimal_return"), (int, float)) or not isinstance(
-            meta.get("optimal_tolerance"), (int, float)):
-        raise ValueError(f"results file {str(path)!r} does not match {io.META_FILE}: it holds"
-                         " policy_values, meta.json lacks evaluate_every, optimal_return or"
-                         " optimal_tolerance")
-    wanted = (*returns.shape[:2], returns.shape[2] // every)
-    if policy_values.shape != wanted or not np.issubdtype(policy_values.dtype, np.floating):
-        raise ValueError(f"results file {str(path)!r} is damaged: policy_values must be float"
-                         f" {list(wanted)}, not {policy_values.dtype} {list(policy_values.shape)}")
 
 
 #: Standard errors by which a setting's mean final return may exceed the task's best

@@ -69,7 +69,9 @@ def replicate(result: GridResult, index: int) -> GridResult:
     return GridResult(result.settings, result.returns[:, agents], result.lengths[:, agents],
                       result.nonfinite[:, agents], meta,
                       None if result.episodes_run is None else result.episodes_run[:, agents],
-                      None if result.policy_values is None else result.policy_values[:, agents])
+                      None if result.policy_values is None else result.policy_values[:, agents],
+                      None if result.optimal_actions is None
+                      else result.optimal_actions[:, agents])
 
 
 @dataclasses.dataclass

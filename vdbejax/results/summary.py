@@ -11,7 +11,8 @@ Columns that older summaries lack (``final_iqm``, the convergence interval,
 ``agents_converged``, ``convergence_budget``, ``truncated_fraction``) and those written
 only for some grids (``episodes_cut`` and ``agents_cut``, a task whose step limit is only
 a safety cap; the ``policy_gap`` and ``optimal_fraction`` columns, a run that evaluates
-its policies) are ``None`` when absent.
+its policies; the ``optimal_actions`` and ``reward_per_step`` columns, a run that records
+optimal actions) are ``None`` when absent.
 """
 from __future__ import annotations
 
@@ -83,6 +84,11 @@ class SummaryRow(Mapping[str, Any]):
         optimal_fraction, optimal_ci_low, optimal_ci_high: the fraction of agents whose
         greedy policy is optimal and its Wilson interval (a run with ``evaluate_every``
         only, :mod:`vdbejax.results.policy`).
+      optimal_actions, optimal_actions_ci_low, optimal_actions_ci_high: the agents' mean
+        fraction of optimal actions in their last episodes and its 95% bootstrap
+        interval; reward_per_step, reward_per_step_ci_low, reward_per_step_ci_high: their
+        mean reward per step there (a run with ``record_optimal`` only,
+        :mod:`vdbejax.results.optimal_actions`).
     """
 
     config: int
@@ -110,6 +116,12 @@ class SummaryRow(Mapping[str, Any]):
     optimal_fraction: float | None = None
     optimal_ci_low: float | None = None
     optimal_ci_high: float | None = None
+    optimal_actions: float | None = None
+    optimal_actions_ci_low: float | None = None
+    optimal_actions_ci_high: float | None = None
+    reward_per_step: float | None = None
+    reward_per_step_ci_low: float | None = None
+    reward_per_step_ci_high: float | None = None
 
     def swept_param(self) -> float:
         """:attr:`param`, for a consumer that compares settings by it.

@@ -11,6 +11,8 @@
   stages (record, stop, checkpoint, progress);
 * :mod:`~vdbejax.runs.evaluation` — the exact value of every agent's greedy policy every
   ``evaluate_every`` episodes;
+* :mod:`~vdbejax.runs.optimal_actions` — the per-episode fraction of optimal actions
+  (``record_optimal``);
 * :mod:`~vdbejax.runs.grid` — :func:`run_grid` = :func:`prepare_grid` + :func:`run_prepared`.
 """
 from vdbejax.runs.driver import Drive, drive

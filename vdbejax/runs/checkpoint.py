@@ -9,7 +9,8 @@ A checkpoint is two files:
   unfinished. Its size depends on the batch, not on how long the run is.
 * ``<name>.episodes``: an append-only log of episode returns and lengths. Each chunk
   appends only the episodes it ran (one record per group of agents: their rows, the
-  episode range, the returns and the lengths), so writing a checkpoint costs time
+  episode range, the returns and the lengths, and in a run that records them the counts
+  of optimal actions), so writing a checkpoint costs time
   proportional to the chunk, however many episodes came before. The small file records
   how many bytes of the log it covers: bytes a killed run appended after that are
   ignored (and cut off) on resume.
@@ -129,7 +130,9 @@ class CheckpointWriter:
             record = b"".join((
                 _RECORD.pack(len(rows), int(start), int(stop)), rows.astype("<i8").tobytes(),
                 np.ascontiguousarray(sweep.returns[rows, start:stop], "<f4").tobytes(),
-                np.ascontiguousarray(sweep.lengths[rows, start:stop], "<i4").tobytes()))
+                np.ascontiguousarray(sweep.lengths[rows, start:stop], "<i4").tobytes(),
+                b"" if sweep.optimal is None else
+                np.ascontiguousarray(sweep.optimal[rows, start:stop], "<i4").tobytes()))
             log.write(record)
             log.write(_CRC.pack(zlib.crc32(record)))
         log.flush()
@@ -180,7 +183,8 @@ def writing(writer: CheckpointWriter | None) -> Iterator[None]:
 def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
                     mdp: TabularMDP | None = None, layout: dict[str, str] | None = None,
                     keys: np.ndarray | None = None,
-                    evaluations: int | None = None) -> tuple[RunState, int, str]:
+                    evaluations: int | None = None,
+                    record_optimal: bool = False) -> tuple[RunState, int, str]:
     """Read a checkpoint of this run and check it (module docstring).
 
     Args:
@@ -191,6 +195,8 @@ def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
       layout: the agents' table layout (:func:`~vdbejax.methods.agents.table_layout`).
       keys: uint32 ``[agents, 2]``: the random keys of the run's agents, in row order.
       evaluations: the policy evaluations the run takes (None: none).
+      record_optimal: the run records each episode's count of optimal actions (its log
+        holds them).
 
     Returns:
       ``(progress, log_bytes, log_id)``.
@@ -243,16 +249,19 @@ def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
             policy_values.shape != (shape[0], evaluations) or policy_values.dtype != np.float32)):
         raise ValueError(f"checkpoint {str(path)!r} is damaged: it does not hold the policy"
                          f" evaluations of this run (float32 [{shape[0]}, {evaluations}]); {HINT}")
-    returns, lengths = _read_log(path, fingerprint, log_id, log_bytes, episodes_done, shape)
+    returns, lengths, optimal = _read_log(path, fingerprint, log_id, log_bytes, episodes_done,
+                                          shape, record_optimal)
     progress = RunState(returns=returns, lengths=lengths, episodes_done=episodes_done,
                         stopped=stopped, nonfinite=nonfinite, state_rows=state_rows,
-                        state=state, policy_values=policy_values)
+                        state=state, policy_values=policy_values, optimal=optimal)
     return progress, log_bytes, log_id
 
 
 def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
-              episodes_done: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Replay the episode log into ``[agents, episodes]`` returns and lengths."""
+              episodes_done: np.ndarray, shape: tuple[int, int], record_optimal: bool = False
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Replay the episode log into ``[agents, episodes]`` returns and lengths (and, with
+    ``record_optimal``, the counts of optimal actions; else ``None``)."""
     log = log_path(path)
 
     def damaged(what: str) -> ValueError:
@@ -275,6 +284,8 @@ def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
     agents, episodes = shape
     returns = np.zeros(shape, np.float32)
     lengths = np.zeros(shape, np.int32)
+    optimal = np.zeros(shape, np.int32) if record_optimal else None
+    arrays = 3 if record_optimal else 2  # per agent-episode in a record
     covered = np.zeros(agents, np.int64)  # episodes written so far, per agent
     offset = head
     while offset < log_bytes:
@@ -282,7 +293,7 @@ def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
             raise damaged("a record is cut short")
         count, start, stop = _RECORD.unpack_from(data, offset)
         width = stop - start
-        size = count * 8 + 2 * count * max(width, 0) * 4
+        size = count * 8 + arrays * count * max(width, 0) * 4
         if count < 1 or not 0 <= start < stop <= episodes or (
                 offset + _RECORD.size + size + _CRC.size > log_bytes):
             raise damaged(f"a record of {count} agents × episodes [{start}, {stop})"
@@ -301,11 +312,16 @@ def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
         returns[rows, start:stop] = np.frombuffer(data, "<f4", block, offset).reshape(count, width)
         offset += block * 4
         lengths[rows, start:stop] = np.frombuffer(data, "<i4", block, offset).reshape(count, width)
-        offset += block * 4 + _CRC.size
+        offset += block * 4
+        if optimal is not None:
+            optimal[rows, start:stop] = np.frombuffer(data, "<i4", block, offset).reshape(
+                count, width)
+            offset += block * 4
+        offset += _CRC.size
         covered[rows] = stop
     if not np.array_equal(covered, episodes_done):
         raise damaged("it does not cover exactly the episodes its checkpoint says were done")
-    return returns, lengths
+    return returns, lengths, optimal
 
 
 def _check_progress(done: np.ndarray, stopped: np.ndarray, nonfinite: Any, rows: np.ndarray,

@@ -60,7 +60,8 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
           checkpoint: Callable[[RunState], None] | None = None,
           progress: ProgressCallback | None = None,
           programs: Programs | None = None,
-          evaluate_every: int | None = None) -> Drive:
+          evaluate_every: int | None = None,
+          optimal_action: np.ndarray | None = None) -> Drive:
     """Train the unfinished agents of ``state`` (rows of ``params`` and ``keys``).
 
     Args:
@@ -74,6 +75,8 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
       programs: the compiled programs shared by every engine call (default: the run's own).
       evaluate_every: evaluate the agents' greedy policies after every this many episodes
         into ``state.policy_values`` (the plan's chunks end on its multiples).
+      optimal_action: bool ``[S, A]``: count each episode's optimal actions into
+        ``state.optimal`` (:mod:`vdbejax.runs.optimal_actions`).
 
     Returns:
       :class:`Drive`.
@@ -111,11 +114,12 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
         recorded = [start]
 
         def after_chunk(done: int, agents: AgentState | None, returns: np.ndarray,
-                        lengths: np.ndarray, batch: np.ndarray = batch,
-                        recorded: list[int] = recorded) -> None:
+                        lengths: np.ndarray, optimal: np.ndarray | None = None,
+                        batch: np.ndarray = batch, recorded: list[int] = recorded) -> None:
             first = recorded[0]
             state.add_episodes(batch, first, done, returns[:, first:done],
-                               lengths[:, first:done])
+                               lengths[:, first:done],
+                               None if optimal is None else optimal[:, first:done])
             recorded[0] = done
             evaluate(batch, done, agents)
             if agents is not None and checkpoint is not None:
@@ -127,12 +131,13 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
             initial=state.resume_point(batch), on_chunk=None if per_chunk else after_chunk,
             chunk_states=checkpoint is not None or evaluate_every is not None,
             keep_final_state=end < num_episodes or (per_chunk and evaluate_every is not None),
-            programs=programs)
+            programs=programs, optimal_action=optimal_action)
         batches += 1
         strategy = result.strategy
         if per_chunk:
             state.add_episodes(batch, start, end, result.returns[:, start:end],
-                               result.lengths[:, start:end])
+                               result.lengths[:, start:end], None if result.optimal is None
+                               else result.optimal[:, start:end])
             evaluate(batch, end, result.final_state)
         state.set_agents(batch, result.final_state, nonfinite=result.nonfinite)
         if per_chunk:

@@ -48,9 +48,10 @@ from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.checkpoint import CheckpointWriter, load_checkpoint, remove_checkpoint, writing
 from vdbejax.runs.driver import drive
 from vdbejax.runs.evaluation import collect_evaluations, evaluations
+from vdbejax.runs.optimal_actions import collect_optimal, optimal_action_mask
 from vdbejax.runs.options import RunOptions
 from vdbejax.runs.plan import RunPlan, make_plan
-from vdbejax.runs.state import RunState
+from vdbejax.runs.state import RunState, nonfinite_message
 from vdbejax.runs.stop import StopPolicy
 from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int, check_writable_dir, json_plain
 
@@ -185,6 +186,8 @@ def prepare_grid(
         description["stop"] = stop.describe()
     if run.evaluate_every is not None:  # its checkpoints hold evaluations: not another's
         description["evaluate_every"] = run.evaluate_every
+    if run.record_optimal:  # its checkpoints hold the counts of optimal actions
+        description["record_optimal"] = True
     if plugin_code:  # built-ins only: the fingerprint of earlier runs, as it was
         description["plugin_code"] = dict(sorted(plugin_code.items()))
     return PreparedGrid(mdp, settings, num_seeds, num_episodes, seed, options, run, stop,
@@ -242,7 +245,8 @@ def _resume_state(prepared: PreparedGrid, fingerprint: str
         state, log_bytes, log_id = load_checkpoint(path, fingerprint, shape, prepared.mdp,
                                                    table_layout(prepared.params),
                                                    prepared.keys[prepared.plan.rows],
-                                                   evaluations(prepared.num_episodes, run))
+                                                   evaluations(prepared.num_episodes, run),
+                                                   run.record_optimal)
         return state, CheckpointWriter(path, fingerprint, state, log_bytes, log_id)
     remove_checkpoint(path)  # a fresh run: an older checkpoint must not outlive its log
     return None, CheckpointWriter(path, fingerprint)
@@ -262,15 +266,17 @@ def run_prepared(prepared: PreparedGrid, programs: Programs | None = None) -> Gr
     checkpoint_fingerprint = fingerprint if jax.process_count() == 1 else _fingerprint(
         dict(prepared.description, process=[jax.process_index(), jax.process_count()]))
     state, writer = _resume_state(prepared, checkpoint_fingerprint)
-    state = (RunState.fresh(len(plan.rows), prepared.num_episodes, run.evaluate_every)
-             if state is None else state)
+    state = (RunState.fresh(len(plan.rows), prepared.num_episodes, run.evaluate_every,
+                            run.record_optimal) if state is None else state)
     resumed_from = int(state.episodes_done.sum())
     progress = text_progress() if run.progress is True else (run.progress or None)
     with writing(writer):  # closed at the end; a Ctrl-C names the checkpoint
         done = drive(prepared.mdp, take_agents(prepared.params, plan.rows),
                      prepared.keys[plan.rows], plan, state, prepared.stop,
                      checkpoint=None if writer is None else _failing_quietly(writer),
-                     progress=progress, programs=programs, evaluate_every=run.evaluate_every)
+                     progress=progress, programs=programs, evaluate_every=run.evaluate_every,
+                     optimal_action=optimal_action_mask(prepared.mdp) if run.record_optimal
+                     else None)
     return _collect(prepared, state, fingerprint, resumed_from, done)
 
 
@@ -331,25 +337,8 @@ def _collect(prepared: PreparedGrid, state: RunState, fingerprint: str, resumed_
                 best_return=best_return(mdp), random_return=uniform_random_return(mdp))
     policy_values = collect_evaluations(state, mdp, prepared.run, shape, meta)
     return GridResult(settings, returns, lengths, nonfinite, meta,
-                      episodes_run.astype(np.int64) if stopped_early else None, policy_values)
-
-
-def nonfinite_message(settings: Sequence[Setting], nonfinite: np.ndarray,
-                      options: AgentOptions) -> str | None:
-    """One line naming every config whose agents saw NaN/inf in Q or ε, or None.
-
-    Args:
-      settings: the grid's configurations.
-      nonfinite: bool ``[configs, seeds]``.
-      options: the options shared by all agents (part of the config that produced it).
-    """
-    counts = np.asarray(nonfinite).sum(axis=1)
-    bad = [f"{settings[int(c)].label} ({counts[c]}/{nonfinite.shape[1]} agents)"
-           for c in np.flatnonzero(counts)]
-    if not bad:
-        return None
-    return (f"NaN or inf appeared in Q or ε, or an invalid action was drawn, for: {'; '.join(bad)}"
-            f" [options {dataclasses.asdict(options)}]")
+                      episodes_run.astype(np.int64) if stopped_early else None, policy_values,
+                      collect_optimal(state, shape))
 
 
 def _fingerprint(description: dict[str, Any]) -> str:

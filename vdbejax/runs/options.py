@@ -52,6 +52,9 @@ class RunOptions:
       evaluate_every: every this many episodes, the exact expected return of each
         agent's greedy policy (:mod:`vdbejax.runs.evaluation`), kept beside the returns
         (``GridResult.policy_values``); None: no evaluation. It changes no return.
+      record_optimal: record, per episode, the fraction of its steps whose action is
+        optimal (:mod:`vdbejax.runs.optimal_actions`; ``GridResult.optimal_actions``).
+        It changes no return.
     """
 
     chunk_episodes: int | None = None
@@ -65,6 +68,7 @@ class RunOptions:
     strategy: str = "auto"
     threads: int | None = None
     evaluate_every: int | None = None
+    record_optimal: bool = False
 
     def __post_init__(self) -> None:
         def fix(name: str, value: Any) -> None:
@@ -87,6 +91,7 @@ class RunOptions:
                                  " and is not a file")
         fix("resume", check_bool("resume", self.resume))
         fix("overwrite", check_bool("overwrite", self.overwrite))
+        fix("record_optimal", check_bool("record_optimal", self.record_optimal))
         if self.memory_budget_bytes is not None:
             fix("memory_budget_bytes", parse_bytes("memory_budget_bytes",
                                                    self.memory_budget_bytes))

@@ -98,14 +98,16 @@ class RunPlan:
     def run_engine(self, mdp: TabularMDP, params: AgentParams, keys: np.ndarray,
                    num_episodes: int, *, initial: tuple | None,
                    on_chunk: Callable[..., None] | None, chunk_states: bool,
-                   keep_final_state: bool, programs: Programs) -> RunResult:
+                   keep_final_state: bool, programs: Programs,
+                   optimal_action: np.ndarray | None = None) -> RunResult:
         """One engine call on a batch (sharded over :attr:`local` when there are several):
         :func:`~vdbejax.engine.run_agents` to ``num_episodes`` episodes."""
         options: dict[str, Any] = dict(chunk_episodes=self.chunk_episodes, strategy=self.strategy,
                                        compact=self.compact, threads=self.threads,
                                        on_chunk=on_chunk, chunk_states=chunk_states,
                                        chunk_seconds=self.chunk_seconds,
-                                       keep_final_state=keep_final_state, programs=programs)
+                                       keep_final_state=keep_final_state, programs=programs,
+                                       optimal_action=optimal_action)
         if not self.sharded:
             return run_agents(mdp, params, keys, num_episodes, initial=initial, **options)
         mesh = agent_mesh(self.local)
@@ -113,17 +115,15 @@ class RunPlan:
                                            len(self.local))
         params, keys = shard_agents((params, keys), mesh)
         if initial is not None:
-            done, agents, returns, lengths = initial
-            (agents, returns, lengths), _ = pad_agents((agents, returns, lengths),
-                                                       len(self.local))
-            initial = (done, shard_agents(agents, mesh), returns, lengths)
+            done, agents, *episodes = initial  # returns, lengths (and optimal-action counts)
+            (agents, *episodes), _ = pad_agents((agents, *episodes), len(self.local))
+            initial = (done, shard_agents(agents, mesh), *episodes)
         if on_chunk is not None:
             real = on_chunk
 
-            def unpadded(done: int, agents: AgentState | None, returns: np.ndarray,
-                         lengths: np.ndarray) -> None:
+            def unpadded(done: int, agents: AgentState | None, *episodes: np.ndarray) -> None:
                 real(done, None if agents is None else unpad_agents(agents, count),
-                     returns[:count], lengths[:count])
+                     *(array[:count] for array in episodes))
 
             options["on_chunk"] = unpadded
         result = run_agents(mdp, params, keys, num_episodes, initial=initial, **options)
@@ -131,6 +131,7 @@ class RunPlan:
         return dataclasses.replace(
             result, returns=result.returns[:count], lengths=result.lengths[:count],
             nonfinite=result.nonfinite[:count],
+            optimal=None if result.optimal is None else result.optimal[:count],
             final_state=None if final is None else unpad_agents(final, count))
 
 

@@ -9,12 +9,14 @@ size.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import jax
 import numpy as np
 
 from vdbejax.engine import AgentState
 from vdbejax.engine.distributed import take_agents
+from vdbejax.methods.agents import AgentOptions, Setting
 
 
 @dataclasses.dataclass
@@ -34,6 +36,8 @@ class RunState:
         agent's greedy policy after every ``evaluate_every``-th episode (NaN where not
         evaluated yet, or past an agent's stop; :mod:`vdbejax.runs.evaluation`), or None
         for a run without evaluation.
+      optimal: int32 ``[agents, episodes]``, each episode's steps whose action is optimal
+        (:mod:`vdbejax.runs.optimal_actions`), or None for a run that does not record them.
     """
 
     returns: np.ndarray
@@ -44,11 +48,13 @@ class RunState:
     state_rows: np.ndarray
     state: AgentState | None
     policy_values: np.ndarray | None = None
+    optimal: np.ndarray | None = None
 
     @classmethod
     def fresh(cls, num_agents: int, num_episodes: int,
-              evaluate_every: int | None = None) -> RunState:
-        """Nothing done yet (``evaluate_every``: room for the evaluations)."""
+              evaluate_every: int | None = None, record_optimal: bool = False) -> RunState:
+        """Nothing done yet (``evaluate_every``: room for the evaluations;
+        ``record_optimal``: for the counts of optimal actions)."""
         return cls(
             returns=np.zeros((num_agents, num_episodes), np.float32),
             lengths=np.zeros((num_agents, num_episodes), np.int32),
@@ -59,6 +65,8 @@ class RunState:
             state=None,
             policy_values=(None if evaluate_every is None else np.full(
                 (num_agents, num_episodes // evaluate_every), np.nan, np.float32)),
+            optimal=(np.zeros((num_agents, num_episodes), np.int32) if record_optimal
+                     else None),
         )
 
     @property
@@ -71,11 +79,15 @@ class RunState:
         return self.stopped | (self.episodes_done >= self.num_episodes)
 
     def add_episodes(self, rows: np.ndarray, start: int, done: int, returns: np.ndarray,
-                     lengths: np.ndarray) -> None:
-        """Store episodes ``[start, done)`` of agents ``rows`` (``returns`` and ``lengths``
-        are ``[rows, done - start]``): they have done ``done`` episodes."""
+                     lengths: np.ndarray, optimal: np.ndarray | None = None) -> None:
+        """Store episodes ``[start, done)`` of agents ``rows`` (``returns``, ``lengths``
+        and, in a run that records them, ``optimal`` are ``[rows, done - start]``): they
+        have done ``done`` episodes."""
         self.returns[rows, start:done] = returns
         self.lengths[rows, start:done] = lengths
+        if self.optimal is not None:
+            assert optimal is not None  # the engine counts them in a run that records them
+            self.optimal[rows, start:done] = optimal
         self.episodes_done[rows] = done
 
     def set_agents(self, rows: np.ndarray, agents: AgentState | None,
@@ -133,7 +145,9 @@ class RunState:
         done = int(self.episodes_done[rows[0]])
         if done == 0:
             return None
-        return (done, self.states_of(rows), self.returns[rows, :done], self.lengths[rows, :done])
+        point = (done, self.states_of(rows), self.returns[rows, :done],
+                 self.lengths[rows, :done])
+        return point if self.optimal is None else (*point, self.optimal[rows, :done])
 
     def next_batch(self, batch_size: int) -> np.ndarray:
         """Agents of the next batch: up to ``batch_size`` unfinished agents that have all
@@ -149,3 +163,21 @@ class RunState:
         """Agent-episodes done, a stopped agent credited with its whole budget (what a
         progress bar counts: it reaches the total when every agent is finished)."""
         return int(np.where(self.stopped, self.num_episodes, self.episodes_done).sum())
+
+
+def nonfinite_message(settings: Sequence[Setting], nonfinite: np.ndarray,
+                      options: AgentOptions) -> str | None:
+    """One line naming every config whose agents saw NaN/inf in Q or ε, or None.
+
+    Args:
+      settings: the grid's configurations.
+      nonfinite: bool ``[configs, seeds]``.
+      options: the options shared by all agents (part of the config that produced it).
+    """
+    counts = np.asarray(nonfinite).sum(axis=1)
+    bad = [f"{settings[int(c)].label} ({counts[c]}/{nonfinite.shape[1]} agents)"
+           for c in np.flatnonzero(counts)]
+    if not bad:
+        return None
+    return (f"NaN or inf appeared in Q or ε, or an invalid action was drawn, for: {'; '.join(bad)}"
+            f" [options {dataclasses.asdict(options)}]")

@@ -29,6 +29,7 @@ from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Setting, make_agent
 from vdbejax.results.folder_lock import check_output_paths, mark, output_folder, unmark
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.optimal_actions import optimal_action_summary
 from vdbejax.results.policy import policy_summary
 from vdbejax.results.regret import cumulative_regret, run_scores
 from vdbejax.results.solving import episodes_to_converge, summarize_solving
@@ -40,9 +41,10 @@ from vdbejax.studies.bench_methods import (
     QUICK_METHODS,
     BenchMethod,
     TaskScale,
+    group_defaults,
     select_methods,
 )
-from vdbejax.studies.bench_report import output_files, write_report
+from vdbejax.studies.bench_report import bench_meta, output_files, write_report
 from vdbejax.studies.folder import train_in_folder
 from vdbejax.validation import (
     INT32_MAX,
@@ -172,13 +174,15 @@ def run_bench(
     figures: bool = True,
     command: str | None = None,
     evaluate_every: int | None = None,
+    group: str = "suite",
 ) -> BenchResult:
     """Run every method on every task and write the ranking (module docstring).
 
     Args:
       out_dir: the benchmark's folder (created).
-      tasks: task names of :mod:`vdbejax.envs.suite` (default its ``DEFAULT_SUITE``).
-      methods: names of :data:`~vdbejax.studies.bench_methods.METHODS` (default all).
+      tasks: task names of :mod:`vdbejax.envs.suite` (default: the group's).
+      methods: names of :data:`~vdbejax.studies.bench_methods.METHODS` (default: the
+        group's).
       seeds: agents per method and task in the reported run.
       tune_seeds: agents per candidate in the tuning run.
       episodes: episodes per agent (both runs).
@@ -199,6 +203,9 @@ def run_bench(
       evaluate_every: in the reported runs, every this many episodes the exact value of
         each agent's greedy policy (:mod:`vdbejax.runs.evaluation`): its gap to the
         optimum and the share of optimal greedy policies in the ranking.
+      group: ``suite`` or ``bandits`` (:data:`~vdbejax.studies.bench_methods.GROUPS`: the
+        default tasks and methods; ``bandits`` also records the fraction of optimal
+        actions in the reported runs, % optimal action and reward per step in the ranking).
 
     Returns:
       the :class:`BenchResult` (also written to ``out_dir``).
@@ -209,6 +216,7 @@ def run_bench(
     for name, flag in (("tune", tune), ("quick", quick), ("resume", resume),
                        ("progress", progress), ("figures", figures)):
         check_bool(name, flag)
+    tasks, methods = group_defaults(group, tasks, methods)
     if quick:
         tasks, methods = QUICK_TASKS, QUICK_METHODS
         seeds, tune_seeds, episodes = QUICK_SEEDS, QUICK_TUNE_SEEDS, QUICK_EPISODES
@@ -282,7 +290,8 @@ def run_bench(
             run_at = time.perf_counter()
             runs[task.name] = _train(out / RUNS_FOLDER / task.folder, task, list(picks.values()),
                                      seeds=seeds, episodes=episodes, seed=seed,
-                                     options=knobs.replace(evaluate_every=evaluate_every),
+                                     options=knobs.replace(evaluate_every=evaluate_every,
+                                                           record_optimal=group == "bandits"),
                                      phase="report")
             timing[task.name] = {"tuning_seconds": tuned_seconds,
                                  "report_seconds": time.perf_counter() - run_at,
@@ -292,10 +301,11 @@ def run_bench(
                   for t in bench_tasks}
         rows = [row for task in bench_tasks
                 for row in task_rows(task, ran[task.name], runs[task.name], scores[task.name])]
-        meta = _meta(command, bench_tasks, chosen_methods, chosen, budget, timing, started,
-                     versions, seeds=seeds, tune_seeds=tune_seeds, episodes=episodes, seed=seed,
-                     tune=tune, quick=quick, cost_limit=cost_limit,
-                     evaluate_every=evaluate_every)
+        meta = bench_meta(command, bench_tasks, chosen_methods, chosen, budget, timing,
+                          time.perf_counter() - started, versions, seeds=seeds,
+                          tune_seeds=tune_seeds, episodes=episodes, seed=seed, tune=tune,
+                          quick=quick, cost_limit=cost_limit, evaluate_every=evaluate_every,
+                          group=group)
         meta["left_out"] = left_out
         mark(out, "results")  # a folder killed while its report is replaced is recognised
         aggregate = write_report(out, bench_tasks, chosen_methods, runs, scores, rows, meta,
@@ -333,13 +343,16 @@ def task_rows(task: BenchTask, methods: list[BenchMethod], result: GridResult,
               scores: np.ndarray) -> list[dict[str, Any]]:
     """One row per method of a task's reported run (``scores``: its agents' normalised
     scores, ``[methods, seeds]``): score, realized regret, final return, solving (and,
-    with policy evaluations, the greedy policies' gap and optimal share)."""
+    with policy evaluations, the greedy policies' gap and optimal share; with a record of
+    optimal actions, the % optimal action and reward per step of the last tenth)."""
     from vdbejax.results.bootstrap import bootstrap_ci
 
     rows = []
     policy = policy_summary(result) if result.policy_values is not None else None
-    regret = cumulative_regret(result.returns, task.best)[..., -1]
     last = max(1, result.num_episodes // 10)
+    optimal = (optimal_action_summary(result, last) if result.optimal_actions is not None
+               else None)
+    regret = cumulative_regret(result.returns, task.best)[..., -1]
     solve = episodes_to_converge(result.returns, task.best, task.baseline, fraction=SOLVED,
                                  window=min(20, result.num_episodes))
     for c, method in enumerate(methods):
@@ -360,29 +373,12 @@ def task_rows(task: BenchTask, methods: list[BenchMethod], result: GridResult,
             "median_text": solved.median_text(),
             "nonfinite_agents": int(result.nonfinite[c].sum()),
             **({} if policy is None else policy[c]),
+            **({} if optimal is None else optimal[c]),
         })
     order = sorted(range(len(rows)), key=lambda r: -float(scores[r].mean()))
     for rank, r in enumerate(order, 1):
         rows[r]["rank"] = rank
     return rows
-
-
-def _meta(command: str | None, tasks: list[BenchTask], methods: list[BenchMethod],
-          chosen: dict[str, dict[str, Any]], budget: dict[str, Any],
-          timing: dict[str, dict[str, float]], started: float, versions: dict[str, Any],
-          **options: Any) -> dict[str, Any]:
-    import jax
-
-    return {
-        "command": command, "options": options,
-        "tasks": [{"name": t.name, "states": t.mdp.num_states, "actions": t.mdp.num_actions,
-                   "horizon": int(t.mdp.max_steps), "best_return": t.best,
-                   "random_return": t.baseline, "r_max": t.scale.r_max} for t in tasks],
-        "methods": [dataclasses.asdict(m) for m in methods],
-        "chosen": chosen, "tuning_budget": budget, "timing": timing,
-        "elapsed_seconds": time.perf_counter() - started,
-        "jax_version": jax.__version__, "backend": jax.default_backend(), **versions,
-    }
 
 
 __all__ = ["EPISODES", "QUICK_EPISODES", "QUICK_SEEDS", "QUICK_TASKS", "QUICK_TUNE_SEEDS",

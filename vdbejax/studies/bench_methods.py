@@ -21,6 +21,17 @@ by each of the H stages, with ``t = 1`` where the task has terminal outcomes (PS
 (:data:`COST_LIMIT`: none by default), the benchmark leaves such a method out of a task
 where that exceeds it: it is stated in the report and ``meta.json``, and the method's
 aggregate covers the tasks it ran.
+
+**Groups.** ``suite`` (the default) runs :data:`SUITE_METHODS` on the task suite's
+``DEFAULT_SUITE``; ``bandits`` runs :data:`BANDIT_METHODS` — the paper's four, the
+sample-average learner of Sutton & Barto (2018, §2.4) with ε-greedy and with Thompson
+sampling, and the canon methods whose rule means something with one state — on
+:data:`BANDIT_TASKS`, and records each episode's fraction of optimal actions
+(:mod:`vdbejax.runs.optimal_actions`). Left out of ``bandits``: the methods whose
+mechanism needs states or steps to chain (Dyna-Q and Dyna-Q+ replay a model of one pair,
+the traces have one step to trace, Expected SARSA and Double Q-learning equal Q-learning
+on a one-step episode, Max-Boltzmann is ε-greedy with softmax, PSRL samples successors,
+of which a bandit has one, and not its rewards).
 """
 from __future__ import annotations
 
@@ -175,21 +186,52 @@ METHODS: tuple[BenchMethod, ...] = (
                 "epsilon", _EPS, fixed={"lam": 0.9}),
     BenchMethod("q_lambda", "Watkins Q(λ) ε-greedy", "planning", "q_lambda", "egreedy",
                 "epsilon", _EPS, fixed={"lam": 0.9}),
+    BenchMethod("sample_average", "sample-average ε-greedy", "undirected", "sample_average",
+                "egreedy", "epsilon", _EPS, td=False),
+    BenchMethod("thompson", "sample-average Thompson (Gaussian)", "posterior", "sample_average",
+                "thompson", "scale", (0.3, 1.0, 3.0), td=False),
 )
 #: name -> method.
 BY_NAME = {method.name: method for method in METHODS}
 #: The methods of ``--quick``.
 QUICK_METHODS = ("egreedy", "vdbe", "ucb1", "rmax", "dyna_q")
+#: The methods of the ``suite`` group (the default).
+SUITE_METHODS = tuple(m.name for m in METHODS[:20])
+#: The ``bandits`` group: its tasks and methods (module docstring).
+BANDIT_TASKS = ("gaussian_bandit:10", "bernoulli_bandit:10", "testbed:10")
+BANDIT_METHODS = ("egreedy", "softmax", "vdbe", "vdbe_softmax", "sample_average", "thompson",
+                  "ucb1", "count_bonus", "optimistic_q", "ucb_h", "delayed_q", "rmax",
+                  "mbie_eb", "ucbvi")
+#: ``--group``: name -> (its default tasks, or None for the suite's; its methods).
+GROUPS: dict[str, tuple[tuple[str, ...] | None, tuple[str, ...]]] = {
+    "suite": (None, SUITE_METHODS), "bandits": (BANDIT_TASKS, BANDIT_METHODS)}
+
+
+def group_defaults(group: str, tasks: Sequence[str] | str | None,
+                   methods: Sequence[str] | str | None
+                   ) -> tuple[Sequence[str] | str | None, Sequence[str] | str]:
+    """The tasks and methods of a run of ``group`` (:data:`GROUPS`): those given, else
+    the group's.
+
+    Raises:
+      ValueError: an unknown group.
+    """
+    if group not in GROUPS:
+        raise ValueError(f"group={group!r} is invalid: must be one of {', '.join(GROUPS)}")
+    group_tasks, group_methods = GROUPS[group]
+    return (group_tasks if tasks is None else tasks,
+            group_methods if methods is None else methods)
 
 
 def select_methods(names: Sequence[str] | str | None) -> list[BenchMethod]:
-    """The methods named (all by default), in :data:`METHODS` order.
+    """The methods named (by default those of the ``suite`` group), in :data:`METHODS`
+    order.
 
     Raises:
       ValueError: an unknown or repeated name, or none.
     """
     if names is None:
-        return list(METHODS)
+        names = SUITE_METHODS
     if isinstance(names, str):
         names = [n.strip() for n in names.split(",") if n.strip()]
     names = list(names)
@@ -200,5 +242,6 @@ def select_methods(names: Sequence[str] | str | None) -> list[BenchMethod]:
     return [m for m in METHODS if m.name in names]
 
 
-__all__ = ["ALPHA", "BY_NAME", "COST_LIMIT", "METHODS", "QUICK_METHODS", "BenchMethod", "TaskScale",
+__all__ = ["ALPHA", "BANDIT_METHODS", "BANDIT_TASKS", "BY_NAME", "COST_LIMIT", "GROUPS", "METHODS",
+           "QUICK_METHODS", "SUITE_METHODS", "BenchMethod", "TaskScale", "group_defaults",
            "select_methods"]

@@ -22,6 +22,7 @@ import numpy as np
 
 from vdbejax.results import io
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.optimal_actions import OPTIMAL_ACTION_COLUMNS
 from vdbejax.results.policy import POLICY_COLUMNS, policy_gap_figure
 from vdbejax.results.regret import (
     aggregate_iqm,
@@ -38,6 +39,9 @@ ROW_COLUMNS = ["task", "rank", "method", "title", "family", "tuned", "value", "s
                "median_text", "nonfinite_agents"]
 #: The ranking's columns of runs with policy evaluations (:mod:`vdbejax.results.policy`).
 RANKING_POLICY_COLUMNS = POLICY_COLUMNS
+#: The ranking's columns of runs that record optimal actions (the ``bandits`` group;
+#: :mod:`vdbejax.results.optimal_actions`, over the last tenth of the episodes).
+RANKING_OPTIMAL_COLUMNS = OPTIMAL_ACTION_COLUMNS
 AGGREGATE_COLUMNS = ["method", "title", "family", "iqm", "iqm_low", "iqm_high", "mean_rank",
                      "p_vs_reference", "p_low", "p_high", "tasks"]
 #: The reference of the probability of improvement: the paper's undirected baseline.
@@ -117,8 +121,10 @@ def write_report(out: Path, tasks: Sequence[Any], methods: Sequence[Any],
     aggregate = aggregate_rows(tasks, methods, scores, rows, ran)
     ordered = sorted(rows, key=lambda r: ([t.name for t in tasks].index(r["task"]), r["rank"]))
     evaluated = "policy_gap" in ordered[0] if ordered else False
+    recorded = "optimal_actions" in ordered[0] if ordered else False
     io.write_csv(out / RANKING_CSV, ordered,
-                 ROW_COLUMNS + (RANKING_POLICY_COLUMNS if evaluated else []))
+                 ROW_COLUMNS + (RANKING_POLICY_COLUMNS if evaluated else [])
+                 + (RANKING_OPTIMAL_COLUMNS if recorded else []))
     io.write_csv(out / AGGREGATE_CSV, aggregate, AGGREGATE_COLUMNS)
     io.save_json(out / io.META_FILE, meta)
     io.atomic_write_text(out / MARKDOWN_FILE, markdown(ordered, aggregate, meta))
@@ -152,6 +158,7 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
     """``bench.md``: the aggregate table, then one ranking table per task."""
     options, budget = meta["options"], meta["tuning_budget"]
     evaluated = bool(options.get("evaluate_every"))
+    recorded = bool(rows) and "optimal_actions" in rows[0]
     lines = ["# Exploration benchmark", ""]
     if meta.get("command"):
         lines += [f"Command: `{meta['command']}`", ""]
@@ -173,6 +180,10 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
         " exploration: it can fall below 0 by luck). **Solved**: the share of agents whose"
         " 20-episode moving average reached 0.9 on the normalised scale.", "",
         *(policy_note(options["evaluate_every"]) if options.get("evaluate_every") else []),
+        *(["**% optimal action**: the share of the steps of each agent's last tenth of the"
+           " episodes whose action maximises the task's exact Q* (on a bandit, an arm of the"
+           " largest mean), mean over agents; **reward per step**: their return over their"
+           " steps; 95 % bootstrap intervals over agents.", ""] if recorded else []),
         "## Across tasks", "",
         "| method | family | IQM score [95 % CI] | mean rank | P(better than ε-greedy) |"
         " tasks |",
@@ -202,9 +213,11 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
                   f" {task['random_return']:.4g}.", "",
                   "| rank | method | tuned | score [95 % CI] | realized regret [95 % CI] |"
                   " final return | solved | median episodes |"
-                  + (" policy gap [95 % CI] | optimal policies |" if evaluated else ""),
+                  + (" policy gap [95 % CI] | optimal policies |" if evaluated else "")
+                  + (" % optimal action [95 % CI] | reward per step [95 % CI] |"
+                     if recorded else ""),
                   "| --- | --- | --- | --- | --- | --- | --- | --- |"
-                  + (" --- | --- |" if evaluated else "")]
+                  + (" --- | --- |" if evaluated else "") + (" --- | --- |" if recorded else "")]
         skipped = [titles[x["method"]] for x in left_out if x["task"] == task["name"]]
         for r in mine:
             tuned = f"{r['tuned']} = {r['value']:.3g}" if r["tuned"] else "-"
@@ -213,7 +226,8 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
                 f" {_interval(r['score'], r['score_low'], r['score_high'])} |"
                 f" {r['regret']:.4g} [{r['regret_low']:.4g}, {r['regret_high']:.4g}] |"
                 f" {r['final_return']:.4g} | {r['fraction_solved']:.0%} | {r['median_text']} |"
-                + (policy_cells(r) if evaluated else ""))
+                + (policy_cells(r) if evaluated else "")
+                + (optimal_cells(r) if recorded else ""))
         if skipped:
             lines += ["", f"Not run here (cost rule): {', '.join(skipped)}."]
     return "\n".join(lines) + "\n"
@@ -233,6 +247,36 @@ def policy_cells(row: dict[str, Any]) -> str:
     return (f" {row['policy_gap']:.4g} [{row['policy_gap_ci_low']:.4g},"
             f" {row['policy_gap_ci_high']:.4g}] | {row['optimal_fraction']:.0%}"
             f" [{row['optimal_ci_low']:.0%}, {row['optimal_ci_high']:.0%}] |")
+
+
+def optimal_cells(row: dict[str, Any]) -> str:
+    """The % optimal action and reward per step of a ranking row, as table cells."""
+    reward = _interval(row["reward_per_step"], row["reward_per_step_ci_low"],
+                       row["reward_per_step_ci_high"])
+    return (f" {row['optimal_actions']:.0%} [{row['optimal_actions_ci_low']:.0%},"
+            f" {row['optimal_actions_ci_high']:.0%}] | {reward} |")
+
+
+def bench_meta(command: str | None, tasks: Sequence[Any], methods: Sequence[Any],
+               chosen: dict[str, dict[str, Any]], budget: dict[str, Any],
+               timing: dict[str, dict[str, float]], elapsed: float, versions: dict[str, Any],
+               **options: Any) -> dict[str, Any]:
+    """``meta.json`` of a benchmark: its command and options, tasks, methods, choices,
+    tuning budget, timing and versions."""
+    import dataclasses
+
+    import jax
+
+    return {
+        "command": command, "options": options,
+        "tasks": [{"name": t.name, "states": t.mdp.num_states, "actions": t.mdp.num_actions,
+                   "horizon": int(t.mdp.max_steps), "best_return": t.best,
+                   "random_return": t.baseline, "r_max": t.scale.r_max} for t in tasks],
+        "methods": [dataclasses.asdict(m) for m in methods],
+        "chosen": chosen, "tuning_budget": budget, "timing": timing,
+        "elapsed_seconds": elapsed,
+        "jax_version": jax.__version__, "backend": jax.default_backend(), **versions,
+    }
 
 
 def _pyplot() -> Any:

@@ -18,6 +18,8 @@ Every key, with its default (``docs/sweeps.md`` is the user's page;
                                            # ≥ 100 and 20,000 agent-episodes, ≤ 10,000)
     evaluate_every = 50                    # the greedy policies' exact values every 50
                                            # episodes (default: none; returns unchanged)
+    record_optimal = true                  # each episode's fraction of optimal actions
+                                           # (default: false; returns unchanged)
 
     [axes]                                 # every axis applies where a field has its name
     alpha = [0.1, 0.3, 0.8]
@@ -59,7 +61,7 @@ from vdbejax.studies.task_names import is_user_task
 #: Keys a sweep file may hold.
 SWEEP_KEYS = ("task", "learners", "explorers", "axes", "shared", "exclude", "settings",
               "seeds", "episodes", "seed", "max_steps", "invalid_action", "chunk_episodes",
-              "plugins", "replicates", "evaluate_every")
+              "plugins", "replicates", "evaluate_every", "record_optimal")
 #: The keys of a run's ``meta.json`` ``sweep`` record (the rest come from the run's meta).
 SPEC_KEYS = ("learners", "explorers", "axes", "shared", "exclude", "settings", "plugins")
 
@@ -196,6 +198,7 @@ _KEY_TYPES: dict[str, tuple[Any, str]] = {
     "exclude": (_scalar_tables, "a list of tables {name: value}"),
     "settings": (_scalar_tables, "a list of tables {learner: …, explorer: …, name: value}"),
     "invalid_action": (lambda v: isinstance(v, str), "noop or fail"),
+    "record_optimal": (lambda v: isinstance(v, bool), "true or false"),
     **{key: (lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer")
        for key in ("seeds", "episodes", "seed", "max_steps", "chunk_episodes", "replicates",
                    "evaluate_every")},
@@ -290,6 +293,8 @@ def sweep_from_meta(meta: Mapping[str, Any]) -> dict[str, Any]:
                 invalid_action=meta.get("invalid_action", "noop"))
     if meta.get("evaluate_every") is not None:
         spec["evaluate_every"] = int(meta["evaluate_every"])
+    if meta.get("record_optimal"):
+        spec["record_optimal"] = True
     return spec
 
 

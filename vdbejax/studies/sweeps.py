@@ -140,6 +140,7 @@ def run_sweep(
     memory_budget_bytes: int | str | None = None,
     devices: int | None = None,
     evaluate_every: int | None = None,
+    record_optimal: bool = False,
 ) -> GridResult:
     """Train a sweep on a task and write the result folder.
 
@@ -178,6 +179,10 @@ def run_sweep(
       evaluate_every: every this many episodes, the exact value of each agent's greedy
         policy (:mod:`vdbejax.runs.evaluation`): ``policy_values`` in ``returns.npz``, the
         policy columns of ``summary.csv`` and ``policy_gap.png``; the returns are the same.
+      record_optimal: each episode's fraction of optimal actions
+        (:mod:`vdbejax.runs.optimal_actions`): ``optimal_actions`` in ``returns.npz``, the
+        ``optimal_actions`` and ``reward_per_step`` columns of ``summary.csv``; the returns
+        are the same.
 
     Returns:
       the :class:`~vdbejax.experiment.GridResult` (also saved in ``out_dir``).
@@ -205,7 +210,7 @@ def run_sweep(
     figures = check_bool("figures", figures)
     run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
                      overwrite=overwrite, memory_budget_bytes=memory_budget_bytes, devices=devices,
-                     evaluate_every=evaluate_every)
+                     evaluate_every=evaluate_every, record_optimal=record_optimal)
     prepared = prepare_grid(mdp, grid_settings, num_seeds=seeds * replicates, num_episodes=episodes,
                             seed=seed, run=run)
     best = best_return(mdp)
