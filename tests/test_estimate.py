@@ -126,7 +126,7 @@ def test_a_long_study_is_announced_whole_before_its_folder_is_made(
     def refuse(*args, **kwargs):
         raise Stop
 
-    monkeypatch.setattr(bench, "check_writable_dir", refuse)
+    monkeypatch.setattr(bench, "output_folder", refuse)
     methods = ["egreedy", "rmax"]
     with pytest.raises(Stop):  # 2 tasks × (tuning + reported run), 10^6 episodes each
         bench.run_bench(tmp_path / "b", tasks=["riverswim", "deepsea:6"], methods=methods,
