@@ -17,7 +17,7 @@ README = ROOT / "README.md"
 DOCS = ROOT / "docs"
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
-from benchmarks import readme_table  # noqa: E402
+from benchmarks import doc_blocks, readme_table  # noqa: E402
 
 REPRODUCE = ("python3 -m venv .venv && .venv/bin/pip install -e . && "
              ".venv/bin/vdbejax reproduce --out out/paper")
@@ -99,6 +99,38 @@ def test_readme_table_generator_takes_the_headline_rows(tmp_path):
     assert readme_table.main(["--readme", str(readme), "--check"]) == 0
     with pytest.raises(ValueError, match="no '## Full paper grid' section"):
         readme_table.headline("# Benchmarks\n- Date: today.\n")
+
+
+def test_the_tables_of_the_docs_are_copied_from_the_results_files():
+    assert DOCS / "performance.md" in doc_blocks.pages()
+    for page in doc_blocks.pages():
+        text = page.read_text(encoding="utf-8")
+        assert doc_blocks.render(text) == text, (
+            f"{page.name}: a table differs from its results file: run"
+            " `python -m benchmarks.doc_blocks`")
+
+
+def test_doc_blocks_copy_the_named_table_and_refuse_what_is_missing(tmp_path):
+    results = tmp_path / "R.md"
+    results.write_text("# R\n- Date: today.\n\n## Speed of it\n\n| a |\n| --- |\n| 1 |\n\n"
+                       "text\n\n| b |\n| --- |\n| 2 |\n\n## Other 2026\n\n| c |\n| --- |\n| 3 |\n")
+    page = ("intro\n<!-- results: R.md | Speed -->\nstale\n<!-- results:end -->\n"
+            "<!-- results: R.md | Speed | table 2 -->\n<!-- results:end -->\n"
+            "<!-- results: R.md | Other -->\n<!-- results:end -->\nend\n")
+    assert doc_blocks.render(page, tmp_path) == (
+        "intro\n<!-- results: R.md | Speed -->\nFrom `R.md`, “Speed of it” (today):\n\n"
+        "| a |\n| --- |\n| 1 |\n<!-- results:end -->\n"
+        "<!-- results: R.md | Speed | table 2 -->\nFrom `R.md`, “Speed of it” (today):\n\n"
+        "| b |\n| --- |\n| 2 |\n<!-- results:end -->\n"
+        "<!-- results: R.md | Other -->\nFrom `R.md`, “Other 2026”:\n\n"
+        "| c |\n| --- |\n| 3 |\n<!-- results:end -->\nend\n")
+    with pytest.raises(ValueError, match="no section whose heading starts with 'Nope'"):
+        doc_blocks.render("<!-- results: R.md | Nope -->\n<!-- results:end -->\n", tmp_path)
+    with pytest.raises(ValueError, match="has 2 table"):
+        doc_blocks.render("<!-- results: R.md | Speed | table 3 -->\n<!-- results:end -->\n",
+                          tmp_path)
+    with pytest.raises(ValueError, match="has no"):
+        doc_blocks.render("<!-- results: R.md | Speed -->\n", tmp_path)
 
 
 def test_readme_examples_are_in_the_documentation_site():
