@@ -10,6 +10,12 @@ RSS). The sweep multiplies the paper grid's seeds (46 settings × seeds agents) 
 next size would not fit the device (:func:`vdbejax.runs.batching.check_run_size` and the device's
 free memory) or ``--max-agents``.
 
+The paper grid's results are then checked against the CPU's: the same call in a
+subprocess on the CPU backend (``JAX_PLATFORMS=cpu``), and per setting the bootstrap test
+of ``benchmarks.compare.agreement`` on the agents' mean return over the first 300 and the
+last 100 episodes (results on an accelerator agree statistically with the CPU's, not to
+the bit); the agents whose returns are bit-identical are counted too.
+
 The result is written as the section ``## GPU (benchmarks.gpu)`` of ``--out``: replaced if
 present, else appended after the hand-written analysis, which ``benchmarks.compare`` keeps
 when it rewrites the file. Nothing here changes what vdbejax computes: the same engine with
@@ -19,8 +25,13 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import os
 import platform
 import resource
+import subprocess
+import sys
+import tempfile
+import textwrap
 import time
 from pathlib import Path
 
@@ -66,9 +77,48 @@ def run_once(seeds: int, episodes: int) -> dict:
     steps = int(result.lengths.astype(np.int64).sum())
     peak, where = _peak_bytes()
     return {"agents": len(settings) * seeds, "seeds": seeds, "episodes": episodes, "wall": wall,
-            "cold": cold,
+            "cold": cold, "returns": result.returns,
             "train": float(result.meta["elapsed_seconds"]), "steps": steps,
             "steps_per_s": steps / max(wall, 1e-9), "peak_bytes": peak, "peak_where": where}
+
+
+CPU_SCRIPT = textwrap.dedent("""
+    import sys
+    import numpy as np
+    from vdbejax.envs.table_cleaning import make_mdp
+    from vdbejax.experiment import run_grid
+    from vdbejax.methods.agents import paper_settings
+    result = run_grid(make_mdp(), paper_settings(), num_seeds=int(sys.argv[1]),
+                      num_episodes=int(sys.argv[2]))
+    np.save(sys.argv[3], result.returns)
+""")
+
+
+def cpu_returns(seeds: int, episodes: int) -> np.ndarray:
+    """The paper grid's returns ``[settings, seeds, episodes]`` on the CPU backend, from a
+    subprocess (this process's backend is the accelerator's)."""
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder) / "returns.npy"
+        subprocess.run([sys.executable, "-c", CPU_SCRIPT, str(seeds), str(episodes), str(out)],
+                       check=True, env=dict(os.environ, JAX_PLATFORMS="cpu"))
+        return np.load(out)
+
+
+def cpu_agreement(returns: np.ndarray, reference: np.ndarray) -> dict:
+    """How the device's paper grid agrees with the CPU's: settings agreeing (early and
+    final windows, :func:`benchmarks.compare.agreement`) and bit-identical agents."""
+    from benchmarks.compare import agreement
+    from vdbejax.methods.agents import paper_settings
+
+    settings = paper_settings()
+    rows = agreement(returns, reference, settings)
+    return {"settings": len(settings),
+            "early": sum(row["early"][3] for row in rows),
+            "final": sum(row["final"][3] for row in rows),
+            "disagree": [row["setting"] for row in rows
+                         if not (row["early"][3] and row["final"][3])],
+            "identical": int(np.all(returns == reference, axis=-1).sum()),
+            "agents": int(np.prod(returns.shape[:2]))}
 
 
 def _fits(agents: int, episodes: int) -> bool:
@@ -103,7 +153,7 @@ def _row(r: dict) -> str:
             f" {r['steps_per_s'] / 1e6:.1f} | {r['peak_bytes'] / 2**20:,.0f} ({r['peak_where']}) |")
 
 
-def render(grid: dict, rows: list[dict], command: str) -> str:
+def render(grid: dict, rows: list[dict], command: str, agree: dict | None = None) -> str:
     """The markdown section."""
     import jax
 
@@ -120,6 +170,14 @@ def render(grid: dict, rows: list[dict], command: str) -> str:
         "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     lines += [_row(r) for r in rows]
+    if agree is not None:
+        lines += ["", f"Against the CPU backend (the same paper grid, per setting the agents'"
+                  f" mean return over the first 300 and the last 100 episodes, bootstrap test of"
+                  f" `benchmarks.compare.agreement`): {agree['early']}/{agree['settings']}"
+                  f" settings agree early, {agree['final']}/{agree['settings']} finally;"
+                  f" {agree['identical']:,} of {agree['agents']:,} agents bit-identical."
+                  + (f" Disagreeing: {', '.join(agree['disagree'])}." if agree["disagree"]
+                     else "")]
     return "\n".join(lines) + "\n"
 
 
@@ -150,8 +208,11 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m benchmarks.gpu " + " ".join(argv if argv is not None else [])
     grid = run_once(2 if args.quick else 20, episodes)
     print(f"grid: {grid['wall']:.2f} s, {grid['steps_per_s'] / 1e6:.1f} M agent-steps/s", flush=True)
+    agree = cpu_agreement(grid["returns"], cpu_returns(grid["seeds"], episodes))
+    print(f"against the CPU: {agree['final']}/{agree['settings']} settings agree finally,"
+          f" {agree['identical']} agents bit-identical", flush=True)
     rows = sweep(episodes, max_agents, first_seeds=2 if args.quick else 20)
-    write_section(Path(args.out), render(grid, rows, command.strip()))
+    write_section(Path(args.out), render(grid, rows, command.strip(), agree))
     return 0
 
 
