@@ -1,0 +1,118 @@
+"""A task instance per agent (issue 48, point 2): every agent of a run meets its own
+instance in the same vectorised run, bit for bit as if it ran alone on it."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vdbejax import engine
+from vdbejax.envs.instances import stack_instances
+from vdbejax.envs.suite.bandits import arm_means, make_bandit
+from vdbejax.envs.tabular import make_tabular_mdp
+from vdbejax.methods.agents import Setting, make_agent, stack_agents
+
+SETTINGS = [Setting("qlearning", "egreedy", 0.1), Setting("sarsa", "vdbe", 0.001),
+            Setting("qlearning", "vdbe_softmax", 1.0)]
+SEEDS = 3
+EPISODES = 12
+
+
+def bandit_instance(seed: int):
+    return make_bandit(arm_means("testbed", 4, seed), "gaussian", pulls=3, name="testbed:4")
+
+
+def random_mdp(seed: int):
+    """4 states, 3 actions, 2 outcomes per pair, 1 to 3 start states, noisy rewards."""
+    rng = np.random.default_rng(seed)
+    shape = (4, 3, 2)
+    probability = rng.random(shape) + 0.1
+    start = np.zeros(4)
+    start[rng.choice(4, 1 + seed % 3, replace=False)] = 1.0
+    return make_tabular_mdp(
+        rng.integers(0, 4, shape), rng.normal(size=shape), rng.random(shape) < 0.1,
+        start / start.sum(), probability / probability.sum(-1, keepdims=True),
+        max_steps=9, name="random", reward_noise="gaussian", reward_std=0.5)
+
+
+def grid():
+    params = engine.broadcast_agents(stack_agents([make_agent(s) for s in SETTINGS]), SEEDS)
+    keys = np.tile(engine.agent_keys(0, SEEDS), (len(SETTINGS), 1))
+    return params, keys
+
+
+def one(params, agent: int):
+    return engine.broadcast_agents(stack_agents([make_agent(SETTINGS[agent // SEEDS])]), 1)
+
+
+@pytest.mark.parametrize("family", [bandit_instance, random_mdp], ids=["testbed", "random_mdp"])
+def test_every_agent_gets_the_bits_of_its_instance_alone(family):
+    params, keys = grid()
+    mdps = [family(100 + i) for i in range(len(keys))]
+    instances = stack_instances(mdps)
+    runs = [engine.run_agents(instances, params, keys, EPISODES, **options)
+            for options in ({"strategy": "sequential"},
+                            {"strategy": "sequential", "chunk_episodes": 5},
+                            {"strategy": "lockstep"},
+                            {"strategy": "lockstep", "max_batch": 2, "min_batch": 1,
+                             "chunk_episodes": 7},
+                            {"strategy": "lockstep", "compact": False})]
+    for run in runs[1:]:
+        assert np.array_equal(run.returns, runs[0].returns)
+        assert np.array_equal(run.lengths, runs[0].lengths)
+    for agent in (0, 4, len(keys) - 1):
+        for strategy in ("sequential", "lockstep"):
+            alone = engine.run_agents(mdps[agent], one(params, agent), keys[agent:agent + 1],
+                                      EPISODES, strategy=strategy)
+            assert np.array_equal(alone.returns[0], runs[0].returns[agent])
+            assert np.array_equal(alone.lengths[0], runs[0].lengths[agent])
+    # the instances differ, and so do the agents' results on them
+    shared = engine.run_agents(mdps[0], params, keys, EPISODES, strategy="sequential")
+    assert not np.array_equal(shared.returns, runs[0].returns)
+    assert np.array_equal(shared.returns[0], runs[0].returns[0])
+
+
+def test_an_agent_with_its_instance_is_itself_in_a_batch_of_mixed_instances():
+    params, keys = grid()
+    mine = bandit_instance(7)
+    mixed = [bandit_instance(200 + i) for i in range(len(keys))]
+    mixed[5] = mine
+    batch = engine.run_agents(stack_instances(mixed), params, keys, EPISODES,
+                              strategy="lockstep", max_batch=4, min_batch=1)
+    alone = engine.run_agents(stack_instances([mine]), one(params, 5), keys[5:6], EPISODES,
+                              strategy="sequential")
+    assert np.array_equal(alone.returns[0], batch.returns[5])
+
+
+def test_the_optimal_actions_are_counted_against_each_instance():
+    params, keys = grid()
+    mdps = [bandit_instance(300 + i) for i in range(len(keys))]
+    masks = np.stack([np.asarray(m.reward)[:, :, 0] == np.asarray(m.reward)[:, :, 0].max()
+                      for m in mdps])
+    records = [engine.run_agents(stack_instances(mdps), params, keys, EPISODES,
+                                 optimal_action=masks, strategy=strategy).optimal
+               for strategy in ("sequential", "lockstep")]
+    assert np.array_equal(records[0], records[1]) and records[0].sum() > 0
+    agent = 7
+    alone = engine.run_agents(mdps[agent], one(params, agent), keys[agent:agent + 1], EPISODES,
+                              optimal_action=masks[agent])
+    assert np.array_equal(alone.optimal[0], records[0][agent])
+
+
+def test_bad_instances_are_one_line():
+    params, keys = grid()
+    with pytest.raises(ValueError, match=r"^instances holds 2 instances for 9 agents: must"
+                                         r" hold one per agent$"):
+        engine.run_agents(stack_instances([bandit_instance(0), bandit_instance(1)]), params,
+                          keys, 2)
+    with pytest.raises(ValueError, match=r"^mdps\[1\] has \[S, A, K\] = \[1, 5, 1\] and"
+                                         r" max_steps 3: every instance must have"):
+        stack_instances([bandit_instance(0), make_bandit(np.zeros(5), "gaussian", pulls=3)])
+    with pytest.raises(ValueError, match=r"^mdps\[1\] differs from mdps\[0\] in having reward"):
+        stack_instances([bandit_instance(0), make_tabular_mdp(np.zeros((1, 4), np.int32),
+                                                      np.zeros((1, 4)), np.zeros((1, 4)),
+                                                      [1.0], max_steps=3)])
+    with pytest.raises(ValueError, match=r"^mdps=list of 0 is invalid"):
+        stack_instances([])
+    with pytest.raises(ValueError, match=r"^optimal_action has shape \(1, 4\) and dtype bool"):
+        engine.run_agents(stack_instances([bandit_instance(i) for i in range(9)]), params, keys, 2,
+                          optimal_action=np.ones((1, 4), bool))
