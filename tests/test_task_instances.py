@@ -116,3 +116,89 @@ def test_bad_instances_are_one_line():
     with pytest.raises(ValueError, match=r"^optimal_action has shape \(1, 4\) and dtype bool"):
         engine.run_agents(stack_instances([bandit_instance(i) for i in range(9)]), params, keys, 2,
                           optimal_action=np.ones((1, 4), bool))
+
+
+# A run of a task family (vdbejax.runs.instances): an instance per agent from its seed.
+
+RUN_SETTINGS = [Setting("qlearning", "egreedy", 0.1), Setting("qlearning", "vdbe", 1.0)]
+
+
+def test_a_family_run_gives_each_agent_the_instance_of_its_seed_index():
+    from vdbejax.envs.suite import make_suite_family
+    from vdbejax.runs import run_grid
+
+    family = make_suite_family("testbed:5")
+    result = run_grid(family, RUN_SETTINGS, num_seeds=3, num_episodes=20, seed=4)
+    keys = engine.agent_keys(4, 3)
+    for c, setting in enumerate(RUN_SETTINGS):
+        for i in range(3):
+            alone = engine.run_agents(family.generate((4, i)), engine.broadcast_agents(
+                stack_agents([make_agent(setting)]), 1), keys[i:i + 1], 20)
+            assert np.array_equal(alone.returns[0], result.returns[c, i])
+    meta = result.meta
+    assert meta["instances"] == "per-agent" and len(meta["instance_best_returns"]) == 3
+    assert meta["best_return"] == pytest.approx(np.mean(meta["instance_best_returns"]))
+    means = [np.asarray(family.generate((4, i)).reward).max() for i in range(3)]
+    assert meta["instance_best_returns"] == pytest.approx(means)
+    # another root seed draws other instances: another fingerprint, other returns
+    other = run_grid(family, RUN_SETTINGS, num_seeds=3, num_episodes=20, seed=5)
+    assert other.meta["fingerprint"] != meta["fingerprint"]
+    assert other.meta["instance_best_returns"] != meta["instance_best_returns"]
+
+
+def test_a_family_run_resumes_to_the_same_bits(tmp_path):
+    from small_grid import interrupt_then_resume
+
+    from vdbejax.envs.suite import make_suite_family
+    from vdbejax.runs import RunOptions, run_grid
+
+    family = make_suite_family("bernoulli_bandit:4")
+    grid = {"num_seeds": 3, "num_episodes": 24, "seed": 1}
+    whole = run_grid(family, RUN_SETTINGS, record_optimal=True, **grid)
+    resumed = interrupt_then_resume(
+        family, RUN_SETTINGS, RunOptions(checkpoint=tmp_path / "run.npz", chunk_episodes=8,
+                                         record_optimal=True), 60, **grid)
+    assert np.array_equal(resumed.returns, whole.returns)
+    assert np.array_equal(resumed.optimal_actions, whole.optimal_actions, equal_nan=True)
+    assert resumed.meta["fingerprint"] == whole.meta["fingerprint"]
+
+
+def test_what_a_family_run_refuses_is_one_line():
+    from vdbejax.envs.suite import make_suite_family
+    from vdbejax.runs import prepare_grid
+    from vdbejax.runs.stop import UntilSolved
+
+    family = make_suite_family("testbed:3")
+    with pytest.raises(ValueError, match=r"^evaluate_every=5 is invalid with an instance per"
+                                         r" agent \(testbed:3\)"):
+        prepare_grid(family, RUN_SETTINGS, num_seeds=2, num_episodes=10,
+                     run=engine_options(evaluate_every=5))
+    with pytest.raises(ValueError, match=r"^stop=UntilSolved is invalid with an instance"):
+        prepare_grid(family, RUN_SETTINGS, num_seeds=2, num_episodes=10,
+                     run=engine_options(stop=UntilSolved()))
+    with pytest.raises(ValueError, match=r"^task='chain:5' has no generator of instances"):
+        make_suite_family("chain:5")
+
+
+def engine_options(**options):
+    from vdbejax.runs import RunOptions
+
+    return RunOptions(**options)
+
+
+def test_a_learner_is_told_the_facts_of_every_instance_whatever_the_batch():
+    # UCBVI under rlberry's convention takes its reward range from the task's facts: an
+    # agent's bits must not depend on which instances share its batch.
+    from vdbejax.engine.state import task_facts
+
+    ucbvi = Setting("ucbvi", "greedy", None, hyperparameters={"convention": "rlberry"})
+    params = engine.broadcast_agents(stack_agents([make_agent(ucbvi)]), 4)
+    keys = engine.agent_keys(2, 4)
+    instances = stack_instances([bandit_instance(400 + i) for i in range(4)])
+    facts = task_facts(instances)
+    assert facts.reward_min == min(float(np.asarray(instances.instance(i).reward).min())
+                                   for i in range(4))
+    whole = engine.run_agents(instances, params, keys, 8)
+    part = engine.run_agents(instances.take([2, 3]), engine.broadcast_agents(
+        stack_agents([make_agent(ucbvi)]), 2), keys[2:], 8, strategy="lockstep")
+    assert np.array_equal(part.returns, whole.returns[2:])

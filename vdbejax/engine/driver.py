@@ -165,7 +165,7 @@ def run_agents(
     check_params(params, mdp.num_actions)
     if isinstance(mdp, TaskInstances):  # each agent's instance rides with its params
         instances = with_instance_masks(mdp, optimal_action)
-        params = with_instances(for_task(params, instances.tables), instances)
+        params = with_instances(for_task(params, instances), instances)
         mdp = instance_template(instances, optimal_action)
     else:
         params = for_task(params, mdp)

@@ -105,7 +105,8 @@ def with_instance_masks(instances: TaskInstances, optimal_action: Any | None
         raise ValueError(f"optimal_action has shape {mask.shape} and dtype {mask.dtype}: must"
                          f" be bool {list(shape)} (agents, states, actions) with instances")
     return TaskInstances(tables=dataclasses.replace(instances.tables,
-                                                    optimal_action=jax.device_put(mask)))
+                                                    optimal_action=jax.device_put(mask)),
+                         bounds=instances.bounds)
 
 
 def lane_rows(agent: Any) -> AgentOnTask | None:

@@ -10,13 +10,13 @@ vectorised run, bit for bit as if it ran alone on it.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax
 import numpy as np
 
-from vdbejax._pytree import pytree_dataclass
+from vdbejax._pytree import pytree_dataclass, static_field
 from vdbejax.envs.tabular import TabularMDP
 
 Array = jax.Array
@@ -33,6 +33,7 @@ class TaskInstances:
     """
 
     tables: TabularMDP
+    bounds: tuple = static_field(None)
 
     @property
     def num_agents(self) -> int:
@@ -53,6 +54,12 @@ class TaskInstances:
     @property
     def name(self) -> str:
         return self.tables.name
+
+    def take(self, rows: Any) -> TaskInstances:
+        """The instances of agents ``rows`` (the run's :attr:`bounds` kept)."""
+        rows = np.asarray(rows)
+        return TaskInstances(tables=jax.tree.map(lambda leaf: leaf[rows], self.tables),
+                             bounds=self.bounds)
 
     def instance(self, agent: int) -> TabularMDP:
         """Agent ``agent``'s instance, an ordinary (unbatched) task."""
@@ -94,4 +101,33 @@ def stack_instances(mdps: Sequence[TabularMDP]) -> TaskInstances:
     def stack(*leaves: Any) -> Array:
         return jax.device_put(np.stack([np.asarray(leaf) for leaf in leaves]))
 
-    return TaskInstances(tables=jax.tree.map(stack, *mdps))
+    tables = jax.tree.map(stack, *mdps)
+    possible = np.asarray(tables.probability) > 0
+    reward = np.asarray(tables.reward, np.float64)[possible]
+    return TaskInstances(tables=tables, bounds=(
+        float(reward.min()), float(reward.max()),
+        bool(np.asarray(tables.terminal)[possible].any())))
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskFamily:
+    """A task family with a generator: instance ``i`` of a run is ``generate((seed, i))``.
+
+    Attributes:
+      name: the family's task name (``testbed:10``, …), each instance's label.
+      generate: ``generate(entropy)``: the instance drawn from the integers ``entropy``
+        (a pure function of them: the same entropy, the same instance).
+      description: one line for reports.
+    """
+
+    name: str
+    generate: Callable[[tuple[int, ...]], TabularMDP]
+    description: str = ""
+
+    def instances(self, seed: int, num_seeds: int, num_configs: int = 1) -> TaskInstances:
+        """The instances of a run's agents, config-major (c0s0, c0s1, …): agent (config
+        ``c``, seed index ``i``) of root seed ``seed`` meets ``generate((seed, i))``,
+        whatever its config (common random numbers, as its key), so results depend only
+        on the seed and the hyperparameters."""
+        drawn = [self.generate((int(seed), i)) for i in range(int(num_seeds))]
+        return stack_instances(drawn * int(num_configs))
