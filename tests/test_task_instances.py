@@ -202,3 +202,72 @@ def test_a_learner_is_told_the_facts_of_every_instance_whatever_the_batch():
     part = engine.run_agents(instances.take([2, 3]), engine.broadcast_agents(
         stack_agents([make_agent(ucbvi)]), 2), keys[2:], 8, strategy="lockstep")
     assert np.array_equal(part.returns, whole.returns[2:])
+
+
+# The results of such a run: every agent scored against its own instance.
+
+def test_summaries_score_every_agent_against_its_own_instance():
+    from vdbejax.envs.suite import make_suite_family
+    from vdbejax.results.analysis import summarize, task_scale
+    from vdbejax.results.replicates import replicate
+    from vdbejax.results.solving import episodes_to_converge, summarize_solving
+    from vdbejax.runs import run_grid
+
+    family = make_suite_family("testbed:4")
+    result = run_grid(family, RUN_SETTINGS, num_seeds=4, num_episodes=60, seed=2)
+    best, baseline = task_scale(result)
+    assert np.shape(best) == (4, 1) and np.shape(baseline) == (4, 1)
+    assert best[:, 0].tolist() == result.meta["instance_best_returns"]
+    rows = summarize(result, window=5)
+    for c, row in enumerate(rows):
+        own = episodes_to_converge(result.returns[c], best, baseline, window=5)
+        for i in range(4):  # each agent against its instance's references
+            alone = episodes_to_converge(result.returns[c, i], best[i, 0], baseline[i, 0],
+                                         window=5)
+            assert (own.episodes[i], own.solved[i]) == (alone.episodes, alone.solved)
+        summary = summarize_solving(*own)
+        assert (row.convergence_episode, row.agents_converged) == (summary.median,
+                                                                   summary.solved)
+    half = replicate(dataclass_with_replicates(result, 2), 1)
+    assert half.meta["instance_best_returns"] == result.meta["instance_best_returns"][2:]
+    assert half.meta["best_return"] == pytest.approx(np.mean(half.meta["instance_best_returns"]))
+
+
+def dataclass_with_replicates(result, count):
+    result.meta.update(replicates=count, agents_per_replicate=result.num_seeds // count)
+    return result
+
+
+def test_a_normalised_score_per_run_and_its_bad_scale():
+    from vdbejax.results.regret import normalised_returns, run_scores
+
+    returns = np.array([[0.0, 1.0], [2.0, 4.0]])
+    best, baseline = np.array([[1.0], [4.0]]), np.array([[0.0], [2.0]])
+    assert normalised_returns(returns, best, baseline).tolist() == [[0.0, 1.0], [0.0, 1.0]]
+    assert run_scores(returns, best, baseline).tolist() == [0.5, 0.5]
+    assert normalised_returns(returns, 4.0, 0.0).tolist() == [[0.0, 0.25], [0.5, 1.0]]
+    with pytest.raises(ValueError, match=r"^best and baseline at \[1, 0\] are invalid: each"
+                                         r" run's best return must exceed its baseline's"):
+        normalised_returns(returns, best, np.array([[0.0], [5.0]]))
+
+
+def test_the_cli_runs_an_instance_per_agent(tmp_path):
+    import json
+
+    from vdbejax import cli
+
+    out = tmp_path / "run"
+    code = cli.main(["run", "--task", "testbed:5", "--instances", "per-agent", "--learners",
+                     "sample_average", "--explorers", "egreedy", "--axis", "epsilon=0.1",
+                     "--seeds", "3", "--episodes", "20", "--record-optimal", "--no-figures",
+                     "--quiet", "--out", str(out)])
+    assert code in (0, None)
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["instances"] == "per-agent" and len(meta["instance_best_returns"]) == 3
+    again = tmp_path / "again"
+    assert cli.main(["run", "--config", str(out), "--no-figures", "--quiet",
+                     "--out", str(again)]) in (0, None)
+    assert json.loads((again / "meta.json").read_text())["fingerprint"] == meta["fingerprint"]
+    assert cli.main(["run", "--task", "chain:5", "--instances", "per-agent", "--learners",
+                     "qlearning", "--explorers", "egreedy", "--seeds", "2", "--episodes", "2",
+                     "--quiet", "--out", str(tmp_path / "bad")]) == 2
