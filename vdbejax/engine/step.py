@@ -170,15 +170,15 @@ def lockstep_iteration(
 
     noise_u = None if mdp.reward_noise is None else reward_uniform(base)
     own = lane_rows(agent)  # each lane's own task instance, or None (one shared task)
+    s_next, reward, terminal = (_transition(mdp, s, a, u[1], noise_u) if own is None
+                                else lane_transition(own, lane, s, a, u[1], noise_u))
+    length = agents.episode_length + 1
+    truncated = ~terminal & (length >= mdp.max_steps)
     if own is None:
-        s_next, reward, terminal = _transition(mdp, s, a, u[1], noise_u)
         states, weights = support
         s_start = take(states, sample_categorical(weights, u[0]))
     else:
-        s_next, reward, terminal = lane_transition(own, lane, s, a, u[1], noise_u)
         s_start = lane_start(own, lane, u[0])
-    length = agents.episode_length + 1
-    truncated = ~terminal & (length >= mdp.max_steps)
     # Choose the next action in s' (in the new episode's start state after a terminal
     # step). That row also serves the target: a terminal step has discount 0, so which
     # row it multiplies does not matter (for finite Q), and one gather is saved.
