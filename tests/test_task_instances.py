@@ -271,3 +271,23 @@ def test_the_cli_runs_an_instance_per_agent(tmp_path):
     assert cli.main(["run", "--task", "chain:5", "--instances", "per-agent", "--learners",
                      "qlearning", "--explorers", "egreedy", "--seeds", "2", "--episodes", "2",
                      "--quiet", "--out", str(tmp_path / "bad")]) == 2
+
+
+def test_a_random_mdp_family_runs_an_instance_per_agent():
+    from vdbejax.envs.suite.garnet import garnet_family
+    from vdbejax.results.analysis import summarize
+    from vdbejax.runs import run_grid
+
+    family = garnet_family(5, 3, 2, max_steps=6)
+    one, two = family.generate((0, 0)), family.generate((0, 1))
+    assert np.asarray(one.probability).sum(-1) == pytest.approx(1.0)
+    assert not np.array_equal(np.asarray(one.next_state), np.asarray(two.next_state))
+    result = run_grid(family, RUN_SETTINGS, num_seeds=3, num_episodes=15, seed=0,
+                      record_optimal=True)
+    keys = engine.agent_keys(0, 3)
+    alone = engine.run_agents(two, engine.broadcast_agents(stack_agents(
+        [make_agent(RUN_SETTINGS[1])]), 1), keys[1:2], 15)
+    assert np.array_equal(alone.returns[0], result.returns[1, 1])
+    assert len(summarize(result, window=5)) == 2
+    with pytest.raises(ValueError, match=r"^branching=9 is invalid"):
+        garnet_family(5, 3, 9)
