@@ -172,15 +172,15 @@ def test_what_a_family_run_refuses_is_one_line():
     with pytest.raises(ValueError, match=r"^evaluate_every=5 is invalid with an instance per"
                                          r" agent \(testbed:3\)"):
         prepare_grid(family, RUN_SETTINGS, num_seeds=2, num_episodes=10,
-                     run=engine_options(evaluate_every=5))
+                     run=run_options(evaluate_every=5))
     with pytest.raises(ValueError, match=r"^stop=UntilSolved is invalid with an instance"):
         prepare_grid(family, RUN_SETTINGS, num_seeds=2, num_episodes=10,
-                     run=engine_options(stop=UntilSolved()))
+                     run=run_options(stop=UntilSolved()))
     with pytest.raises(ValueError, match=r"^task='chain:5' has no generator of instances"):
         make_suite_family("chain:5")
 
 
-def engine_options(**options):
+def run_options(**options):
     from vdbejax.runs import RunOptions
 
     return RunOptions(**options)
@@ -228,12 +228,12 @@ def test_summaries_score_every_agent_against_its_own_instance():
         summary = summarize_solving(*own)
         assert (row.convergence_episode, row.agents_converged) == (summary.median,
                                                                    summary.solved)
-    half = replicate(dataclass_with_replicates(result, 2), 1)
+    half = replicate(marked_as_replicates(result, 2), 1)
     assert half.meta["instance_best_returns"] == result.meta["instance_best_returns"][2:]
     assert half.meta["best_return"] == pytest.approx(np.mean(half.meta["instance_best_returns"]))
 
 
-def dataclass_with_replicates(result, count):
+def marked_as_replicates(result, count):
     result.meta.update(replicates=count, agents_per_replicate=result.num_seeds // count)
     return result
 
