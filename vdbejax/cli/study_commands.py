@@ -63,6 +63,10 @@ def add_run(sub: argparse._SubParsersAction) -> None:
                    help="record each episode's fraction of steps whose action is optimal"
                         " (optimal_actions in returns.npz; the optimal_actions and"
                         " reward_per_step columns of summary.csv); the returns are the same")
+    p.add_argument("--instances", default=None, choices=("shared", "per-agent"),
+                   help="per-agent: a task family (testbed:N, gaussian_bandit:N,"
+                        " bernoulli_bandit:N) gives every agent its own instance, drawn from"
+                        " the root seed and its seed index (default shared: one task)")
     add_run_flags(p, "continue from OUT/checkpoint.npz (or reuse OUT's whole result)")
     p.add_argument("--no-figures", action="store_true", help="no fig3.png / sensitivity.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -102,7 +106,8 @@ def run_command(args: argparse.Namespace) -> None:
 
     spec = read_sweep_file(args.config) if args.config else {}
     for key in ("task", "seeds", "replicates", "episodes", "seed", "max_steps",
-                "invalid_action", "chunk_episodes", "evaluate_every", "record_optimal"):
+                "invalid_action", "chunk_episodes", "evaluate_every", "record_optimal",
+                "instances"):
         if getattr(args, key) is not None:
             spec[key] = getattr(args, key)
     for key in ("learners", "explorers"):

@@ -14,7 +14,9 @@ Read it one module at a time:
 * :mod:`~vdbejax.engine.sequential` — native step loops of four agents side by side, one
   program for every kind (:mod:`~vdbejax.engine.kinds`), work items on threads
   (:mod:`~vdbejax.engine.work_items`; the default on a CPU);
-* :mod:`~vdbejax.engine.driver` — :func:`run_agents`, the Python loop over chunks.
+* :mod:`~vdbejax.engine.driver` — :func:`run_agents`, the Python loop over chunks;
+* :mod:`~vdbejax.engine.instances` — a task instance per agent, riding with its
+  hyperparameters.
 
 Both strategies run the same step function, so they compute the same thing, bit for bit
 (products are rounded on their own, :mod:`vdbejax._numerics`). Results depend only on each

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from vdbejax.engine.chunks import ChunkSchedule
+from vdbejax.engine.instances import instance_template, with_instance_masks, with_instances
 from vdbejax.engine.lockstep import (
     DEFAULT_UNROLL,
     MAX_SAFE_BATCH,
@@ -30,6 +31,7 @@ from vdbejax.engine.programs import compile_seconds as _compile_seconds
 from vdbejax.engine.progress import ProgressCallback, text_progress  # noqa: F401  (re-exported: engine API)
 from vdbejax.engine.sequential import _SequentialRun, created_in_items
 from vdbejax.engine.state import AgentState, for_task, init_agents
+from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams
 from vdbejax.methods.api import check_plugin
@@ -69,7 +71,7 @@ class RunResult:
 
 
 def run_agents(
-    mdp: TabularMDP,
+    mdp: TabularMDP | TaskInstances,
     params: AgentParams,
     keys: Any,
     num_episodes: int,
@@ -95,7 +97,9 @@ def run_agents(
     """Train a batch of agents for ``num_episodes`` episodes each.
 
     Args:
-      mdp: the task.
+      mdp: the task, or a :class:`~vdbejax.envs.instances.TaskInstances` (one instance per
+        agent, in agent order: each agent's results are those of the agent alone on its
+        instance, in any batch, under either strategy).
       params: batched hyperparameters, leading axis = agents.
       keys: uint32 ``[agents, 2]`` PRNG keys.
       num_episodes: episodes per agent.
@@ -137,8 +141,9 @@ def run_agents(
       chunk_seconds: size chunks by time: about this many seconds each, every multiple
         of ``chunk_episodes`` still a chunk end (:mod:`~vdbejax.engine.chunks`; a stop
         waits for the chunk that runs). None: chunks of ``chunk_episodes``.
-      optimal_action: bool ``[S, A]``, the actions that count as optimal: each episode's
-        steps taking one are counted (:attr:`RunResult.optimal`). ``None`` (default):
+      optimal_action: bool ``[S, A]`` (``[agents, S, A]`` with instances), the actions
+        that count as optimal: each episode's steps taking one are counted
+        (:attr:`RunResult.optimal`). ``None`` (default):
         no count, the same programs and results as without it.
 
     None of ``compact`` … ``threads`` nor ``fixed_blocks`` change the results, only the
@@ -158,8 +163,13 @@ def run_agents(
     check_int("max_batch", max_batch, 1)
     check_choice("strategy", strategy, (*STRATEGIES, "auto"))
     check_params(params, mdp.num_actions)
-    params = for_task(params, mdp)
-    mdp = with_optimal_action(mdp, optimal_action)
+    if isinstance(mdp, TaskInstances):  # each agent's instance rides with its params
+        instances = with_instance_masks(mdp, optimal_action)
+        params = with_instances(for_task(params, instances), instances)
+        mdp = instance_template(instances, optimal_action)
+    else:
+        params = for_task(params, mdp)
+        mdp = with_optimal_action(mdp, optimal_action)
     if threads is None:
         threads = available_cpus()
     check_int("threads", threads, 1)

@@ -11,6 +11,7 @@ import numpy as np
 from jax import lax
 
 from vdbejax._pytree import pytree_dataclass
+from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams, table_layout
 from vdbejax.methods.contract import TaskFacts
@@ -214,16 +215,20 @@ def broadcast_agents(params: Any, repeats: int) -> Any:
     return jax.tree.map(repeat, params)
 
 
-def task_facts(mdp: TabularMDP) -> TaskFacts:
+def task_facts(mdp: TabularMDP | TaskInstances) -> TaskFacts:
     """What a learner is told of ``mdp`` (:class:`~vdbejax.methods.contract.TaskFacts`):
-    its rewards' extremes over the outcomes it can give, and whether one is terminal."""
+    its rewards' extremes over the outcomes it can give, and whether one is terminal
+    (with an instance per agent: over every instance of the run, its ``bounds``)."""
+    if isinstance(mdp, TaskInstances):
+        low, high, terminates = mdp.bounds
+        return TaskFacts(reward_min=low, reward_max=high, terminates=terminates)
     possible = np.asarray(mdp.probability) > 0
     reward = np.asarray(mdp.reward, np.float64)[possible]
     return TaskFacts(reward_min=float(reward.min()), reward_max=float(reward.max()),
                      terminates=bool(np.asarray(mdp.terminal)[possible].any()))
 
 
-def for_task(params: AgentParams, mdp: TabularMDP) -> AgentParams:
+def for_task(params: AgentParams, mdp: TabularMDP | TaskInstances) -> AgentParams:
     """``params`` with every kind's learner set for ``mdp`` (its
     :meth:`~vdbejax.methods.contract.Learner.for_task`): the engine's first act on a batch."""
     facts = task_facts(mdp)

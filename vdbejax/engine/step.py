@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from vdbejax._numerics import sample_categorical
+from vdbejax.engine.instances import lane_optimal, lane_rows, lane_start, lane_transition
 from vdbejax.engine.kind_step import (  # noqa: F401  (re-exported)
     ENGINE_UNIFORMS,
     _agent_step,
@@ -121,9 +122,12 @@ def lockstep_iteration(
     1-D arrays (``[B·S·A]``, ``[B·S]`` or ``[B·S·A]``, ``[B·L]``).
 
     Args:
-      mdp: the task (shared by all agents).
+      mdp: the task shared by all agents (with a task instance per agent, agent 0's: it
+        fixes the shapes and the episode length).
       agent: batched hyperparameters of one kind (leading axis = agents), or a
-        :class:`KindSwitch` of every kind's and the one that runs.
+        :class:`KindSwitch` of every kind's and the one that runs; rows that carry each
+        agent's own task instance (:class:`~vdbejax.engine.instances.AgentOnTask`) are
+        stepped on it.
       agents: batched states, tables flattened as above.
       returns: flat ``[B·L]`` return buffer of the chunk (``L`` episodes per agent).
       lengths: flat ``[B·L]`` length buffer.
@@ -165,11 +169,16 @@ def lockstep_iteration(
     a = jnp.clip(a, 0, A - 1)
 
     noise_u = None if mdp.reward_noise is None else reward_uniform(base)
-    s_next, reward, terminal = _transition(mdp, s, a, u[1], noise_u)
+    own = lane_rows(agent)  # each lane's own task instance, or None (one shared task)
+    s_next, reward, terminal = (_transition(mdp, s, a, u[1], noise_u) if own is None
+                                else lane_transition(own, lane, s, a, u[1], noise_u))
     length = agents.episode_length + 1
     truncated = ~terminal & (length >= mdp.max_steps)
-    states, weights = support
-    s_start = take(states, sample_categorical(weights, u[0]))
+    if own is None:
+        states, weights = support
+        s_start = take(states, sample_categorical(weights, u[0]))
+    else:
+        s_start = lane_start(own, lane, u[0])
     # Choose the next action in s' (in the new episode's start state after a terminal
     # step). That row also serves the target: a terminal step has discount 0, so which
     # row it multiplies does not matter (for finite Q), and one gather is saved.
@@ -271,7 +280,8 @@ def lockstep_iteration(
     lengths = put_where(lengths, out, length, done)
     if optimal is not None:  # the running episode's slot (only a learning lane's is real)
         assert mdp.optimal_action is not None  # (the run hands the mask with the buffer)
-        hit = take(mdp.optimal_action.reshape(-1), s * A + a)
+        hit = (take(mdp.optimal_action.reshape(-1), s * A + a) if own is None
+               else lane_optimal(own, lane, s, a))
         counted = take(optimal, jnp.clip(out, 0, optimal.shape[0] - 1))
         optimal = put_where(optimal, out, counted + 1, learn & hit)
 

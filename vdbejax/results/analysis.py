@@ -16,6 +16,7 @@ import numpy as np
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.optimal_actions import OPTIMAL_ACTION_COLUMNS, optimal_action_summary
 from vdbejax.results.policy import POLICY_COLUMNS, policy_summary
+from vdbejax.results.regret import Scale, as_scale
 from vdbejax.results.solving import episodes_to_converge, summarize_solving
 from vdbejax.results.stats import (  # noqa: F401  (re-exported: the historical home of these names)
     LAST,
@@ -56,28 +57,35 @@ def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = L
     return (lengths >= max_steps).mean((-1,))
 
 
-def task_scale(result: GridResult, best: float | None = None,
-               baseline: float | None = None) -> tuple[float, float]:
+def task_scale(result: GridResult, best: Scale | None = None,
+               baseline: Scale | None = None) -> tuple[Scale, Scale]:
     """The task's exact best return and the uniformly random policy's expected return:
-    those given, else ``meta.json``'s ``best_return`` and ``random_return``.
+    those given, else ``meta.json``'s ``best_return`` and ``random_return`` — or, for a
+    run that gave every agent its own task instance (:mod:`vdbejax.runs.instances`), each
+    agent's own instance's, float64 ``[seeds, 1]`` (``instance_best_returns``,
+    ``instance_random_returns``): each agent is scored against its instance.
 
     Raises:
       ValueError: one of them is neither given nor recorded.
     """
-    best = result.meta.get("best_return") if best is None else best
-    baseline = result.meta.get("random_return") if baseline is None else baseline
+    meta = result.meta
+    if best is None and baseline is None and "instance_best_returns" in meta:
+        return (np.asarray(meta["instance_best_returns"], np.float64)[:, None],
+                np.asarray(meta["instance_random_returns"], np.float64)[:, None])
+    best = meta.get("best_return") if best is None else best
+    baseline = meta.get("random_return") if baseline is None else baseline
     if best is None or baseline is None:
         raise ValueError("the result's meta has no best_return and random_return: the"
                          " convergence episode needs the task's exact best return and the"
                          " random policy's (vdbejax.envs.solvers.best_return,"
                          " uniform_random_return); pass best= and baseline=")
-    return float(best), float(baseline)
+    return as_scale(best), as_scale(baseline)
 
 
 def summarize(
     result: GridResult, last: int = LAST, window: int = WINDOW,
-    statistics: CurveStatistics | None = None, best: float | None = None,
-    baseline: float | None = None,
+    statistics: CurveStatistics | None = None, best: Scale | None = None,
+    baseline: Scale | None = None,
 ) -> list[SummaryRow]:
     """One row per config: final return with its 95% bootstrap CI over agents, the
     convergence episode (:func:`~vdbejax.results.solving.episodes_to_converge`: the median
@@ -161,18 +169,24 @@ def summarize(
 CONVERGENCE_BLOCK = 1 << 22
 
 
-def _convergence_times(result: GridResult, c: int, best: float, baseline: float,
+def _convergence_times(result: GridResult, c: int, best: Scale, baseline: Scale,
                        window: int) -> tuple[np.ndarray, np.ndarray]:
     """Setting ``c``'s agents' convergence episodes and whether they converged, block of
     agents by block of agents (:func:`~vdbejax.results.solving.episodes_to_converge`)."""
     agents = result.returns.shape[1]
     step = max(1, CONVERGENCE_BLOCK // max(1, result.num_episodes))
     parts = [episodes_to_converge(
-        result.returns[c, i:i + step], best, baseline, window=window,
+        result.returns[c, i:i + step], _agents(best, i, step), _agents(baseline, i, step),
+        window=window,
         episodes_run=None if result.episodes_run is None else result.episodes_run[c, i:i + step])
         for i in range(0, agents, step)]
     return (np.concatenate([p.episodes for p in parts]),
             np.concatenate([p.solved for p in parts]))
+
+
+def _agents(scale: Scale, first: int, count: int) -> Scale:
+    """The references of agents ``first … first + count − 1`` (per agent, or one)."""
+    return scale if np.ndim(scale) == 0 else np.asarray(scale)[first:first + count]
 
 
 def summary_columns(result: GridResult) -> list[str]:

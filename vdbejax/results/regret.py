@@ -35,29 +35,47 @@ from vdbejax.results.bootstrap import (
     probability_of_improvement,
 )
 
-
-def _check_scale(best: float, baseline: float) -> float:
-    span = float(best) - float(baseline)
-    if not np.isfinite(span) or span <= 0.0:
-        raise ValueError(f"best={best!r} and baseline={baseline!r} are invalid: the best return"
-                         " must exceed the baseline's for a normalised score")
-    return span
+#: A task's best or baseline return: one number, or one per run (an instance per agent:
+#: an array that broadcasts against the runs' ``returns[..., :1]``).
+Scale = float | np.ndarray
 
 
-def episode_regret(returns: np.ndarray, best: float) -> np.ndarray:
+def _check_scale(best: Scale, baseline: Scale) -> Scale:
+    if np.ndim(best) == 0 and np.ndim(baseline) == 0:
+        span = float(best) - float(baseline)
+        if not np.isfinite(span) or span <= 0.0:
+            raise ValueError(f"best={best!r} and baseline={baseline!r} are invalid: the best"
+                             " return must exceed the baseline's for a normalised score")
+        return span
+    spans = np.asarray(best, np.float64) - np.asarray(baseline, np.float64)
+    bad = ~np.isfinite(spans) | (spans <= 0.0)
+    if spans.size == 0 or bad.any():
+        where = [int(i) for i in np.unravel_index(np.argmax(bad), bad.shape)] if spans.size else []
+        raise ValueError(f"best and baseline at {where} are invalid: each run's best return"
+                         " must exceed its baseline's for a normalised score")
+    return spans
+
+
+def as_scale(value: Scale) -> Scale:
+    """A :data:`Scale` as a float, or as a float64 array (one per run)."""
+    return float(value) if np.ndim(value) == 0 else np.asarray(value, np.float64)
+
+
+def episode_regret(returns: np.ndarray, best: Scale) -> np.ndarray:
     """``best − returns`` per episode (NaN where the episode was not run).
 
     Args:
       returns: ``[..., episodes]`` episode returns.
-      best: the task's best expected episode return.
+      best: the task's best expected episode return (:data:`Scale`: per run where every
+        agent has its own task instance).
 
     Returns:
       float64 regrets of the same shape.
     """
-    return float(best) - np.asarray(returns, np.float64)
+    return as_scale(best) - np.asarray(returns, np.float64)
 
 
-def cumulative_regret(returns: np.ndarray, best: float) -> np.ndarray:
+def cumulative_regret(returns: np.ndarray, best: Scale) -> np.ndarray:
     """Cumulative regret over the episode axis (episodes not run add 0).
 
     Args:
@@ -70,13 +88,14 @@ def cumulative_regret(returns: np.ndarray, best: float) -> np.ndarray:
     return np.cumsum(np.nan_to_num(episode_regret(returns, best), nan=0.0), axis=-1)
 
 
-def normalised_returns(returns: np.ndarray, best: float, baseline: float) -> np.ndarray:
+def normalised_returns(returns: np.ndarray, best: Scale, baseline: Scale) -> np.ndarray:
     """Episode returns with ``baseline`` mapped to 0 and ``best`` to 1.
 
     Args:
       returns: ``[..., episodes]`` episode returns.
-      best: the task's best expected episode return.
-      baseline: the uniformly random policy's expected episode return.
+      best: the task's best expected episode return (:data:`Scale`: per run where every
+        agent has its own task instance).
+      baseline: the uniformly random policy's expected episode return (likewise).
 
     Returns:
       float64 normalised returns of the same shape.
@@ -85,10 +104,10 @@ def normalised_returns(returns: np.ndarray, best: float, baseline: float) -> np.
       ValueError: ``best`` not above ``baseline``.
     """
     span = _check_scale(best, baseline)
-    return (np.asarray(returns, np.float64) - float(baseline)) / span
+    return (np.asarray(returns, np.float64) - as_scale(baseline)) / span
 
 
-def run_scores(returns: np.ndarray, best: float, baseline: float) -> np.ndarray:
+def run_scores(returns: np.ndarray, best: Scale, baseline: Scale) -> np.ndarray:
     """Each run's normalised score: its mean normalised return over the episodes it ran
     (an agent stopped once solved scores 1 on the episodes it did not run).
 

@@ -66,6 +66,11 @@ def replicate(result: GridResult, index: int) -> GridResult:
     agents = slice(index * per, (index + 1) * per)
     meta = dict(result.meta, num_seeds=per, replicates=1, agents_per_replicate=per,
                 replicate=index)
+    if "instance_best_returns" in meta:  # an instance per agent: the replicate's own
+        for key, mean in (("instance_best_returns", "best_return"),
+                          ("instance_random_returns", "random_return")):
+            meta[key] = list(meta[key][agents])
+            meta[mean] = float(sum(meta[key]) / len(meta[key]))
     return GridResult(result.settings, result.returns[:, agents], result.lengths[:, agents],
                       result.nonfinite[:, agents], meta,
                       None if result.episodes_run is None else result.episodes_run[:, agents],

@@ -45,7 +45,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from vdbejax.results import stats
-from vdbejax.results.regret import normalised_returns
+from vdbejax.results.regret import Scale, normalised_returns
 from vdbejax.validation import check_in_range, check_int
 
 #: Default normalised score that counts as solved (0 = random policy, 1 = the exact best).
@@ -112,8 +112,8 @@ def convergence_threshold(best: float, baseline: float, fraction: float = FRACTI
 
 def episodes_to_converge(
     returns: Any,
-    best: float,
-    baseline: float,
+    best: Scale,
+    baseline: Scale,
     *,
     fraction: float = FRACTION,
     window: int = WINDOW,
@@ -125,7 +125,8 @@ def episodes_to_converge(
 
     Args:
       returns: ``[..., episodes]`` episode returns (one row per agent).
-      best: the task's exact best expected return (:func:`vdbejax.envs.solvers.best_return`).
+      best: the task's exact best expected return (:func:`vdbejax.envs.solvers.best_return`;
+        per agent, ``[..., 1]``, where every agent has its own task instance).
       baseline: the uniformly random policy's expected return
         (:func:`vdbejax.envs.solvers.uniform_random_return`); below ``best``.
       fraction: the normalised score to reach, in (0, 1] (default 0.9).

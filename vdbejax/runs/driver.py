@@ -28,6 +28,7 @@ from vdbejax.engine import AgentState
 from vdbejax.engine.distributed import take_agents
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.progress import ProgressCallback
+from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams
 from vdbejax.runs.evaluation import greedy_returns
@@ -55,7 +56,7 @@ class Drive:
     strategy: str
 
 
-def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
+def drive(mdp: TabularMDP | TaskInstances, params: AgentParams, keys: np.ndarray, plan: RunPlan,
           state: RunState, stop: StopPolicy, *,
           checkpoint: Callable[[RunState], None] | None = None,
           progress: ProgressCallback | None = None,
@@ -65,7 +66,7 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
     """Train the unfinished agents of ``state`` (rows of ``params`` and ``keys``).
 
     Args:
-      mdp: the task.
+      mdp: the task, or each agent's instance (this process's rows; no ``evaluate_every``).
       params, keys: every agent's hyperparameters and key (this process's rows).
       plan: devices, batch size and engine strategy (:func:`~vdbejax.runs.plan.make_plan`).
       state: the run so far (fresh, or loaded from a checkpoint); updated in place.
@@ -75,7 +76,8 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
       programs: the compiled programs shared by every engine call (default: the run's own).
       evaluate_every: evaluate the agents' greedy policies after every this many episodes
         into ``state.policy_values`` (the plan's chunks end on its multiples).
-      optimal_action: bool ``[S, A]``: count each episode's optimal actions into
+      optimal_action: bool ``[S, A]`` (``[agents, S, A]`` with instances, this process's
+        rows): count each episode's optimal actions into
         ``state.optimal`` (:mod:`vdbejax.runs.optimal_actions`).
 
     Returns:
@@ -101,6 +103,7 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
         if evaluate_every is None or done % evaluate_every:
             return
         assert agents is not None and state.policy_values is not None  # asked for below
+        assert isinstance(mdp, TabularMDP)  # (prepare_grid refuses evaluations with instances)
         state.policy_values[batch, done // evaluate_every - 1] = greedy_returns(
             mdp, take_agents(params, batch), agents.q, agents.tables, agents.episode)
 
@@ -127,11 +130,13 @@ def drive(mdp: TabularMDP, params: AgentParams, keys: np.ndarray, plan: RunPlan,
             after_stop()  # a fixed budget stops no agent
 
         result = plan.run_engine(
-            mdp, take_agents(params, batch), keys[batch], end,
+            mdp.take(batch) if isinstance(mdp, TaskInstances) else mdp,
+            take_agents(params, batch), keys[batch], end,
             initial=state.resume_point(batch), on_chunk=None if per_chunk else after_chunk,
             chunk_states=checkpoint is not None or evaluate_every is not None,
             keep_final_state=end < num_episodes or (per_chunk and evaluate_every is not None),
-            programs=programs, optimal_action=optimal_action)
+            programs=programs, optimal_action=optimal_action if optimal_action is None
+            or optimal_action.ndim == 2 else optimal_action[batch])
         batches += 1
         strategy = result.strategy
         if per_chunk:

@@ -30,6 +30,7 @@ import numpy as np
 from vdbejax.engine import agent_keys, broadcast_agents, check_params, text_progress
 from vdbejax.engine.distributed import gather_agents, process_checkpoint_path, take_agents
 from vdbejax.engine.programs import Programs
+from vdbejax.envs.instances import TaskFamily, TaskInstances
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import (
@@ -48,7 +49,8 @@ from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.checkpoint import CheckpointWriter, load_checkpoint, remove_checkpoint, writing
 from vdbejax.runs.driver import drive
 from vdbejax.runs.evaluation import collect_evaluations, evaluations
-from vdbejax.runs.optimal_actions import collect_optimal, optimal_action_mask
+from vdbejax.runs.instances import draw_instances, instance_meta, run_mask, run_task
+from vdbejax.runs.optimal_actions import collect_optimal
 from vdbejax.runs.options import RunOptions
 from vdbejax.runs.plan import RunPlan, make_plan
 from vdbejax.runs.state import RunState, nonfinite_message
@@ -86,6 +88,8 @@ class PreparedGrid:
       params, keys: every agent's hyperparameters and key.
       plan: devices, batches and engine strategy (:class:`~vdbejax.runs.plan.RunPlan`).
       description: what decides the results (the fingerprint's input, in ``meta.json``).
+      instances: each agent's task instance (a :class:`~vdbejax.envs.instances.TaskFamily`
+        run, :mod:`vdbejax.runs.instances`; ``mdp`` is then agent 0's), else ``None``.
     """
 
     mdp: TabularMDP
@@ -100,6 +104,7 @@ class PreparedGrid:
     keys: np.ndarray
     plan: RunPlan
     description: dict[str, Any]
+    instances: TaskInstances | None = None
 
     @property
     def num_agents(self) -> int:
@@ -118,7 +123,7 @@ class PreparedGrid:
 
 
 def prepare_grid(
-    mdp: TabularMDP,
+    mdp: TabularMDP | TaskFamily,
     settings: Sequence[Setting],
     *,
     num_seeds: int = 20,
@@ -145,9 +150,9 @@ def prepare_grid(
         raise ValueError(f"evaluate_every={run.evaluate_every} is invalid with num_episodes="
                          f"{num_episodes}: must be at most the episodes (or no policy would be"
                          " evaluated)")
-    if not isinstance(mdp, TabularMDP):
+    if not isinstance(mdp, (TabularMDP, TaskFamily)):
         raise ValueError(f"mdp={type(mdp).__name__} is invalid: must be a TabularMDP"
-                         " (see make_tabular_mdp, compile_env)")
+                         " (see make_tabular_mdp, compile_env) or a TaskFamily")
     if not isinstance(settings, (list, tuple)):
         raise ValueError(f"settings={settings!r} is invalid: must be a list of Setting"
                          " (e.g. [Setting('qlearning', 'vdbe', 1.0)])")
@@ -163,6 +168,9 @@ def prepare_grid(
     if run.checkpoint is not None:  # fail before training
         check_writable_dir("checkpoint folder", Path(run.checkpoint).parent)
     check_run_size(len(settings) * num_seeds, num_episodes, run.checkpoint, len(settings))
+    instances = None
+    if isinstance(mdp, TaskFamily):  # an instance per agent (vdbejax.runs.instances)
+        mdp, instances = draw_instances(mdp, run, seed, num_seeds, len(settings))
     stop = run.stop.resolve(mdp)
     window = getattr(stop, "window", None)
     if stop.checks_chunks and window is not None and window > num_episodes:
@@ -175,7 +183,7 @@ def prepare_grid(
     plan = make_plan(mdp, params, len(settings) * num_seeds, num_episodes, run)
     description = {
         "mdp": mdp.name,
-        "mdp_tables": _fingerprint_arrays(mdp),
+        "mdp_tables": _fingerprint_arrays(mdp if instances is None else instances),
         "settings": [(s.learner, s.explorer, s.param, s.hyperparameters) for s in settings],
         "num_seeds": num_seeds,
         "num_episodes": num_episodes,
@@ -186,12 +194,14 @@ def prepare_grid(
         description["stop"] = stop.describe()
     if run.evaluate_every is not None:  # its checkpoints hold evaluations: not another's
         description["evaluate_every"] = run.evaluate_every
+    if instances is not None:
+        description["instances"] = "per-agent"
     if run.record_optimal:  # its checkpoints hold the counts of optimal actions
         description["record_optimal"] = True
     if plugin_code:  # built-ins only: the fingerprint of earlier runs, as it was
         description["plugin_code"] = dict(sorted(plugin_code.items()))
     return PreparedGrid(mdp, settings, num_seeds, num_episodes, seed, options, run, stop,
-                        params, keys, plan, description)
+                        params, keys, plan, description, instances)
 
 
 def run_grid(
@@ -270,13 +280,15 @@ def run_prepared(prepared: PreparedGrid, programs: Programs | None = None) -> Gr
                             run.record_optimal) if state is None else state)
     resumed_from = int(state.episodes_done.sum())
     progress = text_progress() if run.progress is True else (run.progress or None)
+    mask = (run_mask(prepared.mdp, prepared.instances, prepared.num_seeds, plan.rows)
+            if run.record_optimal else None)
     with writing(writer):  # closed at the end; a Ctrl-C names the checkpoint
-        done = drive(prepared.mdp, take_agents(prepared.params, plan.rows),
+        done = drive(run_task(prepared.mdp, prepared.instances, plan.rows),
+                     take_agents(prepared.params, plan.rows),
                      prepared.keys[plan.rows], plan, state, prepared.stop,
                      checkpoint=None if writer is None else _failing_quietly(writer),
                      progress=progress, programs=programs, evaluate_every=run.evaluate_every,
-                     optimal_action=optimal_action_mask(prepared.mdp) if run.record_optimal
-                     else None)
+                     optimal_action=mask)
     return _collect(prepared, state, fingerprint, resumed_from, done)
 
 
@@ -335,6 +347,8 @@ def _collect(prepared: PreparedGrid, state: RunState, fingerprint: str, resumed_
                 hyperparameters=[agent_hyperparameters(make_agent(s, options)) for s in settings],
                 parameter_names={s.explorer: s.parameter for s in settings},
                 best_return=best_return(mdp), random_return=uniform_random_return(mdp))
+    if prepared.instances is not None:  # the references per instance (seed index)
+        meta.update(instance_meta(prepared.instances, prepared.num_seeds))
     policy_values = collect_evaluations(state, mdp, prepared.run, shape, meta)
     return GridResult(settings, returns, lengths, nonfinite, meta,
                       episodes_run.astype(np.int64) if stopped_early else None, policy_values,
@@ -346,7 +360,7 @@ def _fingerprint(description: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def _fingerprint_arrays(mdp: TabularMDP) -> str:
+def _fingerprint_arrays(mdp: TabularMDP | TaskInstances) -> str:
     digest = hashlib.sha256()
     for leaf in jax.tree.leaves(mdp):
         digest.update(np.asarray(leaf).tobytes())

@@ -37,6 +37,7 @@ from vdbejax.engine.distributed import (
     unpad_agents,
 )
 from vdbejax.engine.programs import Programs
+from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams, table_layout
 from vdbejax.runs.batching import (
@@ -95,7 +96,7 @@ class RunPlan:
                 "agents_per_batch": self.batch_size,
                 "memory_budget_bytes": int(self.memory_budget_bytes)}
 
-    def run_engine(self, mdp: TabularMDP, params: AgentParams, keys: np.ndarray,
+    def run_engine(self, mdp: TabularMDP | TaskInstances, params: AgentParams, keys: np.ndarray,
                    num_episodes: int, *, initial: tuple | None,
                    on_chunk: Callable[..., None] | None, chunk_states: bool,
                    keep_final_state: bool, programs: Programs,
@@ -113,6 +114,10 @@ class RunPlan:
         mesh = agent_mesh(self.local)
         (params, keys), count = pad_agents((params, np.asarray(keys, np.uint32)),
                                            len(self.local))
+        if isinstance(mdp, TaskInstances):  # the padding agents' instances: the last one's
+            mdp = mdp.take(pad_agents(np.arange(count), len(self.local))[0])
+            if optimal_action is not None:
+                options["optimal_action"] = pad_agents(optimal_action, len(self.local))[0]
         params, keys = shard_agents((params, keys), mesh)
         if initial is not None:
             done, agents, *episodes = initial  # returns, lengths (and optimal-action counts)

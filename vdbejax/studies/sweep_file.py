@@ -20,6 +20,8 @@ Every key, with its default (``docs/sweeps.md`` is the user's page;
                                            # episodes (default: none; returns unchanged)
     record_optimal = true                  # each episode's fraction of optimal actions
                                            # (default: false; returns unchanged)
+    instances = "per-agent"                # a family task (testbed:10, …): every agent its
+                                           # own instance (default: "shared", one task)
 
     [axes]                                 # every axis applies where a field has its name
     alpha = [0.1, 0.3, 0.8]
@@ -61,7 +63,7 @@ from vdbejax.studies.task_names import is_user_task
 #: Keys a sweep file may hold.
 SWEEP_KEYS = ("task", "learners", "explorers", "axes", "shared", "exclude", "settings",
               "seeds", "episodes", "seed", "max_steps", "invalid_action", "chunk_episodes",
-              "plugins", "replicates", "evaluate_every", "record_optimal")
+              "plugins", "replicates", "evaluate_every", "record_optimal", "instances")
 #: The keys of a run's ``meta.json`` ``sweep`` record (the rest come from the run's meta).
 SPEC_KEYS = ("learners", "explorers", "axes", "shared", "exclude", "settings", "plugins")
 
@@ -199,6 +201,7 @@ _KEY_TYPES: dict[str, tuple[Any, str]] = {
     "settings": (_scalar_tables, "a list of tables {learner: …, explorer: …, name: value}"),
     "invalid_action": (lambda v: isinstance(v, str), "noop or fail"),
     "record_optimal": (lambda v: isinstance(v, bool), "true or false"),
+    "instances": (lambda v: v in ("shared", "per-agent"), "shared or per-agent"),
     **{key: (lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer")
        for key in ("seeds", "episodes", "seed", "max_steps", "chunk_episodes", "replicates",
                    "evaluate_every")},
@@ -295,6 +298,8 @@ def sweep_from_meta(meta: Mapping[str, Any]) -> dict[str, Any]:
         spec["evaluate_every"] = int(meta["evaluate_every"])
     if meta.get("record_optimal"):
         spec["record_optimal"] = True
+    if meta.get("instances") == "per-agent":
+        spec["instances"] = "per-agent"
     return spec
 
 

@@ -16,6 +16,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from vdbejax.envs.suite import make_suite_family
 from vdbejax.methods.grid_axes import sweep_size
 from vdbejax.results import io
 from vdbejax.results.grid_result import GridResult
@@ -34,6 +35,7 @@ from vdbejax.results.summary import SUMMARY_FILE, write_summary
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import announce_settings
+from vdbejax.runs.instances import instance_meta
 from vdbejax.studies import train_in_folder
 from vdbejax.studies.sweep_file import (  # noqa: F401 (the sweep file's names, here since 0.1)
     SWEEP_KEYS,
@@ -45,7 +47,7 @@ from vdbejax.studies.task_names import (
     load_plugins,
     make_task,
 )
-from vdbejax.validation import INT32_MAX, check_bool, check_int
+from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int
 
 FIGURE_FILE = "fig3.png"
 SENSITIVITY_FILE = "sensitivity.png"
@@ -141,6 +143,7 @@ def run_sweep(
     devices: int | None = None,
     evaluate_every: int | None = None,
     record_optimal: bool = False,
+    instances: str = "shared",
 ) -> GridResult:
     """Train a sweep on a task and write the result folder.
 
@@ -183,6 +186,10 @@ def run_sweep(
         (:mod:`vdbejax.runs.optimal_actions`): ``optimal_actions`` in ``returns.npz``, the
         ``optimal_actions`` and ``reward_per_step`` columns of ``summary.csv``; the returns
         are the same.
+      instances: ``"shared"`` (every agent on the one task), or ``"per-agent"``: a task
+        family (:data:`~vdbejax.envs.suite.FAMILY_NAMES`: ``testbed:N``, …) gives every
+        agent its own instance, drawn from the root seed and its seed index
+        (:mod:`vdbejax.runs.instances`).
 
     Returns:
       the :class:`~vdbejax.experiment.GridResult` (also saved in ``out_dir``).
@@ -193,7 +200,9 @@ def run_sweep(
     from vdbejax.envs.solvers import best_return
 
     load_plugins(list(plugins))
+    check_choice("instances", instances, ("shared", "per-agent"))
     mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)
+    family = make_suite_family(task, max_steps=max_steps) if instances == "per-agent" else None
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
     seeds = check_int("seeds", seeds, 1, INT32_MAX)  # plain ints (NumPy ones welcome)
     episodes = check_int("episodes", episodes, 1, INT32_MAX)
@@ -211,9 +220,11 @@ def run_sweep(
     run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
                      overwrite=overwrite, memory_budget_bytes=memory_budget_bytes, devices=devices,
                      evaluate_every=evaluate_every, record_optimal=record_optimal)
-    prepared = prepare_grid(mdp, grid_settings, num_seeds=seeds * replicates, num_episodes=episodes,
-                            seed=seed, run=run)
-    best = best_return(mdp)
+    prepared = prepare_grid(mdp if family is None else family, grid_settings,
+                            num_seeds=seeds * replicates, num_episodes=episodes, seed=seed,
+                            run=run)
+    best = (best_return(mdp) if prepared.instances is None  # else the instances' mean
+            else instance_meta(prepared.instances, prepared.num_seeds)["best_return"])
 
     def annotate(result: GridResult) -> None:
         annotate_replicates(result.meta, replicates, seeds)

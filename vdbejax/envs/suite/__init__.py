@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from vdbejax.envs.instances import TaskFamily
 from vdbejax.envs.suite import bandits, chain, deep_sea, gridworlds, river_swim, toy_text
 from vdbejax.envs.tabular import TabularMDP
 
@@ -296,10 +297,32 @@ def make_suite_task(name: str, *, max_steps: int | None = None,
                             invalid_action=invalid_action)
 
 
+#: Tasks of :data:`NAMES` with a generator of instances (:func:`make_suite_family`).
+FAMILY_NAMES = tuple(bandits.FAMILIES)
+
+
+def make_suite_family(name: str, *, max_steps: int | None = None) -> TaskFamily:
+    """A task family of the suite by name, an instance per agent
+    (:class:`~vdbejax.envs.instances.TaskFamily`): ``gaussian_bandit:N``,
+    ``bernoulli_bandit:N`` and ``testbed:N`` (N arms; :func:`~.bandits.bandit_family`).
+
+    Raises:
+      ValueError: an unknown name, or a task without a generator of instances.
+    """
+    family, sizes = _parse(name)
+    if family not in FAMILY_NAMES:
+        raise ValueError(f"task={name!r} has no generator of instances: an instance per agent"
+                         f" needs one of {', '.join(f + ':N' for f in FAMILY_NAMES)}")
+    horizon = task_info(name).horizon if max_steps is None else max_steps
+    size = sizes[0] if sizes else DEFAULT_SIZES.get(family)
+    assert size is not None
+    return bandits.bandit_family(family, size, pulls=horizon, name=name)
+
+
 def suite_tasks() -> dict[str, TaskInfo]:
     """The :class:`TaskInfo` of every task of :data:`DEFAULT_SUITE`, in its order."""
     return {name: task_info(name) for name in DEFAULT_SUITE}
 
 
-__all__ = ["DEFAULT_SIZES", "DEFAULT_SUITE", "NAMES", "TABLE_CLEANING_HORIZON", "TaskInfo",
-           "make_suite_task", "suite_tasks", "task_info"]
+__all__ = ["DEFAULT_SIZES", "DEFAULT_SUITE", "FAMILY_NAMES", "NAMES", "TABLE_CLEANING_HORIZON",
+           "TaskInfo", "make_suite_family", "make_suite_task", "suite_tasks", "task_info"]

@@ -8,13 +8,15 @@ fixed number of pulls), random rewards (:mod:`vdbejax.envs.reward_noise`).
   ``N(0, 1)``, rewards ``N(mean, 1)``.
 
 Each name is one instance: its arm means are drawn once from :data:`INSTANCE_SEED` and
-the family (the same task in every run). The book averages over 2,000 random testbeds;
-here every agent of a run meets the same instance.
+the family (the same task in every run). The book averages over 2,000 random testbeds:
+:func:`bandit_family` is the family with its generator, whose run gives every agent its
+own instance (:class:`~vdbejax.envs.instances.TaskFamily`; ``--instances per-agent``).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from vdbejax.envs.instances import TaskFamily
 from vdbejax.envs.tabular import TabularMDP, make_tabular_mdp
 
 #: The bandit families: their noise model.
@@ -25,8 +27,11 @@ INSTANCE_SEED = 0
 PULLS = 1
 
 
-def arm_means(family: str, arms: int, seed: int = INSTANCE_SEED) -> np.ndarray:
-    """The float32 means of a family's instance (:data:`FAMILIES`).
+def arm_means(family: str, arms: int, seed: int | tuple[int, ...] = INSTANCE_SEED
+              ) -> np.ndarray:
+    """The float32 means of a family's instance (:data:`FAMILIES`) drawn from ``seed``
+    (an integer, or a tuple of them: a run's per-agent instance ``(root seed, seed
+    index)``), by NumPy's ``default_rng`` of ``[*seed, family index]``.
 
     Raises:
       ValueError: an unknown family or fewer than one arm.
@@ -35,7 +40,8 @@ def arm_means(family: str, arms: int, seed: int = INSTANCE_SEED) -> np.ndarray:
         raise ValueError(f"family={family!r} is invalid: must be one of {', '.join(FAMILIES)}")
     if isinstance(arms, bool) or not isinstance(arms, (int, np.integer)) or arms < 1:
         raise ValueError(f"arms={arms!r} is invalid: must be an integer >= 1")
-    rng = np.random.default_rng([seed, list(FAMILIES).index(family)])
+    entropy = [seed] if isinstance(seed, (int, np.integer)) else list(seed)
+    rng = np.random.default_rng([*entropy, list(FAMILIES).index(family)])
     means = rng.normal(size=arms) if family == "testbed" else rng.random(arms)
     return means.astype(np.float32)
 
@@ -76,3 +82,17 @@ def optimal_arms(mdp: TabularMDP) -> np.ndarray:
     """The arms of largest mean of a one-state task (bool ``[k]``)."""
     means = np.asarray(mdp.reward)[0, :, 0]
     return means == means.max()
+
+
+def bandit_family(family: str, arms: int, *, pulls: int = PULLS, name: str) -> TaskFamily:
+    """``family`` (:data:`FAMILIES`) with ``arms`` arms as a generator of instances: the
+    instance of entropy ``(root seed, seed index)`` has the arm means
+    :func:`arm_means` draws from it."""
+    arm_means(family, arms)  # a bad family or number of arms: one line now
+
+    def generate(entropy: tuple[int, ...]) -> TabularMDP:
+        return make_bandit(arm_means(family, arms, entropy), FAMILIES[family], pulls=pulls,
+                           name=name)
+
+    return TaskFamily(name, generate, f"{family} with {arms} arms, an instance per agent"
+                      " (arm means drawn from the root seed and the agent's seed index)")
