@@ -161,6 +161,12 @@ def _on_one_cpu(tree: Any) -> bool:
     return True
 
 
+def _on_one_device(tree: Any) -> bool:
+    """No leaf spread over several devices."""
+    return all(len(getattr(getattr(leaf, "sharding", None), "device_set", ())) <= 1
+               for leaf in jax.tree.leaves(tree))
+
+
 def _run_stream(
     mdp: TabularMDP,
     params: Agent,
@@ -333,7 +339,10 @@ def run_chunk_lockstep(
         )
         return [*piece, optimal], int(run_iterations), int(run_iterations) * count
 
-    if threads > 1 and len(groups) > 1:
+    # Groups of agents sharded over several devices run one after another: two programs
+    # over the same devices at once can deadlock on a CPU, each device waiting in the
+    # other program's collective (seen with two processes × 2 devices).
+    if threads > 1 and len(groups) > 1 and _on_one_device(agents):
         with ThreadPoolExecutor(max_workers=min(threads, len(groups))) as pool:
             done = list(pool.map(run_group, groups))
     else:
