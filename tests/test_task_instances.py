@@ -169,11 +169,11 @@ def test_what_a_family_run_refuses_is_one_line():
     from vdbejax.runs.stop import UntilSolved
 
     family = make_suite_family("testbed:3")
-    with pytest.raises(ValueError, match=r"^evaluate_every=5 is invalid with an instance per"
-                                         r" agent \(testbed:3\)"):
+    with pytest.raises(ValueError, match=r"^evaluate_every=5 is invalid with a task family"
+                                         r" \(testbed:3\)"):
         prepare_grid(family, RUN_SETTINGS, num_seeds=2, num_episodes=10,
                      run=run_options(evaluate_every=5))
-    with pytest.raises(ValueError, match=r"^stop=UntilSolved is invalid with an instance"):
+    with pytest.raises(ValueError, match=r"^stop=UntilSolved is invalid with a task family"):
         prepare_grid(family, RUN_SETTINGS, num_seeds=2, num_episodes=10,
                      run=run_options(stop=UntilSolved()))
     with pytest.raises(ValueError, match=r"^task='chain:5' has no generator of instances"):

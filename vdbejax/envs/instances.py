@@ -10,7 +10,7 @@ vectorised run, bit for bit as if it ran alone on it.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import jax
@@ -18,6 +18,7 @@ import numpy as np
 
 from vdbejax._pytree import pytree_dataclass, static_field
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.validation import UINT32_MAX, check_int
 
 Array = jax.Array
 
@@ -109,25 +110,81 @@ def stack_instances(mdps: Sequence[TabularMDP]) -> TaskInstances:
         bool(np.asarray(tables.terminal)[possible].any())))
 
 
+#: The parameter every family has: the seed of the instance a setting's agents meet
+#: (``None``: each agent its own, drawn from the root seed and its seed index).
+INSTANCE = "instance"
+
+
 @dataclasses.dataclass(frozen=True)
 class TaskFamily:
     """A task family with a generator: instance ``i`` of a run is ``generate((seed, i))``.
 
+    Its parameters (a noise scale, …) and :data:`INSTANCE` are a sweep's axes
+    (``task.std``, ``task.instance``: a :class:`~vdbejax.methods.agents.Setting`'s
+    ``task.`` values): every setting's agents meet the instances its values draw.
+
     Attributes:
       name: the family's task name (``testbed:10``, …), each instance's label.
-      generate: ``generate(entropy)``: the instance drawn from the integers ``entropy``
-        (a pure function of them: the same entropy, the same instance).
+      generate: ``generate(entropy, **parameters)``: the instance drawn from the integers
+        ``entropy`` (a pure function of them and the parameters: the same entropy and
+        values, the same instance); it raises a ``ValueError`` for a bad value.
       description: one line for reports.
+      parameters: ``{name: default}`` of ``generate``'s keyword parameters.
+      instance: the default of :data:`INSTANCE`: ``None``, each agent its own instance
+        (drawn from the root seed and its seed index); an integer ``k``, every agent the
+        one instance ``generate((k,))`` (a named task's own, where the family has one).
     """
 
     name: str
-    generate: Callable[[tuple[int, ...]], TabularMDP]
+    generate: Callable[..., TabularMDP]
     description: str = ""
+    parameters: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    instance: int | None = None
 
-    def instances(self, seed: int, num_seeds: int, num_configs: int = 1) -> TaskInstances:
+    def resolve(self, values: Mapping[str, Any]) -> dict[str, Any]:
+        """``values`` (a setting's ``task.`` values, without the prefix) with the defaults
+        of the parameters they leave out, :data:`INSTANCE` among them.
+
+        Raises:
+          ValueError: a name the family does not have, or an instance seed that is not
+            an integer ≥ 0.
+        """
+        allowed = [INSTANCE, *self.parameters]
+        for name in values:
+            if name not in allowed:
+                raise ValueError(f"task parameter {name!r} is invalid for {self.name}: must be"
+                                 f" one of {', '.join(allowed)}")
+        resolved = {INSTANCE: self.instance, **self.parameters, **values}
+        instance = resolved[INSTANCE]
+        if instance is not None:
+            resolved[INSTANCE] = check_int(f"task.{INSTANCE}", instance, 0, UINT32_MAX)
+        return resolved
+
+    def draw(self, entropy: tuple[int, ...], values: Mapping[str, Any]) -> TabularMDP:
+        """The instance of ``entropy`` under resolved ``values`` (:meth:`resolve`): the one
+        of their :data:`INSTANCE` seed where they name one."""
+        parameters = {k: v for k, v in values.items() if k != INSTANCE}
+        seed = values.get(INSTANCE)
+        try:
+            return self.generate(entropy if seed is None else (seed,), **parameters)
+        except ValueError as error:  # named as the sweep names it
+            shown = ", ".join(f"task.{k}={v!r}" for k, v in parameters.items())
+            raise ValueError(f"{shown or 'the defaults'} of {self.name}: {error}") from None
+
+    def instances(self, seed: int, num_seeds: int,
+                  configs: Sequence[Mapping[str, Any]] = ({},)) -> TaskInstances:
         """The instances of a run's agents, config-major (c0s0, c0s1, …): agent (config
-        ``c``, seed index ``i``) of root seed ``seed`` meets ``generate((seed, i))``,
-        whatever its config (common random numbers, as its key), so results depend only
-        on the seed and the hyperparameters."""
-        drawn = [self.generate((int(seed), i)) for i in range(int(num_seeds))]
-        return stack_instances(drawn * int(num_configs))
+        ``c``, seed index ``i``) of root seed ``seed`` meets ``generate((seed, i))`` under
+        ``configs[c]``'s resolved values, whatever else its config holds (common random
+        numbers, as its key), so results depend only on the seed and the
+        hyperparameters."""
+        drawn: dict[tuple, TabularMDP] = {}  # settings that share their values share tables
+        rows = []
+        for values in configs:
+            values = self.resolve(values)
+            for i in range(int(num_seeds)):
+                key = (i if values[INSTANCE] is None else None, *sorted(values.items()))
+                if key not in drawn:
+                    drawn[key] = self.draw((int(seed), i), values)
+                rows.append(drawn[key])
+        return stack_instances(rows)

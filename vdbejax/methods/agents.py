@@ -76,6 +76,10 @@ def _plain(value: Any) -> Any:
     return value
 
 
+#: The prefix of a setting's values that are its task's parameters (``task.std``).
+TASK_PREFIX = "task."
+
+
 @dataclasses.dataclass(frozen=True)
 class Setting:
     """One configuration of a grid.
@@ -86,7 +90,8 @@ class Setting:
       param: the explorer's swept parameter (ε, τ, σ, c …), or ``None`` for its default.
       hyperparameters: other values, ``{name: value}`` (a field of the learner or the
         explorer, e.g. ``alpha``, ``gamma``, ``q_init``, ``delta``, ``tau``; prefix with
-        ``learner.`` / ``explorer.`` when both have it); kept as sorted pairs.
+        ``learner.`` / ``explorer.`` when both have it; ``task.`` names a parameter of a
+        task family, :class:`~vdbejax.envs.instances.TaskFamily`); kept as sorted pairs.
     """
 
     learner: str
@@ -129,6 +134,13 @@ class Setting:
         """``learner/explorer/name=value,…`` (the swept parameter first)."""
         values = ",".join(f"{k}={_format(v)}" for k, v in self.values.items())
         return f"{self.learner}/{self.explorer}" + (f"/{values}" if values else "")
+
+    @property
+    def task_values(self) -> dict[str, Any]:
+        """The task family's parameters this setting sets (its ``task.`` values, by the
+        parameter's name)."""
+        return {name[len(TASK_PREFIX):]: value for name, value in self.hyperparameters
+                if name.startswith(TASK_PREFIX)}
 
     def hyperparameters_json(self) -> str:
         """The explicit hyperparameters as compact JSON (``configs.csv``)."""
@@ -185,8 +197,11 @@ class AgentParams:
 def owners(name: str, learner: str, explorer: str) -> list[str]:
     """Which of ``"learner"`` and ``"explorer"`` a hyperparameter name sets for a learner ×
     explorer pair: ``alpha`` wherever a field of that name exists, ``learner.alpha`` only
-    in the learner (empty: neither has it)."""
+    in the learner (empty: neither has it); ``["task"]`` for a task parameter
+    (``task.std``: every pair has it, the run's task family checks it)."""
     role, _, field = name.rpartition(".")
+    if name.startswith(TASK_PREFIX):
+        return ["task"] if field else []
     classes = (("learner", learner_class(learner)), ("explorer", explorer_class(explorer)))
     return [r for r, cls in classes if role in ("", r) and field in field_names(cls)]
 
@@ -228,6 +243,8 @@ def make_agent(setting: Setting, options: AgentOptions = AgentOptions()) -> Agen
                              " has no swept parameter (give hyperparameters instead)")
         values["explorer"][explorer_cls.parameter] = setting.param
     for name, value in setting.hyperparameters:
+        if name.startswith(TASK_PREFIX):  # the task's, not the agent's
+            continue
         roles = owners(name, setting.learner, setting.explorer)
         if not roles:
             fields = [f"{role}.{f}" for role, cls in classes.items() for f in field_names(cls)]
@@ -348,6 +365,7 @@ __getattr__ = moved_names("vdbejax.methods.agents", "vdbejax.methods.grid_axes",
 
 __all__ = [
     "PAPER_PARAMETERS",
+    "TASK_PREFIX",
     "Agent",
     "AgentOptions",
     "AgentParams",

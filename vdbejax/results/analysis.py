@@ -63,15 +63,17 @@ def task_scale(result: GridResult, best: Scale | None = None,
     those given, else ``meta.json``'s ``best_return`` and ``random_return`` — or, for a
     run that gave every agent its own task instance (:mod:`vdbejax.runs.instances`), each
     agent's own instance's, float64 ``[seeds, 1]`` (``instance_best_returns``,
-    ``instance_random_returns``): each agent is scored against its instance.
+    ``instance_random_returns``; ``[configs, seeds, 1]`` where the configs' task values
+    differ, :func:`config_scale` picks a config's): each agent is scored against its
+    instance.
 
     Raises:
       ValueError: one of them is neither given nor recorded.
     """
     meta = result.meta
     if best is None and baseline is None and "instance_best_returns" in meta:
-        return (np.asarray(meta["instance_best_returns"], np.float64)[:, None],
-                np.asarray(meta["instance_random_returns"], np.float64)[:, None])
+        return (np.asarray(meta["instance_best_returns"], np.float64)[..., None],
+                np.asarray(meta["instance_random_returns"], np.float64)[..., None])
     best = meta.get("best_return") if best is None else best
     baseline = meta.get("random_return") if baseline is None else baseline
     if best is None or baseline is None:
@@ -80,6 +82,12 @@ def task_scale(result: GridResult, best: Scale | None = None,
                          " random policy's (vdbejax.envs.solvers.best_return,"
                          " uniform_random_return); pass best= and baseline=")
     return as_scale(best), as_scale(baseline)
+
+
+def config_scale(scale: Scale, config: int) -> Scale:
+    """Config ``config``'s references of a :func:`task_scale` (one per config where the
+    configs' task values differ, else the same for every config)."""
+    return np.asarray(scale)[config] if np.ndim(scale) == 3 else scale
 
 
 def summarize(
@@ -129,7 +137,8 @@ def summarize(
                else [{}] * len(result.settings))
     rows = []
     for c, setting in enumerate(result.settings):
-        episodes, solved = _convergence_times(result, c, best, baseline, window)
+        episodes, solved = _convergence_times(result, c, config_scale(best, c),
+                                              config_scale(baseline, c), window)
         convergence = summarize_solving(episodes, solved)
         episodes_cut = agents_cut = None
         if result.meta.get("step_cap"):  # a task without step limit: cuts at its cap

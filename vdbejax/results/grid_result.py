@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from vdbejax.methods.agents import (
+    TASK_PREFIX,
     Setting,
     agent_hyperparameters,
     make_agent,
@@ -80,16 +81,19 @@ class GridResult:
 
     def hyperparameters(self, config: int) -> dict[str, Any]:
         """Every hyperparameter of a config's agents (``learner.alpha``, ``explorer.sigma``,
-        …), as recorded by :func:`run_grid` in ``meta["hyperparameters"]`` (or resolved
-        from the setting with spec defaults for results without it)."""
+        …; its task's parameters, ``task.std``), as recorded by :func:`run_grid` in
+        ``meta["hyperparameters"]`` (or resolved from the setting with spec defaults for
+        results without it)."""
         if isinstance(config, bool) or not isinstance(config, (int, np.integer)) or not (
                 0 <= config < len(self.settings)):
             raise ValueError(f"config={config!r} is invalid: must be a config index in"
                              f" [0, {len(self.settings) - 1}]")
+        setting = self.settings[config]
+        task = {TASK_PREFIX + name: value for name, value in setting.task_values.items()}
         recorded = self.meta.get("hyperparameters")
         if isinstance(recorded, list) and len(recorded) == len(self.settings):
-            return dict(recorded[config])
-        return agent_hyperparameters(make_agent(self.settings[config]))
+            return dict(recorded[config], **task)
+        return dict(agent_hyperparameters(make_agent(setting)), **task)
 
     def to_records(self, all_hyperparameters: bool = False) -> dict[str, np.ndarray]:
         """The curves in long format, one row per agent-episode, as columns: ``config``,

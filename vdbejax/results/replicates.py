@@ -19,6 +19,8 @@ import dataclasses
 import os
 from pathlib import Path
 
+import numpy as np
+
 from vdbejax.results import io
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.stats import CurveStatistics
@@ -69,8 +71,8 @@ def replicate(result: GridResult, index: int) -> GridResult:
     if "instance_best_returns" in meta:  # an instance per agent: the replicate's own
         for key, mean in (("instance_best_returns", "best_return"),
                           ("instance_random_returns", "random_return")):
-            meta[key] = list(meta[key][agents])
-            meta[mean] = float(sum(meta[key]) / len(meta[key]))
+            mine = np.asarray(meta[key], np.float64)[..., agents]  # per config where two
+            meta[key], meta[mean] = mine.tolist(), float(mine.mean())
     return GridResult(result.settings, result.returns[:, agents], result.lengths[:, agents],
                       result.nonfinite[:, agents], meta,
                       None if result.episodes_run is None else result.episodes_run[:, agents],

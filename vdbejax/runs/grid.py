@@ -13,12 +13,9 @@ of devices, resumed or not.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import hashlib
 import json
 import os
-import platform
-import subprocess
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -49,10 +46,17 @@ from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.checkpoint import CheckpointWriter, load_checkpoint, remove_checkpoint, writing
 from vdbejax.runs.driver import drive
 from vdbejax.runs.evaluation import collect_evaluations, evaluations
-from vdbejax.runs.instances import draw_instances, instance_meta, run_mask, run_task
+from vdbejax.runs.instances import (
+    draw_instances,
+    instance_meta,
+    instance_mode,
+    run_mask,
+    run_task,
+)
 from vdbejax.runs.optimal_actions import collect_optimal
 from vdbejax.runs.options import RunOptions
 from vdbejax.runs.plan import RunPlan, make_plan
+from vdbejax.runs.provenance import version_info
 from vdbejax.runs.state import RunState, nonfinite_message
 from vdbejax.runs.stop import StopPolicy
 from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int, check_writable_dir, json_plain
@@ -109,6 +113,11 @@ class PreparedGrid:
     @property
     def num_agents(self) -> int:
         return len(self.settings) * self.num_seeds
+
+    @property
+    def task_values(self) -> list[dict[str, Any]] | None:
+        """Each config's resolved task values (a task family's run), else ``None``."""
+        return self.description.get("task_parameters")
 
     @property
     def fingerprint(self) -> str:
@@ -168,9 +177,7 @@ def prepare_grid(
     if run.checkpoint is not None:  # fail before training
         check_writable_dir("checkpoint folder", Path(run.checkpoint).parent)
     check_run_size(len(settings) * num_seeds, num_episodes, run.checkpoint, len(settings))
-    instances = None
-    if isinstance(mdp, TaskFamily):  # an instance per agent (vdbejax.runs.instances)
-        mdp, instances = draw_instances(mdp, run, seed, num_seeds, len(settings))
+    mdp, instances, task_values = draw_instances(mdp, run, seed, num_seeds, settings)
     stop = run.stop.resolve(mdp)
     window = getattr(stop, "window", None)
     if stop.checks_chunks and window is not None and window > num_episodes:
@@ -194,8 +201,8 @@ def prepare_grid(
         description["stop"] = stop.describe()
     if run.evaluate_every is not None:  # its checkpoints hold evaluations: not another's
         description["evaluate_every"] = run.evaluate_every
-    if instances is not None:
-        description["instances"] = "per-agent"
+    if task_values is not None:  # a task family's run (vdbejax.runs.instances)
+        description.update(instances=instance_mode(task_values), task_parameters=task_values)
     if run.record_optimal:  # its checkpoints hold the counts of optimal actions
         description["record_optimal"] = True
     if plugin_code:  # built-ins only: the fingerprint of earlier runs, as it was
@@ -280,8 +287,8 @@ def run_prepared(prepared: PreparedGrid, programs: Programs | None = None) -> Gr
                             run.record_optimal) if state is None else state)
     resumed_from = int(state.episodes_done.sum())
     progress = text_progress() if run.progress is True else (run.progress or None)
-    mask = (run_mask(prepared.mdp, prepared.instances, prepared.num_seeds, plan.rows)
-            if run.record_optimal else None)
+    mask = (run_mask(prepared.mdp, prepared.instances, prepared.task_values,
+                     prepared.num_seeds, plan.rows) if run.record_optimal else None)
     with writing(writer):  # closed at the end; a Ctrl-C names the checkpoint
         done = drive(run_task(prepared.mdp, prepared.instances, plan.rows),
                      take_agents(prepared.params, plan.rows),
@@ -347,8 +354,8 @@ def _collect(prepared: PreparedGrid, state: RunState, fingerprint: str, resumed_
                 hyperparameters=[agent_hyperparameters(make_agent(s, options)) for s in settings],
                 parameter_names={s.explorer: s.parameter for s in settings},
                 best_return=best_return(mdp), random_return=uniform_random_return(mdp))
-    if prepared.instances is not None:  # the references per instance (seed index)
-        meta.update(instance_meta(prepared.instances, prepared.num_seeds))
+    if prepared.instances is not None and prepared.task_values is not None:  # per instance
+        meta.update(instance_meta(prepared.instances, prepared.num_seeds, prepared.task_values))
     policy_values = collect_evaluations(state, mdp, prepared.run, shape, meta)
     return GridResult(settings, returns, lengths, nonfinite, meta,
                       episodes_run.astype(np.int64) if stopped_early else None, policy_values,
@@ -365,36 +372,3 @@ def _fingerprint_arrays(mdp: TabularMDP | TaskInstances) -> str:
     for leaf in jax.tree.leaves(mdp):
         digest.update(np.asarray(leaf).tobytes())
     return digest.hexdigest()[:16]
-
-
-@functools.lru_cache(maxsize=1)
-def git_commit() -> str | None:
-    """The commit vdbejax is imported from when it runs from a git clone, else None.
-
-    Runs ``git rev-parse HEAD`` in the package's parent folder (once per process, 2 s
-    timeout) and checks the package is tracked there, so an installed copy inside some
-    other repository (a virtualenv in a clone) is not credited with that commit.
-    """
-    package = Path(__file__).resolve().parents[1]
-    try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=package.parent,
-                              capture_output=True, text=True, timeout=2)
-        tracked = subprocess.run(
-            ["git", "ls-files", "--error-unmatch", "--", f"{package.name}/__init__.py"],
-            cwd=package.parent, capture_output=True, text=True, timeout=2)
-    except (OSError, subprocess.SubprocessError, ValueError):
-        return None
-    commit = head.stdout.strip()
-    if head.returncode != 0 or tracked.returncode != 0 or not commit:
-        return None
-    return commit
-
-
-def version_info() -> dict[str, Any]:
-    """Versions recorded in ``meta.json`` besides JAX's: vdbejax, numpy, Python, the
-    platform and the git commit (None outside a git clone)."""
-    from vdbejax import __version__
-
-    return {"vdbejax_version": __version__, "numpy_version": np.__version__,
-            "python_version": platform.python_version(), "platform": platform.platform(),
-            "git_commit": git_commit()}

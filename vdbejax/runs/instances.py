@@ -1,58 +1,96 @@
-"""A run that gives every agent its own task instance (issue 48): a
-:class:`~vdbejax.envs.instances.TaskFamily` in place of a task.
+"""A run on a task family (:class:`~vdbejax.envs.instances.TaskFamily`) in place of a
+task: every agent meets the instance its seed and its setting's task values draw.
 
 Agent (config ``c``, seed index ``i``) of root seed ``seed`` meets the family's instance
-``generate((seed, i))``: the same instance for the same seed index in every config (common
-random numbers, like its key), so results depend only on the seed and the
-hyperparameters, and a resumed or reloaded run finds the same instances. The instances'
-tables enter the fingerprint. Each instance's exact best return and the uniformly random
-policy's are kept per seed index in ``meta.json`` (``instance_best_returns``,
-``instance_random_returns``); ``best_return`` and ``random_return`` are their means,
-and the summaries score every agent against its own instance's
+``generate((seed, i))`` under config ``c``'s task values (its ``task.`` hyperparameters,
+the family's defaults for the rest; an ``instance`` seed ``k`` gives it ``generate((k,))``
+instead): configs with the same task values meet the same instances (common random
+numbers, like their keys), so results depend only on the seed and the hyperparameters,
+and a resumed or reloaded run finds the same instances. The instances' tables and every
+config's resolved task values enter the fingerprint. Each instance's exact best return
+and the uniformly random policy's are kept in ``meta.json`` (``instance_best_returns``,
+``instance_random_returns``: per seed index, or per config and seed index where the
+configs' task values differ); ``best_return`` and ``random_return`` are their means, and
+the summaries score every agent against its own instance's
 (:func:`~vdbejax.results.analysis.task_scale`).
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from vdbejax.envs.instances import TaskFamily, TaskInstances
+from vdbejax.envs.instances import INSTANCE, TaskFamily, TaskInstances
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.methods.agents import TASK_PREFIX, Setting
 from vdbejax.runs.optimal_actions import optimal_action_mask
 from vdbejax.runs.options import RunOptions
 
 
-def draw_instances(family: TaskFamily, run: RunOptions, seed: int, num_seeds: int,
-                   num_configs: int) -> tuple[TabularMDP, TaskInstances]:
-    """The instances of a run's agents (config-major) and the task that shapes the run
-    (agent 0's instance), after refusing in one line what such a run does not do yet.
+def draw_instances(task: TabularMDP | TaskFamily, run: RunOptions, seed: int, num_seeds: int,
+                   settings: Sequence[Setting]
+                   ) -> tuple[TabularMDP, TaskInstances | None, list[dict[str, Any]] | None]:
+    """The task that shapes a run (a family's: agent 0's instance), its agents' instances
+    (config-major; ``None`` on a plain task) and each config's resolved task values, after
+    refusing in one line what such a run does not do.
 
     Raises:
-      ValueError: policy evaluations (``evaluate_every``) or a stop policy that checks
-        chunks (their references are one task's).
+      ValueError: task values on a plain task, a task value the family does not have,
+        or with a family policy evaluations (``evaluate_every``) or a stop policy that
+        checks chunks (their references are one task's).
     """
+    if isinstance(task, TabularMDP):
+        named = next((s for s in settings if s.task_values), None)
+        if named is not None:
+            name = TASK_PREFIX + next(iter(named.task_values))
+            raise ValueError(f"hyperparameter {name!r} is invalid for task {task.name}: task"
+                             " parameters need a task family with a generator (testbed:N,"
+                             " gaussian_bandit:N, …; vdbejax.envs.TaskFamily)")
+        return task, None, None
+    values = [task.resolve(s.task_values) for s in settings]
     if run.evaluate_every is not None:
-        raise ValueError(f"evaluate_every={run.evaluate_every} is invalid with an instance per"
-                         f" agent ({family.name}): policy evaluations need one shared task")
+        raise ValueError(f"evaluate_every={run.evaluate_every} is invalid with a task family"
+                         f" ({task.name}): policy evaluations need one shared task")
     if run.stop.checks_chunks:
-        raise ValueError(f"stop={type(run.stop).__name__} is invalid with an instance per"
-                         f" agent ({family.name}): only a fixed budget (FixedBudget) runs it")
-    instances = family.instances(seed, num_seeds, num_configs)
-    return instances.instance(0), instances
+        raise ValueError(f"stop={type(run.stop).__name__} is invalid with a task family"
+                         f" ({task.name}): only a fixed budget (FixedBudget) runs it")
+    instances = task.instances(seed, num_seeds, values)
+    return instances.instance(0), instances, values
 
 
-def instance_meta(instances: TaskInstances, num_seeds: int) -> dict[str, Any]:
-    """``meta.json``'s references of a run's instances: each seed index's exact best
-    return and random policy's return (config-major agents: the first ``num_seeds`` rows
-    are the seed indices), and their means as ``best_return`` and ``random_return``."""
-    first = [instances.instance(i) for i in range(num_seeds)]
-    best = [best_return(mdp) for mdp in first]
-    baseline = [uniform_random_return(mdp) for mdp in first]
-    return {"instances": "per-agent", "instance_best_returns": best,
-            "instance_random_returns": baseline, "best_return": float(np.mean(best)),
-            "random_return": float(np.mean(baseline))}
+def instance_mode(values: Sequence[dict[str, Any]]) -> str:
+    """``per-agent`` where a config's agents meet instances of their own, else
+    ``shared`` (each config one instance)."""
+    return "per-agent" if any(v[INSTANCE] is None for v in values) else "shared"
+
+
+def _groups(values: Sequence[dict[str, Any]]) -> tuple[list[int], list[int]]:
+    """Each config's group of equal task values, and each group's first config."""
+    index: dict[tuple, int] = {}
+    groups = [index.setdefault(tuple(sorted(v.items())), len(index)) for v in values]
+    first = [groups.index(g) for g in range(len(index))]
+    return groups, first
+
+
+def instance_meta(instances: TaskInstances, num_seeds: int,
+                  values: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """``meta.json``'s references of a run's instances: each instance's exact best return
+    and random policy's return, per seed index (a list per config where the configs' task
+    values differ) and their means as ``best_return`` and ``random_return``."""
+    groups, first = _groups(values)
+    best, baseline = [], []
+    for c in first:
+        mdps = [instances.instance(c * num_seeds + i) for i in range(num_seeds)]
+        best.append([best_return(mdp) for mdp in mdps])
+        baseline.append([uniform_random_return(mdp) for mdp in mdps])
+    per_config = len(first) > 1
+    return {"instance_best_returns": [best[g] for g in groups] if per_config else best[0],
+            "instance_random_returns": ([baseline[g] for g in groups] if per_config
+                                        else baseline[0]),
+            "best_return": float(np.mean([best[g] for g in groups])),
+            "random_return": float(np.mean([baseline[g] for g in groups]))}
 
 
 def run_task(mdp: TabularMDP, instances: TaskInstances | None, rows: np.ndarray
@@ -61,13 +99,16 @@ def run_task(mdp: TabularMDP, instances: TaskInstances | None, rows: np.ndarray
     return mdp if instances is None else instances.take(rows)
 
 
-def run_mask(mdp: TabularMDP, instances: TaskInstances | None, num_seeds: int,
+def run_mask(mdp: TabularMDP, instances: TaskInstances | None,
+             values: Sequence[dict[str, Any]] | None, num_seeds: int,
              rows: np.ndarray) -> np.ndarray:
     """The optimal actions a run records against
     (:func:`~vdbejax.runs.optimal_actions.optimal_action_mask`): bool ``[S, A]`` of the
     shared task, or ``[rows, S, A]``, each agent's in its own instance (computed once per
-    seed index)."""
-    if instances is None:
+    seed index and task values)."""
+    if instances is None or values is None:
         return optimal_action_mask(mdp)
-    masks = np.stack([optimal_action_mask(instances.instance(i)) for i in range(num_seeds)])
-    return np.tile(masks, (instances.num_agents // num_seeds, 1, 1))[rows]
+    groups, first = _groups(values)
+    masks = [np.stack([optimal_action_mask(instances.instance(c * num_seeds + i))
+                       for i in range(num_seeds)]) for c in first]
+    return np.concatenate([masks[g] for g in groups])[rows]

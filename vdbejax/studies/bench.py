@@ -262,7 +262,7 @@ def run_bench(
     out, lock = output_folder(out_dir)
     check_output_paths(out, output_files([t.name for t in bench_tasks], figures,
                                          evaluated=evaluate_every is not None))
-    from vdbejax.runs.grid import version_info
+    from vdbejax.runs.provenance import version_info
 
     versions = version_info()  # the code that runs: read before training, not after
     started = time.perf_counter()

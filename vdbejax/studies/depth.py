@@ -182,7 +182,7 @@ def run_depth(
       ValueError: any invalid input, before training.
     """
     from vdbejax.methods.agents import make_agent
-    from vdbejax.runs.grid import version_info
+    from vdbejax.runs.provenance import version_info
 
     for name, flag in (("quick", quick), ("resume", resume), ("progress", progress),
                        ("figure", figure)):

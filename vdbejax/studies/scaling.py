@@ -180,7 +180,7 @@ def run_scaling(
         steps_to_goal,
         uniform_random_return,
     )
-    from vdbejax.runs.grid import version_info
+    from vdbejax.runs.provenance import version_info
     from vdbejax.studies.sweeps import make_task
 
     for name, flag in (("quick", quick), ("progress", progress), ("figure", figure),

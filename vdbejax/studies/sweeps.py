@@ -189,7 +189,8 @@ def run_sweep(
       instances: ``"shared"`` (every agent on the one task), or ``"per-agent"``: a task
         family (:data:`~vdbejax.envs.suite.FAMILY_NAMES`: ``testbed:N``, …) gives every
         agent its own instance, drawn from the root seed and its seed index
-        (:mod:`vdbejax.runs.instances`).
+        (:mod:`vdbejax.runs.instances`). Either way a family's parameters are axes
+        (``task.std``, ``task.instance``: the instance seed).
 
     Returns:
       the :class:`~vdbejax.experiment.GridResult` (also saved in ``out_dir``).
@@ -202,7 +203,6 @@ def run_sweep(
     load_plugins(list(plugins))
     check_choice("instances", instances, ("shared", "per-agent"))
     mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)
-    family = make_suite_family(task, max_steps=max_steps) if instances == "per-agent" else None
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
     seeds = check_int("seeds", seeds, 1, INT32_MAX)  # plain ints (NumPy ones welcome)
     episodes = check_int("episodes", episodes, 1, INT32_MAX)
@@ -216,6 +216,9 @@ def run_sweep(
     if progress:
         announce_settings(planned, planned * seeds * replicates, episodes)
     grid_settings = sweep_settings(learners, explorers, axes, shared, exclude, settings)
+    family = None  # a task family: an instance per agent, or task values (task.std, …)
+    if instances == "per-agent" or any(s.task_values for s in grid_settings):
+        family = make_suite_family(task, max_steps=max_steps, shared=instances != "per-agent")
     figures = check_bool("figures", figures)
     run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
                      overwrite=overwrite, memory_budget_bytes=memory_budget_bytes, devices=devices,
@@ -223,8 +226,9 @@ def run_sweep(
     prepared = prepare_grid(mdp if family is None else family, grid_settings,
                             num_seeds=seeds * replicates, num_episodes=episodes, seed=seed,
                             run=run)
-    best = (best_return(mdp) if prepared.instances is None  # else the instances' mean
-            else instance_meta(prepared.instances, prepared.num_seeds)["best_return"])
+    drawn, task_values = prepared.instances, prepared.task_values
+    best = (best_return(mdp) if drawn is None or task_values is None
+            else instance_meta(drawn, prepared.num_seeds, task_values)["best_return"])
 
     def annotate(result: GridResult) -> None:
         annotate_replicates(result.meta, replicates, seeds)

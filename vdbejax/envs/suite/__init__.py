@@ -301,10 +301,12 @@ def make_suite_task(name: str, *, max_steps: int | None = None,
 FAMILY_NAMES = tuple(bandits.FAMILIES)
 
 
-def make_suite_family(name: str, *, max_steps: int | None = None) -> TaskFamily:
-    """A task family of the suite by name, an instance per agent
-    (:class:`~vdbejax.envs.instances.TaskFamily`): ``gaussian_bandit:N``,
-    ``bernoulli_bandit:N`` and ``testbed:N`` (N arms; :func:`~.bandits.bandit_family`).
+def make_suite_family(name: str, *, max_steps: int | None = None,
+                      shared: bool = False) -> TaskFamily:
+    """A task family of the suite by name (:class:`~vdbejax.envs.instances.TaskFamily`):
+    ``gaussian_bandit:N``, ``bernoulli_bandit:N`` and ``testbed:N`` (N arms;
+    :func:`~.bandits.bandit_family`): an instance per agent, or with ``shared`` every agent
+    the named task's one instance (whose parameters a sweep can still vary).
 
     Raises:
       ValueError: an unknown name, or a task without a generator of instances.
@@ -312,11 +314,13 @@ def make_suite_family(name: str, *, max_steps: int | None = None) -> TaskFamily:
     family, sizes = _parse(name)
     if family not in FAMILY_NAMES:
         raise ValueError(f"task={name!r} has no generator of instances: an instance per agent"
-                         f" needs one of {', '.join(f + ':N' for f in FAMILY_NAMES)}")
+                         " and task parameters (task.…) need one of"
+                         f" {', '.join(f + ':N' for f in FAMILY_NAMES)}")
     horizon = task_info(name).horizon if max_steps is None else max_steps
     size = sizes[0] if sizes else DEFAULT_SIZES.get(family)
     assert size is not None
-    return bandits.bandit_family(family, size, pulls=horizon, name=name)
+    return bandits.bandit_family(family, size, pulls=horizon, name=name,
+                                 instance=bandits.INSTANCE_SEED if shared else None)
 
 
 def suite_tasks() -> dict[str, TaskInfo]:

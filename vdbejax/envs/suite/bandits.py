@@ -84,15 +84,22 @@ def optimal_arms(mdp: TabularMDP) -> np.ndarray:
     return means == means.max()
 
 
-def bandit_family(family: str, arms: int, *, pulls: int = PULLS, name: str) -> TaskFamily:
+def bandit_family(family: str, arms: int, *, pulls: int = PULLS, name: str,
+                  instance: int | None = None) -> TaskFamily:
     """``family`` (:data:`FAMILIES`) with ``arms`` arms as a generator of instances: the
-    instance of entropy ``(root seed, seed index)`` has the arm means
-    :func:`arm_means` draws from it."""
+    instance of entropy ``(root seed, seed index)`` has the arm means :func:`arm_means`
+    draws from it. The Gaussian families' reward standard deviation is their parameter
+    ``std`` (default 1; a sweep axis ``task.std``); ``instance`` is the default instance
+    seed (:class:`~vdbejax.envs.instances.TaskFamily`; :data:`INSTANCE_SEED` gives every
+    agent the named task's instance)."""
     arm_means(family, arms)  # a bad family or number of arms: one line now
+    noise = FAMILIES[family]
 
-    def generate(entropy: tuple[int, ...]) -> TabularMDP:
-        return make_bandit(arm_means(family, arms, entropy), FAMILIES[family], pulls=pulls,
-                           name=name)
+    def generate(entropy: tuple[int, ...], **parameters: float) -> TabularMDP:
+        return make_bandit(arm_means(family, arms, entropy), noise, pulls=pulls, name=name,
+                           **parameters)
 
     return TaskFamily(name, generate, f"{family} with {arms} arms, an instance per agent"
-                      " (arm means drawn from the root seed and the agent's seed index)")
+                      " (arm means drawn from the root seed and the agent's seed index)",
+                      parameters={"std": 1.0} if noise == "gaussian" else {},
+                      instance=instance)
