@@ -20,18 +20,22 @@ import numpy as np
 from vdbejax.envs.instances import TaskFamily, TaskInstances
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.runs.batching import check_run_size, instances_host_bytes
 from vdbejax.runs.optimal_actions import optimal_action_mask
 from vdbejax.runs.options import RunOptions
 
 
 def draw_instances(family: TaskFamily, run: RunOptions, seed: int, num_seeds: int,
-                   num_configs: int) -> tuple[TabularMDP, TaskInstances]:
+                   num_configs: int, num_episodes: int) -> tuple[TabularMDP, TaskInstances]:
     """The instances of a run's agents (config-major) and the task that shapes the run
-    (agent 0's instance), after refusing in one line what such a run does not do yet.
+    (agent 0's instance), after refusing in one line what such a run does not do yet and
+    a run whose stacked instances do not fit the host.
 
     Raises:
       ValueError: policy evaluations (``evaluate_every``) or a stop policy that checks
-        chunks (their references are one task's).
+        chunks (their references are one task's); instances that, with the run's settings
+        and results, need more host memory than is free
+        (:func:`~vdbejax.runs.batching.check_run_size`).
     """
     if run.evaluate_every is not None:
         raise ValueError(f"evaluate_every={run.evaluate_every} is invalid with an instance per"
@@ -39,6 +43,10 @@ def draw_instances(family: TaskFamily, run: RunOptions, seed: int, num_seeds: in
     if run.stop.checks_chunks:
         raise ValueError(f"stop={type(run.stop).__name__} is invalid with an instance per"
                          f" agent ({family.name}): only a fixed budget (FixedBudget) runs it")
+    num_agents = num_seeds * num_configs
+    first = family.generate((int(seed), 0))  # sizes them all: stacked, they share shapes
+    check_run_size(num_agents, num_episodes, num_settings=num_configs,
+                   task_bytes=instances_host_bytes(first, num_agents, run.record_optimal))
     instances = family.instances(seed, num_seeds, num_configs)
     return instances.instance(0), instances
 
