@@ -2,7 +2,7 @@
 
 Four CPU devices are simulated in a subprocess with
 ``XLA_FLAGS=--xla_force_host_platform_device_count=4`` (the flag must be set before JAX
-starts, so it cannot run in the pytest process)."""
+starts, so it cannot run in the pytest process); two for a run with an instance per agent."""
 from __future__ import annotations
 
 import json
@@ -241,3 +241,88 @@ def test_two_processes_like_two_hosts_equal_one_process(tmp_path, reference):
     assert sorted(p.name for p in tmp_path.glob("ckpt*")) == [  # each with its episode log
         "ckpt.process0of2.npz", "ckpt.process0of2.npz.episodes",
         "ckpt.process1of2.npz", "ckpt.process1of2.npz.episodes"]
+
+
+#: Runs in a process with 2 CPU devices: a run with an instance per agent (9 agents, not a
+#: multiple of 2: padded) on one device and on two, whole and in batches, resumed too.
+TWO_DEVICE_INSTANCES_SCRIPT = textwrap.dedent(
+    """
+    import json, sys
+    import jax, numpy as np
+    from vdbejax.envs.suite.bandits import bandit_family
+    from vdbejax.envs.suite.garnet import garnet_family
+    from vdbejax.methods.agents import Setting, table_layout
+    from vdbejax.runs import RunOptions, prepare_grid, run_grid, run_prepared
+    from vdbejax.runs.batching import bytes_per_agent, instance_bytes, mdp_bytes
+
+    out = sys.argv[1]
+    settings = [Setting("qlearning", "egreedy", 0.1), Setting("sarsa", "vdbe", 1.0),
+                Setting("qlearning", "vdbe_softmax", 1.0)]
+    grid = dict(num_seeds=3, num_episodes=24, seed=1)
+    run = RunOptions(chunk_episodes=8, record_optimal=True)
+    info = {"devices": len(jax.devices())}
+
+    def save(name, result):
+        np.savez(out + "/" + name, returns=result.returns, lengths=result.lengths,
+                 optimal=result.optimal_actions)
+        info[name] = result.meta["plan"]
+
+    families = {"testbed": bandit_family("testbed", 5, name="testbed:5"),
+                "garnet": garnet_family(5, 3, 2, max_steps=6)}
+    for name, family in families.items():
+        for devices in (1, 2):
+            result = run_grid(family, settings, run=run.replace(devices=devices), **grid)
+            save(f"{name}{devices}", result)
+    # Two agents per device by the plan's own count: batches of 4, 4 and 1 (padded to 2).
+    family = families["garnet"]
+    prepared = prepare_grid(family, settings, run=run, **grid)
+    budget = mdp_bytes(prepared.mdp) + 2 * bytes_per_agent(
+        prepared.mdp, 8, table_layout(prepared.params),
+        instance_bytes(prepared.instances, record_optimal=True))
+    batched = run.replace(devices=2, memory_budget_bytes=budget)
+    save("batched", run_grid(family, settings, run=batched, **grid))
+
+    class Stop(Exception):
+        pass
+
+    def stop(done, total, elapsed):
+        if done >= 200:  # 96 + 96 + 8: the last batch (1 agent, padded) resumes mid-way
+            raise Stop
+
+    checkpointed = batched.replace(checkpoint=out + "/ckpt.npz")
+    try:
+        run_prepared(prepare_grid(family, settings, run=checkpointed.replace(progress=stop),
+                                  **grid))
+    except Stop:
+        info["stopped"] = True
+    resumed = run_prepared(prepare_grid(family, settings, run=checkpointed.replace(resume=True),
+                                        **grid))
+    info["resumed_from"] = resumed.meta["resumed_from_agent_episodes"]
+    save("resumed", resumed)
+    print(json.dumps(info))
+    """
+)
+
+
+def test_an_instance_per_agent_on_two_devices_equals_one_device(tmp_path):
+    script = tmp_path / "two_devices.py"
+    script.write_text(TWO_DEVICE_INSTANCES_SCRIPT)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
+               JAX_PLATFORMS="cpu")
+    done = subprocess.run([sys.executable, str(script), str(tmp_path)], env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    info = json.loads(done.stdout.strip().splitlines()[-1])
+    assert info["devices"] == 2
+    for name in ("testbed", "garnet"):
+        assert not info[f"{name}1"]["sharded"] and info[f"{name}2"]["sharded"]
+        assert info[f"{name}2"]["agents_per_batch"] == 9  # one batch, padded to 10
+    assert info["batched"]["agents_per_batch"] == 4  # 2 per device: the instances counted
+    assert info["stopped"] and info["resumed_from"] == 200
+    for name, reference in [("testbed2", "testbed1"), ("garnet2", "garnet1"),
+                            ("batched", "garnet1"), ("resumed", "garnet1")]:
+        one, two = np.load(tmp_path / f"{reference}.npz"), np.load(tmp_path / f"{name}.npz")
+        assert one["returns"].shape == (3, 3, 24)
+        for field in ("returns", "lengths", "optimal"):  # bit for bit, NaN for NaN
+            np.testing.assert_array_equal(two[field], one[field], err_msg=f"{name}: {field}")
+    assert np.load(tmp_path / "garnet1.npz")["optimal"].sum() > 0

@@ -291,3 +291,76 @@ def test_a_random_mdp_family_runs_an_instance_per_agent():
     assert len(summarize(result, window=5)) == 2
     with pytest.raises(ValueError, match=r"^branching=9 is invalid"):
         garnet_family(5, 3, 9)
+
+
+# The memory of such a run: every agent carries its own instance's tables.
+
+def memory_grids(budget=None):
+    """A garnet family run and the same run with agent 0's instance shared (6 states, 3
+    actions, 2 outcomes; 20 agents, record_optimal), prepared on one device."""
+    from vdbejax.envs.suite.garnet import garnet_family
+    from vdbejax.runs import prepare_grid
+
+    family = garnet_family(6, 3, 2, max_steps=6)
+    run = run_options(devices=1, chunk_episodes=20, record_optimal=True,
+                      memory_budget_bytes=budget)
+    grid = {"num_seeds": 10, "num_episodes": 20, "seed": 0}
+    return (prepare_grid(family, RUN_SETTINGS, run=run, **grid),
+            prepare_grid(family.generate((0, 0)), RUN_SETTINGS, run=run, **grid))
+
+
+#: One garnet(6, 3, 2) instance's tables: next_state int32, probability and reward float32
+#: (4 × 36 each), terminal bool (36), start_probability float32 (4 × 6), max_steps int32.
+GARNET_ROW = 3 * 4 * 36 + 36 + 4 * 6 + 4
+#: Its mask of optimal actions (bool, 6 × 3) and its start support (1 state: int32 + float32).
+GARNET_MASK, GARNET_SUPPORT = 6 * 3, 8
+
+
+def test_a_plan_counts_each_agents_own_instance():
+    from vdbejax.methods.agents import table_layout
+    from vdbejax.runs.batching import STATE_COPIES, bytes_per_agent, instance_bytes, mdp_bytes
+
+    instanced, shared = memory_grids()
+    assert GARNET_ROW == 496
+    assert instance_bytes(instanced.instances) == GARNET_ROW + GARNET_SUPPORT
+    own = instance_bytes(instanced.instances, record_optimal=True)
+    assert own == GARNET_ROW + GARNET_SUPPORT + GARNET_MASK
+    task = shared.mdp  # the one task every device holds: agent 0's instance in both runs
+    assert mdp_bytes(task) == GARNET_ROW and mdp_bytes(instanced.mdp) == GARNET_ROW
+    agent = bytes_per_agent(task, 20, table_layout(shared.params))
+    # A budget of 12 shared-task agents: 12 of them fit, and fewer that carry their tables.
+    budget = mdp_bytes(task) + 12 * agent
+    instanced, shared = memory_grids(budget)
+    assert shared.plan.batch_size == 12
+    assert instanced.plan.batch_size == (12 * agent) // (agent + STATE_COPIES * own) < 12
+    # and exactly as many as the instances' count says: a byte less, one agent less
+    with_tables = agent + STATE_COPIES * own
+    for fit in (7, 11):
+        assert memory_grids(mdp_bytes(task) + fit * with_tables)[0].plan.batch_size == fit
+        assert memory_grids(mdp_bytes(task) + fit * with_tables - 1)[0].plan.batch_size == fit - 1
+
+
+def test_the_estimate_and_the_size_check_count_the_instances(monkeypatch):
+    from vdbejax.runs import batching
+    from vdbejax.runs.estimate import estimate_prepared
+
+    instanced, shared = memory_grids()
+    tasks = batching.HOST_INSTANCE_COPIES * 20 * (GARNET_ROW + GARNET_MASK)
+    assert batching.instances_host_bytes(shared.mdp, 20, record_optimal=True) == tasks
+    assert batching.instances_host_bytes(shared.mdp, 20) == tasks * GARNET_ROW // (
+        GARNET_ROW + GARNET_MASK)
+    more, less = estimate_prepared(instanced), estimate_prepared(shared)
+    assert (more.task_bytes, less.task_bytes) == (tasks, 0)
+    assert more.memory_bytes - less.memory_bytes == tasks
+    assert "the task instances ≈ 40.2 KiB" in more.describe()
+    assert "task instances" not in less.describe()
+    # The machine's check, before the instances are stacked: exactly what they need fits.
+    needed = batching.result_bytes(20, 20) + batching.settings_bytes(2) + tasks
+    monkeypatch.setattr(batching, "_host_available_bytes", lambda: needed)
+    memory_grids()
+    monkeypatch.setattr(batching, "_host_available_bytes", lambda: needed - 1)
+    with pytest.raises(ValueError, match=r"^the run is too large for this machine: 2 settings"
+                                         r" \(20 agents\) × 20 episodes need ≈ .* their task"
+                                         r" instances ≈ 40\.2 KiB\), but"):
+        memory_grids()
+    assert batching.check_run_size(20, 20, num_settings=2) < needed - 1  # shared: it fits

@@ -5,7 +5,9 @@ agent of a run its own instance. The instances share their shape (states, action
 outcomes), their episode length and whether their rewards are noisy; their tables are
 stacked along a leading agent axis, and the engine moves each agent's row with the agent
 (:mod:`vdbejax.engine.instances`), so an agent meets its own instance in the same
-vectorised run, bit for bit as if it ran alone on it.
+vectorised run, bit for bit as if it ran alone on it. The stacked tables stay on the host:
+an engine call sends a batch's rows to its devices (and a run's plan counts them,
+:mod:`vdbejax.runs.batching`).
 """
 from __future__ import annotations
 
@@ -20,8 +22,6 @@ from vdbejax._pytree import pytree_dataclass, static_field
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.validation import UINT32_MAX, check_int
 
-Array = jax.Array
-
 
 @pytree_dataclass
 class TaskInstances:
@@ -30,7 +30,8 @@ class TaskInstances:
     Attributes:
       tables: a :class:`~vdbejax.envs.tabular.TabularMDP` whose every array leaf carries a
         leading agent axis (``next_state`` ``[agents, S, A, K]``, …): row ``i`` is agent
-        ``i``'s instance. Its ``num_states`` … properties do not apply: use this class's.
+        ``i``'s instance (NumPy arrays, on the host). Its ``num_states`` … properties do not
+        apply: use this class's.
     """
 
     tables: TabularMDP
@@ -63,8 +64,8 @@ class TaskInstances:
                              bounds=self.bounds)
 
     def instance(self, agent: int) -> TabularMDP:
-        """Agent ``agent``'s instance, an ordinary (unbatched) task."""
-        return jax.tree.map(lambda leaf: leaf[agent], self.tables)
+        """Agent ``agent``'s instance, an ordinary (unbatched) task, on the device."""
+        return jax.tree.map(lambda leaf: jax.device_put(np.asarray(leaf)[agent]), self.tables)
 
 
 def stack_instances(mdps: Sequence[TabularMDP]) -> TaskInstances:
@@ -99,8 +100,8 @@ def stack_instances(mdps: Sequence[TabularMDP]) -> TaskInstances:
     # one label (a static field: the trees must match)
     mdps = [dataclasses.replace(m, name=first.name) for m in mdps]
 
-    def stack(*leaves: Any) -> Array:
-        return jax.device_put(np.stack([np.asarray(leaf) for leaf in leaves]))
+    def stack(*leaves: Any) -> np.ndarray:  # on the host: every agent's, for the whole run
+        return np.stack([np.asarray(leaf) for leaf in leaves])
 
     tables = jax.tree.map(stack, *mdps)
     possible = np.asarray(tables.probability) > 0

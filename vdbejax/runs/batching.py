@@ -1,10 +1,11 @@
 """Memory estimates of a run: how many agents fit a device, and whether the results fit.
 
 A run's agents are independent, so they can run in any grouping with the same results.
-When the per-device memory of all agents (Q tables, VDBE ε tables, chunk buffers) exceeds
-the budget, the run's plan (:mod:`vdbejax.runs.plan`) runs them in sequential batches of
-at most :func:`agents_per_batch` agents; :func:`check_run_size` refuses, before anything
-is allocated, a run whose settings and results cannot fit the host.
+When the per-device memory of all agents (Q tables, VDBE ε tables, chunk buffers, and with
+an instance per agent each agent's own task tables) exceeds the budget, the run's plan
+(:mod:`vdbejax.runs.plan`) runs them in sequential batches of at most
+:func:`agents_per_batch` agents; :func:`check_run_size` refuses, before anything is
+allocated, a run whose settings, results and task instances cannot fit the host.
 """
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ import numpy as np
 
 from vdbejax.engine.driver import chunk_buffer_length
 from vdbejax.engine.state import state_bytes
+from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.tabular import TabularMDP
 
 #: Fraction of a device's free memory used when no budget is given.
@@ -31,14 +33,17 @@ SCALAR_BYTES = 128
 
 
 def bytes_per_agent(mdp: TabularMDP, chunk_episodes: int,
-                    layout: dict[str, str] | None = None) -> int:
-    """Estimated device memory of one agent: Q and its other tables, scalars, chunk buffers.
+                    layout: dict[str, str] | None = None, task_bytes: int = 0) -> int:
+    """Estimated device memory of one agent: Q and its other tables, scalars, chunk
+    buffers, and its own task instance if it has one.
 
     Args:
       mdp: the task (sets the table sizes).
       chunk_episodes: episodes per engine chunk (sets the buffer sizes).
       layout: the agents' tables beside Q (:func:`~vdbejax.methods.agents.table_layout`;
         default: one per-state table, the paper's ε(s)).
+      task_bytes: the agent's own task instance (:func:`instance_bytes`; 0: a shared task):
+        it rides with the agent's hyperparameters, gathered and compacted with its state.
 
     Returns:
       bytes, for :data:`STATE_COPIES` working copies.
@@ -46,12 +51,39 @@ def bytes_per_agent(mdp: TabularMDP, chunk_episodes: int,
     tables = state_bytes(mdp, {"epsilon": "state"} if layout is None else layout)
     # float32 return + int32 length per episode of the chunk's (rounded up) buffers
     chunk_buffers = 8 * chunk_buffer_length(chunk_episodes)
-    return STATE_COPIES * (tables + SCALAR_BYTES + chunk_buffers)
+    return STATE_COPIES * (tables + task_bytes + SCALAR_BYTES + chunk_buffers)
 
 
-def mdp_bytes(mdp: TabularMDP) -> int:
-    """Device memory of the MDP tables (replicated on every device)."""
+def mdp_bytes(mdp: TabularMDP | TaskInstances) -> int:
+    """Memory of the MDP tables (of a shared task: replicated on every device)."""
     return int(sum(np.asarray(leaf).nbytes for leaf in jax.tree.leaves(mdp)))
+
+
+def instance_bytes(instances: TaskInstances, record_optimal: bool = False) -> int:
+    """Device memory of one agent's own task instance (an instance per agent,
+    :mod:`vdbejax.engine.instances`): its row of every table, its start support (int32
+    states and float32 weights, padded to the run's widest) and, where the run records
+    them, its bool mask of optimal actions."""
+    row = mdp_bytes(instances) // instances.num_agents
+    width = int((np.asarray(instances.tables.start_probability) > 0).sum(axis=1).max())
+    mask = (instances.num_states * instances.num_actions
+            if record_optimal and instances.tables.optimal_action is None else 0)
+    return row + 8 * width + mask
+
+
+#: Host copies of a run's instance tables at once, at most: the stacked tables, this
+#: process's rows of them, a batch's rows, and that batch padded for several devices.
+HOST_INSTANCE_COPIES = 4
+
+
+def instances_host_bytes(instance: TabularMDP, num_agents: int,
+                         record_optimal: bool = False) -> int:
+    """Host memory of a run's instances, one per agent, each shaped as ``instance``
+    (:data:`HOST_INSTANCE_COPIES` copies of the stacked tables, with each agent's mask of
+    optimal actions where the run records them)."""
+    mask = (instance.num_states * instance.num_actions
+            if record_optimal and instance.optimal_action is None else 0)
+    return HOST_INSTANCE_COPIES * num_agents * (mdp_bytes(instance) + mask)
 
 
 def _host_available_bytes() -> int:
@@ -99,8 +131,10 @@ def settings_bytes(num_settings: int) -> int:
 
 
 def check_run_size(num_agents: int, num_episodes: int, checkpoint: Any = None,
-                   num_settings: int = 0, available_bytes: int | None = None) -> int:
-    """Refuse, before anything is allocated, a run whose settings and results cannot fit.
+                   num_settings: int = 0, available_bytes: int | None = None,
+                   task_bytes: int = 0) -> int:
+    """Refuse, before anything is allocated, a run whose settings, results and task
+    instances cannot fit.
 
     Args:
       num_agents: agents of the run.
@@ -108,17 +142,20 @@ def check_run_size(num_agents: int, num_episodes: int, checkpoint: Any = None,
       checkpoint: the checkpoint path, if any (its episode log needs disk space).
       num_settings: the run's settings (:func:`settings_bytes`; 0: the results only).
       available_bytes: free host memory (default: ``MemAvailable``).
+      task_bytes: host bytes of the run's task instances (:func:`instances_host_bytes`;
+        0: a shared task).
 
     Returns:
-      the estimated host bytes of the settings and the results.
+      the estimated host bytes of the settings, the results and the instances.
 
     Raises:
       ValueError: they need more memory than is free, or the checkpoint log more disk
         space: one line with the sizes, the estimate, the limit and what fits.
     """
     results = result_bytes(num_agents, num_episodes)
-    needed = results + settings_bytes(num_settings)
+    needed = results + settings_bytes(num_settings) + task_bytes
     available = _host_available_bytes() if available_bytes is None else available_bytes
+    tasks = f", their task instances ≈ {_size(task_bytes)}" if task_bytes else ""
     if needed > available and num_settings:
         per_setting = needed / num_settings  # the same agents and episodes per setting
         fit = int(available // per_setting)
@@ -126,12 +163,14 @@ def check_run_size(num_agents: int, num_episodes: int, checkpoint: Any = None,
             f"the run is too large for this machine: {num_settings:,} settings"
             f" ({num_agents:,} agents) × {num_episodes:,} episodes need ≈ {_size(needed)} of"
             f" memory (the settings ≈ {_size(settings_bytes(num_settings))}, their results ≈"
-            f" {_size(results)}), but {_size(available)} are free: at most {fit:,} settings of"
-            " this size fit; use fewer settings, seeds or episodes, or split the run")
+            f" {_size(results)}{tasks}), but {_size(available)} are free: at most {fit:,}"
+            " settings of this size fit; use fewer settings, seeds or episodes, or split the"
+            " run")
     if needed > available:
+        what = "their results and task instances" if task_bytes else "their results"
         raise ValueError(
             f"num_seeds × num_episodes is too large: {num_agents:,} agents × {num_episodes:,}"
-            f" episodes need ≈ {_size(needed)} of memory for their results, but"
+            f" episodes need ≈ {_size(needed)} of memory for {what}, but"
             f" {_size(available)} are free: use fewer seeds or episodes, or split the run")
     if checkpoint is not None:
         folder = Path(checkpoint).parent

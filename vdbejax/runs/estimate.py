@@ -38,7 +38,13 @@ from vdbejax.engine import available_cpus
 from vdbejax.envs.solvers import shortest_episode
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.results.bootstrap import NUM_RESAMPLES
-from vdbejax.runs.batching import _size, log_bytes, result_bytes, settings_bytes
+from vdbejax.runs.batching import (
+    _size,
+    instances_host_bytes,
+    log_bytes,
+    result_bytes,
+    settings_bytes,
+)
 from vdbejax.runs.evaluation import evaluation_operations
 
 if TYPE_CHECKING:
@@ -76,9 +82,12 @@ class RunEstimate:
 
     Attributes:
       agents, episodes, settings: the work's size (``episodes``: the budget).
-      memory_bytes: host memory of the settings, the results and their statistics.
+      memory_bytes: host memory of the settings, the results and their statistics (and
+        of the task instances, with an instance per agent).
       settings_bytes: the settings' share of it (:data:`~vdbejax.runs.batching.SETTING_BYTES`
         each: a sweep of 10⁶ settings takes gigabytes before any agent trains).
+      task_bytes: the task instances' share of it
+        (:func:`~vdbejax.runs.batching.instances_host_bytes`; 0: a shared task).
       disk_bytes: the checkpoint's episode log at its largest.
       training_seconds: a lower bound of the training's wall time.
       statistics_seconds: a forecast of the statistics' and figures' (0 without them).
@@ -99,6 +108,7 @@ class RunEstimate:
     evaluations: int = 0
     evaluation_operations: int = 0
     settings_bytes: int = 0
+    task_bytes: int = 0
 
     @property
     def evaluation_seconds(self) -> float:
@@ -122,9 +132,10 @@ class RunEstimate:
                       f" ({self.evaluations:,} evaluations of every agent,"
                       f" ≤ {count(self.evaluation_operations)} multiply-adds)"
                       if self.evaluations else "")
+        tasks = f", the task instances ≈ {_size(self.task_bytes)}" if self.task_bytes else ""
         return (f"{self.agents:,} agents × {self.episodes:,} episodes: {_common(self)}"
                 f"{evaluation}, memory ≈ {_size(self.memory_bytes)} (the {self.settings:,}"
-                f" settings ≈ {_size(self.settings_bytes)}), checkpoint ≈"
+                f" settings ≈ {_size(self.settings_bytes)}{tasks}), checkpoint ≈"
                 f" {_size(self.disk_bytes)} of disk")
 
 
@@ -275,13 +286,19 @@ def estimate_task(mdp: TabularMDP, settings: int, seeds: int, episodes: int, *,
 
 
 def estimate_prepared(prepared: PreparedGrid, *, statistics: bool = True) -> RunEstimate:
-    """The estimate of a prepared grid run (its task, work and stop policy; its policy
-    evaluations, :mod:`vdbejax.runs.evaluation`, at most one per ``evaluate_every``
-    episodes of the budget)."""
+    """The estimate of a prepared grid run (its task, work and stop policy; its task
+    instances, with an instance per agent; its policy evaluations,
+    :mod:`vdbejax.runs.evaluation`, at most one per ``evaluate_every`` episodes of the
+    budget)."""
     estimate = estimate_task(prepared.mdp, len(prepared.settings), prepared.num_seeds,
                              prepared.num_episodes, statistics=statistics,
                              fewest_episodes=prepared.stop.fewest_episodes(
                                  prepared.num_episodes))
+    if prepared.instances is not None:  # prepared.mdp is agent 0's: shaped as every one
+        tasks = instances_host_bytes(prepared.mdp, prepared.num_agents,
+                                     prepared.run.record_optimal)
+        estimate = dataclasses.replace(estimate, task_bytes=tasks,
+                                       memory_bytes=estimate.memory_bytes + tasks)
     every = prepared.run.evaluate_every
     if every is None:
         return estimate

@@ -177,7 +177,8 @@ def prepare_grid(
     if run.checkpoint is not None:  # fail before training
         check_writable_dir("checkpoint folder", Path(run.checkpoint).parent)
     check_run_size(len(settings) * num_seeds, num_episodes, run.checkpoint, len(settings))
-    mdp, instances, task_values = draw_instances(mdp, run, seed, num_seeds, settings)
+    mdp, instances, task_values = draw_instances(mdp, run, seed, num_seeds, settings,
+                                                 num_episodes)
     stop = run.stop.resolve(mdp)
     window = getattr(stop, "window", None)
     if stop.checks_chunks and window is not None and window > num_episodes:
@@ -187,7 +188,7 @@ def prepare_grid(
     # A bad plug-in: one line before anything runs; a user plug-in's code digest enters the
     # fingerprint, so that a checkpoint or a saved result of other code is never taken.
     plugin_code = check_params(params, mdp.num_actions, mdp.num_states)
-    plan = make_plan(mdp, params, len(settings) * num_seeds, num_episodes, run)
+    plan = make_plan(mdp, params, len(settings) * num_seeds, num_episodes, run, instances)
     description = {
         "mdp": mdp.name,
         "mdp_tables": _fingerprint_arrays(mdp if instances is None else instances),

@@ -25,21 +25,25 @@ from vdbejax.envs.instances import INSTANCE, TaskFamily, TaskInstances
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import TASK_PREFIX, Setting
+from vdbejax.runs.batching import check_run_size, instances_host_bytes
 from vdbejax.runs.optimal_actions import optimal_action_mask
 from vdbejax.runs.options import RunOptions
 
 
 def draw_instances(task: TabularMDP | TaskFamily, run: RunOptions, seed: int, num_seeds: int,
-                   settings: Sequence[Setting]
+                   settings: Sequence[Setting], num_episodes: int
                    ) -> tuple[TabularMDP, TaskInstances | None, list[dict[str, Any]] | None]:
     """The task that shapes a run (a family's: agent 0's instance), its agents' instances
     (config-major; ``None`` on a plain task) and each config's resolved task values, after
-    refusing in one line what such a run does not do.
+    refusing in one line what such a run does not do and instances that do not fit the
+    host.
 
     Raises:
       ValueError: task values on a plain task, a task value the family does not have,
         or with a family policy evaluations (``evaluate_every``) or a stop policy that
-        checks chunks (their references are one task's).
+        checks chunks (their references are one task's); instances that, with the run's
+        settings and results, need more host memory than is free
+        (:func:`~vdbejax.runs.batching.check_run_size`).
     """
     if isinstance(task, TabularMDP):
         named = next((s for s in settings if s.task_values), None)
@@ -56,6 +60,10 @@ def draw_instances(task: TabularMDP | TaskFamily, run: RunOptions, seed: int, nu
     if run.stop.checks_chunks:
         raise ValueError(f"stop={type(run.stop).__name__} is invalid with a task family"
                          f" ({task.name}): only a fixed budget (FixedBudget) runs it")
+    num_agents = num_seeds * len(settings)
+    first = task.draw((int(seed), 0), values[0])  # sizes them all: they share shapes
+    check_run_size(num_agents, num_episodes, num_settings=len(settings),
+                   task_bytes=instances_host_bytes(first, num_agents, run.record_optimal))
     instances = task.instances(seed, num_seeds, values)
     return instances.instance(0), instances, values
 

@@ -14,7 +14,9 @@ devices) is refused in one line.
   results are those of one device. Sharded agents run the lockstep strategy without
   compaction (which would gather the active agents across shards).
 * **Batches**: agents that do not fit the memory budget run in sequential batches of
-  :attr:`RunPlan.batch_size` (:mod:`vdbejax.runs.batching`).
+  :attr:`RunPlan.batch_size` (:mod:`vdbejax.runs.batching`). With an instance per agent,
+  each agent's instance counts as its own (it moves with the agent); the task every device
+  holds whatever the batch is then agent 0's, the engine's template.
 """
 from __future__ import annotations
 
@@ -44,6 +46,7 @@ from vdbejax.runs.batching import (
     agents_per_batch,
     bytes_per_agent,
     default_memory_budget,
+    instance_bytes,
     mdp_bytes,
 )
 from vdbejax.runs.options import RunOptions
@@ -174,8 +177,10 @@ def evaluation_chunk(chunk_episodes: int, evaluate_every: int) -> int:
 
 
 def make_plan(mdp: TabularMDP, params: AgentParams, num_agents: int, num_episodes: int,
-              run: RunOptions) -> RunPlan:
+              run: RunOptions, instances: TaskInstances | None = None) -> RunPlan:
     """Decide a run's plan (module docstring).
+
+    ``mdp`` is the run's task; with ``instances`` (an instance per agent), agent 0's.
 
     Raises:
       ValueError: more devices than there are, devices of no process of this one, the
@@ -202,9 +207,10 @@ def make_plan(mdp: TabularMDP, params: AgentParams, num_agents: int, num_episode
         raise ValueError(f"evaluate_every={run.evaluate_every} is invalid with"
                          f" chunk_episodes={chunk} under a stop policy: must be a multiple of"
                          " the chunk (its chunks decide where agents stop)")
+    own = 0 if instances is None else instance_bytes(instances, run.record_optimal)
     batch_size = agents_per_batch(
         max(len(rows), 1),
-        bytes_per_agent(mdp, min(chunk, num_episodes), table_layout(params)),
+        bytes_per_agent(mdp, min(chunk, num_episodes), table_layout(params), own),
         budget, len(local), fixed_bytes=mdp_bytes(mdp))
     strategy_rule = "asked"
     if strategy == "auto":  # per batch: a batch is one engine call
