@@ -198,9 +198,9 @@ def test_git_commit_is_none_outside_a_clone_and_for_an_untracked_copy(tmp_path, 
     monkeypatch.setenv("GIT_CEILING_DIRECTORIES", str(tmp_path))
     package = tmp_path / "plain" / "vdbejax"
     package.mkdir(parents=True)
-    from vdbejax.runs import grid as grid_module  # where git_commit lives
+    from vdbejax.runs import provenance  # where git_commit lives
 
-    monkeypatch.setattr(grid_module, "__file__", str(package / "runs" / "grid.py"))
+    monkeypatch.setattr(provenance, "__file__", str(package / "runs" / "provenance.py"))
     assert experiment.git_commit.__wrapped__() is None  # not a git clone
     # A copy inside some other repository (a virtualenv in a clone) that does not track it.
     repo = tmp_path / "other"
@@ -210,7 +210,7 @@ def test_git_commit_is_none_outside_a_clone_and_for_an_untracked_copy(tmp_path, 
     git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-c", "commit.gpgsign=false"]
     for args in (["init", "-q"], ["add", "README"], ["commit", "-q", "-m", "x"]):
         subprocess.run(git + args, cwd=repo, check=True, capture_output=True)
-    monkeypatch.setattr(grid_module, "__file__", str(package / "runs" / "grid.py"))
+    monkeypatch.setattr(provenance, "__file__", str(package / "runs" / "provenance.py"))
     assert experiment.git_commit.__wrapped__() is None
 
 
