@@ -65,8 +65,9 @@ def add_run(sub: argparse._SubParsersAction) -> None:
                         " reward_per_step columns of summary.csv); the returns are the same")
     p.add_argument("--instances", default=None, choices=("shared", "per-agent"),
                    help="per-agent: a task family (testbed:N, gaussian_bandit:N,"
-                        " bernoulli_bandit:N) gives every agent its own instance, drawn from"
-                        " the root seed and its seed index (default shared: one task)")
+                        " bernoulli_bandit:N, garnet:SxAxB, variant:NxK: a random start)"
+                        " gives every agent its own instance, drawn from the root seed and"
+                        " its seed index (default shared: one task)")
     add_run_flags(p, "continue from OUT/checkpoint.npz (or reuse OUT's whole result)")
     p.add_argument("--no-figures", action="store_true", help="no fig3.png / sensitivity.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -1,5 +1,6 @@
 """What there is to run: every registered learner and explorer with its hyperparameters and
-their defaults, and every task name with its sizes and horizon (``vdbejax list``)."""
+their defaults, and every task name with its sizes and horizon (``vdbejax list``), the task
+families with a generator of instances marked (``instances``: ``per-agent``)."""
 from __future__ import annotations
 
 import dataclasses
@@ -32,7 +33,7 @@ def _plugin_entries(registry: dict[str, Any], swept: bool) -> list[dict[str, Any
 
 
 def _task_entries() -> list[dict[str, Any]]:
-    from vdbejax.envs.suite import DEFAULT_SIZES, NAMES, task_info
+    from vdbejax.envs.suite import DEFAULT_SIZES, FAMILY_NAMES, NAMES, task_info
 
     entries = []
     parameters: dict[str, Any]
@@ -41,6 +42,11 @@ def _task_entries() -> list[dict[str, Any]]:
         if size and family in DEFAULT_SIZES:
             parameters = {"N": DEFAULT_SIZES[family]}
             info = task_info(family)
+        elif family == "garnet":  # sizes without a default
+            parameters = {"S": "states (required)", "A": "actions (required)",
+                          "B": "branching (required)"}
+            info = dataclasses.replace(task_info("garnet:1x1x1"),
+                                       title="Garnet MDP, S states, A actions, branching B")
         elif size:  # variant:NxK: sizes without a default
             parameters = {"N": "sections (required)", "K": "goblets (required)"}
             info = dataclasses.replace(task_info("variant:1x1"),
@@ -52,7 +58,8 @@ def _task_entries() -> list[dict[str, Any]]:
             parameters["invalid_action"] = "noop"
         entries.append({"name": form, "title": info.title, "parameters": {
             **parameters, "max_steps": info.horizon}, "source": info.source,
-            **({"extra": info.extra} if info.extra else {})})
+            **({"extra": info.extra} if info.extra else {}),
+            **({"instances": "per-agent"} if family in FAMILY_NAMES else {})})
     entries.append({"name": "gym:<id>", "title": "a gymnasium toy-text environment",
                     "parameters": {"max_steps": "its time limit"}, "source": "gymnasium",
                     "extra": "gym"})
@@ -82,7 +89,8 @@ def catalog(kinds: Sequence[str] = KINDS) -> dict[str, list[dict[str, Any]]]:
 
 def render_catalog(entries: dict[str, list[dict[str, Any]]]) -> str:
     """:func:`catalog` as text: a heading per kind, one line per entry and its parameters
-    as ``name=default`` (the explorer's swept parameter marked ``*``)."""
+    as ``name=default`` (the explorer's swept parameter marked ``*``; a task family with a
+    generator of instances marked ``[--instances per-agent]``)."""
     lines = []
     for kind, items in entries.items():
         lines.append(f"{kind} ({len(items)}):")
@@ -90,7 +98,8 @@ def render_catalog(entries: dict[str, list[dict[str, Any]]]) -> str:
             values = ", ".join(f"{'*' if item.get('swept') == k else ''}{k}={v!r}"
                                for k, v in item["parameters"].items())
             lines.append(f"  {item['name']}  {item['title']}" + (
-                f" [needs the {item['extra']} extra]" if item.get("extra") else ""))
+                f" [needs the {item['extra']} extra]" if item.get("extra") else "") + (
+                " [--instances per-agent]" if item.get("instances") else ""))
             if values:
                 lines.append(f"      {values}")
         lines.append("")

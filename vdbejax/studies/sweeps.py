@@ -187,10 +187,11 @@ def run_sweep(
         ``optimal_actions`` and ``reward_per_step`` columns of ``summary.csv``; the returns
         are the same.
       instances: ``"shared"`` (every agent on the one task), or ``"per-agent"``: a task
-        family (:data:`~vdbejax.envs.suite.FAMILY_NAMES`: ``testbed:N``, …) gives every
-        agent its own instance, drawn from the root seed and its seed index
-        (:mod:`vdbejax.runs.instances`). Either way a family's parameters are axes
-        (``task.std``, ``task.instance``: the instance seed).
+        family (:data:`~vdbejax.envs.suite.FAMILY_NAMES`: ``testbed:N``, ``garnet:SxAxB``,
+        ``variant:NxK``, …) gives every agent its own instance, drawn from the root seed
+        and its seed index (:mod:`vdbejax.runs.instances`). Either way a family's
+        parameters are axes (``task.std``, ``task.instance``: the instance seed; those of
+        ``variant:NxK`` only per agent).
 
     Returns:
       the :class:`~vdbejax.experiment.GridResult` (also saved in ``out_dir``).
@@ -218,7 +219,8 @@ def run_sweep(
     grid_settings = sweep_settings(learners, explorers, axes, shared, exclude, settings)
     family = None  # a task family: an instance per agent, or task values (task.std, …)
     if instances == "per-agent" or any(s.task_values for s in grid_settings):
-        family = make_suite_family(task, max_steps=max_steps, shared=instances != "per-agent")
+        family = make_suite_family(task, max_steps=max_steps, invalid_action=invalid_action,
+                                   shared=instances != "per-agent")
     figures = check_bool("figures", figures)
     run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
                      overwrite=overwrite, memory_budget_bytes=memory_budget_bytes, devices=devices,

@@ -10,22 +10,33 @@ One module per task family, each citing its source and building the task as publ
 * :mod:`.toy_text`: gymnasium's FrozenLake (4×4, 8×8) and Taxi (needs the ``gym`` extra);
 * :mod:`.bandits`: k-armed Gaussian and Bernoulli bandits and Sutton & Barto's testbed
   (2018), one-state tasks with random rewards;
+* :mod:`.garnet`: random MDPs, the Garnet family of Archibald, McKinnon & Thomas (1995);
 
 and the table-cleaning family that :mod:`vdbejax.envs.table_cleaning` and
 :mod:`vdbejax.envs.cruz2018` define. :func:`make_suite_task` builds a task from its name
 (``riverswim``, ``chain:8``, ``deepsea:20``, ``variant:3x1``, …; :data:`NAMES` lists the
-forms), :func:`task_info` describes it (:class:`TaskInfo`), and :data:`DEFAULT_SUITE` /
-:func:`suite_tasks` are the default benchmark. Each MDP is named by its registry name,
-except ``variant:NxK``, which keeps its builder's name ``table_cleaning_nN_kK`` so that
-it is the very MDP that ``vdbejax.studies.sweeps.make_task`` has always built (the name
-enters run fingerprints). Exact optima: :func:`vdbejax.envs.solvers.best_return`.
+forms), :func:`task_info` describes it (:class:`TaskInfo`), :func:`make_suite_family`
+(:mod:`.families`) gives the families with a generator of instances, and
+:data:`DEFAULT_SUITE` / :func:`suite_tasks` are the default benchmark. Each MDP is named
+by its registry name, except ``variant:NxK``, which keeps its builder's name
+``table_cleaning_nN_kK`` so that it is the very MDP that
+``vdbejax.studies.sweeps.make_task`` has always built (the name enters run
+fingerprints). Exact optima: :func:`vdbejax.envs.solvers.best_return`.
 """
 from __future__ import annotations
 
 import dataclasses
 
-from vdbejax.envs.instances import TaskFamily
-from vdbejax.envs.suite import bandits, chain, deep_sea, gridworlds, river_swim, toy_text
+from vdbejax.envs.suite import (
+    bandits,
+    chain,
+    deep_sea,
+    garnet,
+    gridworlds,
+    river_swim,
+    toy_text,
+)
+from vdbejax.envs.suite.families import FAMILY_NAMES, make_suite_family
 from vdbejax.envs.tabular import TabularMDP
 
 
@@ -85,13 +96,17 @@ _SOURCES = {
                         " evaluation of Thompson sampling, NeurIPS)",
     "testbed": "Sutton & Barto 2018, Reinforcement Learning: An Introduction (2nd ed.),"
                " §2.3, the 10-armed testbed",
+    "garnet": "Archibald, McKinnon & Thomas 1995, On the generation of Markov decision"
+              " processes, JORS 46 (vdbejax.envs.suite.garnet)",
 }
 
-#: The forms of names :func:`make_suite_task` accepts (``N``, ``K``: integers).
+#: The forms of names :func:`make_suite_task` accepts (``N``, ``K``, ``S``, ``A``, ``B``:
+#: integers).
 NAMES = ("riverswim", "riverswim:N", "riverswim_normalised", "riverswim_normalised:N",
          "sixarms", "chain", "chain:N", "deepsea", "deepsea:N", "windy_gridworld",
          "cliff_walking", "frozenlake4", "frozenlake8", "taxi", "table_cleaning", "cruz2018",
-         "variant:NxK", "gaussian_bandit:N", "bernoulli_bandit:N", "testbed:N")
+         "variant:NxK", "gaussian_bandit:N", "bernoulli_bandit:N", "testbed:N",
+         "garnet:SxAxB")
 #: The default benchmark: every family once, at its published size.
 DEFAULT_SUITE = ("riverswim", "riverswim_normalised", "sixarms", "chain", "deepsea:10",
                  "windy_gridworld", "cliff_walking", "frozenlake4", "frozenlake8", "taxi",
@@ -105,11 +120,15 @@ TABLE_CLEANING_HORIZON = 100
 
 def _invalid(name: object) -> ValueError:
     return ValueError(f"name={name!r} is invalid: must be one of {', '.join(NAMES)}"
-                      " (N, K: integers)")
+                      " (N, K, S, A, B: integers)")
 
 
-def _parse(name: object) -> tuple[str, tuple[int, ...]]:
-    """``(family, sizes)`` of a registry name (sizes: ``()`` for the default)."""
+def parse_name(name: object) -> tuple[str, tuple[int, ...]]:
+    """``(family, sizes)`` of a registry name (sizes: ``()`` for the default).
+
+    Raises:
+      ValueError: an unknown name, or sizes that ``garnet:SxAxB`` does not allow.
+    """
     if not isinstance(name, str):
         raise _invalid(name)
     family, colon, size = name.partition(":")
@@ -118,11 +137,16 @@ def _parse(name: object) -> tuple[str, tuple[int, ...]]:
         if x and sections.isdigit() and goblets.isdigit():  # as sweeps.make_task reads it
             return family, (int(sections), int(goblets))
         raise _invalid(name)
+    if family == "garnet" and colon:
+        sizes = garnet.sizes_of(name, size)  # raises for sizes out of range
+        if sizes is None:
+            raise _invalid(name)
+        return family, sizes
     if family in DEFAULT_SIZES and colon:
         if size.isdigit() and size.isascii() and str(int(size)) == size:
             return family, (int(size),)
         raise _invalid(name)
-    if not colon and family in _SOURCES and family != "variant":
+    if not colon and family in _SOURCES and family not in ("variant", "garnet"):
         return family, ()
     raise _invalid(name)
 
@@ -133,7 +157,7 @@ def task_info(name: str) -> TaskInfo:
     Raises:
       ValueError: an unknown name.
     """
-    family, sizes = _parse(name)
+    family, sizes = parse_name(name)
     size = sizes[0] if sizes else DEFAULT_SIZES.get(family)
     if family in ("riverswim", "riverswim_normalised"):
         normalised = family == "riverswim_normalised"
@@ -211,6 +235,15 @@ def task_info(name: str) -> TaskInfo:
             f" {bandits.INSTANCE_SEED})", _SOURCES[family],
             "exploration against reward noise alone: which arm pays most on average",
             bandits.PULLS, "one pull per episode (a run's max_steps sets more)")
+    if family == "garnet":
+        states, actions, branching = sizes
+        return TaskInfo(
+            name, f"Garnet MDP ({states} states, {actions} actions, branching {branching},"
+            f" instance seed {garnet.INSTANCE_SEED})", _SOURCES[family],
+            "exploration of a random MDP: sparse random transitions, a reward uniform in"
+            " [0, 1) on every state-action pair", garnet.HORIZON,
+            "garnet_family's episode length: no state is terminal (a run's max_steps sets"
+            " another)")
     if family == "cruz2018":
         from vdbejax.envs.cruz2018 import STEP_CAP
 
@@ -237,7 +270,8 @@ def make_suite_task(name: str, *, max_steps: int | None = None,
         ``cliff_walking``, ``frozenlake4``, ``frozenlake8``, ``taxi``, ``table_cleaning``,
         ``cruz2018``; with a size: ``riverswim:N``, ``riverswim_normalised:N``,
         ``chain:N``, ``deepsea:N``, ``variant:NxK`` (N sections, K goblets),
-        ``gaussian_bandit:N``, ``bernoulli_bandit:N`` and ``testbed:N`` (N arms).
+        ``gaussian_bandit:N``, ``bernoulli_bandit:N`` and ``testbed:N`` (N arms),
+        ``garnet:SxAxB`` (S states, A actions, branching B; the instance of seed 0).
       max_steps: the truncation (default: the task's horizon, :func:`task_info`); a
         bandit's pulls per episode.
       invalid_action: ``noop`` or ``fail``, the table-cleaning tasks of the paper's text
@@ -245,6 +279,7 @@ def make_suite_task(name: str, *, max_steps: int | None = None,
 
     Returns:
       the MDP, named ``name`` (``variant:NxK``: ``table_cleaning_nN_kK``, its builder's).
+      A name of :data:`FAMILY_NAMES` is its family's instance of seed 0.
 
     Raises:
       ValueError: an unknown name, a size the task does not allow, an invalid
@@ -252,7 +287,7 @@ def make_suite_task(name: str, *, max_steps: int | None = None,
         invalid actions.
       ImportError: ``frozenlake4``, ``frozenlake8`` and ``taxi`` without gymnasium.
     """
-    family, sizes = _parse(name)
+    family, sizes = parse_name(name)
     if family not in ("table_cleaning", "variant") and invalid_action != "noop":
         raise ValueError(f"invalid_action={invalid_action!r} is invalid with name={name!r}:"
                          " only table_cleaning and variant:NxK have invalid actions")
@@ -284,6 +319,10 @@ def make_suite_task(name: str, *, max_steps: int | None = None,
     if family in bandits.FAMILIES:
         assert size is not None
         return bandits.make_family_bandit(family, size, pulls=horizon, name=name)
+    if family == "garnet":
+        states, actions, branching = sizes
+        return garnet.make_garnet(states, actions, branching, (garnet.INSTANCE_SEED,),
+                                  max_steps=horizon, name=name)
     if family == "cruz2018":
         from vdbejax.envs.cruz2018 import make_authors_mdp
 
@@ -297,36 +336,11 @@ def make_suite_task(name: str, *, max_steps: int | None = None,
                             invalid_action=invalid_action)
 
 
-#: Tasks of :data:`NAMES` with a generator of instances (:func:`make_suite_family`).
-FAMILY_NAMES = tuple(bandits.FAMILIES)
-
-
-def make_suite_family(name: str, *, max_steps: int | None = None,
-                      shared: bool = False) -> TaskFamily:
-    """A task family of the suite by name (:class:`~vdbejax.envs.instances.TaskFamily`):
-    ``gaussian_bandit:N``, ``bernoulli_bandit:N`` and ``testbed:N`` (N arms;
-    :func:`~.bandits.bandit_family`): an instance per agent, or with ``shared`` every agent
-    the named task's one instance (whose parameters a sweep can still vary).
-
-    Raises:
-      ValueError: an unknown name, or a task without a generator of instances.
-    """
-    family, sizes = _parse(name)
-    if family not in FAMILY_NAMES:
-        raise ValueError(f"task={name!r} has no generator of instances: an instance per agent"
-                         " and task parameters (task.…) need one of"
-                         f" {', '.join(f + ':N' for f in FAMILY_NAMES)}")
-    horizon = task_info(name).horizon if max_steps is None else max_steps
-    size = sizes[0] if sizes else DEFAULT_SIZES.get(family)
-    assert size is not None
-    return bandits.bandit_family(family, size, pulls=horizon, name=name,
-                                 instance=bandits.INSTANCE_SEED if shared else None)
-
-
 def suite_tasks() -> dict[str, TaskInfo]:
     """The :class:`TaskInfo` of every task of :data:`DEFAULT_SUITE`, in its order."""
     return {name: task_info(name) for name in DEFAULT_SUITE}
 
 
 __all__ = ["DEFAULT_SIZES", "DEFAULT_SUITE", "FAMILY_NAMES", "NAMES", "TABLE_CLEANING_HORIZON",
-           "TaskInfo", "make_suite_family", "make_suite_task", "suite_tasks", "task_info"]
+           "TaskInfo", "make_suite_family", "make_suite_task", "parse_name", "suite_tasks",
+           "task_info"]

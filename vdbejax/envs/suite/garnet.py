@@ -7,6 +7,8 @@ leads to ``branching`` distinct next states chosen uniformly, with probabilities
 ``branching − 1`` uniform cuts of [0, 1]; here each pair pays a reward uniform in [0, 1),
 episodes start in state 0 and are truncated after ``max_steps`` steps (no terminal
 state). :func:`garnet_family` draws instance ``entropy`` with NumPy's ``default_rng``.
+The suite's name ``garnet:SxAxB`` is the instance of :data:`INSTANCE_SEED`, or with
+``--instances per-agent`` the family (:func:`vdbejax.envs.suite.make_suite_family`).
 """
 from __future__ import annotations
 
@@ -16,6 +18,13 @@ from vdbejax.envs.instances import TaskFamily
 from vdbejax.envs.tabular import TabularMDP, make_tabular_mdp
 from vdbejax.validation import INT32_MAX, check_int
 
+#: The episode length unless a run sets another (``max_steps``): no state is terminal.
+HORIZON = 20
+#: The seed of the suite's named instance (``garnet:SxAxB``).
+INSTANCE_SEED = 0
+#: The largest number of states or actions.
+MAX_SIZE = 2**16
+
 
 def make_garnet(states: int, actions: int, branching: int, entropy: tuple[int, ...], *,
                 max_steps: int, name: str = "garnet") -> TabularMDP:
@@ -24,8 +33,8 @@ def make_garnet(states: int, actions: int, branching: int, entropy: tuple[int, .
     Raises:
       ValueError: a size that is not an integer ≥ 1, or ``branching`` above ``states``.
     """
-    check_int("states", states, 1, 2**16)
-    check_int("actions", actions, 1, 2**16)
+    check_int("states", states, 1, MAX_SIZE)
+    check_int("actions", actions, 1, MAX_SIZE)
     check_int("branching", branching, 1, states)
     check_int("max_steps", max_steps, 1, INT32_MAX)
     rng = np.random.default_rng([*entropy, states, actions, branching])
@@ -45,11 +54,31 @@ def make_garnet(states: int, actions: int, branching: int, entropy: tuple[int, .
                             max_steps=max_steps, name=name)
 
 
-def garnet_family(states: int, actions: int, branching: int = 2, *, max_steps: int = 20,
-                  name: str | None = None) -> TaskFamily:
+def sizes_of(name: str, size: str) -> tuple[int, int, int] | None:
+    """``(states, actions, branching)`` of the suite's name ``name`` = ``garnet:{size}``
+    (``size``: ``SxAxB``, canonical decimal integers), or ``None`` when it is no such form.
+
+    Raises:
+      ValueError: sizes that :func:`make_garnet` refuses, in one line naming ``name``.
+    """
+    parts = size.split("x")
+    if len(parts) != 3 or not all(p.isascii() and p.isdigit() and str(int(p)) == p
+                                  for p in parts):
+        return None
+    states, actions, branching = (int(p) for p in parts)
+    if not (1 <= states <= MAX_SIZE and 1 <= actions <= MAX_SIZE and 1 <= branching <= states):
+        raise ValueError(f"name={name!r} is invalid: garnet:SxAxB needs 1 <= S <= {MAX_SIZE}"
+                         f" states, 1 <= A <= {MAX_SIZE} actions and a branching 1 <= B <= S")
+    return states, actions, branching
+
+
+def garnet_family(states: int, actions: int, branching: int = 2, *, max_steps: int = HORIZON,
+                  name: str | None = None, instance: int | None = None) -> TaskFamily:
     """Garnet MDPs of these sizes as a generator of instances
     (:class:`~vdbejax.envs.instances.TaskFamily`; pass it to ``run_grid`` in place of a
-    task: every agent meets the instance of its root seed and seed index)."""
+    task: every agent meets the instance of its root seed and seed index). ``instance``
+    is the default instance seed (:data:`INSTANCE_SEED`: every agent the suite's named
+    task)."""
     label = name or f"garnet:{states}x{actions}x{branching}"
     make_garnet(states, actions, branching, (0,), max_steps=max_steps, name=label)  # checks
 
@@ -58,4 +87,5 @@ def garnet_family(states: int, actions: int, branching: int = 2, *, max_steps: i
                            name=label)
 
     return TaskFamily(label, generate, f"Garnet MDPs, {states} states, {actions} actions,"
-                      f" branching {branching}, horizon {max_steps}, an instance per agent")
+                      f" branching {branching}, horizon {max_steps}, an instance per agent",
+                      instance=instance)
