@@ -28,7 +28,7 @@ import signal
 import sys
 import threading
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 
@@ -56,6 +56,26 @@ def raise_pending() -> None:
     if _pending:
         kind = _pending.pop()
         raise kind()
+
+
+_deferring = [0]
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[None]:
+    """Inside, a stop is only recorded (:func:`deferring`): a few steps that must not be
+    cut in two (a lock file made and registered for release) run whole; the caller
+    raises the request after them (:func:`raise_pending`)."""
+    _deferring[0] += 1
+    try:
+        yield
+    finally:
+        _deferring[0] -= 1
+
+
+def deferring() -> bool:
+    """Whether the main thread is inside :func:`deferred`."""
+    return _deferring[0] > 0
 
 
 def in_gc_callback(frame: Any) -> bool:

@@ -142,6 +142,8 @@ def _stop(signum: int, frame: Any) -> None:
     kind = interrupts.Terminated if signum == signal.SIGTERM else KeyboardInterrupt
     interrupts.request(kind)
     # In a gc or weakref callback Python would print it and go on; in an import it could
-    # cross a native module's initialisation and abort the process: recorded only, then.
-    if not (interrupts.in_dropping_callback(frame) or interrupts.in_import(frame)):
+    # cross a native module's initialisation and abort the process; a folder lock being
+    # taken would stay behind: recorded only, then.
+    if not (interrupts.in_dropping_callback(frame) or interrupts.in_import(frame)
+            or interrupts.deferring()):
         raise kind()

@@ -99,7 +99,19 @@ class FolderLock:
                           stacklevel=2)
 
     def acquire(self) -> None:
-        """Take the lock, then remove the temporary files of dead writers."""
+        """Take the lock, then remove the temporary files of dead writers. A stop asked
+        while the lock is taken waits until it is registered for release, and then
+        leaves with the lock given back (never a lock file without its holder)."""
+        with interrupts.deferred():
+            self._take()
+        try:
+            interrupts.raise_pending()
+            remove_stale_temporaries(self.folder)
+        except BaseException:
+            self.release()
+            raise
+
+    def _take(self) -> None:
         path = self.folder / LOCK_FILE
         existed = path.exists()
         while True:
@@ -136,7 +148,6 @@ class FolderLock:
                              f"{'; ' + left if left else ''}") from None
         self._fd = fd
         interrupts.hold(id(self), self.release)  # released too if a watchdog ends the process
-        remove_stale_temporaries(self.folder)
 
     def held(self) -> bool:
         """Whether the lock file is still the one this lock holds (someone may have
