@@ -242,10 +242,16 @@ def policy_note(every: int) -> list[str]:
             " interval).", ""]
 
 
+def _rounded(gap: float) -> str:
+    """A policy gap to 4 decimals: float32 evaluation leaves an optimal policy's gap at
+    ±1e-7, shown as 0, not as a negative gap."""
+    return f"{round(gap, 4) + 0.0:.4f}"
+
+
 def policy_cells(row: dict[str, Any]) -> str:
     """The policy gap and optimal share of a ranking row, as table cells."""
-    return (f" {row['policy_gap']:.4g} [{row['policy_gap_ci_low']:.4g},"
-            f" {row['policy_gap_ci_high']:.4g}] | {row['optimal_fraction']:.0%}"
+    gap = [_rounded(row[k]) for k in ("policy_gap", "policy_gap_ci_low", "policy_gap_ci_high")]
+    return (f" {gap[0]} [{gap[1]}, {gap[2]}] | {row['optimal_fraction']:.0%}"
             f" [{row['optimal_ci_low']:.0%}, {row['optimal_ci_high']:.0%}] |")
 
 
