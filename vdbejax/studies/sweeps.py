@@ -35,7 +35,6 @@ from vdbejax.results.summary import SUMMARY_FILE, write_summary
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import announce_settings
-from vdbejax.runs.instances import instance_meta
 from vdbejax.studies import train_in_folder
 from vdbejax.studies.sweep_file import (  # noqa: F401 (the sweep file's names, here since 0.1)
     SWEEP_KEYS,
@@ -199,8 +198,6 @@ def run_sweep(
     Raises:
       ValueError: any invalid input, before training starts.
     """
-    from vdbejax.envs.solvers import best_return
-
     load_plugins(list(plugins))
     check_choice("instances", instances, ("shared", "per-agent"))
     mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)
@@ -228,15 +225,12 @@ def run_sweep(
     prepared = prepare_grid(mdp if family is None else family, grid_settings,
                             num_seeds=seeds * replicates, num_episodes=episodes, seed=seed,
                             run=run)
-    drawn, task_values = prepared.instances, prepared.task_values
-    best = (best_return(mdp) if drawn is None or task_values is None
-            else instance_meta(drawn, prepared.num_seeds, task_values)["best_return"])
 
     def annotate(result: GridResult) -> None:
         annotate_replicates(result.meta, replicates, seeds)
         # Files as absolute paths: the folder's sweep file (sweep_from_meta) runs anywhere.
         files = absolute_files({"task": task, "plugins": list(plugins)})
-        result.meta.update(best_return=best, invalid_action=invalid_action, task=files["task"],
+        result.meta.update(invalid_action=invalid_action, task=files["task"],
                            sweep={"learners": list(learners), "explorers": list(explorers),
                                   "axes": {k: list(v) for k, v in (axes or {}).items()},
                                   "shared": dict(shared or {}),
@@ -244,9 +238,11 @@ def run_sweep(
                                   "settings": [dict(entry) for entry in settings],
                                   "plugins": files["plugins"]})
 
+    # The reference line is the run's own best return (a family's: its instances' mean),
+    # solved once by the run, not again here.
     result, _ = train_in_folder(
         out_dir, prepared,
-        lambda result, stats: write_outputs(result, out_dir, best, figures=figures,
-                                            statistics=stats),
+        lambda result, stats: write_outputs(result, out_dir, result.meta["best_return"],
+                                            figures=figures, statistics=stats),
         files=RUN_FILES, annotate=annotate, bands=figures and replicates == 1)
     return result
