@@ -4,14 +4,15 @@
                                   [--repeats 2] [--threads N] [--group-lanes 64,2048]
                                   [--json]
 
-For each kind of agent of the paper grid, the lockstep block program at ``--lanes`` lanes
-is compiled and its optimized HLO read: XLA operations (fusions) per loop iteration, and
-the bytes of table-sized buffers (more elements than lanes × actions) copied per
-iteration. Then the paper grid at ``--seeds`` seeds × ``--episodes`` episodes runs with
-the lockstep and the sequential strategy, one after the other in this process (each
-once to get its programs, then ``--repeats`` timed calls, best kept): loop trips
-(iterations) and host round trips (blocks run) per chunk, and agent-steps/s of each;
-``--group-lanes`` times the lockstep again with batches of other sizes than
+For each kind of agent of the paper grid, and for one batch of all eight kinds (a kind
+per lane, ``mix_kinds``), the lockstep block program at ``--lanes`` lanes is compiled and
+its optimized HLO read: XLA operations (fusions) per loop iteration, and the bytes of
+table-sized buffers (more elements than lanes × actions) copied per iteration. Then the
+paper grid at ``--seeds`` seeds × ``--episodes`` episodes runs with the lockstep (kind
+after kind, then the kinds mixed) and the sequential strategy, one after the other in
+this process (each once to get its programs, then ``--repeats`` timed calls, best kept):
+loop trips (iterations) and host round trips (blocks run) per chunk, and agent-steps/s
+of each; ``--group-lanes`` times the lockstep again with batches of other sizes than
 :data:`vdbejax.engine.MAX_SAFE_BATCH`.
 """
 from __future__ import annotations
@@ -58,23 +59,28 @@ def loop_body(hlo: str, lanes: int, actions: int) -> dict[str, Any]:
             "table_bytes_copied": sum(copy["bytes"] for copy in copies)}
 
 
-def block_program_hlo(setting: Any, lanes: int, chunk_length: int = 64) -> str:
-    """The optimized HLO of the lockstep block program of ``setting``'s kind."""
+def block_program_hlo(settings: list[Any], lanes: int, chunk_length: int = 64) -> str:
+    """The optimized HLO of the lockstep block program of ``settings``' kind, or of their
+    kinds mixed in one batch (lanes split evenly between the settings)."""
     import jax
     import jax.numpy as jnp
 
     from vdbejax.engine import lockstep
     from vdbejax.engine.driver import init_agents
+    from vdbejax.engine.kinds import KindSwitch
     from vdbejax.engine.programs import Programs
     from vdbejax.engine.state import for_task
     from vdbejax.envs.table_cleaning import make_mdp
     from vdbejax.experiment import grid_agents
 
     mdp = make_mdp()
-    params, keys = grid_agents([setting], lanes)
+    params, keys = grid_agents(settings, lanes // len(settings))
     params = for_task(params, mdp)  # the task's facts, as run_agents hands them
     agents = jax.eval_shape(init_agents, mdp, params, keys)
-    args = (mdp, params.kinds[0], agents,
+    agent = (params.kinds[0] if len(params.kinds) == 1 else
+             KindSwitch(kinds=tuple(params.kinds), kind=jnp.asarray(params.kind, jnp.int32)))
+    lanes = len(keys)
+    args = (mdp, agent, agents,
             jax.ShapeDtypeStruct((lanes, chunk_length), jnp.float32),
             jax.ShapeDtypeStruct((lanes, chunk_length), jnp.int32), None,  # no optimal record
             jnp.int32(0), jnp.int32(1), jnp.int32(1), lockstep.start_support(mdp))
@@ -82,7 +88,8 @@ def block_program_hlo(setting: Any, lanes: int, chunk_length: int = 64) -> str:
 
 
 def kind_rows(lanes: int) -> list[dict[str, Any]]:
-    """:func:`loop_body` of every kind of the paper grid at ``lanes`` lanes."""
+    """:func:`loop_body` of every kind of the paper grid at ``lanes`` lanes, and of all
+    of them in one batch (``"mixed"``)."""
     from vdbejax.envs.table_cleaning import make_mdp
     from vdbejax.methods.agents import paper_settings
 
@@ -90,14 +97,18 @@ def kind_rows(lanes: int) -> list[dict[str, Any]]:
     kinds: dict[str, Any] = {}
     for setting in paper_settings():
         kinds.setdefault(f"{setting.learner}/{setting.explorer}", setting)
-    return [{"kind": name, **loop_body(block_program_hlo(setting, lanes), lanes, actions)}
-            for name, setting in kinds.items()]
+    batches = {name: [setting] for name, setting in kinds.items()}
+    batches[f"mixed ({len(kinds)} kinds)"] = list(kinds.values())
+    return [{"kind": name, **loop_body(block_program_hlo(settings, lanes), lanes, actions)}
+            for name, settings in batches.items()]
 
 
 def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
-               threads: int | None, max_batch: int | None = None) -> dict[str, Any]:
-    """The paper grid with ``strategy``: programs got once, then the best of ``repeats``
-    calls (one chunk); its loop trips and host round trips (blocks run)."""
+               threads: int | None, max_batch: int | None = None,
+               mix_kinds: bool = False) -> dict[str, Any]:
+    """The paper grid with ``strategy`` (the lockstep's kinds mixed in one batch with
+    ``mix_kinds``): programs got once, then the best of ``repeats`` calls (one chunk);
+    its loop trips and host round trips (blocks run)."""
     from vdbejax import engine
     from vdbejax.engine import lockstep
     from vdbejax.engine.programs import Programs
@@ -124,7 +135,7 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
         lanes = {} if max_batch is None else {"max_batch": max_batch}
         return engine.run_agents(mdp, params, keys, episodes, chunk_episodes=episodes,
                                  strategy=strategy, threads=threads, keep_final_state=False,
-                                 **lanes)
+                                 mix_kinds=mix_kinds, **lanes)
 
     run()
     best, result, trips = float("inf"), None, 0
@@ -139,7 +150,7 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
         Programs.get = real_get  # type: ignore[method-assign]
     assert result is not None
     steps = int(result.lengths.sum())
-    return {"strategy": strategy, "agents": len(keys), "episodes": episodes,
+    return {"strategy": strategy + (" (kinds mixed)" if mix_kinds else ""), "agents": len(keys), "episodes": episodes,
             "seconds": round(best, 3), "agent_steps": steps,
             "agent_steps_per_s": round(steps / best),
             "max_batch": max_batch, "loop_trips_per_chunk": int(result.iterations),
@@ -174,11 +185,14 @@ def main(argv: list[str] | None = None) -> int:
     import vdbejax  # noqa: F401  (its XLA setting before JAX starts)
 
     report = {"kinds": kind_rows(args.lanes), "runs": [
-        timed_grid(strategy, args.seeds, args.episodes, args.repeats, args.threads)
-        for strategy in ("lockstep", "sequential")]}
-    lock, seq = report["runs"]
+        timed_grid(strategy, args.seeds, args.episodes, args.repeats, args.threads,
+                   mix_kinds=mix)
+        for strategy, mix in (("lockstep", False), ("lockstep", True), ("sequential", False))]}
+    lock, mixed, seq = report["runs"]
     report["lockstep_over_sequential"] = round(
         lock["agent_steps_per_s"] / seq["agent_steps_per_s"], 3)
+    report["mixed_over_kind_after_kind"] = round(
+        mixed["agent_steps_per_s"] / lock["agent_steps_per_s"], 3)
     report["group_lanes"] = [
         timed_grid("lockstep", args.seeds, args.episodes, args.repeats, args.threads, lanes)
         for lanes in group_lanes]
@@ -193,11 +207,12 @@ def main(argv: list[str] | None = None) -> int:
           f"({lock['agents']:,} agents):")
     for run in report["runs"]:
         trips = run["host_round_trips_per_chunk"]
-        print(f"  {run['strategy']:<10} {run['seconds']:>7.2f} s  "
+        print(f"  {run['strategy']:<24} {run['seconds']:>7.2f} s  "
               f"{run['agent_steps_per_s'] / 1e6:>6.2f} M agent-steps/s  "
               f"loop trips {run['loop_trips_per_chunk']:,}"
               + ("" if trips is None else f", host round trips {trips:,}"))
-    print(f"  lockstep / sequential: {report['lockstep_over_sequential']:.2f}×")
+    print(f"  lockstep / sequential: {report['lockstep_over_sequential']:.2f}×; kinds mixed /"
+          f" kind after kind: {report['mixed_over_kind_after_kind']:.2f}×")
     for run in report["group_lanes"]:
         print(f"  lockstep, groups of {run['max_batch']:>5,} lanes: {run['seconds']:>7.2f} s  "
               f"{run['agent_steps_per_s'] / 1e6:>6.2f} M agent-steps/s")

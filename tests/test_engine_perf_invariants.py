@@ -192,7 +192,7 @@ def test_masked_lanes_write_nothing_even_where_another_lane_writes(lanes):
     """An idle lane of the sequential strategy points at another agent's rows: its write
     must leave what a real lane wrote there in the same iteration. (Wide lockstep batches
     never alias: every lane is its own agent.)"""
-    from vdbejax.engine.step import put_learned
+    from vdbejax.engine.lanes import put_learned
 
     rng = np.random.default_rng(lanes)
     buffer = jnp.asarray(rng.normal(size=3 * lanes + 2).astype(np.float32))

@@ -14,7 +14,16 @@ KINDS = [("qlearning", e) for e in ("egreedy", "softmax", "vdbe", "vdbe_softmax"
 
 @pytest.mark.parametrize(("learner", "explorer"), KINDS)
 def test_the_lockstep_loop_copies_no_table(learner, explorer):
-    body = loop_body(block_program_hlo(Setting(learner, explorer), LANES), LANES, 7)
+    body = loop_body(block_program_hlo([Setting(learner, explorer)], LANES), LANES, 7)
+    assert body["table_copies"] == [], body
+    assert body["fusions"] > 0
+
+
+def test_a_batch_of_mixed_kinds_copies_no_table():
+    """A kind per lane (the paper's eight kinds in one batch) still writes in place."""
+    kinds = [Setting(learner, explorer) for learner in ("qlearning", "sarsa")
+             for explorer in ("egreedy", "softmax", "vdbe", "vdbe_softmax")]
+    body = loop_body(block_program_hlo(kinds, LANES), LANES, 7)
     assert body["table_copies"] == [], body
     assert body["fusions"] > 0
 
@@ -37,6 +46,12 @@ def test_auto_strategy_rule():
     assert auto_strategy(1, backend="cpu", sharded=True)[0] == "lockstep"
 
 
+def test_kinds_mix_by_default_on_accelerators_only():
+    from vdbejax.engine import mixes_kinds
+
+    assert (mixes_kinds("cpu"), mixes_kinds("gpu"), mixes_kinds("tpu")) == (False, True, True)
+
+
 def test_the_lockstep_and_auto_rule_benchmarks_run(capsys):
     import json
 
@@ -45,9 +60,12 @@ def test_the_lockstep_and_auto_rule_benchmarks_run(capsys):
     assert lockstep.main(["--seeds", "1", "--episodes", "3", "--lanes", "8", "--repeats", "1",
                           "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
-    lock, seq = report["runs"]
-    assert lock["host_round_trips_per_chunk"] >= len(report["kinds"])  # a block per group
-    assert lock["agent_steps"] == seq["agent_steps"] > 0  # the same work, step for step
+    lock, mixed, seq = report["runs"]
+    kinds = len(report["kinds"]) - 1  # and the mixed batch
+    assert lock["host_round_trips_per_chunk"] >= kinds  # a block per group
+    assert lock["agent_steps"] == mixed["agent_steps"] == seq["agent_steps"] > 0  # same work
+    # Kind after kind, a chunk takes each kind's iterations; mixed, those of the slowest.
+    assert mixed["loop_trips_per_chunk"] < lock["loop_trips_per_chunk"]
     assert auto_rule.main(["--seeds", "1", "--episodes", "3", "--repeats", "1", "--json"]) == 0
     row, = json.loads(capsys.readouterr().out)["rows"]
     assert row["agents"] == 46 and row["auto_over_better"] > 0

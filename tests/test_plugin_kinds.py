@@ -56,7 +56,7 @@ def _grid_with_every_table_kind():
 
 
 def test_one_program_serves_every_kind_with_the_bits_of_one_program_per_kind(monkeypatch):
-    from vdbejax.engine import programs, sequential
+    from vdbejax.engine import kinds, programs, sequential
 
     mdp = make_mdp(max_steps=40)
     settings = _grid_with_every_table_kind()
@@ -69,7 +69,7 @@ def test_one_program_serves_every_kind_with_the_bits_of_one_program_per_kind(mon
     assert switched.meta["strategy"] == "sequential"
     assert len(loops) == 1  # every kind, every item: one program
     # Blocks of at most 4 kinds: the six kinds get two programs of three, the same bits.
-    monkeypatch.setattr(sequential, "MAX_SWITCH_KINDS", 4)
+    monkeypatch.setattr(kinds, "MAX_SWITCH_KINDS", 4)
     calls.clear()
     blocks = run_grid(mdp, settings, num_seeds=5, num_episodes=30, seed=2, threads=2)
     loops = [c for c in calls if c.function is sequential._run_sequential]
@@ -113,7 +113,7 @@ class _Renamed:
 
 
 def test_many_kinds_are_split_into_programs_of_at_most_sixteen():
-    from vdbejax.engine.sequential import MAX_SWITCH_KINDS, switch_block_size
+    from vdbejax.engine.kinds import MAX_SWITCH_KINDS, switch_block_size
 
     assert MAX_SWITCH_KINDS == 16
     sizes = {n: switch_block_size(n) for n in (1, 8, 16, 17, 36, 100)}

@@ -92,6 +92,7 @@ def test_the_plan_is_stated_in_meta(reference):
     lockstep = run_small(strategy="lockstep")
     assert lockstep.meta["plan"]["strategy"] == lockstep.meta["strategy"] == "lockstep"
     assert lockstep.meta["plan"]["strategy_rule"] == "asked"
+    assert lockstep.meta["plan"]["mix_kinds"] is False  # kind after kind on a CPU
     assert plan["strategy_rule"].startswith("auto: cpu, ")  # the rule and the agents it saw
     assert_same_curves(lockstep, reference)
 

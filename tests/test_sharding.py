@@ -150,7 +150,7 @@ def test_the_plan_states_the_sharding_and_refuses_what_it_cannot_do(four_devices
     assert info["plan"] == {"devices": 4, "processes": 1, "sharded": True,
                             "strategy": "lockstep",
                             "strategy_rule": "auto: agents sharded over several devices",
-                            "compact": False, "agents_per_batch": 4,
+                            "compact": False, "mix_kinds": False, "agents_per_batch": 4,
                             "memory_budget_bytes": info["plan"]["memory_budget_bytes"]}
     assert info["sequential"].startswith("strategy='sequential' is invalid with devices=4")
 

@@ -33,6 +33,7 @@ from vdbejax.engine.driver import (
     available_cpus,
     check_params,
     compile_seconds,
+    mixes_kinds,
     run_agents,
     text_progress,
 )
@@ -64,6 +65,7 @@ __all__ = [
     "init_agent",
     "init_agents",
     "lockstep_iteration",
+    "mixes_kinds",
     "native_step_loops",
     "run_agents",
     "run_chunk",

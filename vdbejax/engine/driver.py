@@ -93,6 +93,7 @@ def run_agents(
     fixed_blocks: bool | None = None,
     chunk_seconds: float | None = None,
     optimal_action: Any | None = None,
+    mix_kinds: bool | None = None,
 ) -> RunResult:
     """Train a batch of agents for ``num_episodes`` episodes each.
 
@@ -145,9 +146,12 @@ def run_agents(
         that count as optimal: each episode's steps taking one are counted
         (:attr:`RunResult.optimal`). ``None`` (default):
         no count, the same programs and results as without it.
+      mix_kinds: the lockstep strategy runs agents of several kinds in one batch, each
+        lane its own kind (:func:`mixes_kinds`: default on accelerators), instead of kind
+        after kind.
 
-    None of ``compact`` … ``threads`` nor ``fixed_blocks`` change the results, only the
-    speed, as long as ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
+    None of ``compact`` … ``threads``, ``fixed_blocks`` nor ``mix_kinds`` change the
+    results, only the speed, as long as ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
 
     Every kind's learner is first set for the task (:func:`~vdbejax.engine.state.for_task`:
     the facts of ``mdp`` a method's convention depends on).
@@ -226,6 +230,7 @@ def run_agents(
                 block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
                 max_batch=max_batch, programs=programs, threads=threads if on_cpu else 1,
                 fixed_blocks=not on_cpu if fixed_blocks is None else fixed_blocks,
+                mix_kinds=mixes_kinds() if mix_kinds is None else mix_kinds,
             )
             yield outputs
 
@@ -327,6 +332,16 @@ def auto_strategy(num_agents: int, *, backend: str | None = None,
     if backend != "cpu":
         return "lockstep", f"backend {backend}"
     return "sequential", f"cpu, {num_agents} agents (sequential is the faster on a CPU)"
+
+
+def mixes_kinds(backend: str | None = None) -> bool:
+    """Whether the lockstep strategy runs several kinds in one batch by default: on an
+    accelerator, where an iteration costs its kernels' launches whatever the lanes do,
+    so one batch of every kind takes the iterations of its slowest agent instead of
+    the sum over kinds; not on a CPU, where an iteration costs the lanes' work and a
+    mixed batch does every kind's work on every lane (``python -m benchmarks.mixed_kinds``,
+    ``benchmarks/RESULTS.md``)."""
+    return (jax.default_backend() if backend is None else backend) != "cpu"
 
 
 def _is_sharded(params: AgentParams, keys: Any) -> bool:

@@ -1,6 +1,6 @@
 """One kind's part of an iteration: its plug-ins' rows read and the learner's and
-explorer's step for one agent (:func:`_agent_step`), vmapped over the lanes
-(:func:`_kind_step`). :mod:`vdbejax.engine.step` reads and writes the lanes' tables around
+explorer's step for one agent (:func:`agent_step`), vmapped over the lanes
+(:func:`kind_part`). :mod:`vdbejax.engine.step` reads and writes the lanes' tables around
 it; on a CPU each kind's part is one branch of the run's program
 (:mod:`vdbejax.engine.kinds`).
 """
@@ -56,7 +56,7 @@ def uniform_parts(agent: Agent, u: tuple, num_actions: int
             as_draws(explorer_draws, parts[2]) if parts[2] else (), parts[3])
 
 
-def _agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: dict,
+def agent_step(agent: Agent, a: Array, q_sa: Array, q_next: Array, learner_sa: dict,
                 learner_next: dict, explorer_s: dict, explorer_next: dict, reward: Array,
                 terminal: Array, self_loop: Array, update_context: Context,
                 select_context: Context, explorer_uniforms: tuple, learner_uniforms: tuple,
@@ -148,7 +148,7 @@ def all_finite(leaves: list) -> Array:
     return finite
 
 
-def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
+def kind_part(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
                q_sa: Array, q_next: Array, reward: Array, terminal: Array,
                self_loop: Array, sa_index: Array, pair_base: Array, state_base: Array,
                update_context: Context, select_context: Context, u: tuple, s_next: Array,
@@ -156,8 +156,8 @@ def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
                select_next: bool = True, skip_unchanged: bool = False
                ) -> tuple[Array | None, dict, dict, Array, Array]:
     """The part of an iteration that depends on the kind: the plug-ins' tables read, the
-    learner's and explorer's step (:func:`_agent_step`, vmapped over the lanes).
-    ``whole``, ``select_next``: see :func:`_agent_step` (batched over the lanes).
+    learner's and explorer's step (:func:`agent_step`, vmapped over the lanes).
+    ``whole``, ``select_next``: see :func:`agent_step` (batched over the lanes).
     ``skip_unchanged``: leave out of ``learned`` the learner's tables that its update
     returns unchanged, and return ``None`` for an unchanged Q: writing them back would
     rewrite what is there. (Where the update returns a stage table unchanged, as UCBVI's
@@ -194,7 +194,7 @@ def _kind_step(agent: Agent, tables: dict, a: Array, s: Array, act_state: Array,
         explorer_s = {name: rows[:half] for name, rows in both.items()}
         explorer_next = {name: rows[half:] for name, rows in both.items()}
     unchanged: set[str] | None = set() if skip_unchanged else None
-    step = partial(_agent_step, select_next=select_next, unchanged=unchanged)
+    step = partial(agent_step, select_next=select_next, unchanged=unchanged)
     new_q_sa, new_learner_sa, new_explorer_s, next_action, finite = jax.vmap(step)(
         agent, a, q_sa, q_next, learner_sa, learner_next, explorer_s, explorer_next, reward,
         terminal, self_loop, update_context, select_context, explorer_u, learner_u, redraw_u,

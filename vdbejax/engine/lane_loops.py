@@ -11,10 +11,11 @@ import jax
 import jax.numpy as jnp
 
 from vdbejax import _pytree
-from vdbejax.engine.lanes import at_lane
+from vdbejax.engine.kinds import KindSwitch
+from vdbejax.engine.lanes import UNROLLED_LANES_MAX, at_lane
 from vdbejax.engine.packing import _pack, _unpack
 from vdbejax.engine.state import AgentState
-from vdbejax.engine.step import UNROLLED_LANES_MAX, KindSwitch, optimal_buffer, run_loop
+from vdbejax.engine.step import optimal_buffer, run_loop
 from vdbejax.engine.work_items import LANES
 from vdbejax.envs.tabular import TabularMDP
 
@@ -78,7 +79,7 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
     ``agent`` holds the work item's hyperparameters, all of one kind: the kind's types
     fix the program, so XLA keeps only the work that kind needs — or, with ``kind``,
     ``agent`` holds every kind's (a tuple) and one program serves them all
-    (:class:`~vdbejax.engine.step.KindSwitch`). Rows from ``count`` on
+    (:class:`~vdbejax.engine.kinds.KindSwitch`). Rows from ``count`` on
     are padding and never run. The batch's tables are updated in place (``agents`` is
     donated): a loop indexes them at its agents' rows.
 

@@ -70,7 +70,7 @@ def take_row(buffer: Array, index: Array, width: int) -> Array:
 def _scatter(buffer: Array, index: Array, value: Array, rows: bool = False) -> Array:
     """``buffer[index] = value`` (``[B]``), or with ``rows`` ``buffer[index + j] =
     value[:, j]`` (``[B, width]``), for distinct in-bounds lanes (wide batches; a few
-    lanes write through :func:`_write_lanes`)."""
+    lanes write through :func:`write_lanes`)."""
     value = value.astype(buffer.dtype)
     if not rows:
         return buffer.at[index].set(value, mode="promise_in_bounds", unique_indices=True)
@@ -79,7 +79,7 @@ def _scatter(buffer: Array, index: Array, value: Array, rows: bool = False) -> A
                                                    unique_indices=True)
 
 
-def _write_lanes(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
+def write_lanes(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
     """Unrolled ``buffer[index[k] + j] = value[k, j]`` where ``mask[k]``, lane by lane.
 
     Each lane reads what it would overwrite just before writing, so a lane without
@@ -98,7 +98,7 @@ def _write_lanes(buffer: Array, index: Array, value: Array, mask: Array) -> Arra
 def put_where(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
     """``buffer[index] = value`` where ``mask``; lanes without it write nothing."""
     if is_unrolled(index):
-        return _write_lanes(buffer, index, value, mask)
+        return write_lanes(buffer, index, value, mask)
     index = jnp.where(mask, index, buffer.shape[0])  # past the end: dropped
     return buffer.at[index].set(value.astype(buffer.dtype), mode="drop")
 
@@ -106,9 +106,9 @@ def put_where(buffer: Array, index: Array, value: Array, mask: Array) -> Array:
 def put_learned(buffer: Array, index: Array, new: Array, old: Array, mask: Array,
                 rows: bool = False) -> Array:
     """``buffer[index] = new`` where ``mask``, ``old`` (the value read) elsewhere; a few
-    lanes write lane by lane, those without ``mask`` nothing (see :func:`_write_lanes`)."""
+    lanes write lane by lane, those without ``mask`` nothing (see :func:`write_lanes`)."""
     if is_unrolled(index):
-        return _write_lanes(buffer, index, new, mask)
+        return write_lanes(buffer, index, new, mask)
     kept = jnp.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
     return _scatter(buffer, index, kept, rows)
 

@@ -11,8 +11,11 @@ batch advance together, one vectorised step per loop iteration.
   iterations and, once at most half the lanes are active, gathers the active agents into
   a batch of the next power-of-two size (few shapes to compile). Bit-identical to running
   without it.
-* **One program per kind.** A batch holds agents of one kind (learner and explorer
-  type); agents of several kinds run kind after kind.
+* **Kinds.** A batch holds agents of one kind (learner and explorer type), kind after
+  kind; or, with ``mix_kinds``, agents of up to
+  :data:`~vdbejax.engine.kinds.MAX_SWITCH_KINDS` kinds in one batch
+  (:class:`~vdbejax.engine.kinds.KindSwitch` with a kind per lane), so a chunk takes as
+  many iterations as its slowest agent, not the sum over kinds of each kind's slowest.
 """
 from __future__ import annotations
 
@@ -25,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vdbejax.engine.kinds import KindSwitch, can_switch, is_whole_kind, switch_block_size
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.state import AgentState
 from vdbejax.engine.step import optimal_buffer, run_loop, start_support
@@ -46,7 +50,7 @@ DEFAULT_UNROLL = 1
 
 def run_chunk(
     mdp: TabularMDP,
-    params: Agent | AgentParams,
+    params: Agent | AgentParams | KindSwitch,
     agents: AgentState,
     chunk_start: Array,
     chunk_end: Array,
@@ -92,7 +96,7 @@ def run_chunk(
     return program(*args)
 
 
-def _run_chunk(mdp: TabularMDP, params: Agent, agents: AgentState, chunk_start: Array,
+def _run_chunk(mdp: TabularMDP, params: Agent | KindSwitch, agents: AgentState, chunk_start: Array,
                chunk_end: Array, start_support: Any, *, chunk_length: int,
                unroll: int) -> tuple[AgentState, Array, Array, Array, Array | None]:
     num_agents = agents.episode.shape[0]
@@ -105,7 +109,7 @@ def _run_chunk(mdp: TabularMDP, params: Agent, agents: AgentState, chunk_start: 
     )
 
 
-def block_program(mdp: TabularMDP, params: Agent, agents: AgentState, returns: Array,
+def block_program(mdp: TabularMDP, params: Agent | KindSwitch, agents: AgentState, returns: Array,
                   lengths: Array, optimal: Array | None, chunk_start: Array,
                   chunk_end: Array, max_iterations: Array, start_support: Any, *, unroll: int,
                   fixed_iterations: int | None = None
@@ -169,7 +173,7 @@ def _on_one_device(tree: Any) -> bool:
 
 def _run_stream(
     mdp: TabularMDP,
-    params: Agent,
+    params: Agent | KindSwitch,
     agents: AgentState,
     chunk_start: int,
     chunk_end: int,
@@ -255,6 +259,29 @@ def _run_stream(
     return (*written_back(), iterations, lane_iterations)
 
 
+def _kind_groups(params: AgentParams, kinds: np.ndarray, mix_kinds: bool
+                 ) -> list[tuple[Agent | KindSwitch, np.ndarray]]:
+    """The batches' parameters and their agents: one kind each, or with ``mix_kinds``
+    the kinds one program can serve together (:func:`~vdbejax.engine.kinds.can_switch`)
+    as a :class:`~vdbejax.engine.kinds.KindSwitch` per block of them, each agent's kind
+    its index in the block (whole kinds still run one kind each)."""
+    present = [k for k in range(len(params.kinds)) if np.any(kinds == k)]
+    mixed = [k for k in present if not is_whole_kind(params.kinds[k])]
+    if not (mix_kinds and len(mixed) > 1 and can_switch(tuple(params.kinds[k] for k in mixed))):
+        mixed = []
+    groups: list[tuple[Agent | KindSwitch, np.ndarray]] = [
+        (params.kinds[k], np.flatnonzero(kinds == k)) for k in present if k not in mixed]
+    size = switch_block_size(len(mixed))
+    for first in range(0, len(mixed), size):
+        block = mixed[first:first + size]
+        within = np.zeros(kinds.shape, np.int32)  # rows of other kinds are never run
+        for position, k in enumerate(block):
+            within[kinds == k] = position
+        groups.append((KindSwitch(kinds=tuple(params.kinds[k] for k in block), kind=within),
+                       np.flatnonzero(np.isin(kinds, block))))
+    return groups
+
+
 def run_chunk_lockstep(
     mdp: TabularMDP,
     params: AgentParams,
@@ -271,9 +298,12 @@ def run_chunk_lockstep(
     programs: Programs,
     threads: int = 1,
     fixed_blocks: bool = False,
+    mix_kinds: bool = False,
 ) -> tuple[AgentState, Array, Array, Array | None, int, int]:
-    """One chunk of the lockstep strategy: kind by kind, in groups of at most
-    ``max_batch`` lanes, the groups spread over ``threads`` threads.
+    """One chunk of the lockstep strategy: kind by kind (or, with ``mix_kinds``, the kinds
+    together in blocks of :func:`~vdbejax.engine.kinds.switch_block_size` where one
+    program can serve them, :func:`~vdbejax.engine.kinds.can_switch`), in groups of at
+    most ``max_batch`` lanes, the groups spread over ``threads`` threads.
 
     With ``compact``, a group is a stream of a kind's agents through a batch of
     ``max_batch`` lanes (:func:`_run_stream`). Per-agent results do not depend on the
@@ -289,12 +319,9 @@ def run_chunk_lockstep(
     num_agents = int(agents.episode.shape[0])
     if _on_one_cpu((agents, params)):  # groups cut as host views: no dispatch per leaf
         agents, params = jax.tree.map(np.asarray, (agents, params))
-    groups: list[tuple[Agent, np.ndarray]] = []
+    groups: list[tuple[Agent | KindSwitch, np.ndarray]] = []
     kinds = np.asarray(params.kind)
-    for k, agent in enumerate(params.kinds):
-        members = np.flatnonzero(kinds == k)
-        if members.size == 0:
-            continue
+    for agent, members in _kind_groups(params, kinds, mix_kinds):
         if compact:  # streams through batches of max_batch lanes, a few per kind for threads
             streams = max(1, min(threads, -(-members.size // max_batch)))
             groups.extend((agent, rows) for rows in np.array_split(members, streams))
@@ -305,7 +332,7 @@ def run_chunk_lockstep(
     support = start_support(mdp)
     block_programs: dict[tuple, Any] = {}
 
-    def run_group(group: tuple[Agent, np.ndarray]) -> tuple[Any, int, int]:
+    def run_group(group: tuple[Agent | KindSwitch, np.ndarray]) -> tuple[Any, int, int]:
         agent, rows = group
         first, count = int(rows[0]), rows.size
         part: Callable[[Any], Any]

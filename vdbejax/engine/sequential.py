@@ -4,8 +4,9 @@ takes the work item's next agent), and work items of agents on several threads.
 
 With a few lanes every table access is a dynamic slice, so XLA's CPU backend compiles the
 whole loop into one native function (see :mod:`vdbejax._xla_flags`). One program serves
-every kind of agent of the run, up to :data:`MAX_SWITCH_KINDS` kinds (learner and
-explorer type, with their static fields):
+every kind of agent of the run, up to
+:data:`~vdbejax.engine.kinds.MAX_SWITCH_KINDS` kinds (learner and explorer type, with
+their static fields):
 each kind's part of the step is a branch of a ``lax.switch`` on the item's kind
 (:class:`~vdbejax.engine.kinds.KindSwitch`), so the loop is traced once, not once per
 kind — tracing is most of what a run pays besides its steps; a chunk of a work item is
@@ -28,10 +29,11 @@ import numpy as np
 
 from vdbejax import _xla_flags
 from vdbejax.engine.chunks import ChunkSchedule
+from vdbejax.engine.kinds import can_switch, switch_block_size
 from vdbejax.engine.lane_loops import _run_sequential, lanes_for
 from vdbejax.engine.programs import Call, Programs
 from vdbejax.engine.state import AgentState, init_agents
-from vdbejax.engine.step import can_switch, start_support
+from vdbejax.engine.step import start_support
 from vdbejax.engine.work_items import (  # noqa: F401  (re-exported)
     HOST_INIT_MAX_BYTES,
     LANES,
@@ -88,27 +90,13 @@ def _check_native(executable: Any) -> bool:
     return native
 
 
-#: Most kinds of agent one program serves. A switch's compile time grows faster than its
-#: branches (a cold process, the table-cleaning task: 9 kinds 3.0 s, 18 kinds 6.0 s, 36
-#: kinds 21 s), so more kinds are split into blocks of about equal size, a program each.
-MAX_SWITCH_KINDS = 16
-
-
-def switch_block_size(num_kinds: int) -> int:
-    """Kinds per program for a run of ``num_kinds`` kinds: blocks of about equal size, at
-    most :data:`MAX_SWITCH_KINDS` (kind ``k`` is branch ``k % size`` of program
-    ``k // size``)."""
-    blocks = -(-max(num_kinds, 1) // MAX_SWITCH_KINDS)
-    return -(-max(num_kinds, 1) // blocks)
-
-
 class _SequentialRun:
     """The sequential strategy over the chunks of one :func:`run_agents` call.
 
     Agents are split by kind (learner and explorer type), one program for every kind
     (:func:`_run_sequential` with a :class:`~vdbejax.engine.kinds.KindSwitch`; one per
-    block of at most :data:`MAX_SWITCH_KINDS` kinds; one per kind where a table name is
-    written two ways), and into about ``4 × threads`` work items
+    block of at most :data:`~vdbejax.engine.kinds.MAX_SWITCH_KINDS` kinds; one per kind
+    where a table name is written two ways), and into about ``4 × threads`` work items
     (:func:`_sequential_groups`); worker threads take items as they become free (XLA
     releases the GIL while a program runs). An item's loop runs :data:`LANES` agents side
     by side. An item's arrays are padded to a power-of-two number of rows (few shapes to

@@ -11,12 +11,12 @@ One iteration of one agent (``s, a`` = current state and the action already chos
    (so a self-loop sees its own new values). Then update ``Q(s, a)`` (and the learner's
    tables at ``(s, a)``) and the explorer's tables of ``s``.
 
-The per-agent part (:func:`_agent_step`) calls the plug-ins on one agent's rows and is
-``vmap``-ed over the lanes; around it, :func:`lockstep_iteration` reads and writes the
-lanes' tables. Tables are flat 1-D buffers (``[B·S·A]``, ``[B·S]``), so every access is a
-1-D gather or scatter of one row per lane, and for a batch of a few lanes (the
-sequential strategy) unrolled dynamic slices: XLA's CPU backend then compiles the whole
-loop natively.
+The per-agent part (:func:`~vdbejax.engine.kind_step.agent_step`) calls the plug-ins on
+one agent's rows and is ``vmap``-ed over the lanes; around it, :func:`lockstep_iteration`
+reads and writes the lanes' tables. Tables are flat 1-D buffers (``[B·S·A]``,
+``[B·S]``), so every access is a 1-D gather or scatter of one row per lane, and for a
+batch of a few lanes (the sequential strategy) unrolled dynamic slices: XLA's CPU backend
+then compiles the whole loop natively.
 """
 from __future__ import annotations
 
@@ -30,28 +30,9 @@ import numpy as np
 
 from vdbejax._numerics import sample_categorical
 from vdbejax.engine.instances import lane_optimal, lane_rows, lane_start, lane_transition
-from vdbejax.engine.kind_step import (  # noqa: F401  (re-exported)
-    ENGINE_UNIFORMS,
-    _agent_step,
-    _kind_step,
-    num_uniforms,
-    uniform_parts,
-)
-from vdbejax.engine.kinds import (  # noqa: F401  (re-exported)
-    KindSwitch,
-    _write_form,
-    can_switch,
-    table_forms,
-)
-from vdbejax.engine.lanes import (  # noqa: F401  (UNROLLED_LANES_MAX: re-exported)
-    UNROLLED_LANES_MAX,
-    _write_lanes,
-    is_unrolled,
-    put_learned,
-    put_where,
-    take,
-    take_row,
-)
+from vdbejax.engine.kind_step import kind_part, num_uniforms, uniform_parts
+from vdbejax.engine.kinds import KindSwitch, switch_part, table_forms, write_form
+from vdbejax.engine.lanes import is_unrolled, put_learned, put_where, take, take_row, write_lanes
 from vdbejax.engine.state import AgentState, draw_base, reward_uniform, uniforms_from
 from vdbejax.engine.whole import (
     LearnedStep,
@@ -207,7 +188,7 @@ def lockstep_iteration(
         whole_kind = is_whole_kind(agent)
         blocks = (whole_blocks(agents.q, agents.tables, agent.learner, pair_base, S * A, (S, A))
                   if agent.learner.updates_whole_table else None)
-        new_q_sa, learned, explored, next_action, finite = _kind_step(
+        new_q_sa, learned, explored, next_action, finite = kind_part(
             agent, *operands, num_actions=A, whole=blocks,
             select_next=not (whole_kind and defers_selection(agent.learner)),
             skip_unchanged=blocks is None)
@@ -229,7 +210,7 @@ def lockstep_iteration(
                                            old.reshape(num_agents, -1), learn, True)
         for name, spec in agent.explorer.tables().items():
             new, old = explored[name]
-            tables[name] = put_learned(tables[name], index_of(_write_form("explorer", spec.per)),
+            tables[name] = put_learned(tables[name], index_of(write_form("explorer", spec.per)),
                                        new, old, learn, spec.per == "pair")
         if whole_kind:
             explorer_u, _, _, plan_u = uniform_parts(agent, u, A)
@@ -242,36 +223,23 @@ def lockstep_iteration(
                     plan_uniforms=plan_u),
                 num_states=S, num_actions=A, capacity=capacity(S, mdp.num_outcomes))
     else:
-        forms = table_forms(kinds)
-        assert forms is not None and is_unrolled(lane), "see can_switch"
-
-        def branch(kind_agent: Agent) -> Any:
-            def run(*operands: Any) -> tuple:
-                new_q_sa, learned, explored, next_action, finite = _kind_step(
-                    kind_agent, *operands, num_actions=A)
-                mine = {**learned, **explored}
-                # Every table of every kind, in one form: the kind's new values where it
-                # owns the table, a write that is masked off where it does not.
-                writes = {}
-                for name, form in forms.items():
-                    width = A if form == "pair_row" else 1
-                    if name in mine:
-                        value = mine[name][0].reshape(num_agents, width)
-                        writes[name] = (value.astype(agents.tables[name].dtype),
-                                        jnp.asarray(True))
-                    else:
-                        writes[name] = (jnp.zeros((num_agents, width),
-                                                  agents.tables[name].dtype),
-                                        jnp.asarray(False))
-                return new_q_sa, writes, jnp.asarray(next_action, jnp.int32), finite
-            return run
-
-        new_q_sa, writes, next_action, finite = jax.lax.switch(
-            agent.kind, [branch(k) for k in kinds], *operands)
+        new_q_sa, writes, next_action, finite = switch_part(
+            agent, operands, num_actions=A,
+            dtypes={name: table.dtype for name, table in tables.items()})
         q = put_learned(agents.q, sa_index, new_q_sa, q_sa, learn)
-        for name, form in forms.items():
-            value, owned = writes[name]
-            tables[name] = _write_lanes(tables[name], index_of(form), value, learn & owned)
+        forms = table_forms(kinds)
+        assert forms is not None  # (switch_part checked)
+        for name, (value, owned) in writes.items():
+            form, mask = forms[name], learn & owned
+            if is_unrolled(lane):  # a masked lane rewrites what is there
+                tables[name] = write_lanes(tables[name], index_of(form), value, mask)
+            else:  # where a lane's kind does not own the table, the value read is kept
+                width = value.shape[1]
+                old = (take(tables[name], index_of(form)) if width == 1
+                       else take_row(tables[name], index_of(form), width))
+                tables[name] = put_learned(tables[name], index_of(form),
+                                           value if width > 1 else value[:, 0], old, mask,
+                                           width > 1)
 
     episode_return = agents.episode_return + reward
     slot = agents.episode - chunk_start

@@ -28,7 +28,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from vdbejax.engine import AgentState, RunResult, auto_strategy, run_agents
+from vdbejax.engine import AgentState, RunResult, auto_strategy, mixes_kinds, run_agents
 from vdbejax.engine.distributed import (
     agent_mesh,
     local_devices,
@@ -66,6 +66,8 @@ class RunPlan:
       strategy_rule: why: ``"asked"`` (the options named it) or ``"auto: …"``
         (:func:`~vdbejax.engine.auto_strategy`'s reason).
       compact: the lockstep strategy's compaction.
+      mix_kinds: the lockstep strategy runs several kinds in one batch
+        (:func:`~vdbejax.engine.mixes_kinds`: on accelerators).
       chunk_episodes: episodes per engine chunk (with ``chunk_seconds``: the most
         between two of its multiples).
       threads: worker threads of the sequential strategy (None: the engine's default).
@@ -86,6 +88,7 @@ class RunPlan:
     threads: int | None
     strategy_rule: str = "asked"
     chunk_seconds: float | None = None
+    mix_kinds: bool = False
 
     @property
     def sharded(self) -> bool:
@@ -96,6 +99,7 @@ class RunPlan:
         return {"devices": len(self.devices), "processes": jax.process_count(),
                 "sharded": self.sharded, "strategy": self.strategy,
                 "strategy_rule": self.strategy_rule, "compact": self.compact,
+                "mix_kinds": self.mix_kinds and self.strategy == "lockstep",
                 "agents_per_batch": self.batch_size,
                 "memory_budget_bytes": int(self.memory_budget_bytes)}
 
@@ -108,6 +112,7 @@ class RunPlan:
         :func:`~vdbejax.engine.run_agents` to ``num_episodes`` episodes."""
         options: dict[str, Any] = dict(chunk_episodes=self.chunk_episodes, strategy=self.strategy,
                                        compact=self.compact, threads=self.threads,
+                                       mix_kinds=self.mix_kinds,
                                        on_chunk=on_chunk, chunk_states=chunk_states,
                                        chunk_seconds=self.chunk_seconds,
                                        keep_final_state=keep_final_state, programs=programs,
@@ -219,6 +224,7 @@ def make_plan(mdp: TabularMDP, params: AgentParams, num_agents: int, num_episode
     return RunPlan(devices=tuple(devices), local=tuple(local), rows=rows,
                    batch_size=batch_size, memory_budget_bytes=budget, strategy=strategy,
                    strategy_rule=strategy_rule,
-                   compact=not sharded, chunk_episodes=chunk, threads=run.threads,
+                   compact=not sharded, mix_kinds=mixes_kinds(), chunk_episodes=chunk,
+                   threads=run.threads,
                    chunk_seconds=(CHUNK_SECONDS if run.chunk_episodes is None
                                   and not run.stop.checks_chunks else None))
