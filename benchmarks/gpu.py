@@ -59,24 +59,28 @@ def _peak_bytes() -> tuple[int, str]:
     return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024, "host peak RSS"
 
 
-def run_once(seeds: int, episodes: int) -> dict:
-    """The paper grid with ``seeds`` agents per setting: compile (untimed), then time it."""
+def run_once(seeds: int, episodes: int, mix_kinds: bool | None = None) -> dict:
+    """The paper grid with ``seeds`` agents per setting: compile (untimed), then time it
+    (``mix_kinds``: :class:`vdbejax.runs.RunOptions`'s)."""
     from vdbejax.envs.table_cleaning import make_mdp
     from vdbejax.experiment import run_grid
     from vdbejax.methods.agents import paper_settings
+    from vdbejax.runs import RunOptions
 
     mdp, settings = make_mdp(), paper_settings()
+    run = RunOptions(mix_kinds=mix_kinds)
     # The same call first: its programs are compiled for the very shapes timed below (a
     # shorter run compiles other chunk programs, and the timed run compiled its own).
     started = time.perf_counter()
-    run_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes)
+    run_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes, run=run)
     cold = time.perf_counter() - started
     started = time.perf_counter()
-    result = run_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes)
+    result = run_grid(mdp, settings, num_seeds=seeds, num_episodes=episodes, run=run)
     wall = time.perf_counter() - started
     steps = int(result.lengths.astype(np.int64).sum())
     peak, where = _peak_bytes()
     return {"agents": len(settings) * seeds, "seeds": seeds, "episodes": episodes, "wall": wall,
+            "mix_kinds": bool(result.meta["plan"]["mix_kinds"]),
             "cold": cold, "returns": result.returns,
             "train": float(result.meta["elapsed_seconds"]), "steps": steps,
             "steps_per_s": steps / max(wall, 1e-9), "peak_bytes": peak, "peak_where": where}
@@ -153,8 +157,9 @@ def _row(r: dict) -> str:
             f" {r['steps_per_s'] / 1e6:.1f} | {r['peak_bytes'] / 2**20:,.0f} ({r['peak_where']}) |")
 
 
-def render(grid: dict, rows: list[dict], command: str, agree: dict | None = None) -> str:
-    """The markdown section."""
+def render(grid: dict, rows: list[dict], command: str, agree: dict | None = None,
+           apart: dict | None = None) -> str:
+    """The markdown section (``apart``: the paper grid run kind after kind)."""
     import jax
 
     device, _ = _device_summary()
@@ -165,7 +170,11 @@ def render(grid: dict, rows: list[dict], command: str, agree: dict | None = None
         " (the same call run first; its wall, compiling included, is the *cold* column).", "",
         f"Full paper grid (46 settings × 20 agents × {grid['episodes']:,} episodes):"
         f" {grid['wall']:.2f} s, {grid['steps']:,} agent-steps, {grid['steps_per_s'] / 1e6:.1f} M"
-        f" agent-steps/s, peak memory {grid['peak_bytes'] / 2**20:,.0f} MiB ({grid['peak_where']}).",
+        f" agent-steps/s, peak memory {grid['peak_bytes'] / 2**20:,.0f} MiB ({grid['peak_where']})"
+        f"; kinds {'mixed in one batch' if grid['mix_kinds'] else 'one after another'}."
+        + ("" if apart is None else
+           f" Kind after kind (`mix_kinds=False`): {apart['wall']:.2f} s warm,"
+           f" {apart['cold']:.2f} s cold."),
         "", "| agents | episodes | cold s | wall s | agent-steps | M agent-steps/s | peak MiB |",
         "| --- | --- | --- | --- | --- | --- | --- |",
     ]
@@ -208,11 +217,14 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m benchmarks.gpu " + " ".join(argv if argv is not None else [])
     grid = run_once(2 if args.quick else 20, episodes)
     print(f"grid: {grid['wall']:.2f} s, {grid['steps_per_s'] / 1e6:.1f} M agent-steps/s", flush=True)
+    apart = run_once(grid["seeds"], episodes, mix_kinds=False) if grid["mix_kinds"] else None
+    if apart is not None:
+        print(f"grid, kind after kind: {apart['wall']:.2f} s", flush=True)
     agree = cpu_agreement(grid["returns"], cpu_returns(grid["seeds"], episodes))
     print(f"against the CPU: {agree['final']}/{agree['settings']} settings agree finally,"
           f" {agree['identical']} agents bit-identical", flush=True)
     rows = sweep(episodes, max_agents, first_seeds=2 if args.quick else 20)
-    write_section(Path(args.out), render(grid, rows, command.strip(), agree))
+    write_section(Path(args.out), render(grid, rows, command.strip(), agree, apart))
     return 0
 
 

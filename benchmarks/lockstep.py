@@ -11,9 +11,10 @@ table-sized buffers (more elements than lanes × actions) copied per iteration. 
 paper grid at ``--seeds`` seeds × ``--episodes`` episodes runs with the lockstep (kind
 after kind, then the kinds mixed) and the sequential strategy, one after the other in
 this process (each once to get its programs, then ``--repeats`` timed calls, best kept):
-loop trips (iterations) and host round trips (blocks run) per chunk, and agent-steps/s
-of each; ``--group-lanes`` times the lockstep again with batches of other sizes than
-:data:`vdbejax.engine.MAX_SAFE_BATCH`.
+loop trips (iterations), host round trips (blocks run) and fusions run (each block's
+fusions per iteration × its iterations: the kernels an accelerator would launch) per
+chunk, and agent-steps/s of each; ``--group-lanes`` times the lockstep again with
+batches of other sizes than :data:`vdbejax.engine.MAX_SAFE_BATCH`.
 """
 from __future__ import annotations
 
@@ -118,7 +119,8 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
 
     mdp = make_mdp()
     params, keys = grid_agents(paper_settings(), seeds)
-    blocks = [0]
+    blocks, fusions_run = [0], [0]
+    fusions_of: dict[int, int] = {}  # per block program: fusions per loop iteration
     real_get = Programs.get
 
     def counting_get(self: Any, function: Any, *args: Any, **kwargs: Any) -> Any:
@@ -128,7 +130,11 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
 
         def counted(*call_args: Any) -> Any:  # one host round trip per block run
             blocks[0] += 1
-            return program(*call_args)
+            outputs = program(*call_args)
+            if id(program) not in fusions_of:
+                fusions_of[id(program)] = loop_body(program.as_text(), 1, 1)["fusions"]
+            fusions_run[0] += fusions_of[id(program)] * int(outputs[3])  # × its iterations
+            return outputs
         return counted
 
     def run() -> Any:
@@ -142,7 +148,7 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
     Programs.get = counting_get  # type: ignore[method-assign]
     try:
         for _ in range(repeats):
-            blocks[0] = 0
+            blocks[0] = fusions_run[0] = 0
             started = time.perf_counter()
             result = run()
             best, trips = min(best, time.perf_counter() - started), blocks[0]
@@ -154,7 +160,9 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
             "seconds": round(best, 3), "agent_steps": steps,
             "agent_steps_per_s": round(steps / best),
             "max_batch": max_batch, "loop_trips_per_chunk": int(result.iterations),
-            "host_round_trips_per_chunk": trips if strategy == "lockstep" else None}
+            "host_round_trips_per_chunk": trips if strategy == "lockstep" else None,
+            # What an accelerator launches: each iteration runs its program's fusions.
+            "fusions_run_per_chunk": fusions_run[0] if strategy == "lockstep" else None}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -210,7 +218,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {run['strategy']:<24} {run['seconds']:>7.2f} s  "
               f"{run['agent_steps_per_s'] / 1e6:>6.2f} M agent-steps/s  "
               f"loop trips {run['loop_trips_per_chunk']:,}"
-              + ("" if trips is None else f", host round trips {trips:,}"))
+              + ("" if trips is None else f", host round trips {trips:,}, fusions run"
+                 f" {run['fusions_run_per_chunk']:,}"))
     print(f"  lockstep / sequential: {report['lockstep_over_sequential']:.2f}×; kinds mixed /"
           f" kind after kind: {report['mixed_over_kind_after_kind']:.2f}×")
     for run in report["group_lanes"]:

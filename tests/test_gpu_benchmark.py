@@ -6,11 +6,18 @@ import numpy as np
 from benchmarks import gpu
 
 
-def test_quick_run_writes_and_replaces_its_section(tmp_path):
+def test_quick_run_writes_and_replaces_its_section(tmp_path, monkeypatch):
+    from vdbejax.runs import plan
+
+    # The lockstep with kinds mixed in one batch, as on an accelerator: the grid runs
+    # kind after kind too.
+    monkeypatch.setattr(plan, "auto_strategy", lambda *_, **__: ("lockstep", "accelerator"))
+    monkeypatch.setattr(plan, "mixes_kinds", lambda: True)
     out = tmp_path / "RESULTS.md"
     out.write_text("# Results\n\n## Analysis\n\nhand-written\n")
     assert gpu.main(["--out", str(out), "--quick"]) == 0
     text = out.read_text()
+    assert "kinds mixed in one batch. Kind after kind (`mix_kinds=False`):" in text
     assert text.startswith("# Results") and "hand-written" in text
     assert text.count(gpu.HEADING) == 1 and "M agent-steps/s" in text
     assert "| 92 | 20 |" in text and "| 368 | 20 |" in text  # 46 × 2 and 46 × 8 agents

@@ -66,6 +66,8 @@ def test_the_lockstep_and_auto_rule_benchmarks_run(capsys):
     assert lock["agent_steps"] == mixed["agent_steps"] == seq["agent_steps"] > 0  # same work
     # Kind after kind, a chunk takes each kind's iterations; mixed, those of the slowest.
     assert mixed["loop_trips_per_chunk"] < lock["loop_trips_per_chunk"]
+    for run in (lock, mixed):  # every iteration runs its fusions
+        assert run["fusions_run_per_chunk"] > run["loop_trips_per_chunk"] > 0
     assert auto_rule.main(["--seeds", "1", "--episodes", "3", "--repeats", "1", "--json"]) == 0
     row, = json.loads(capsys.readouterr().out)["rows"]
     assert row["agents"] == 46 and row["auto_over_better"] > 0

@@ -84,3 +84,18 @@ def test_mixed_kinds_on_an_instance_per_agent():
     mixed = engine.run_agents(instances, params, keys, 12, strategy="lockstep", mix_kinds=True,
                               max_batch=8)
     assert_same_run(sequential, mixed)
+
+
+def test_a_run_asks_for_mixed_kinds_and_its_plan_says_so(tmp_path):
+    from vdbejax.experiment import run_grid
+    from vdbejax.runs import RunOptions
+
+    with pytest.raises(ValueError, match="mix_kinds='yes' is invalid"):
+        RunOptions(mix_kinds="yes")
+    settings = SETTINGS[:3]
+    runs = {mix: run_grid(make_mdp(), settings, num_seeds=2, num_episodes=6,
+                          run=RunOptions(strategy="lockstep", mix_kinds=mix))
+            for mix in (None, True)}
+    assert runs[None].meta["plan"]["mix_kinds"] is False  # a CPU's default
+    assert runs[True].meta["plan"]["mix_kinds"] is True
+    np.testing.assert_array_equal(runs[None].returns, runs[True].returns)

@@ -45,9 +45,11 @@ class RunOptions:
       stop: the stop policy (:class:`~vdbejax.runs.stop.FixedBudget` or
         :class:`~vdbejax.runs.stop.UntilSolved`).
       strategy: the engine strategy, ``"auto"`` (:func:`~vdbejax.engine.auto_strategy`:
-        lockstep on accelerators, for sharded agents and for large batches on a CPU,
-        sequential otherwise; ``meta.json`` states the rule that chose),
-        ``"sequential"`` or ``"lockstep"``.
+        lockstep on accelerators and for sharded agents, sequential on a CPU;
+        ``meta.json`` states the rule that chose), ``"sequential"`` or ``"lockstep"``.
+      mix_kinds: the lockstep strategy runs agents of several kinds in one batch, each
+        lane its own kind, instead of kind after kind (None: on accelerators,
+        :func:`~vdbejax.engine.mixes_kinds`; ``meta.json``'s plan states it).
       threads: worker threads on a CPU (default: the CPUs this process may use).
       evaluate_every: every this many episodes, the exact expected return of each
         agent's greedy policy (:mod:`vdbejax.runs.evaluation`), kept beside the returns
@@ -67,6 +69,7 @@ class RunOptions:
     stop: StopPolicy = dataclasses.field(default_factory=FixedBudget)
     strategy: str = "auto"
     threads: int | None = None
+    mix_kinds: bool | None = None
     evaluate_every: int | None = None
     record_optimal: bool = False
 
@@ -99,6 +102,8 @@ class RunOptions:
             fix("devices", check_int("devices", self.devices, 1))
         check_stop(self.stop)
         check_choice("strategy", self.strategy, STRATEGIES)
+        if self.mix_kinds is not None:
+            fix("mix_kinds", check_bool("mix_kinds", self.mix_kinds))
         if self.threads is not None:
             fix("threads", check_int("threads", self.threads, 1))
         if self.evaluate_every is not None:

@@ -224,7 +224,8 @@ def make_plan(mdp: TabularMDP, params: AgentParams, num_agents: int, num_episode
     return RunPlan(devices=tuple(devices), local=tuple(local), rows=rows,
                    batch_size=batch_size, memory_budget_bytes=budget, strategy=strategy,
                    strategy_rule=strategy_rule,
-                   compact=not sharded, mix_kinds=mixes_kinds(), chunk_episodes=chunk,
+                   compact=not sharded, chunk_episodes=chunk,
+                   mix_kinds=mixes_kinds() if run.mix_kinds is None else run.mix_kinds,
                    threads=run.threads,
                    chunk_seconds=(CHUNK_SECONDS if run.chunk_episodes is None
                                   and not run.stop.checks_chunks else None))
