@@ -2,7 +2,7 @@
 
     python -m benchmarks.lockstep [--seeds 1000] [--episodes 50] [--lanes 2048]
                                   [--repeats 2] [--threads N] [--group-lanes 64,2048]
-                                  [--json]
+                                  [--accelerator-schedule] [--json]
 
 For each kind of agent of the paper grid, and for one batch of all eight kinds (a kind
 per lane, ``mix_kinds``), the lockstep block program at ``--lanes`` lanes is compiled and
@@ -14,7 +14,9 @@ this process (each once to get its programs, then ``--repeats`` timed calls, bes
 loop trips (iterations), host round trips (blocks run) and fusions run (each block's
 fusions per iteration × its iterations: the kernels an accelerator would launch) per
 chunk, and agent-steps/s of each; ``--group-lanes`` times the lockstep again with
-batches of other sizes than :data:`vdbejax.engine.MAX_SAFE_BATCH`.
+batches of other sizes than :data:`vdbejax.engine.MAX_SAFE_BATCH`;
+``--accelerator-schedule`` counts the lockstep's trips and fusions run as it is run on an
+accelerator (:func:`vdbejax.engine.default_max_batch`, :func:`vdbejax.engine.mixes_kinds`).
 """
 from __future__ import annotations
 
@@ -106,10 +108,11 @@ def kind_rows(lanes: int) -> list[dict[str, Any]]:
 
 def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
                threads: int | None, max_batch: int | None = None,
-               mix_kinds: bool = False) -> dict[str, Any]:
+               mix_kinds: bool = False, **options: Any) -> dict[str, Any]:
     """The paper grid with ``strategy`` (the lockstep's kinds mixed in one batch with
-    ``mix_kinds``): programs got once, then the best of ``repeats`` calls (one chunk);
-    its loop trips and host round trips (blocks run)."""
+    ``mix_kinds``; ``options``: more of :func:`vdbejax.engine.run_agents`'s): programs
+    got once, then the best of ``repeats`` calls (one chunk); its loop trips and host
+    round trips (blocks run)."""
     from vdbejax import engine
     from vdbejax.engine import lockstep
     from vdbejax.engine.programs import Programs
@@ -141,7 +144,7 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
         lanes = {} if max_batch is None else {"max_batch": max_batch}
         return engine.run_agents(mdp, params, keys, episodes, chunk_episodes=episodes,
                                  strategy=strategy, threads=threads, keep_final_state=False,
-                                 mix_kinds=mix_kinds, **lanes)
+                                 mix_kinds=mix_kinds, **lanes, **options)
 
     run()
     best, result, trips = float("inf"), None, 0
@@ -177,6 +180,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--group-lanes", default="",
                         help="also time the lockstep with groups of these many lanes"
                              " (comma-separated)")
+    parser.add_argument("--accelerator-schedule", action="store_true",
+                        help="also count the loop trips, host round trips and fusions run"
+                             " of the lockstep as it runs on an accelerator (one thread,"
+                             " blocks of a fixed trip count; batches of 2,048 lanes kind"
+                             " after kind, then the default: every agent in one batch, kind"
+                             " after kind and kinds mixed); its times are this CPU's")
     parser.add_argument("--json", action="store_true", help="one JSON object")
     args = parser.parse_args(argv)
     try:
@@ -204,6 +213,11 @@ def main(argv: list[str] | None = None) -> int:
     report["group_lanes"] = [
         timed_grid("lockstep", args.seeds, args.episodes, args.repeats, args.threads, lanes)
         for lanes in group_lanes]
+    everyone = lock["agents"]
+    report["accelerator_schedule"] = [
+        timed_grid("lockstep", args.seeds, args.episodes, 1, 1, lanes, mix, fixed_blocks=True)
+        for lanes, mix in ((2048, False), (everyone, False), (everyone, True))
+    ] if args.accelerator_schedule else []
     if args.json:
         print(json.dumps(report))
         return 0
@@ -222,6 +236,13 @@ def main(argv: list[str] | None = None) -> int:
                  f" {run['fusions_run_per_chunk']:,}"))
     print(f"  lockstep / sequential: {report['lockstep_over_sequential']:.2f}×; kinds mixed /"
           f" kind after kind: {report['mixed_over_kind_after_kind']:.2f}×")
+    if report["accelerator_schedule"]:
+        print("as on an accelerator (one thread, blocks of a fixed trip count):")
+    for run in report["accelerator_schedule"]:
+        print(f"  {run['strategy']:<24} batches of {run['max_batch']:>6,} lanes: loop trips"
+              f" {run['loop_trips_per_chunk']:,}, host round trips"
+              f" {run['host_round_trips_per_chunk']:,}, fusions run"
+              f" {run['fusions_run_per_chunk']:,}")
     for run in report["group_lanes"]:
         print(f"  lockstep, groups of {run['max_batch']:>5,} lanes: {run['seconds']:>7.2f} s  "
               f"{run['agent_steps_per_s'] / 1e6:>6.2f} M agent-steps/s")

@@ -1,5 +1,6 @@
 """The lockstep loop writes its tables in place: its optimized HLO copies no buffer of a
 table's size per iteration (issue 46), for every kind whose step updates rows."""
+import numpy as np
 import pytest
 
 from benchmarks.lockstep import block_program_hlo, loop_body
@@ -44,6 +45,29 @@ def test_auto_strategy_rule():
         "sequential", "cpu, 46000 agents (sequential is the faster on a CPU)")
     assert auto_strategy(1, backend="gpu") == ("lockstep", "backend gpu")
     assert auto_strategy(1, backend="cpu", sharded=True)[0] == "lockstep"
+
+
+def test_a_batch_holds_every_agent_on_accelerators_within_int32_indices():
+    import jax
+
+    from vdbejax.engine import MAX_SAFE_BATCH, default_max_batch, init_agents
+    from vdbejax.engine.lanes import FLAT_INDEX_MAX
+    from vdbejax.envs.table_cleaning import make_mdp
+    from vdbejax.envs.tabular import make_tabular_mdp
+    from vdbejax.experiment import grid_agents
+
+    def lanes(mdp, seeds, backend, chunk=128):
+        params, keys = grid_agents([Setting("qlearning", "egreedy", 0.1)], seeds)
+        agents = jax.eval_shape(init_agents, mdp, params, keys)
+        return default_max_batch(agents, params, chunk, backend)
+
+    small = make_mdp()
+    assert lanes(small, 5000, "cpu") == MAX_SAFE_BATCH and lanes(small, 5000, "gpu") == 5000
+    assert lanes(small, 5000, "gpu", chunk=2**30) == 1  # episode buffers of 2**30 each
+    # A Q-table of 2**20 values per agent: 2**11 - 1 agents index within int32.
+    wide = make_tabular_mdp(np.zeros((2**14, 64), np.int32), np.zeros((2**14, 64)),
+                            np.zeros((2**14, 64), bool), np.eye(2**14)[0])
+    assert lanes(wide, 5000, "gpu") == FLAT_INDEX_MAX // 2**20 == 2**11 - 1
 
 
 def test_kinds_mix_by_default_on_accelerators_only():

@@ -29,15 +29,14 @@ from vdbejax.engine.driver import (
     STRATEGIES,
     ProgressCallback,
     RunResult,
-    auto_strategy,
     available_cpus,
     check_params,
     compile_seconds,
-    mixes_kinds,
     run_agents,
     text_progress,
 )
 from vdbejax.engine.lockstep import DEFAULT_UNROLL, MAX_SAFE_BATCH, run_chunk
+from vdbejax.engine.rules import auto_strategy, default_max_batch, mixes_kinds
 from vdbejax.engine.sequential import native_step_loops
 from vdbejax.engine.state import (
     AgentState,
@@ -62,6 +61,7 @@ __all__ = [
     "broadcast_agents",
     "check_params",
     "compile_seconds",
+    "default_max_batch",
     "init_agent",
     "init_agents",
     "lockstep_iteration",

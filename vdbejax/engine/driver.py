@@ -22,13 +22,13 @@ from vdbejax.engine.chunks import ChunkSchedule
 from vdbejax.engine.instances import instance_template, with_instance_masks, with_instances
 from vdbejax.engine.lockstep import (
     DEFAULT_UNROLL,
-    MAX_SAFE_BATCH,
     _next_power_of_two,
     run_chunk_lockstep,
 )
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.programs import compile_seconds as _compile_seconds
 from vdbejax.engine.progress import ProgressCallback, text_progress  # noqa: F401  (re-exported: engine API)
+from vdbejax.engine.rules import auto_strategy, default_max_batch, mixes_kinds
 from vdbejax.engine.sequential import _SequentialRun, created_in_items
 from vdbejax.engine.state import AgentState, for_task, init_agents
 from vdbejax.envs.instances import TaskInstances
@@ -84,7 +84,7 @@ def run_agents(
     block_iterations: int = 256,
     unroll: int = DEFAULT_UNROLL,
     min_batch: int = 8,
-    max_batch: int = MAX_SAFE_BATCH,
+    max_batch: int | None = None,
     strategy: str = "auto",
     threads: int | None = None,
     keep_final_state: bool = True,
@@ -119,13 +119,16 @@ def run_agents(
       block_iterations: lockstep iterations between compaction checks.
       unroll: lockstep iterations per loop trip.
       min_batch: smallest batch (lanes) compaction shrinks to.
-      max_batch: lanes of a lockstep batch (larger groups of agents stream through it).
+      max_batch: lanes of a lockstep batch (larger groups of agents stream through it;
+        default :func:`~vdbejax.engine.rules.default_max_batch`:
+        :data:`~vdbejax.engine.lockstep.MAX_SAFE_BATCH` on a CPU, every agent of a group
+        on an accelerator).
 
       strategy: ``"sequential"`` (native step loops of a few agents side by side; agents are
         spread over ``threads`` threads; the fast choice on CPU), ``"lockstep"`` (all
         agents of a batch advance together, one vectorised step per iteration, with
         compaction and groups as above; for accelerators, sharded agents and large
-        batches), or ``"auto"`` (:func:`auto_strategy`).
+        batches), or ``"auto"`` (:func:`~vdbejax.engine.rules.auto_strategy`).
       threads: worker threads on a CPU (default: the CPUs this process may use): the
         sequential strategy's work items, or the lockstep strategy's groups, run on them.
       keep_final_state: ``False`` leaves :attr:`RunResult.final_state` ``None``, which
@@ -147,11 +150,12 @@ def run_agents(
         (:attr:`RunResult.optimal`). ``None`` (default):
         no count, the same programs and results as without it.
       mix_kinds: the lockstep strategy runs agents of several kinds in one batch, each
-        lane its own kind (:func:`mixes_kinds`: default on accelerators), instead of kind
-        after kind.
+        lane its own kind (:func:`~vdbejax.engine.rules.mixes_kinds`: default on
+        accelerators), instead of kind after kind.
 
     None of ``compact`` … ``threads``, ``fixed_blocks`` nor ``mix_kinds`` change the
-    results, only the speed, as long as ``max_batch`` ≤ :data:`MAX_SAFE_BATCH` (see there).
+    results, only the speed, as long as ``max_batch`` ≤
+    :data:`~vdbejax.engine.lockstep.MAX_SAFE_BATCH` (see there; on a CPU, the default).
 
     Every kind's learner is first set for the task (:func:`~vdbejax.engine.state.for_task`:
     the facts of ``mdp`` a method's convention depends on).
@@ -164,7 +168,8 @@ def run_agents(
     check_int("block_iterations", block_iterations, 1)
     check_int("unroll", unroll, 1)
     check_int("min_batch", min_batch, 1)
-    check_int("max_batch", max_batch, 1)
+    if max_batch is not None:
+        check_int("max_batch", max_batch, 1)
     check_choice("strategy", strategy, (*STRATEGIES, "auto"))
     check_params(params, mdp.num_actions)
     if isinstance(mdp, TaskInstances):  # each agent's instance rides with its params
@@ -224,11 +229,13 @@ def run_agents(
         nonlocal agents
         assert agents is not None  # lockstep: the agents' state is here
         on_cpu = jax.default_backend() == "cpu"
+        lanes = (default_max_batch(agents, params, buffer, jax.default_backend())
+                 if max_batch is None else max_batch)
         for first, end in bounds:
             agents, *outputs = run_chunk_lockstep(
                 mdp, params, agents, first, end, buffer, compact=compact,
                 block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
-                max_batch=max_batch, programs=programs, threads=threads if on_cpu else 1,
+                max_batch=lanes, programs=programs, threads=threads if on_cpu else 1,
                 fixed_blocks=not on_cpu if fixed_blocks is None else fixed_blocks,
                 mix_kinds=mixes_kinds() if mix_kinds is None else mix_kinds,
             )
@@ -313,35 +320,6 @@ def available_cpus() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         return os.cpu_count() or 1
-
-
-def auto_strategy(num_agents: int, *, backend: str | None = None,
-                  sharded: bool = False) -> tuple[str, str]:
-    """The strategy ``"auto"`` runs, and why: lockstep on an accelerator or for agents
-    sharded over several devices; sequential on a CPU, at every number of agents
-    (``python -m benchmarks.auto_rule``: on 2 cores the sequential strategy was the faster
-    at 920, 9,200 and 46,000 agents, ``benchmarks/RESULTS.md``; measured once, not timed
-    at run time).
-
-    Returns:
-      ``(strategy, reason)``; the reason is one line for ``meta.json``.
-    """
-    backend = jax.default_backend() if backend is None else backend
-    if sharded:
-        return "lockstep", "agents sharded over several devices"
-    if backend != "cpu":
-        return "lockstep", f"backend {backend}"
-    return "sequential", f"cpu, {num_agents} agents (sequential is the faster on a CPU)"
-
-
-def mixes_kinds(backend: str | None = None) -> bool:
-    """Whether the lockstep strategy runs several kinds in one batch by default: on an
-    accelerator, where an iteration costs its kernels' launches whatever the lanes do,
-    so one batch of every kind takes the iterations of its slowest agent instead of
-    the sum over kinds; not on a CPU, where an iteration costs the lanes' work and a
-    mixed batch does every kind's work on every lane (``python -m benchmarks.mixed_kinds``,
-    ``benchmarks/RESULTS.md``)."""
-    return (jax.default_backend() if backend is None else backend) != "cpu"
 
 
 def _is_sharded(params: AgentParams, keys: Any) -> bool:

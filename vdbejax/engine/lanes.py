@@ -20,6 +20,17 @@ Array = jax.Array
 # loop into one native function (scatters would keep it on the per-op runtime).
 
 
+#: Largest index of a flat buffer (``int32``): a batch's lanes × one agent's elements of a
+#: table, or of its episode buffers, must stay within it.
+FLAT_INDEX_MAX = 2**31 - 1
+
+
+def lanes_within_index(elements_per_agent: int) -> int:
+    """The most lanes whose flat buffers of ``elements_per_agent`` elements per agent are
+    indexed by ``int32`` (:data:`FLAT_INDEX_MAX`)."""
+    return max(1, FLAT_INDEX_MAX // max(1, elements_per_agent))
+
+
 #: Batches of at most this many lanes access their rows by unrolled dynamic slices (the
 #: sequential strategy's loops, :data:`~vdbejax.engine.sequential.LANES`); wider ones by
 #: gathers and scatters.
