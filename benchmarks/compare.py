@@ -616,12 +616,12 @@ def main(argv=None) -> int:
         lines.append(f"- Python (extrapolated) / vdbejax (warm) = **{ratio(jax_warm, extrapolated):.1f}×** "
                      "(target ≥ 100)")
     if strategy == "sequential":
-        from vdbejax.engine import sequential
+        from vdbejax.engine import work_items
 
         lines.append(f"- vdbejax sequential: {jax_warm['iterations']:,} agent iterations for "
                      f"{steps:,} real steps (one per step, plus one per episode start after a "
                      f"truncation), {jax_warm['lane_iterations']:,} lane iterations of its "
-                     f"{sequential.LANES}-lane loops (lane efficiency "
+                     f"{work_items.LANES}-lane loops (lane efficiency "
                      f"{jax_warm['iterations'] / max(jax_warm['lane_iterations'], 1):.1%}); "
                      f"step loops compiled natively: {jax_warm['native']}.")
     if lockstep is not None:

@@ -11,7 +11,7 @@ import pytest
 from absl.testing import parameterized
 
 from vdbejax import engine
-from vdbejax.engine import packing, sequential, work_items
+from vdbejax.engine import lane_loops, packing, sequential, work_items
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents
 from vdbejax.methods.explorers import select_action
@@ -173,11 +173,12 @@ def test_sequential_strategy_on_a_stochastic_mdp_equals_lockstep():
 
 @pytest.mark.parametrize("lanes, seeds", [(1, 3), (2, 3), (4, 3), (4, 8)])
 def test_loop_width_changes_nothing(mdp, monkeypatch, lanes, seeds):
-    """Agents side by side in a loop (sequential.LANES), each lane taking the next agent
+    """Agents side by side in a loop (work_items.LANES), each lane taking the next agent
     when its own has finished, give the bits of lockstep, for any number of agents per
     work item: padding rows (3 seeds: items of 3 agents in 4 rows), idle lanes that point
     at a real agent still running in another lane (8 seeds: items of 8 agents)."""
-    monkeypatch.setattr(sequential, "LANES", lanes)
+    monkeypatch.setattr(work_items, "LANES", lanes)
+    monkeypatch.setattr(lane_loops, "LANES", lanes)
     params, keys = _grid(seeds)
     lockstep = engine.run_agents(mdp, params, keys, 14, chunk_episodes=5, strategy="lockstep")
     for threads in (1, 3):
@@ -298,7 +299,7 @@ def test_sequential_work_items_are_equal_sized_cost_balanced_and_cover_every_age
     rng = np.random.default_rng(0)
     kinds = np.repeat([0, 1, 3], [40, 37, 23])
     costs = rng.pareto(1.5, kinds.size) * 100 + 10  # a few agents far slower than most
-    groups = work_items._sequential_groups(kinds, threads=2, costs=costs)
+    groups = work_items.sequential_groups(kinds, threads=2, costs=costs)
     everyone = np.sort(np.concatenate(groups))
     np.testing.assert_array_equal(everyone, np.arange(kinds.size))
     group_costs = [costs[group].sum() for group in groups]
@@ -309,7 +310,7 @@ def test_sequential_work_items_are_equal_sized_cost_balanced_and_cover_every_age
         sizes = [len(group) for group in mine]
         assert max(sizes) - min(sizes) <= 1
     # Without costs every agent counts the same: sizes still within one of each other.
-    plain = work_items._sequential_groups(kinds, threads=2)
+    plain = work_items.sequential_groups(kinds, threads=2)
     assert sum(len(group) for group in plain) == kinds.size
 
 
@@ -321,7 +322,7 @@ def test_agents_kept_in_their_work_items_equal_lockstep_and_checkpoint_the_same(
     in place, never copied between chunks); large ones are created there, small ones on
     the host first. Either way the results, and the states handed to ``on_chunk``, equal
     lockstep's."""
-    monkeypatch.setattr(sequential, "HOST_INIT_MAX_BYTES", host_init_max_bytes)
+    monkeypatch.setattr(work_items, "HOST_INIT_MAX_BYTES", host_init_max_bytes)
     params = engine.broadcast_agents(stack_agents([make_agent(s) for s in SETTINGS]), 3)
     keys = np.tile(engine.agent_keys(9, 3), (len(SETTINGS), 1))
     seen = {"sequential": [], "lockstep": []}

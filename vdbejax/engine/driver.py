@@ -29,8 +29,9 @@ from vdbejax.engine.programs import Programs
 from vdbejax.engine.programs import compile_seconds as _compile_seconds
 from vdbejax.engine.progress import ProgressCallback, text_progress  # noqa: F401  (re-exported: engine API)
 from vdbejax.engine.rules import auto_strategy, default_max_batch, mixes_kinds
-from vdbejax.engine.sequential import _SequentialRun, created_in_items
+from vdbejax.engine.sequential import _SequentialRun
 from vdbejax.engine.state import AgentState, for_task, init_agents
+from vdbejax.engine.work_items import created_in_items
 from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams

@@ -32,7 +32,7 @@ def lanes_within_index(elements_per_agent: int) -> int:
 
 
 #: Batches of at most this many lanes access their rows by unrolled dynamic slices (the
-#: sequential strategy's loops, :data:`~vdbejax.engine.sequential.LANES`); wider ones by
+#: sequential strategy's loops, :data:`~vdbejax.engine.work_items.LANES`); wider ones by
 #: gathers and scatters.
 UNROLLED_LANES_MAX = 4
 

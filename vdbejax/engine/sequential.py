@@ -1,6 +1,7 @@
 """The sequential strategy (the default on a CPU backend): native ``while`` loops of
-steps, each running :data:`LANES` agents side by side (a lane whose agent has finished
-takes the work item's next agent), and work items of agents on several threads.
+steps, each running :data:`~vdbejax.engine.work_items.LANES` agents side by side (a lane
+whose agent has finished takes the work item's next agent), and work items of agents on
+several threads.
 
 With a few lanes every table access is a dynamic slice, so XLA's CPU backend compiles the
 whole loop into one native function (see :mod:`vdbejax._xla_flags`). One program serves
@@ -34,14 +35,7 @@ from vdbejax.engine.lane_loops import _run_sequential, lanes_for
 from vdbejax.engine.programs import Call, Programs
 from vdbejax.engine.state import AgentState, init_agents
 from vdbejax.engine.step import start_support
-from vdbejax.engine.work_items import (  # noqa: F401  (re-exported)
-    HOST_INIT_MAX_BYTES,
-    LANES,
-    _padded,
-    _sequential_groups,
-    common_rows,
-    created_in_items,
-)
+from vdbejax.engine.work_items import common_rows, padded_rows, sequential_groups
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams
 
@@ -94,14 +88,14 @@ class _SequentialRun:
     """The sequential strategy over the chunks of one :func:`run_agents` call.
 
     Agents are split by kind (learner and explorer type), one program for every kind
-    (:func:`_run_sequential` with a :class:`~vdbejax.engine.kinds.KindSwitch`; one per
-    block of at most :data:`~vdbejax.engine.kinds.MAX_SWITCH_KINDS` kinds; one per kind
-    where a table name is written two ways), and into about ``4 × threads`` work items
-    (:func:`_sequential_groups`); worker threads take items as they become free (XLA
-    releases the GIL while a program runs). An item's loop runs :data:`LANES` agents side
-    by side. An item's arrays are padded to a power-of-two number of rows (few shapes to
-    compile; padding rows are not run). Each agent's result depends on its own lane only,
-    so the grouping changes nothing.
+    (:func:`_run_sequential` with a :class:`~vdbejax.engine.kinds.KindSwitch`; one per block
+    of at most :data:`~vdbejax.engine.kinds.MAX_SWITCH_KINDS` kinds; one per kind where a
+    table name is written two ways), and into about ``4 × threads`` work items
+    (:func:`~vdbejax.engine.work_items.sequential_groups`); worker threads take items as
+    they become free (XLA releases the GIL while a program runs). An item's loop runs
+    :data:`~vdbejax.engine.work_items.LANES` agents side by side. An item's arrays are
+    padded to a power-of-two number of rows (few shapes to compile; padding rows are not
+    run). Each agent's result depends on its own lane only, so the grouping changes nothing.
 
     Work items are formed once, at the first chunk, and keep their agents for the whole
     run: between chunks an item's state stays in the engine's buffers, which each chunk's
@@ -166,7 +160,7 @@ class _SequentialRun:
 
     def _call(self, index: np.ndarray, agents: Any, chunk: tuple[int, int, int]) -> Call:
         """The program call of an item; ``agents`` may be shapes only."""
-        rows = _padded(index, self.item_rows)
+        rows = padded_rows(index, self.item_rows)
         kind = int(self.kinds[index[0]])
         # One program for every kind where it can serve them (KindSwitch), else the kind's.
         first = kind - kind % self.block  # the first kind of its program's block
@@ -188,11 +182,11 @@ class _SequentialRun:
 
     def _group(self, chunk: tuple[int, int, int]) -> bool:
         """The work items, from the current state; ``False`` if a loop is not native."""
-        groups = _sequential_groups(self.kinds, self.threads)
+        groups = sequential_groups(self.kinds, self.threads)
         self.item_rows = common_rows(groups) if self.switch else 0
 
         def shapes(index: np.ndarray) -> Any:  # enough to compile: no copy of the rows
-            size = _padded(index, self.item_rows).size
+            size = padded_rows(index, self.item_rows).size
             return jax.tree.map(
                 lambda leaf: jax.ShapeDtypeStruct((size, *leaf.shape[1:]), leaf.dtype),
                 self.layout,
@@ -213,7 +207,7 @@ class _SequentialRun:
         host = None if fresh else self.agents()
         items = []
         for index in groups:
-            rows = _padded(index, self.item_rows)
+            rows = padded_rows(index, self.item_rows)
             if fresh:
                 args = (self.mdp, jax.tree.map(lambda leaf, rows=rows: leaf[rows], self.params),
                         self.keys[rows])

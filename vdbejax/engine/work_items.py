@@ -1,7 +1,7 @@
 """The sequential strategy's work items: which agents run together, padded to what size.
 
 Agents are split by kind and into about ``4 × threads`` items of similar cost
-(:func:`_sequential_groups`); an item's arrays are padded to a power of two rows, or to
+(:func:`sequential_groups`); an item's arrays are padded to a power of two rows, or to
 one size for every item (:func:`common_rows`: one program for all), so few programs are
 compiled. Padding rows never run. The grouping changes no result.
 """
@@ -24,7 +24,7 @@ from vdbejax.methods.agents import AgentParams, table_layout
 LANES = 4
 
 
-def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None = None
+def sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None = None
                        ) -> list[np.ndarray]:
     """Agent indices per work item: one kind each, ≈ ``4 × threads`` items in all.
 
@@ -56,7 +56,7 @@ def _sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None
 HOST_INIT_MAX_BYTES = 1 << 20
 
 
-def _padded(index: np.ndarray, rows: int = 0) -> np.ndarray:
+def padded_rows(index: np.ndarray, rows: int = 0) -> np.ndarray:
     """A work item's rows, repeated up to a power of two, or to ``rows`` if more (few
     shapes to compile; padding rows never run)."""
     return np.resize(index, max(_next_power_of_two(index.size), rows))
