@@ -65,8 +65,10 @@ def test_a_batch_holds_every_agent_on_accelerators_within_int32_indices():
     assert lanes(small, 5000, "cpu") == MAX_SAFE_BATCH and lanes(small, 5000, "gpu") == 5000
     assert lanes(small, 5000, "gpu", chunk=2**30) == 1  # episode buffers of 2**30 each
     # A Q-table of 2**20 values per agent: 2**11 - 1 agents index within int32.
+    start = np.zeros(2**14)
+    start[0] = 1.0
     wide = make_tabular_mdp(np.zeros((2**14, 64), np.int32), np.zeros((2**14, 64)),
-                            np.zeros((2**14, 64), bool), np.eye(2**14)[0])
+                            np.zeros((2**14, 64), bool), start)
     assert lanes(wide, 5000, "gpu") == FLAT_INDEX_MAX // 2**20 == 2**11 - 1
 
 
