@@ -48,6 +48,7 @@ FOUR_DEVICE_SCRIPT = textwrap.dedent(
     info["state_shards"] = len(agents.q.sharding.device_set)
 
     run_small().save(out + "/all")                                  # 12 agents, 3 per device
+    run_small(mix_kinds=True).save(out + "/mixed_kinds")            # 4 kinds in each batch
     run_small(settings=SETTINGS[:3]).save(out + "/padded")          # 9 agents padded to 12
     # One agent per device: the grid does not fit at once, it runs in 3 sharded batches.
     batched = run_small(memory_budget_bytes=budget_for(small_mdp(), 1))
@@ -121,6 +122,13 @@ def test_four_devices_equal_one_device(four_devices, reference):
     sharded = GridResult.load(out / "all")
     assert sharded.meta["devices"] == 4
     assert_same_curves(reference, sharded)
+
+
+def test_kinds_mixed_in_sharded_batches_equal_one_device(four_devices, reference):
+    out, _ = four_devices
+    mixed = GridResult.load(out / "mixed_kinds")
+    assert mixed.meta["plan"]["mix_kinds"] is True and mixed.meta["devices"] == 4
+    assert_same_curves(reference, mixed)
 
 
 def test_compacted_and_sharded_batches_of_one_shape_coexist(four_devices, reference):
