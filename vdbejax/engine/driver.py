@@ -229,16 +229,17 @@ def run_agents(
     def lockstep_chunks() -> Generator[list[Any], None, None]:
         nonlocal agents
         assert agents is not None  # lockstep: the agents' state is here
-        on_cpu = jax.default_backend() == "cpu"
-        lanes = (default_max_batch(agents, params, buffer, jax.default_backend())
-                 if max_batch is None else max_batch)
+        backend = jax.default_backend()
+        on_cpu = backend == "cpu"
+        lanes = (default_max_batch(agents, params, buffer, backend) if max_batch is None
+                 else max_batch)
         for first, end in bounds:
             agents, *outputs = run_chunk_lockstep(
                 mdp, params, agents, first, end, buffer, compact=compact,
                 block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
                 max_batch=lanes, programs=programs, threads=threads if on_cpu else 1,
                 fixed_blocks=not on_cpu if fixed_blocks is None else fixed_blocks,
-                mix_kinds=mixes_kinds() if mix_kinds is None else mix_kinds,
+                mix_kinds=mixes_kinds(backend) if mix_kinds is None else mix_kinds,
             )
             yield outputs
 

@@ -89,22 +89,21 @@ def can_switch(kinds: tuple) -> bool:
             and table_forms(kinds) is not None)
 
 
-def switch_part(switch: KindSwitch, operands: tuple, *, num_actions: int,
+def switch_part(switch: KindSwitch, operands: tuple, *, num_actions: int, forms: dict,
                 dtypes: dict) -> tuple[Array, dict, Array, Array]:
     """Every kind's part of an iteration (:func:`~vdbejax.engine.kind_step.kind_part` on
     ``operands``), each lane keeping its own kind's.
 
-    ``dtypes``: each table's dtype. A scalar ``switch.kind`` runs one branch of a
-    ``lax.switch``; a kind per lane runs every branch on every lane and selects per lane
-    (a branch's values on another kind's lanes are discarded unread).
+    ``forms``: :func:`table_forms` of the switch's kinds; ``dtypes``: each table's dtype.
+    A scalar ``switch.kind`` runs one branch of a ``lax.switch``; a kind per lane runs
+    every branch on every lane and selects per lane (a branch's values on another kind's
+    lanes are discarded unread).
 
     Returns:
-      ``(new_q_sa, writes, next_action, finite)``; ``writes`` maps every table of every
-      kind (:func:`table_forms`) to ``(value [lanes, width], owned)``, ``owned`` whether
-      the lane's kind has that table (a scalar for a scalar ``kind``).
+      ``(new_q_sa, writes, next_action, finite)``; ``writes`` maps every table of
+      ``forms`` to ``(value [lanes, width], owned)``, ``owned`` whether the lane's kind
+      has that table (a scalar for a scalar ``kind``).
     """
-    forms = table_forms(switch.kinds)
-    assert forms is not None, "see can_switch"
     lanes = operands[1].shape[0]
 
     def branch(kind_agent: Any) -> Any:

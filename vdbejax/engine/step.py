@@ -223,12 +223,12 @@ def lockstep_iteration(
                     plan_uniforms=plan_u),
                 num_states=S, num_actions=A, capacity=capacity(S, mdp.num_outcomes))
     else:
+        forms = table_forms(kinds)
+        assert forms is not None, "see can_switch"
         new_q_sa, writes, next_action, finite = switch_part(
-            agent, operands, num_actions=A,
+            agent, operands, num_actions=A, forms=forms,
             dtypes={name: table.dtype for name, table in tables.items()})
         q = put_learned(agents.q, sa_index, new_q_sa, q_sa, learn)
-        forms = table_forms(kinds)
-        assert forms is not None  # (switch_part checked)
         for name, (value, owned) in writes.items():
             form, mask = forms[name], learn & owned
             if is_unrolled(lane):  # a masked lane rewrites what is there
