@@ -188,3 +188,35 @@ def test_every_relative_link_and_image_resolves_to_a_kept_file():
     ignored = done.stdout.split()
     assert not ignored, "linked but ignored by .gitignore:\n" + "\n".join(
         where for name in ignored for where in targets[ROOT / name])
+
+
+# ------------------------------------------------------------------ named commands
+BENCHMARK_MODULE = re.compile(r"python3? -m benchmarks\.([A-Za-z_]\w*)")
+TEST_FILE = re.compile(r"\btests/(test_\w+\.py)(?:::(\w+))?")
+
+
+def _text_files() -> list[Path]:
+    """The pages and the package's and benchmarks' sources: what a reader follows."""
+    return [*_pages(), *sorted((ROOT / "vdbejax").rglob("*.py")),
+            *sorted((ROOT / "benchmarks").glob("*.py"))]
+
+
+def test_every_named_benchmark_command_and_test_exists():
+    """A ``python -m benchmarks.NAME`` or ``tests/test_X.py[::test_y]`` named by a page, a
+    docstring or a comment is a module or test of the working tree (a renamed or deleted
+    one leaves the reader a command that fails)."""
+    problems = []
+    for path in _text_files():
+        text = path.read_text(encoding="utf-8")
+        where = path.relative_to(ROOT)
+        for name in set(BENCHMARK_MODULE.findall(text)):
+            if not (ROOT / "benchmarks" / f"{name}.py").exists():
+                problems.append(f"{where}: python -m benchmarks.{name}")
+        for file, test in set(TEST_FILE.findall(text)):
+            target = ROOT / "tests" / file
+            if not target.exists():
+                problems.append(f"{where}: tests/{file}")
+            elif test and not re.search(rf"^def {test}\b", target.read_text(encoding="utf-8"),
+                                        re.M):
+                problems.append(f"{where}: tests/{file}::{test}")
+    assert not problems, "named but missing:\n" + "\n".join(problems)

@@ -56,6 +56,6 @@ def mixes_kinds(backend: str | None = None) -> bool:
     accelerator, where an iteration costs its kernels' launches whatever the lanes do,
     so one batch of every kind takes the iterations of its slowest agent instead of
     the sum over kinds; not on a CPU, where an iteration costs the lanes' work and a
-    mixed batch does every kind's work on every lane (``python -m benchmarks.mixed_kinds``,
-    ``benchmarks/RESULTS.md``)."""
+    mixed batch does every kind's work on every lane (``python -m benchmarks.lockstep``,
+    its mixed row; ``benchmarks/RESULTS.md``)."""
     return (jax.default_backend() if backend is None else backend) != "cpu"
