@@ -3,6 +3,8 @@ table, and links that resolve (on GitHub and in the mkdocs site, which .ci/run b
 ``mkdocs build --strict``; no build here, so these checks take well under a second)."""
 from __future__ import annotations
 
+import dataclasses
+import importlib
 import re
 import shutil
 import subprocess
@@ -18,6 +20,7 @@ DOCS = ROOT / "docs"
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 from benchmarks import doc_blocks, readme_table  # noqa: E402
+from vdbejax._moved import MOVED  # noqa: E402
 
 REPRODUCE = ("python3 -m venv .venv && .venv/bin/pip install -e . && "
              ".venv/bin/vdbejax reproduce --out out/paper")
@@ -196,9 +199,10 @@ TEST_FILE = re.compile(r"\btests/(test_\w+\.py)(?:::(\w+))?")
 
 
 def _text_files() -> list[Path]:
-    """The pages and the package's and benchmarks' sources: what a reader follows."""
+    """The pages and the sources a reader follows: the package, benchmarks, examples."""
     return [*_pages(), *sorted((ROOT / "vdbejax").rglob("*.py")),
-            *sorted((ROOT / "benchmarks").glob("*.py"))]
+            *sorted((ROOT / "benchmarks").glob("*.py")),
+            *sorted((ROOT / "examples").glob("*.py"))]
 
 
 def test_every_named_benchmark_command_and_test_exists():
@@ -220,3 +224,39 @@ def test_every_named_benchmark_command_and_test_exists():
                                         re.M):
                 problems.append(f"{where}: tests/{file}::{test}")
     assert not problems, "named but missing:\n" + "\n".join(problems)
+
+
+DOTTED_NAME = re.compile(r"(?<![\w./-])vdbejax(?:\.[A-Za-z_]\w*)+")
+
+
+def _resolves(name: str) -> bool:
+    """Whether ``vdbejax.a.b.c`` is a module of today (not an old name that moved), or an
+    attribute or dataclass field below the longest importable module prefix of it."""
+    parts = name.split(".")
+    for cut in range(len(parts), 0, -1):
+        module = ".".join(parts[:cut])
+        if module in MOVED:
+            return False
+        try:
+            obj = importlib.import_module(module)
+        except ImportError:
+            continue
+        for attr in parts[cut:]:
+            fields = {f.name for f in dataclasses.fields(obj)} \
+                if isinstance(obj, type) and dataclasses.is_dataclass(obj) else set()
+            if not hasattr(obj, attr) and attr not in fields:
+                return False
+            obj = getattr(obj, attr, None)
+        return True
+    return False
+
+
+def test_every_dotted_name_of_the_docs_and_docstrings_exists():
+    """``vdbejax.x.y`` named by a page, a docstring or a comment is a module or one of its
+    attributes today, by its home and not an old name that moved (the CHANGELOG, which is
+    history, is not read; nor is the table of moved names itself)."""
+    missing = sorted({f"{path.relative_to(ROOT)}: {name}" for path in _text_files()
+                      if path.name != "_moved.py"
+                      for name in DOTTED_NAME.findall(path.read_text(encoding="utf-8"))
+                      if not _resolves(name)})
+    assert not missing, "named but missing:\n" + "\n".join(missing)

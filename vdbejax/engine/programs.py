@@ -15,7 +15,7 @@ module's text (its complete text: computation, constants, shardings, donation), 
 compiler options and the node types of its input and output trees
 (:func:`program_key`); in this process from a bounded table, between processes from JAX's
 persistent compilation cache (whose key is the lowered module too; vdbejax turns it on,
-see :func:`vdbejax.enable_compilation_cache`). A new process therefore traces its programs
+see :mod:`vdbejax._jax_cache`). A new process therefore traces its programs
 from the code as it is then, and never runs a program traced from older code.
 """
 from __future__ import annotations

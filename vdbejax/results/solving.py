@@ -306,7 +306,8 @@ def solving_rows(
     """One summary row per setting of ``[settings, agents, episodes]`` returns.
 
     Args:
-      returns: ``[C, agents, episodes]`` (e.g. :attr:`vdbejax.experiment.GridResult.returns`).
+      returns: ``[C, agents, episodes]``
+        (e.g. :attr:`vdbejax.results.grid_result.GridResult.returns`).
       best, baseline: the task's exact best and uniformly random returns.
       labels: one name per setting (default ``"0"``, ``"1"``, …).
       fraction, window: the solve criterion (:func:`episodes_to_converge`).

@@ -51,7 +51,7 @@ def draw_instances(task: TabularMDP | TaskFamily, run: RunOptions, seed: int, nu
             name = TASK_PREFIX + next(iter(named.task_values))
             raise ValueError(f"hyperparameter {name!r} is invalid for task {task.name}: task"
                              " parameters need a task family with a generator (testbed:N,"
-                             " gaussian_bandit:N, …; vdbejax.envs.TaskFamily)")
+                             " gaussian_bandit:N, …; vdbejax.envs.instances.TaskFamily)")
         return task, None, None
     values = [task.resolve(s.task_values) for s in settings]
     if run.evaluate_every is not None:
