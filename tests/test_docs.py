@@ -4,6 +4,7 @@ table, and links that resolve (on GitHub and in the mkdocs site, which .ci/run b
 from __future__ import annotations
 
 import dataclasses
+import fnmatch
 import importlib
 import re
 import shutil
@@ -260,3 +261,13 @@ def test_every_dotted_name_of_the_docs_and_docstrings_exists():
                       for name in DOTTED_NAME.findall(path.read_text(encoding="utf-8"))
                       if not _resolves(name)})
     assert not missing, "named but missing:\n" + "\n".join(missing)
+
+
+def test_every_module_of_the_package_is_on_the_architecture_map():
+    """docs/architecture.md's map names every module of the package (by its file name, or
+    a pattern such as ``ablation*.py``): a newcomer finds the file for an idea there."""
+    page = (DOCS / "architecture.md").read_text(encoding="utf-8")
+    named = set(re.findall(r"`(?:[\w/]*/)?([\w*]+\.py)`", page))
+    modules = {path.name for path in (ROOT / "vdbejax").rglob("*.py")} - {"__init__.py"}
+    unlisted = sorted(m for m in modules if not any(fnmatch.fnmatch(m, n) for n in named))
+    assert not unlisted, f"not on docs/architecture.md's map: {unlisted}"
