@@ -56,9 +56,6 @@ from vdbejax.results.replicates import REPLICATE_FILES, check_replicates
 from vdbejax.runs import RunOptions
 from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int, check_writable_dir
 
-DOCUMENT_FILE = "REPRODUCTION.md"
-FIGURES_DIR = "ablation"
-
 
 def _matches(meta: dict[str, Any], variant: Variant, seeds: int, episodes: int, seed: int,
              replicates: int = 1) -> bool:
