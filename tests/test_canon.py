@@ -108,6 +108,12 @@ def test_expected_is_the_dense_model_times_values():
     want = dense @ values / np.maximum(visits, 1)
     got = jax.jit(lambda m, v: m.expected(v))(model, jnp.asarray(values))
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+    # The estimated outcome distribution: terminal or a listed successor, summing to 1
+    # where (s, a) was visited and 0 where it was not.
+    ended, successors = jax.jit(lambda m: (m.terminal_probability(),
+                                           m.successor_probabilities()))(model)
+    np.testing.assert_allclose(ended, terminal / np.maximum(visits, 1), rtol=1e-6)
+    np.testing.assert_allclose(ended + successors.sum(-1), (visits > 0).astype(F), rtol=1e-6)
     twice = jax.vmap(lambda m, v: m.expected(v))(
         jax.tree.map(lambda x: jnp.stack([x, x]), model), jnp.stack([values, values]))
     np.testing.assert_array_equal(twice[0], got)  # batched: the same bits

@@ -67,9 +67,6 @@ class Model:
         """The model held in an agent's tables (:data:`MODEL_TABLES`)."""
         return cls(*(tables[name] for name in MODEL_TABLES))
 
-    def to_tables(self) -> dict[str, Array]:
-        return {name: getattr(self, name[len(MODEL_PREFIX):]) for name in MODEL_TABLES}
-
     def mean_reward(self) -> Array:
         """r̂(s, a) = Σ r / n (0 where n = 0)."""
         return self.reward_sum / jnp.maximum(self.visits, 1.0)
