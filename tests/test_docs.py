@@ -271,3 +271,16 @@ def test_every_module_of_the_package_is_on_the_architecture_map():
     modules = {path.name for path in (ROOT / "vdbejax").rglob("*.py")} - {"__init__.py"}
     unlisted = sorted(m for m in modules if not any(fnmatch.fnmatch(m, n) for n in named))
     assert not unlisted, f"not on docs/architecture.md's map: {unlisted}"
+
+
+def test_every_optional_extra_is_on_the_install_page():
+    """Each extra of pyproject.toml is named, as ``.[name]``, on the site's front page
+    (and the README names every extra but ``rlberry``, whose peer has a venv of its own)."""
+    import tomllib
+
+    extras = set(tomllib.loads((ROOT / "pyproject.toml").read_text("utf-8"))
+                 ["project"]["optional-dependencies"])
+    index = (DOCS / "index.md").read_text("utf-8")
+    readme = README.read_text("utf-8")
+    assert {e for e in extras if f"`.[{e}]`" not in index} == set()
+    assert {e for e in extras if f"`.[{e}]`" not in readme} == {"rlberry"}
