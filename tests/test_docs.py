@@ -1,6 +1,8 @@
 """The documentation: a short README front page, its two commands, its generated benchmark
-table, and links that resolve (on GitHub and in the mkdocs site, which .ci/run builds with
-``mkdocs build --strict``; no build here, so these checks take well under a second)."""
+table, links that resolve (on GitHub and in the mkdocs site, which .ci/run builds with
+``mkdocs build --strict``; no build here), and the commands, names, modules and extras the
+pages and docstrings name, each of which exists (a few seconds: the names' check imports
+the modules it names)."""
 from __future__ import annotations
 
 import dataclasses
