@@ -70,8 +70,8 @@ def _worker_vdbejax(args) -> dict:
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     from vdbejax import engine
     from vdbejax.engine import programs
-    from vdbejax.experiment import grid_agents
     from vdbejax.methods.agents import make_agent, paper_settings, stack_agents
+    from vdbejax.runs import grid_agents
 
     factory = _load_factory(args.mdp_factory)  # its module's import is not timed either
     rss_import = _peak_rss_mb()

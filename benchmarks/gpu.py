@@ -63,9 +63,8 @@ def run_once(seeds: int, episodes: int, mix_kinds: bool | None = None) -> dict:
     """The paper grid with ``seeds`` agents per setting: compile (untimed), then time it
     (``mix_kinds``: :class:`vdbejax.runs.RunOptions`'s)."""
     from vdbejax.envs.table_cleaning import make_mdp
-    from vdbejax.experiment import run_grid
     from vdbejax.methods.agents import paper_settings
-    from vdbejax.runs import RunOptions
+    from vdbejax.runs import RunOptions, run_grid
 
     mdp, settings = make_mdp(), paper_settings()
     run = RunOptions(mix_kinds=mix_kinds)
@@ -90,7 +89,7 @@ CPU_SCRIPT = textwrap.dedent("""
     import sys
     import numpy as np
     from vdbejax.envs.table_cleaning import make_mdp
-    from vdbejax.experiment import run_grid
+    from vdbejax.runs import run_grid
     from vdbejax.methods.agents import paper_settings
     result = run_grid(make_mdp(), paper_settings(), num_seeds=int(sys.argv[1]),
                       num_episodes=int(sys.argv[2]))

@@ -74,7 +74,7 @@ def block_program_hlo(settings: list[Any], lanes: int, chunk_length: int = 64) -
     from vdbejax.engine.programs import Programs
     from vdbejax.engine.state import for_task
     from vdbejax.envs.table_cleaning import make_mdp
-    from vdbejax.experiment import grid_agents
+    from vdbejax.runs import grid_agents
 
     mdp = make_mdp()
     params, keys = grid_agents(settings, lanes // len(settings))
@@ -117,8 +117,8 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
     from vdbejax.engine import lockstep
     from vdbejax.engine.programs import Programs
     from vdbejax.envs.table_cleaning import make_mdp
-    from vdbejax.experiment import grid_agents
     from vdbejax.methods.agents import paper_settings
+    from vdbejax.runs import grid_agents
 
     mdp = make_mdp()
     params, keys = grid_agents(paper_settings(), seeds)

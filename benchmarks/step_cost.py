@@ -22,7 +22,7 @@ def step_cost(settings: list, seeds: int, episodes: int, threads: int, strategy:
     """Time the second of two identical runs of ``settings``; ns per step per thread."""
     from vdbejax import engine
     from vdbejax.envs.table_cleaning import make_mdp
-    from vdbejax.experiment import grid_agents
+    from vdbejax.runs import grid_agents
 
     mdp = make_mdp()
     params, keys = grid_agents(settings, seeds)

@@ -41,8 +41,8 @@ def measure(n: int, k: int, seeds: int, episodes: int, max_steps: int) -> dict:
     from vdbejax import engine
     from vdbejax.envs import solvers
     from vdbejax.envs.table_cleaning import make_variant, make_variant_mdp
-    from vdbejax.experiment import run_grid
     from vdbejax.methods.agents import Setting
+    from vdbejax.runs import run_grid
 
     started = time.perf_counter()
     mdp = make_variant_mdp(n, k, max_steps=max_steps)

@@ -29,7 +29,7 @@ from jax._src import stages
 from vdbejax import engine
 from vdbejax.engine import programs, sequential
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import grid_agents
+from vdbejax.runs import grid_agents
 from vdbejax.methods.agents import paper_settings
 
 threads, per_kind = int(sys.argv[2]), sys.argv[3] == "per_kind"

@@ -5,8 +5,9 @@ from __future__ import annotations
 from typing import Any
 
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import GridResult, run_grid
 from vdbejax.methods.agents import Setting
+from vdbejax.results.grid_result import GridResult
+from vdbejax.runs import run_grid
 
 #: One setting of every explorer, both learners.
 SETTINGS = [

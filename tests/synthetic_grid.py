@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from vdbejax.experiment import GridResult
 from vdbejax.methods.agents import paper_settings
+from vdbejax.results.grid_result import GridResult
 
 BEST = 0.86
 #: The uniformly random policy's expected return (the paper's task: −1.047).

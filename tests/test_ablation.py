@@ -101,7 +101,7 @@ def test_attribution_mode_switches_one_authors_detail_at_a_time(tmp_path):
     # ... and the raw results draw none (the document does not show them)
     assert (tmp_path / "raw" / "authors" / "summary.csv").exists()
     assert not list((tmp_path / "raw").rglob("*.png"))
-    from vdbejax.experiment import GridResult
+    from vdbejax.results.grid_result import GridResult
 
     switched = GridResult.load(tmp_path / "raw" / "textbook+failure_update")
     assert switched.meta["details"] == {"failure_update": "overwrite"}
@@ -145,7 +145,7 @@ def test_factorial_mode_and_sections_in_the_document(tmp_path):
                      names, "--seeds", "2", "--episodes", "12", "--quiet"]) == 0
     text = (tmp_path / "FACTORIAL.md").read_text()
     assert "--mode factorial" in text and "`authors-td-td-alpha0.8-constant`" in text
-    from vdbejax.experiment import GridResult
+    from vdbejax.results.grid_result import GridResult
 
     grid = GridResult.load(tmp_path / "factorial" / names.split(",")[0])
     assert grid.meta["options"]["alpha"] == pytest.approx(0.3)
@@ -165,8 +165,8 @@ def test_factorial_mode_and_sections_in_the_document(tmp_path):
 
 
 def test_a_variant_left_half_written_by_a_killed_run_is_continued(tmp_path):
-    from vdbejax.experiment import GridResult
     from vdbejax.results.folder_lock import MARKER_FILE, mark
+    from vdbejax.results.grid_result import GridResult
 
     (variant,) = ablation.select_variants("spec")
     folder = tmp_path / "spec"

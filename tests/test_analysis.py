@@ -78,7 +78,7 @@ def test_epsilon_snapshots_follow_vdbe():
 
 
 def test_the_final_q_of_a_setting_is_that_of_the_same_agents_in_a_grid():
-    from vdbejax.experiment import run_grid
+    from vdbejax.runs import run_grid
 
     mdp = make_mdp(max_steps=30)
     setting = Setting("sarsa", "vdbe", 1.0)

@@ -5,8 +5,8 @@ import pytest
 from vdbejax.engine import agent_keys, run_agents
 from vdbejax.envs import make_tabular_mdp
 from vdbejax.envs.cruz2018 import make_authors_mdp
-from vdbejax.experiment import run_grid
 from vdbejax.methods import AgentOptions, Setting, make_agent, stack_agents
+from vdbejax.runs import run_grid
 
 
 def one_step_mdp(first_reward: float):

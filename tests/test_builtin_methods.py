@@ -12,7 +12,6 @@ from absl.testing import parameterized
 
 from vdbejax.engine import agent_keys, run_agents
 from vdbejax.envs.table_cleaning import make_mdp as _make_mdp
-from vdbejax.experiment import run_grid
 from vdbejax.methods import (
     Context,
     Explorer,
@@ -43,6 +42,7 @@ from vdbejax.methods.learners import (
     make_learner,
     td_update,
 )
+from vdbejax.runs import run_grid
 
 NUM_DRAWS = 20_000
 Q = jnp.array([0.1, 0.5, -0.2, 0.3, 0.0, -1.0, 0.45])  # unique maximum: action 1

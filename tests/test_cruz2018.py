@@ -6,8 +6,8 @@ import pytest
 
 from vdbejax.envs import solvers
 from vdbejax.envs.cruz2018 import ACTION_NAMES, STEP_CAP, make_authors_mdp, table
-from vdbejax.experiment import run_grid
 from vdbejax.methods import Setting
+from vdbejax.runs import run_grid
 from vdbejax.studies.sweeps import make_task
 
 

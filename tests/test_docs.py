@@ -23,7 +23,6 @@ DOCS = ROOT / "docs"
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 from benchmarks import doc_blocks, readme_table  # noqa: E402
-from vdbejax._moved import MOVED  # noqa: E402
 
 REPRODUCE = ("python3 -m venv .venv && .venv/bin/pip install -e . && "
              ".venv/bin/vdbejax reproduce --out out/paper")
@@ -233,13 +232,11 @@ DOTTED_NAME = re.compile(r"(?<![\w./-])vdbejax(?:\.[A-Za-z_]\w*)+")
 
 
 def _resolves(name: str) -> bool:
-    """Whether ``vdbejax.a.b.c`` is a module of today (not an old name that moved), or an
-    attribute or dataclass field below the longest importable module prefix of it."""
+    """Whether ``vdbejax.a.b.c`` is a module of today, or an attribute or dataclass field
+    below the longest importable module prefix of it."""
     parts = name.split(".")
     for cut in range(len(parts), 0, -1):
         module = ".".join(parts[:cut])
-        if module in MOVED:
-            return False
         try:
             obj = importlib.import_module(module)
         except ImportError:
@@ -256,10 +253,8 @@ def _resolves(name: str) -> bool:
 
 def test_every_dotted_name_of_the_docs_and_docstrings_exists():
     """``vdbejax.x.y`` named by a page, a docstring or a comment is a module or one of its
-    attributes today, by its home and not an old name that moved (the CHANGELOG, which is
-    history, is not read; nor is the table of moved names itself)."""
+    attributes today (the CHANGELOG, which is history, is not read)."""
     missing = sorted({f"{path.relative_to(ROOT)}: {name}" for path in _text_files()
-                      if path.name != "_moved.py"
                       for name in DOTTED_NAME.findall(path.read_text(encoding="utf-8"))
                       if not _resolves(name)})
     assert not missing, "named but missing:\n" + "\n".join(missing)

@@ -8,8 +8,8 @@ import pytest
 from vdbejax.engine import agent_keys, run_agents
 from vdbejax.envs import make_tabular_mdp
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import run_grid
 from vdbejax.methods.agents import AgentOptions, Setting, make_agent, paper_settings, stack_agents
+from vdbejax.runs import run_grid
 
 
 def loop_or_finish_mdp():

@@ -222,7 +222,7 @@ def test_a_self_loop_that_traps_the_agent_is_learned_in_both_strategies():
     (Q(0,0) climbs above Q(0,1), and τ = 1e-4 never tries the goal again). The sequential
     engine once lost that episode's updates to Q(0,0) and left the trap (issue 13)."""
     from vdbejax.envs.tabular import make_tabular_mdp
-    from vdbejax.experiment import grid_agents
+    from vdbejax.runs import grid_agents
 
     trap = make_tabular_mdp(np.array([[0, 0]]), np.array([[-0.01, 1.0]], np.float32),
                             np.array([[False, True]]), np.array([1.0]), max_steps=60)

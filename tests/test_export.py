@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from vdbejax import cli
-from vdbejax.experiment import GridResult
 from vdbejax.results.export import export_results
+from vdbejax.results.grid_result import GridResult
 from vdbejax.results.summary import read_summary
 from vdbejax.studies.sweeps import run_sweep
 

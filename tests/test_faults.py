@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from vdbejax import cli
-from vdbejax.experiment import GridResult
 from vdbejax.results import io
+from vdbejax.results.grid_result import GridResult
 from vdbejax.runs import checkpoint as checkpoints
 from vdbejax.studies.sweeps import run_sweep
 

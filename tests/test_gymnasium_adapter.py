@@ -98,7 +98,7 @@ def test_q_learning_greedy_policy_reaches_the_optimal_return(env_id, kwargs, max
 def test_core_imports_without_gymnasium():
     code = (
         "import sys; sys.modules['gymnasium'] = None\n"  # any import of it now fails
-        "import vdbejax, vdbejax.envs, vdbejax.envs.solvers, vdbejax.experiment\n"
+        "import vdbejax, vdbejax.envs, vdbejax.envs.solvers, vdbejax.runs\n"
         "from vdbejax.envs.gymnasium_adapter import from_gymnasium\n"
         "from vdbejax.envs.table_cleaning import make_variant_mdp\n"
         "try:\n"

@@ -4,12 +4,9 @@ imports included)."""
 from __future__ import annotations
 
 import ast
-import sys
 from pathlib import Path
 
 import pytest
-
-from vdbejax._moved import MOVED
 
 PACKAGE = Path(__file__).resolve().parents[1] / "vdbejax"
 
@@ -17,18 +14,16 @@ PACKAGE = Path(__file__).resolve().parents[1] / "vdbejax"
 #: a run produces a GridResult, while statistics never train.
 ORDER = ["base", "methods", "envs", "engine", "results", "runs", "studies", "paper", "cli",
          "facade"]
-#: The package's front (``vdbejax``, ``vdbejax.experiment``, the old paths of moved modules):
-#: only for users; the package itself imports each name from the module that defines it.
-MOVED_NAMES = {name.split(".")[1] for name in MOVED}
 #: Within one rank neither may import the other: tasks know nothing of methods.
 FORBIDDEN = {("envs", "methods"), ("methods", "envs")}
 
 
 def layer(module: str) -> str:
     parts = module.split(".")
-    # _console: the console script, which loads the command line after its signal handlers
-    if len(parts) == 1 or parts[1] in {"__main__", "_console", "experiment"} or (
-            parts[1] in MOVED_NAMES):
+    # The package's front (``vdbejax``) is only for users: the package itself imports each
+    # name from the module that defines it. _console: the console script, which loads the
+    # command line after its signal handlers.
+    if len(parts) == 1 or parts[1] in {"__main__", "_console"}:
         return "facade"
     if parts[1] in ORDER:
         return parts[1]
@@ -77,20 +72,7 @@ def test_a_check_of_the_rule_fails_on_an_upward_import() -> None:
     with pytest.raises(AssertionError, match=r"imports vdbejax\.methods"):
         test_imports_point_one_way(("vdbejax.envs.tabular", "vdbejax.methods.agents"))
     with pytest.raises(AssertionError, match="defines the name"):
-        test_imports_point_one_way(("vdbejax.studies.scaling", "vdbejax.experiment"))
-
-
-def test_old_import_paths_give_the_moved_module_itself() -> None:
-    import importlib
-
-    from vdbejax._moved import MOVED
-
-    for old, new in MOVED.items():
-        sys.modules.pop(old, None)
-        with pytest.warns(DeprecationWarning, match=f"{old} moved to {new}: import {new}"):
-            moved = importlib.import_module(old)
-        assert moved is importlib.import_module(new)
-        assert moved.__name__ == new and moved.__spec__.name == new
+        test_imports_point_one_way(("vdbejax.studies.scaling", "vdbejax"))
 
 
 #: "No module a maintainer must read past about 400 lines to change one thing" (issue 21).

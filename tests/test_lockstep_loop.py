@@ -54,7 +54,7 @@ def test_a_batch_holds_every_agent_on_accelerators_within_int32_indices():
     from vdbejax.engine.lanes import FLAT_INDEX_MAX
     from vdbejax.envs.table_cleaning import make_mdp
     from vdbejax.envs.tabular import make_tabular_mdp
-    from vdbejax.experiment import grid_agents
+    from vdbejax.runs import grid_agents
 
     def lanes(mdp, seeds, backend, chunk=128):
         params, keys = grid_agents([Setting("qlearning", "egreedy", 0.1)], seeds)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from vdbejax import cli
-from vdbejax.experiment import GridResult
 from vdbejax.methods import Setting
+from vdbejax.results.grid_result import GridResult
 from vdbejax.studies.sweeps import run_sweep
 
 

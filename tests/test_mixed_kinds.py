@@ -82,8 +82,7 @@ def test_mixed_kinds_on_an_instance_per_agent():
 
 
 def test_a_run_asks_for_mixed_kinds_and_its_plan_says_so(tmp_path):
-    from vdbejax.experiment import run_grid
-    from vdbejax.runs import RunOptions
+    from vdbejax.runs import RunOptions, run_grid
 
     with pytest.raises(ValueError, match="mix_kinds='yes' is invalid"):
         RunOptions(mix_kinds="yes")

@@ -237,8 +237,8 @@ def test_a_missing_gymnasium_is_said_once(monkeypatch):
 def test_curves_that_coincide_still_show_every_colour():
     import numpy as np
 
-    from vdbejax.experiment import GridResult
     from vdbejax.methods import Setting
+    from vdbejax.results.grid_result import GridResult
     from vdbejax.results.plotting import figure3
 
     settings = [Setting("qlearning", "vdbe_softmax", s) for s in (0.01, 0.1, 1.0)]

@@ -8,11 +8,11 @@ import pytest
 
 from vdbejax import cli
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import run_grid
 from vdbejax.methods import Explorer, Learner, LearnerUpdate, Setting, explorer, learner
 from vdbejax.methods.agents import AgentOptions
 from vdbejax.paper.reproduce import reproduce
 from vdbejax.results.folder_lock import MARKER_FILE, FolderLock, mark
+from vdbejax.runs import run_grid
 from vdbejax.studies import scaling
 from vdbejax.validation import check_int
 
@@ -196,7 +196,7 @@ def test_a_lock_file_deleted_during_the_run_is_noticed(tmp_path, monkeypatch, ca
     assert cli.main(sweep_args(out, "--no-figures")) == 2
     line = one_error_line(capsys)
     assert "lock file was deleted during the run" in line and "kept in" in line
-    from vdbejax.experiment import GridResult
+    from vdbejax.results.grid_result import GridResult
 
     kept = line.split("kept in '")[1].split("'")[0]
     assert GridResult.load(kept).returns.shape == (1, 2, 10)
@@ -369,7 +369,7 @@ def test_an_explorer_without_probabilities_names_the_learner_that_reads_them():
 
 def test_gymnasium_and_array_inputs_are_one_line_or_plain_numbers(tmp_path):
     from vdbejax.envs.gymnasium_adapter import from_gymnasium
-    from vdbejax.experiment import GridResult
+    from vdbejax.results.grid_result import GridResult
 
     with pytest.raises(ValueError, match="env=42 is invalid: must be a gymnasium environment"):
         from_gymnasium(42)  # was AttributeError: 'int' object has no attribute 'unwrapped'

@@ -11,9 +11,9 @@ from vdbejax import cli, engine
 from vdbejax.envs.suite import make_suite_task
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.envs.tabular import make_tabular_mdp
-from vdbejax.experiment import GridResult
 from vdbejax.methods.agents import Setting, make_agent, stack_agents
 from vdbejax.results.analysis import summarize, summary_columns
+from vdbejax.results.grid_result import GridResult
 from vdbejax.results.optimal_actions import (
     OPTIMAL_ACTION_COLUMNS,
     optimal_action_summary,

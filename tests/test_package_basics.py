@@ -17,13 +17,14 @@ import numpy as np
 import pytest
 
 import vdbejax
-from vdbejax import cli, experiment
+from vdbejax import cli
 from vdbejax.envs import make_tabular_mdp, solvers
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.envs.table_cleaning.env import ACTION_NAMES
-from vdbejax.experiment import GridResult, run_grid
 from vdbejax.methods import Setting
 from vdbejax.methods.agents import PAPER_PARAMETERS
+from vdbejax.results.grid_result import GridResult
+from vdbejax.runs import provenance, run_grid
 from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -187,10 +188,10 @@ def test_meta_json_records_versions(numpy_run):
 
 
 def test_git_commit_is_computed_once_per_process():
-    experiment.git_commit()
-    hits = experiment.git_commit.cache_info().hits
-    experiment.git_commit()
-    assert experiment.git_commit.cache_info().hits == hits + 1
+    provenance.git_commit()
+    hits = provenance.git_commit.cache_info().hits
+    provenance.git_commit()
+    assert provenance.git_commit.cache_info().hits == hits + 1
 
 
 @pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
@@ -198,10 +199,8 @@ def test_git_commit_is_none_outside_a_clone_and_for_an_untracked_copy(tmp_path, 
     monkeypatch.setenv("GIT_CEILING_DIRECTORIES", str(tmp_path))
     package = tmp_path / "plain" / "vdbejax"
     package.mkdir(parents=True)
-    from vdbejax.runs import provenance  # where git_commit lives
-
     monkeypatch.setattr(provenance, "__file__", str(package / "runs" / "provenance.py"))
-    assert experiment.git_commit.__wrapped__() is None  # not a git clone
+    assert provenance.git_commit.__wrapped__() is None  # not a git clone
     # A copy inside some other repository (a virtualenv in a clone) that does not track it.
     repo = tmp_path / "other"
     package = repo / "site-packages" / "vdbejax"
@@ -211,7 +210,7 @@ def test_git_commit_is_none_outside_a_clone_and_for_an_untracked_copy(tmp_path, 
     for args in (["init", "-q"], ["add", "README"], ["commit", "-q", "-m", "x"]):
         subprocess.run(git + args, cwd=repo, check=True, capture_output=True)
     monkeypatch.setattr(provenance, "__file__", str(package / "runs" / "provenance.py"))
-    assert experiment.git_commit.__wrapped__() is None
+    assert provenance.git_commit.__wrapped__() is None
 
 
 # ------------------------------------------------------------------ 32-bit ranges
@@ -321,23 +320,3 @@ def test_cli_main_with_an_argv_leaves_the_callers_garbage_collector_alone(tmp_pa
     assert gc.get_freeze_count() == frozen
 
 
-def test_names_moved_out_of_a_module_still_import_with_a_warning():
-    import vdbejax.methods.agents as agents
-    import vdbejax.methods.finite_horizon as finite_horizon
-    from vdbejax.methods import grid_axes, posterior
-
-    with pytest.warns(DeprecationWarning, match="import it from vdbejax.methods.grid_axes"):
-        assert agents.sweep is grid_axes.sweep
-    with pytest.warns(DeprecationWarning, match="import it from vdbejax.methods.posterior"):
-        assert finite_horizon.PSRL is posterior.PSRL
-    import vdbejax.envs.tabular as tabular
-    import vdbejax.studies.sweep_file as sweep_file
-    from vdbejax.envs import compiled
-    from vdbejax.studies import task_names
-
-    with pytest.warns(DeprecationWarning, match="import it from vdbejax.envs.compiled"):
-        assert tabular.compile_env is compiled.compile_env
-    with pytest.warns(DeprecationWarning, match="import it from vdbejax.studies.task_names"):
-        assert sweep_file.make_task is task_names.make_task
-    with pytest.raises(AttributeError, match="no attribute 'nope'"):
-        agents.nope  # noqa: B018

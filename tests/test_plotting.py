@@ -106,7 +106,7 @@ def test_figure3_as_the_authors_plot_it(grid):
 
 # ------------------------------------------------------------------ layout of any grid
 def _grid_of(settings, seeds=3, episodes=60):
-    from vdbejax.experiment import GridResult
+    from vdbejax.results.grid_result import GridResult
 
     rng = np.random.default_rng(1)
     t = np.arange(episodes)

@@ -4,8 +4,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import run_grid
 from vdbejax.methods import Explorer, Setting, Table, explorer, make_agent, select_action
+from vdbejax.runs import run_grid
 
 
 def test_classes_with_the_same_fields_have_different_tree_structures():

@@ -11,9 +11,9 @@ from vdbejax import cli
 from vdbejax.engine.state import init_agents
 from vdbejax.envs.solvers import best_return, optimal_q_values
 from vdbejax.envs.tabular import make_tabular_mdp
-from vdbejax.experiment import GridResult
 from vdbejax.methods.agents import Setting, make_agent, stack_agents
 from vdbejax.results.analysis import summarize
+from vdbejax.results.grid_result import GridResult
 from vdbejax.results.policy import policy_gaps, policy_summary
 from vdbejax.runs import RunOptions, UntilSolved, prepare_grid, run_grid, run_prepared
 from vdbejax.runs.evaluation import greedy_returns

@@ -16,9 +16,9 @@ import pytest
 from vdbejax.engine import programs, run_agents
 from vdbejax.envs.table_cleaning import env as table_env
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import grid_agents
 from vdbejax.methods import explorers, learners, selection
 from vdbejax.methods.agents import Setting
+from vdbejax.runs import grid_agents
 
 SETTINGS = [Setting("qlearning", "egreedy", 0.1), Setting("sarsa", "vdbe", 1.0)]
 

@@ -19,9 +19,9 @@ from damaged_results import damaged_copy
 from small_grid import run_small
 
 from vdbejax import cli
-from vdbejax.experiment import GridResult
 from vdbejax.results import folder_lock, io
 from vdbejax.results.folder_lock import FolderLock
+from vdbejax.results.grid_result import GridResult
 from vdbejax.runs.checkpoint import CHECKSUM_KEY, contents_digest, log_path
 from vdbejax.studies import folder as studies_folder
 from vdbejax.studies import sweeps

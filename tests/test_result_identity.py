@@ -14,8 +14,8 @@ import pytest
 from damaged_results import refresh_manifest
 
 from vdbejax import cli
-from vdbejax.experiment import GridResult
 from vdbejax.results import io
+from vdbejax.results.grid_result import GridResult
 from vdbejax.results.manifest import MANIFEST_FILE, file_digest, read_manifest
 from vdbejax.studies import sweeps
 

@@ -23,8 +23,8 @@ from small_grid import (
     small_mdp,
 )
 
-from vdbejax.experiment import GridResult
 from vdbejax.results import io
+from vdbejax.results.grid_result import GridResult
 
 TESTS = Path(__file__).parent
 

@@ -19,7 +19,7 @@ from small_grid import (
 
 from vdbejax import cli
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import GridResult
+from vdbejax.results.grid_result import GridResult
 from vdbejax.results.solving import episodes_to_converge
 from vdbejax.runs import FixedBudget, RunOptions, RunState, UntilSolved, prepare_grid, run_prepared
 from vdbejax.runs.checkpoint import load_checkpoint

@@ -16,9 +16,10 @@ from small_grid import assert_fixed_budget_up_to_each_stop
 from vdbejax import cli
 from vdbejax.envs import solvers
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import GridResult, run_grid
 from vdbejax.methods.agents import Setting
+from vdbejax.results.grid_result import GridResult
 from vdbejax.results.solving import convergence_threshold, episodes_to_converge
+from vdbejax.runs import run_grid
 from vdbejax.studies import scaling, scaling_adaptive, scaling_report, scaling_study
 
 REPO = Path(__file__).resolve().parents[1]

@@ -17,7 +17,7 @@ import pytest
 from small_grid import assert_same_curves, run_small
 
 from vdbejax.engine.distributed import pad_agents, select_devices, unpad_agents
-from vdbejax.experiment import GridResult
+from vdbejax.results.grid_result import GridResult
 
 TESTS = Path(__file__).parent
 

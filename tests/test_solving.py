@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from vdbejax.results import stats
-from vdbejax.experiment import GridResult
 from vdbejax.methods.agents import Setting
+from vdbejax.results import stats
 from vdbejax.results.analysis import summarize
+from vdbejax.results.grid_result import GridResult
 from vdbejax.results.solving import (
     CONVERGENCE_TEXT,
     SolveSummary,

@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import GridResult, run_grid
 from vdbejax.methods import AgentOptions, Setting, sweep
 from vdbejax.paper.reproduce import replot
 from vdbejax.results.analysis import summarize
+from vdbejax.results.grid_result import GridResult
+from vdbejax.runs import run_grid
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "custom_explorer.py"

@@ -13,10 +13,11 @@ from small_grid import SETTINGS, run_small
 
 from vdbejax import cli, make_tabular_mdp
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.experiment import GridResult, run_grid
 from vdbejax.methods.agents import AgentOptions, Setting, make_agent
 from vdbejax.methods.explorers import make_explorer
 from vdbejax.methods.learners import make_learner
+from vdbejax.results.grid_result import GridResult
+from vdbejax.runs import run_grid
 
 
 def assert_one_line(error: pytest.ExceptionInfo, *fragments: str) -> None:

@@ -9,11 +9,10 @@ Quick start::
 from importlib import metadata as _metadata
 from typing import Any as _Any
 
-from vdbejax import _jax_cache, _moved, _xla_flags
+from vdbejax import _jax_cache, _xla_flags
 
 _xla_flags.apply()  # before anything starts JAX's backend (see vdbejax._xla_flags)
 _jax_cache.apply()  # JAX's persistent compilation cache (see vdbejax._jax_cache)
-_moved.install()  # old import paths of moved modules (see vdbejax._moved)
 
 try:
     #: The installed distribution's version (pyproject.toml's ``version``).

@@ -86,7 +86,7 @@ def _rate(rate: float) -> str:
 
 def text_progress(stream: Any = None, *, clock: Callable[[], float] = time.monotonic
                   ) -> ProgressCallback:
-    """A progress display for :func:`~vdbejax.experiment.run_grid` and the engine.
+    """A progress display for :func:`~vdbejax.runs.grid.run_grid` and the engine.
 
     Args:
       stream: where to write (default: a notebook's display when running in Jupyter,

@@ -16,7 +16,6 @@ from typing import Any
 import jax
 import numpy as np
 
-from vdbejax._moved import moved_names
 from vdbejax._numerics import sample_categorical
 from vdbejax._pytree import pytree_dataclass, static_field
 from vdbejax.envs.reward_noise import RewardNoise, make_reward_noise, noisy_reward
@@ -339,7 +338,3 @@ def make_tabular_mdp(
         reward_noise=None if noise is None else RewardNoise(
             model=_on_device(noise[0], np.int32), std=_on_device(noise[1], np.float32)),
     )
-
-
-__getattr__ = moved_names("vdbejax.envs.tabular", "vdbejax.envs.compiled",
-                          ("FunctionalEnv", "MAX_CODES", "compile_env"))

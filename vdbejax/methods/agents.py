@@ -16,7 +16,6 @@ from typing import Any
 import jax
 import numpy as np
 
-from vdbejax._moved import moved_names
 from vdbejax._pytree import pytree_dataclass
 from vdbejax.methods.api import (
     EXPLORERS,
@@ -356,11 +355,6 @@ def table_layout(params: AgentParams) -> dict[str, str]:
                     raise ValueError(f"table {name!r} is per {layout[name]!r} for one kind and per"
                                      f" {per!r} for another: rename one of them")
     return layout
-
-
-#: Names that moved to another module, kept importable from here for one release.
-__getattr__ = moved_names("vdbejax.methods.agents", "vdbejax.methods.grid_axes",
-                          ("sweep", "setting_of", "MAX_SETTINGS"))
 
 
 __all__ = [

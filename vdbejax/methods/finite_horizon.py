@@ -20,7 +20,6 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from vdbejax._moved import moved_names
 from vdbejax._numerics import rounded
 from vdbejax._pytree import pytree_dataclass, static_field
 from vdbejax.methods.contract import (
@@ -301,8 +300,3 @@ class UCBH(_StageLearner):
         check_in_range("bonus_scale", self.bonus_scale, 0.0, 1e30)
         check_in_range("iota", self.iota, 0.0, 1e30)
         check_in_range("r_max", self.r_max, 0.0, 1e30, low_open=True)
-
-
-#: Names that moved to another module, kept importable from here for one release.
-__getattr__ = moved_names("vdbejax.methods.finite_horizon", "vdbejax.methods.posterior",
-                          ("PSRL", "posterior_sample", "dirichlet_expected"))

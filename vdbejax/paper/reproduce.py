@@ -199,8 +199,8 @@ def reproduce(
         ``out_dir`` holds; without it that is refused (:func:`~vdbejax.studies.train_in_folder`).
       progress: a progress bar and a closing status line on stderr.
       memory_budget_bytes: per-device memory budget, passed to
-        :func:`~vdbejax.experiment.run_grid`; changes only the speed, never the results.
-      devices: devices to shard over, passed to :func:`~vdbejax.experiment.run_grid`;
+        :func:`~vdbejax.runs.grid.run_grid`; changes only the speed, never the results.
+      devices: devices to shard over, passed to :func:`~vdbejax.runs.grid.run_grid`;
         changes only the speed, never the results.
       figures: draw ``fig3.png`` and ``sensitivity.png`` (``False``: the numbers only;
         ``vdbejax plot`` draws them later from the saved results).

@@ -1,4 +1,4 @@
-"""Statistics of a grid (:class:`~vdbejax.experiment.GridResult`): the summary table,
+"""Statistics of a grid (:class:`~vdbejax.results.grid_result.GridResult`): the summary table,
 pairwise comparisons, truncation diagnostics and ε(s) snapshots.
 
 The array-level statistics and their conventions (smoothing, final return, bootstrap

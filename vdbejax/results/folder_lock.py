@@ -315,7 +315,7 @@ def save_run(
     delete the run's checkpoint).
 
     Args:
-      result: the :class:`~vdbejax.experiment.GridResult`.
+      result: the :class:`~vdbejax.results.grid_result.GridResult`.
       out: the (locked) result folder.
       write: writes the outputs from the :class:`~vdbejax.results.stats.CurveStatistics`.
       bands: compute Figure 3's bootstrap bands too.

@@ -53,7 +53,6 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from vdbejax._moved import moved_names
 from vdbejax.methods.agents import Setting, owners
 from vdbejax.methods.explorers import explorer_class
 from vdbejax.methods.grid_axes import setting_of, sweep
@@ -319,7 +318,3 @@ def write_sweep_file(spec: Mapping[str, Any], path: str | os.PathLike) -> Path:
                      else file)
     path.write_text(json.dumps(spec, indent=2) + "\n")
     return path
-
-
-__getattr__ = moved_names("vdbejax.studies.sweep_file", "vdbejax.studies.task_names",
-                          ("load_plugins", "make_task"))

@@ -193,7 +193,7 @@ def run_sweep(
         ``variant:NxK`` only per agent).
 
     Returns:
-      the :class:`~vdbejax.experiment.GridResult` (also saved in ``out_dir``).
+      the :class:`~vdbejax.results.grid_result.GridResult` (also saved in ``out_dir``).
 
     Raises:
       ValueError: any invalid input, before training starts.
