@@ -260,6 +260,69 @@ def test_every_dotted_name_of_the_docs_and_docstrings_exists():
     assert not missing, "named but missing:\n" + "\n".join(missing)
 
 
+#: The subpackages whose ``__all__`` is the public API, each with its page in docs/api/.
+API_PAGES = {"methods": "vdbejax.methods", "envs": "vdbejax.envs", "engine": "vdbejax.engine",
+             "runs": "vdbejax.runs", "results": "vdbejax.results", "studies": "vdbejax.studies",
+             "paper": "vdbejax.paper"}
+DIRECTIVE = re.compile(r"^::: *(\S+)\n((?:[ \t]+\S.*\n)*)", re.M)
+
+
+def _directives(page: Path) -> dict[str, str]:
+    """Each ``::: name`` directive of an API page, with its indented options."""
+    return dict(DIRECTIVE.findall(page.read_text(encoding="utf-8")))
+
+
+def _public(package: str, name: str) -> object:
+    module = importlib.import_module(package)
+    if hasattr(module, name):
+        return getattr(module, name)
+    return importlib.import_module(f"{package}.{name}")  # a submodule, imported when named
+
+
+def test_the_api_pages_document_exactly_the_public_names():
+    """Each page of docs/api/ renders its subpackage's docstring (no members) and one
+    directive per name of the subpackage's ``__all__``: a name missing from the page, or a
+    page rendering a name that ``__all__`` does not list, fails. The index renders only
+    ``vdbejax``'s docstring, and each name ``vdbejax`` exports is documented on a page: in
+    a subpackage's ``__all__``, or defined in a public module."""
+    pages = {path.stem for path in (DOCS / "api").glob("*.md")}
+    assert pages == {*API_PAGES, "index"}
+    assert _directives(DOCS / "api" / "index.md") == {
+        "vdbejax": "    options:\n      members: false\n"}
+    documented = []
+    for page, package in API_PAGES.items():
+        directives = _directives(DOCS / "api" / f"{page}.md")
+        assert directives.pop(package, None) == "    options:\n      members: false\n", \
+            f"docs/api/{page}.md: render {package} with members: false first"
+        public = importlib.import_module(package).__all__
+        assert sorted(directives) == sorted(f"{package}.{name}" for name in public), \
+            f"docs/api/{page}.md documents other names than {package}.__all__"
+        documented += [_public(package, name) for name in public]
+    import vdbejax
+
+    modules = [m for m in documented if isinstance(m, type(vdbejax))]
+    for name in vdbejax.__all__:
+        value = getattr(vdbejax, name)
+        assert any(value is d for d in documented) or any(
+            vars(m).get(name) is value and getattr(value, "__module__", None) == m.__name__
+            for m in modules), f"vdbejax.{name} is on no API page"
+
+
+def test_a_page_with_a_name_not_in_all_fails_the_api_check(tmp_path, monkeypatch):
+    page = tmp_path / "api" / "runs.md"
+    page.parent.mkdir()
+    page.write_text("# Runs\n\n::: vdbejax.runs\n    options:\n      members: false\n\n"
+                    "::: vdbejax.runs.grid\n")
+    assert _directives(page) == {"vdbejax.runs": "    options:\n      members: false\n",
+                                 "vdbejax.runs.grid": ""}
+    for other in (DOCS / "api").glob("*.md"):
+        if other.name != "runs.md":
+            (tmp_path / "api" / other.name).write_text(other.read_text(encoding="utf-8"))
+    monkeypatch.setattr(sys.modules[__name__], "DOCS", tmp_path)
+    with pytest.raises(AssertionError, match="other names than vdbejax.runs.__all__"):
+        test_the_api_pages_document_exactly_the_public_names()
+
+
 def test_every_module_of_the_package_is_on_the_architecture_map():
     """docs/architecture.md's map names every module of the package (by its file name, or
     a pattern such as ``ablation*.py``): a newcomer finds the file for an idea there."""

@@ -13,3 +13,21 @@
   and comparisons of a grid;
 * :mod:`~vdbejax.results.plotting` — figures.
 """
+
+#: The public names: the modules of a grid's result, its statistics, tables and figures
+#: (each imported when first named: ``from vdbejax.results import plotting``).
+__all__ = [
+    "analysis",
+    "bootstrap",
+    "compare",
+    "curves",
+    "export",
+    "grid_result",
+    "optimal_actions",
+    "plotting",
+    "policy",
+    "regret",
+    "solving",
+    "stats",
+    "summary",
+]

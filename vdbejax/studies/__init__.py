@@ -6,4 +6,17 @@
 """
 from vdbejax.studies.folder import CHECKPOINT_FILE, checkpoint_files, train_in_folder
 
-__all__ = ["CHECKPOINT_FILE", "checkpoint_files", "train_in_folder"]
+#: The public names; the modules among them are imported when first named
+#: (``from vdbejax.studies import sweeps``).
+__all__ = [
+    "CHECKPOINT_FILE",
+    "bench",
+    "checkpoint_files",
+    "depth",
+    "scaling",
+    "snapshots",
+    "sweep_file",
+    "sweeps",
+    "task_names",
+    "train_in_folder",
+]
