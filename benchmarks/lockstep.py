@@ -69,10 +69,9 @@ def block_program_hlo(settings: list[Any], lanes: int, chunk_length: int = 64) -
     import jax.numpy as jnp
 
     from vdbejax.engine import lockstep
-    from vdbejax.engine.driver import init_agents
     from vdbejax.engine.kinds import KindSwitch
     from vdbejax.engine.programs import Programs
-    from vdbejax.engine.state import for_task
+    from vdbejax.engine.state import for_task, init_agents
     from vdbejax.envs.table_cleaning import make_mdp
     from vdbejax.experiment import grid_agents
 

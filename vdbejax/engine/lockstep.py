@@ -32,6 +32,7 @@ from vdbejax.engine.kinds import KindSwitch, can_switch, is_whole_kind, switch_b
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.state import AgentState
 from vdbejax.engine.step import optimal_buffer, run_loop, start_support
+from vdbejax.engine.work_items import next_power_of_two
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Agent, AgentParams
 
@@ -132,10 +133,6 @@ def _gather_rows(tree: Any, index: Array) -> Any:
 @partial(jax.jit, donate_argnums=(0,))
 def _scatter_rows(tree: Any, index: Array, rows: Any) -> Any:
     return jax.tree.map(lambda leaf, new: leaf.at[index].set(new, mode="drop"), tree, rows)
-
-
-def _next_power_of_two(n: int) -> int:
-    return 1 << max(0, (n - 1).bit_length())
 
 
 def _whole(tree: Any) -> Any:
@@ -245,7 +242,7 @@ def _run_stream(
         num_active = int(active.sum())
         if num_active == 0:
             break
-        target = max(_next_power_of_two(num_active), min_batch)
+        target = max(next_power_of_two(num_active), min_batch)
         if target * 2 > size:
             continue
         # Compaction: the current batch written back, then the active agents gathered.

@@ -31,16 +31,10 @@ import numpy as np
 from vdbejax._numerics import sample_categorical
 from vdbejax.engine.instances import lane_optimal, lane_rows, lane_start, lane_transition
 from vdbejax.engine.kind_step import kind_part, num_uniforms, uniform_parts
-from vdbejax.engine.kinds import KindSwitch, switch_part, table_forms, write_form
+from vdbejax.engine.kinds import KindSwitch, is_whole_kind, switch_part, table_forms, write_form
 from vdbejax.engine.lanes import is_unrolled, put_learned, put_where, take, take_row, write_lanes
 from vdbejax.engine.state import AgentState, draw_base, reward_uniform, uniforms_from
-from vdbejax.engine.whole import (
-    LearnedStep,
-    after_learning,
-    defers_selection,
-    is_whole_kind,
-    whole_blocks,
-)
+from vdbejax.engine.whole import LearnedStep, after_learning, defers_selection, whole_blocks
 from vdbejax.envs.reward_noise import noisy_reward
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Agent

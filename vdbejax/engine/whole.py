@@ -23,7 +23,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from vdbejax.engine.kinds import has_stage_tables, is_whole_kind  # noqa: F401  (re-exported)
+from vdbejax.engine.kinds import has_stage_tables
 from vdbejax.engine.lanes import is_unrolled, learner_rows, put_learned, rows_of, take, take_row
 from vdbejax.methods.agents import Agent
 from vdbejax.methods.contract import Context, Learner, behaviour_values
