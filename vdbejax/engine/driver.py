@@ -20,7 +20,7 @@ import numpy as np
 
 from vdbejax.engine.chunks import ChunkSchedule
 from vdbejax.engine.instances import instance_template, with_instance_masks, with_instances
-from vdbejax.engine.lockstep import DEFAULT_UNROLL, run_chunk_lockstep
+from vdbejax.engine.lockstep import DEFAULT_UNROLL, LockstepOptions, run_chunk_lockstep
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.programs import compile_seconds as _compile_seconds
 from vdbejax.engine.progress import ProgressCallback
@@ -227,16 +227,17 @@ def run_agents(
         assert agents is not None  # lockstep: the agents' state is here
         backend = jax.default_backend()
         on_cpu = backend == "cpu"
-        lanes = (default_max_batch(agents, params, buffer, backend) if max_batch is None
-                 else max_batch)
+        options = LockstepOptions(
+            compact=compact, block_iterations=block_iterations, unroll=unroll,
+            min_batch=min_batch,
+            max_batch=(default_max_batch(agents, params, buffer, backend) if max_batch is None
+                       else max_batch),
+            threads=threads if on_cpu else 1,
+            fixed_blocks=not on_cpu if fixed_blocks is None else fixed_blocks,
+            mix_kinds=mixes_kinds(backend) if mix_kinds is None else mix_kinds)
         for first, end in bounds:
             agents, *outputs = run_chunk_lockstep(
-                mdp, params, agents, first, end, buffer, compact=compact,
-                block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
-                max_batch=lanes, programs=programs, threads=threads if on_cpu else 1,
-                fixed_blocks=not on_cpu if fixed_blocks is None else fixed_blocks,
-                mix_kinds=mixes_kinds(backend) if mix_kinds is None else mix_kinds,
-            )
+                mdp, params, agents, first, end, buffer, options, programs)
             yield outputs
 
     # The sequential strategy runs the next chunk while this loop stores one; a checkpoint

@@ -37,7 +37,14 @@ from vdbejax.engine.lanes import UNROLLED_LANES_MAX, at_lane
 from vdbejax.engine.packing import pack, unpack
 from vdbejax.engine.programs import Call, Programs
 from vdbejax.engine.state import AgentState, init_agents
-from vdbejax.engine.step import optimal_buffer, run_loop, start_support
+from vdbejax.engine.step import (
+    ChunkBounds,
+    ChunkBuffers,
+    LoopLimits,
+    optimal_buffer,
+    run_loop,
+    start_support,
+)
 from vdbejax.engine.work_items import LANES, common_rows, padded_rows, sequential_groups
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams
@@ -414,11 +421,14 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
         lane_params = unpack(lane_agent, agent_layout)
         if kind is not None:
             lane_params = KindSwitch(kinds=lane_params, kind=kind)
-        lane_state, returns, lengths, loop_trips, optimal = run_loop(
-            mdp, lane_params, lane_state, returns, lengths,
-            chunk_start, jnp.where(real, chunk_end, 0), big, 1, support, table_rows=rows,
-            stop_at_first_finish=waiting_from < count, optimal=optimal,
+        lane_state, buffers, loop_trips = run_loop(
+            mdp, lane_params, lane_state,
+            ChunkBuffers(returns=returns, lengths=lengths, optimal=optimal),
+            ChunkBounds(start=chunk_start, end=jnp.where(real, chunk_end, 0)),
+            LoopLimits(max_iterations=big, stop_at_first_finish=waiting_from < count),
+            support, table_rows=rows,
         )
+        returns, lengths, optimal = buffers.returns, buffers.lengths, buffers.optimal
         tables = (lane_state.q, lane_state.tables)
         finished = real & (lane_state.episode >= chunk_end)
         lane_packed = pack(scalars(lane_state))
