@@ -69,10 +69,10 @@ def block_program_hlo(settings: list[Any], lanes: int, chunk_length: int = 64) -
     import jax.numpy as jnp
 
     from vdbejax.engine import lockstep
-    from vdbejax.engine.driver import init_agents
     from vdbejax.engine.kinds import KindSwitch
     from vdbejax.engine.programs import Programs
-    from vdbejax.engine.state import for_task
+    from vdbejax.engine.state import for_task, init_agents
+    from vdbejax.engine.step import ChunkBounds, ChunkBuffers, LoopLimits
     from vdbejax.envs.table_cleaning import make_mdp
     from vdbejax.runs import grid_agents
 
@@ -83,11 +83,12 @@ def block_program_hlo(settings: list[Any], lanes: int, chunk_length: int = 64) -
     agent = (params.kinds[0] if len(params.kinds) == 1 else
              KindSwitch(kinds=tuple(params.kinds), kind=jnp.asarray(params.kind, jnp.int32)))
     lanes = len(keys)
-    args = (mdp, agent, agents,
-            jax.ShapeDtypeStruct((lanes, chunk_length), jnp.float32),
-            jax.ShapeDtypeStruct((lanes, chunk_length), jnp.int32), None,  # no optimal record
-            jnp.int32(0), jnp.int32(1), jnp.int32(1), lockstep.start_support(mdp))
-    return str(Programs().get(lockstep.block_program, args, {"unroll": 1}).as_text())
+    buffers = ChunkBuffers(returns=jax.ShapeDtypeStruct((lanes, chunk_length), jnp.float32),
+                           lengths=jax.ShapeDtypeStruct((lanes, chunk_length), jnp.int32),
+                           optimal=None)  # no optimal record
+    args = (mdp, agent, agents, buffers, ChunkBounds(start=jnp.int32(0), end=jnp.int32(1)),
+            LoopLimits(max_iterations=jnp.int32(1), unroll=1), lockstep.start_support(mdp))
+    return str(Programs().get(lockstep.block_program, args).as_text())
 
 
 def kind_rows(lanes: int) -> list[dict[str, Any]]:
@@ -136,7 +137,7 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
             outputs = program(*call_args)
             if id(program) not in fusions_of:
                 fusions_of[id(program)] = loop_body(program.as_text(), 1, 1)["fusions"]
-            fusions_run[0] += fusions_of[id(program)] * int(outputs[3])  # × its iterations
+            fusions_run[0] += fusions_of[id(program)] * int(outputs[2])  # × its iterations
             return outputs
         return counted
 

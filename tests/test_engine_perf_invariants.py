@@ -11,7 +11,7 @@ import pytest
 from absl.testing import parameterized
 
 from vdbejax import engine
-from vdbejax.engine import lane_loops, packing, sequential, work_items
+from vdbejax.engine import packing, sequential, work_items
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents
 from vdbejax.methods.explorers import select_action
@@ -178,7 +178,7 @@ def test_loop_width_changes_nothing(mdp, monkeypatch, lanes, seeds):
     work item: padding rows (3 seeds: items of 3 agents in 4 rows), idle lanes that point
     at a real agent still running in another lane (8 seeds: items of 8 agents)."""
     monkeypatch.setattr(work_items, "LANES", lanes)
-    monkeypatch.setattr(lane_loops, "LANES", lanes)
+    monkeypatch.setattr(sequential, "LANES", lanes)
     params, keys = _grid(seeds)
     lockstep = engine.run_agents(mdp, params, keys, 14, chunk_episodes=5, strategy="lockstep")
     for threads in (1, 3):
@@ -419,10 +419,10 @@ class PackedRowsTest(parameterized.TestCase):
                                [True, False]]),
             "none": np.zeros((rows, 0), np.int32),
         }
-        packed = self.variant(packing._pack)(tree)
+        packed = self.variant(packing.pack)(tree)
         assert packed.dtype == jnp.uint32 and packed.shape == (rows, 19)
         layout = {name: jax.ShapeDtypeStruct(v.shape, v.dtype) for name, v in tree.items()}
-        back = self.variant(lambda words: packing._unpack(words, layout))(packed)
+        back = self.variant(lambda words: packing.unpack(words, layout))(packed)
         for name, value in tree.items():
             assert back[name].dtype == value.dtype and back[name].shape == value.shape
             np.testing.assert_array_equal(np.asarray(back[name]).view(np.uint8),
@@ -431,8 +431,8 @@ class PackedRowsTest(parameterized.TestCase):
     def test_float64_rows_take_two_words(self):
         with jax.enable_x64(True):
             value = np.array([np.pi, -2.0**-1074, np.nan], np.float64)
-            packed = packing._pack({"v": value})
+            packed = packing.pack({"v": value})
             assert packed.shape == (3, 2)
-            back = packing._unpack(packed, {"v": jax.ShapeDtypeStruct((3,), np.float64)})["v"]
+            back = packing.unpack(packed, {"v": jax.ShapeDtypeStruct((3,), np.float64)})["v"]
             np.testing.assert_array_equal(np.asarray(back).view(np.uint64), value.view(np.uint64))
 

@@ -27,15 +27,14 @@ recorded.
 """
 from vdbejax.engine.driver import (
     STRATEGIES,
-    ProgressCallback,
     RunResult,
     available_cpus,
     check_params,
     compile_seconds,
     run_agents,
-    text_progress,
 )
 from vdbejax.engine.lockstep import DEFAULT_UNROLL, MAX_SAFE_BATCH, run_chunk
+from vdbejax.engine.progress import ProgressCallback, text_progress
 from vdbejax.engine.rules import auto_strategy, default_max_batch, mixes_kinds
 from vdbejax.engine.sequential import native_step_loops
 from vdbejax.engine.state import (

@@ -20,18 +20,14 @@ import numpy as np
 
 from vdbejax.engine.chunks import ChunkSchedule
 from vdbejax.engine.instances import instance_template, with_instance_masks, with_instances
-from vdbejax.engine.lockstep import (
-    DEFAULT_UNROLL,
-    _next_power_of_two,
-    run_chunk_lockstep,
-)
+from vdbejax.engine.lockstep import DEFAULT_UNROLL, LockstepOptions, run_chunk_lockstep
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.programs import compile_seconds as _compile_seconds
-from vdbejax.engine.progress import ProgressCallback, text_progress  # noqa: F401  (re-exported: engine API)
+from vdbejax.engine.progress import ProgressCallback
 from vdbejax.engine.rules import auto_strategy, default_max_batch, mixes_kinds
-from vdbejax.engine.sequential import _SequentialRun
+from vdbejax.engine.sequential import SequentialRun
 from vdbejax.engine.state import AgentState, for_task, init_agents
-from vdbejax.engine.work_items import created_in_items
+from vdbejax.engine.work_items import created_in_items, next_power_of_two
 from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams
@@ -213,7 +209,7 @@ def run_agents(
     # the state only while the lockstep strategy runs.
     sequential = None
     if strategy == "sequential":
-        sequential = _SequentialRun(mdp, params, agents, keys, threads, programs)
+        sequential = SequentialRun(mdp, params, agents, keys, threads, programs)
 
     def current_agents() -> AgentState:
         if sequential is not None:
@@ -231,16 +227,17 @@ def run_agents(
         assert agents is not None  # lockstep: the agents' state is here
         backend = jax.default_backend()
         on_cpu = backend == "cpu"
-        lanes = (default_max_batch(agents, params, buffer, backend) if max_batch is None
-                 else max_batch)
+        options = LockstepOptions(
+            compact=compact, block_iterations=block_iterations, unroll=unroll,
+            min_batch=min_batch,
+            max_batch=(default_max_batch(agents, params, buffer, backend) if max_batch is None
+                       else max_batch),
+            threads=threads if on_cpu else 1,
+            fixed_blocks=not on_cpu if fixed_blocks is None else fixed_blocks,
+            mix_kinds=mixes_kinds(backend) if mix_kinds is None else mix_kinds)
         for first, end in bounds:
             agents, *outputs = run_chunk_lockstep(
-                mdp, params, agents, first, end, buffer, compact=compact,
-                block_iterations=block_iterations, unroll=unroll, min_batch=min_batch,
-                max_batch=lanes, programs=programs, threads=threads if on_cpu else 1,
-                fixed_blocks=not on_cpu if fixed_blocks is None else fixed_blocks,
-                mix_kinds=mixes_kinds(backend) if mix_kinds is None else mix_kinds,
-            )
+                mdp, params, agents, first, end, buffer, options, programs)
             yield outputs
 
     # The sequential strategy runs the next chunk while this loop stores one; a checkpoint
@@ -309,7 +306,7 @@ def chunk_buffer_length(chunk_episodes: int) -> int:
     a power of two, at least 8. The buffer's length is part of a program's shapes, so runs
     of 5, 6 or 8 episodes (or chunks of 90 and 100) share one program instead of
     compiling one each; episodes past the chunk's end stay unwritten."""
-    return max(8, _next_power_of_two(int(chunk_episodes)))
+    return max(8, next_power_of_two(int(chunk_episodes)))
 
 
 #: Engine strategies of :func:`run_agents`.

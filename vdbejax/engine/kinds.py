@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from vdbejax import _pytree
-from vdbejax.engine.kind_step import kind_part
+from vdbejax.engine.kind_step import StepOperands, kind_part
 
 Array = jax.Array
 
@@ -89,7 +89,7 @@ def can_switch(kinds: tuple) -> bool:
             and table_forms(kinds) is not None)
 
 
-def switch_part(switch: KindSwitch, operands: tuple, *, num_actions: int, forms: dict,
+def switch_part(switch: KindSwitch, operands: StepOperands, *, num_actions: int, forms: dict,
                 dtypes: dict) -> tuple[Array, dict, Array, Array]:
     """Every kind's part of an iteration (:func:`~vdbejax.engine.kind_step.kind_part` on
     ``operands``), each lane keeping its own kind's.
@@ -104,12 +104,12 @@ def switch_part(switch: KindSwitch, operands: tuple, *, num_actions: int, forms:
       ``forms`` to ``(value [lanes, width], owned)``, ``owned`` whether the lane's kind
       has that table (a scalar for a scalar ``kind``).
     """
-    lanes = operands[1].shape[0]
+    lanes = operands.a.shape[0]
 
     def branch(kind_agent: Any) -> Any:
-        def run(*operands: Any) -> tuple:
+        def run(operands: StepOperands) -> tuple:
             new_q_sa, learned, explored, next_action, finite = kind_part(
-                kind_agent, *operands, num_actions=num_actions)
+                kind_agent, operands, num_actions=num_actions)
             mine = {**learned, **explored}
             # Every table of every kind, in one form: the kind's new values where it owns
             # the table, a write that is masked off where it does not.
@@ -125,8 +125,8 @@ def switch_part(switch: KindSwitch, operands: tuple, *, num_actions: int, forms:
     branches = [branch(k) for k in switch.kinds]
     kind = jnp.asarray(switch.kind, jnp.int32)
     if kind.ndim == 0:
-        return jax.lax.switch(kind, branches, *operands)
-    outputs = [run(*operands) for run in branches]
+        return jax.lax.switch(kind, branches, operands)
+    outputs = [run(operands) for run in branches]
 
     def per_lane(*values: Array) -> Array:
         if values[0].ndim == 0:  # one flag per kind: each lane's kind's

@@ -19,6 +19,7 @@ batch advance together, one vectorised step per loop iteration.
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
@@ -31,7 +32,15 @@ import numpy as np
 from vdbejax.engine.kinds import KindSwitch, can_switch, is_whole_kind, switch_block_size
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.state import AgentState
-from vdbejax.engine.step import optimal_buffer, run_loop, start_support
+from vdbejax.engine.step import (
+    ChunkBounds,
+    ChunkBuffers,
+    LoopLimits,
+    optimal_buffer,
+    run_loop,
+    start_support,
+)
+from vdbejax.engine.work_items import next_power_of_two
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Agent, AgentParams
 
@@ -103,25 +112,27 @@ def _run_chunk(mdp: TabularMDP, params: Agent | KindSwitch, agents: AgentState, 
     returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
     lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
     big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
-    return run_loop(
-        mdp, params, agents, returns, lengths, chunk_start, chunk_end, big, unroll, start_support,
-        optimal=optimal_buffer(mdp, num_agents, chunk_length),
-    )
+    buffers = ChunkBuffers(returns=returns, lengths=lengths,
+                           optimal=optimal_buffer(mdp, num_agents, chunk_length))
+    agents, buffers, iterations = run_loop(
+        mdp, params, agents, buffers, ChunkBounds(start=chunk_start, end=chunk_end),
+        LoopLimits(max_iterations=big, unroll=unroll), start_support)
+    return agents, buffers.returns, buffers.lengths, iterations, buffers.optimal
 
 
-def block_program(mdp: TabularMDP, params: Agent | KindSwitch, agents: AgentState, returns: Array,
-                  lengths: Array, optimal: Array | None, chunk_start: Array,
-                  chunk_end: Array, max_iterations: Array, start_support: Any, *, unroll: int,
-                  fixed_iterations: int | None = None
-                  ) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
-    """Up to ``max_iterations`` lockstep iterations, or exactly ``fixed_iterations``
-    (static: a loop of known trip count, see :func:`~vdbejax.engine.step.run_loop`);
-    also returns each lane's activity."""
-    agents, returns, lengths, iterations, optimal = run_loop(
-        mdp, params, agents, returns, lengths, chunk_start, chunk_end, max_iterations, unroll,
-        start_support, fixed_iterations=fixed_iterations, optimal=optimal,
-    )
-    return agents, returns, lengths, iterations, agents.episode < chunk_end, optimal
+def block_program(mdp: TabularMDP, params: Agent | KindSwitch, agents: AgentState,
+                  buffers: ChunkBuffers, bounds: ChunkBounds, limits: LoopLimits,
+                  start_support: Any) -> tuple[AgentState, ChunkBuffers, Array, Array]:
+    """The lockstep iterations of one block (:func:`~vdbejax.engine.step.run_loop`:
+    up to ``limits.max_iterations``, or exactly ``limits.fixed_iterations``); also
+    returns each lane's activity.
+
+    Returns:
+      ``(agents, buffers, iterations, active)``.
+    """
+    agents, buffers, iterations = run_loop(mdp, params, agents, buffers, bounds, limits,
+                                           start_support)
+    return agents, buffers, iterations, agents.episode < bounds.end
 
 
 @jax.jit
@@ -132,10 +143,6 @@ def _gather_rows(tree: Any, index: Array) -> Any:
 @partial(jax.jit, donate_argnums=(0,))
 def _scatter_rows(tree: Any, index: Array, rows: Any) -> Any:
     return jax.tree.map(lambda leaf, new: leaf.at[index].set(new, mode="drop"), tree, rows)
-
-
-def _next_power_of_two(n: int) -> int:
-    return 1 << max(0, (n - 1).bit_length())
 
 
 def _whole(tree: Any) -> Any:
@@ -180,7 +187,7 @@ def _run_stream(
     chunk_length: int,
     *,
     lanes: int,
-    block_iterations: int,
+    limits: LoopLimits,
     min_batch: int,
     support: Any,
     block: Callable[[tuple], Any],
@@ -188,8 +195,8 @@ def _run_stream(
     """:func:`run_chunk` of a stream of agents of one kind through a batch of at most
     ``lanes`` lanes, refilled and compacted between blocks.
 
-    The batch holds the first ``lanes`` agents and runs ``block_iterations`` lockstep
-    iterations at a time. Between blocks, a lane whose agent has finished the chunk takes
+    The batch holds the first ``lanes`` agents and runs a block of lockstep iterations
+    (``limits``) at a time. Between blocks, a lane whose agent has finished the chunk takes
     the next waiting agent (the finished one is written back). Once no agent waits and at
     most half of the lanes are active, the active agents are gathered into a batch of the
     next power-of-two size (at least ``min_batch``; padding lanes duplicate a real agent
@@ -203,9 +210,9 @@ def _run_stream(
     """
     num_agents = int(agents.episode.shape[0])
     zeros = np.zeros if isinstance(agents.episode, np.ndarray) else jnp.zeros
-    full = (agents, zeros((num_agents, chunk_length), np.float32),
-            zeros((num_agents, chunk_length), np.int32),
-            optimal_buffer(mdp, num_agents, chunk_length, zeros))
+    full = (agents, ChunkBuffers(returns=zeros((num_agents, chunk_length), np.float32),
+                                 lengths=zeros((num_agents, chunk_length), np.int32),
+                                 optimal=optimal_buffer(mdp, num_agents, chunk_length, zeros)))
     size = min(lanes, num_agents)
     waiting = size  # the next agent to take a lane
     # Rows of ``full`` the batch holds (None: all of them, in order).
@@ -214,18 +221,16 @@ def _run_stream(
     if index is not None:
         cur_params, cur = _gather_rows((params, full), jnp.asarray(index))
     iterations = lane_iterations = 0
-    start, end = np.int32(chunk_start), np.int32(chunk_end)
-    iterations_per_block = np.int32(block_iterations)
+    bounds = ChunkBounds(start=np.int32(chunk_start), end=np.int32(chunk_end))
 
-    def written_back() -> tuple[AgentState, Array, Array, Array | None]:
+    def written_back() -> tuple[AgentState, ChunkBuffers]:
         """The full batch with the current batch's rows written back (padding dropped)."""
         return cur if index is None else _scatter_rows(full, jnp.asarray(index), cur)
 
     while True:
-        args = (mdp, cur_params, *cur, start, end, iterations_per_block, support)
-        (cur_agents, cur_returns, cur_lengths, done_iterations, active,
-         cur_optimal) = block(args)(*args)
-        cur = (cur_agents, cur_returns, cur_lengths, cur_optimal)
+        args = (mdp, cur_params, *cur, bounds, limits, support)
+        cur_agents, cur_buffers, done_iterations, active = block(args)(*args)
+        cur = (cur_agents, cur_buffers)
         done_iterations = int(done_iterations)
         iterations += done_iterations
         lane_iterations += done_iterations * size
@@ -245,7 +250,7 @@ def _run_stream(
         num_active = int(active.sum())
         if num_active == 0:
             break
-        target = max(_next_power_of_two(num_active), min_batch)
+        target = max(next_power_of_two(num_active), min_batch)
         if target * 2 > size:
             continue
         # Compaction: the current batch written back, then the active agents gathered.
@@ -256,7 +261,9 @@ def _run_stream(
         gather = np.where(index < num_agents, index, keep[0]).astype(np.int32)
         cur_params, cur = _gather_rows((params, full), jnp.asarray(gather))
         size = target
-    return (*written_back(), iterations, lane_iterations)
+    agents, buffers = written_back()
+    return (agents, buffers.returns, buffers.lengths, buffers.optimal, iterations,
+            lane_iterations)
 
 
 def _kind_groups(params: AgentParams, kinds: np.ndarray, mix_kinds: bool
@@ -282,6 +289,39 @@ def _kind_groups(params: AgentParams, kinds: np.ndarray, mix_kinds: bool
     return groups
 
 
+@dataclasses.dataclass(frozen=True)
+class LockstepOptions:
+    """How :func:`run_chunk_lockstep` runs a chunk (none changes a result, given
+    ``max_batch`` ≤ :data:`MAX_SAFE_BATCH`; as in :func:`~vdbejax.engine.run_agents`,
+    which resolves them for the backend).
+
+    Attributes:
+      compact: a group is a stream of a kind's agents through a batch of ``max_batch``
+        lanes, refilled and compacted between blocks (:func:`_run_stream`).
+      block_iterations: lockstep iterations per block.
+      unroll: lockstep iterations per loop trip.
+      min_batch: smallest batch compaction shrinks to.
+      max_batch: lanes of a batch.
+      threads: groups run on this many threads (a CPU: a group's loop is one native
+        function on one core; XLA runs a program outside the GIL).
+      fixed_blocks: each block is exactly ``block_iterations`` iterations, a loop of
+        known trip count (on accelerators, where a data-dependent loop condition costs a
+        round trip to the host per iteration).
+      mix_kinds: the kinds together in blocks of
+        :func:`~vdbejax.engine.kinds.switch_block_size` where one program can serve them
+        (:func:`~vdbejax.engine.kinds.can_switch`), instead of kind by kind.
+    """
+
+    compact: bool
+    block_iterations: int
+    unroll: int
+    min_batch: int
+    max_batch: int
+    threads: int = 1
+    fixed_blocks: bool = False
+    mix_kinds: bool = False
+
+
 def run_chunk_lockstep(
     mdp: TabularMDP,
     params: AgentParams,
@@ -289,39 +329,25 @@ def run_chunk_lockstep(
     chunk_start: int,
     chunk_end: int,
     chunk_length: int,
-    *,
-    compact: bool,
-    block_iterations: int,
-    unroll: int,
-    min_batch: int,
-    max_batch: int,
+    options: LockstepOptions,
     programs: Programs,
-    threads: int = 1,
-    fixed_blocks: bool = False,
-    mix_kinds: bool = False,
 ) -> tuple[AgentState, Array, Array, Array | None, int, int]:
-    """One chunk of the lockstep strategy: kind by kind (or, with ``mix_kinds``, the kinds
-    together in blocks of :func:`~vdbejax.engine.kinds.switch_block_size` where one
-    program can serve them, :func:`~vdbejax.engine.kinds.can_switch`), in groups of at
-    most ``max_batch`` lanes, the groups spread over ``threads`` threads.
-
-    With ``compact``, a group is a stream of a kind's agents through a batch of
-    ``max_batch`` lanes (:func:`_run_stream`). Per-agent results do not depend on the
-    grouping (options as in :func:`~vdbejax.engine.run_agents`). On a
-    CPU a group's loop is one native function on one core: groups on ``threads`` threads
-    use the others (XLA runs a program outside the GIL). ``fixed_blocks``: each block is
-    exactly ``block_iterations`` iterations, a loop of known trip count (on accelerators,
-    where a data-dependent loop condition costs a round trip to the host per iteration).
+    """One chunk of the lockstep strategy: kind by kind (or, with ``options.mix_kinds``,
+    the kinds together where one program can serve them), in groups of at most
+    ``options.max_batch`` lanes, the groups spread over ``options.threads`` threads
+    (:class:`LockstepOptions`). Per-agent results do not depend on the grouping.
 
     Returns:
       ``(agents, returns, lengths, optimal, iterations, lane_iterations)``.
     """
+    compact, max_batch, unroll = options.compact, options.max_batch, options.unroll
+    threads, block_iterations = options.threads, options.block_iterations
     num_agents = int(agents.episode.shape[0])
     if _on_one_cpu((agents, params)):  # groups cut as host views: no dispatch per leaf
         agents, params = jax.tree.map(np.asarray, (agents, params))
     groups: list[tuple[Agent | KindSwitch, np.ndarray]] = []
     kinds = np.asarray(params.kind)
-    for agent, members in _kind_groups(params, kinds, mix_kinds):
+    for agent, members in _kind_groups(params, kinds, options.mix_kinds):
         if compact:  # streams through batches of max_batch lanes, a few per kind for threads
             streams = max(1, min(threads, -(-members.size // max_batch)))
             groups.extend((agent, rows) for rows in np.array_split(members, streams))
@@ -330,6 +356,8 @@ def run_chunk_lockstep(
                           for lo in range(0, members.size, max_batch))
 
     support = start_support(mdp)
+    limits = LoopLimits(max_iterations=np.int32(block_iterations), unroll=unroll,
+                        fixed_iterations=block_iterations if options.fixed_blocks else None)
     block_programs: dict[tuple, Any] = {}
 
     def run_group(group: tuple[Agent | KindSwitch, np.ndarray]) -> tuple[Any, int, int]:
@@ -349,14 +377,12 @@ def run_chunk_lockstep(
                        getattr(jax.tree.leaves(args[1])[0], "sharding", None))
                 if key not in block_programs:
                     block_programs[key] = programs.get(  # the batch's buffers updated in place
-                        block_program, args, {"unroll": unroll, "fixed_iterations":
-                                              block_iterations if fixed_blocks else None},
-                        donate=("agents", "returns", "lengths", "optimal"))
+                        block_program, args, donate=("agents", "buffers"))
                 return block_programs[key]
 
             *piece, group_iterations, group_lanes = _run_stream(
                 mdp, part(agent), part(agents), chunk_start, chunk_end, chunk_length,
-                lanes=max_batch, block_iterations=block_iterations, min_batch=min_batch,
+                lanes=max_batch, limits=limits, min_batch=options.min_batch,
                 support=support, block=block,
             )
             return piece, group_iterations, group_lanes

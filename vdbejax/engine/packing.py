@@ -2,7 +2,7 @@
 
 When a lane of the sequential strategy takes the next agent, the agent's scalars (state,
 action, counters, key, hyperparameters) move as one row instead of one value per field.
-The packing is exact: every leaf's bits are kept (:func:`_unpack` is :func:`_pack`'s
+The packing is exact: every leaf's bits are kept (:func:`unpack` is :func:`pack`'s
 inverse). Leaves of one dtype sit side by side and are converted to and from words
 together, so a tree of many scalars packs and unpacks in about one operation per leaf
 (every program traces these for every field of every kind it serves).
@@ -59,7 +59,7 @@ def _from_words(words: Array, dtype: np.dtype) -> Array:
     return jax.lax.bitcast_convert_type(words, dtype)
 
 
-def _pack(tree: Any) -> Array:
+def pack(tree: Any) -> Array:
     """Every leaf of ``tree`` (leading axis = rows): uint32 ``[rows, words]``, the leaves
     of each dtype side by side."""
     leaves = [jnp.asarray(leaf) for leaf in jax.tree.leaves(tree)]
@@ -71,8 +71,8 @@ def _pack(tree: Any) -> Array:
     return parts[0] if len(parts) == 1 else jax.lax.concatenate(parts, 1)
 
 
-def _unpack(packed: Array, layout: Any) -> Any:
-    """:func:`_pack`'s inverse: ``layout``'s tree, leaves' dtypes and trailing shapes, on
+def unpack(packed: Array, layout: Any) -> Any:
+    """:func:`pack`'s inverse: ``layout``'s tree, leaves' dtypes and trailing shapes, on
     ``packed``'s rows."""
     leaves, treedef = jax.tree.flatten(layout)
     rows, start = packed.shape[0], 0

@@ -23,7 +23,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from vdbejax.engine.kinds import has_stage_tables, is_whole_kind  # noqa: F401  (re-exported)
+from vdbejax.engine.kinds import has_stage_tables
 from vdbejax.engine.lanes import is_unrolled, learner_rows, put_learned, rows_of, take, take_row
 from vdbejax.methods.agents import Agent
 from vdbejax.methods.contract import Context, Learner, behaviour_values
@@ -55,7 +55,9 @@ def whole_blocks(q: Array, tables: dict, learner: Learner, pair_base: Array,
 
 @dataclasses.dataclass(frozen=True)
 class LearnedStep:
-    """What :func:`after_learning` needs of the iteration (batched over the lanes)."""
+    """What :func:`after_learning` needs of the iteration (batched over the lanes), and
+    the task's ``num_states``, ``num_actions`` and model ``capacity`` (outcomes kept per
+    pair, :func:`~vdbejax.methods.model.capacity`)."""
 
     s: Array
     s_next: Array
@@ -72,11 +74,13 @@ class LearnedStep:
     select_context: Context
     explorer_uniforms: tuple
     plan_uniforms: tuple
+    num_states: int
+    num_actions: int
+    capacity: int
 
 
 def after_learning(agent: Agent, q: Array, tables: dict, next_action: Array, finite: Array,
-                   step: LearnedStep, *, num_states: int, num_actions: int, capacity: int
-                   ) -> tuple[Array, dict, Array, Array]:
+                   step: LearnedStep) -> tuple[Array, dict, Array, Array]:
     """Model, planning and the deferred choice of a whole kind (see the module docstring).
 
     Returns:
@@ -87,21 +91,22 @@ def after_learning(agent: Agent, q: Array, tables: dict, next_action: Array, fin
     old_visits = None
     if learner.uses_model:
         old_visits = take(tables["model_visits"], step.sa_index)
-        tables = _observe(tables, step, capacity)
+        tables = _observe(tables, step)
     if learner.plan_at is not None:
         moment = _moment(agent, step, old_visits,
                          take(tables["model_visits"], step.sa_index) if old_visits is not None
                          else None)
-        q, tables, planned_finite = _plan(agent, q, tables, moment, step, num_states,
-                                          num_actions, capacity)
+        q, tables, planned_finite = _plan(agent, q, tables, moment, step)
         finite = finite & planned_finite
     if defers_selection(learner):
-        next_action = _select(agent, q, tables, step, num_actions)
+        next_action = _select(agent, q, tables, step)
     return q, tables, next_action, finite
 
 
-def _observe(tables: dict, step: LearnedStep, capacity: int) -> dict:
+def _observe(tables: dict, step: LearnedStep) -> dict:
     """The model rows at (s, a) after the step's outcome (where it learned)."""
+    capacity = step.capacity
+
     def index(per: str) -> tuple[Array, int]:
         return (step.sa_index, 1) if per == "pair" else (step.sa_index * capacity, capacity)
 
@@ -135,11 +140,11 @@ def _moment(agent: Agent, step: LearnedStep, old_visits: Array | None,
     return step.learn & (old_visits < known) & (new_visits >= known)
 
 
-def _plan(agent: Agent, q: Array, tables: dict, moment: Array, step: LearnedStep,
-          num_states: int, num_actions: int, capacity: int) -> tuple[Array, dict, Array]:
+def _plan(agent: Agent, q: Array, tables: dict, moment: Array, step: LearnedStep
+          ) -> tuple[Array, dict, Array]:
     """Run the learner's plan where ``moment``; returns the buffers and a finite flag."""
     learner = agent.learner
-    S, A, K = num_states, num_actions, capacity
+    S, A, K = step.num_states, step.num_actions, step.capacity
     size = S * A
     specs = learner.tables()
     own = list(specs)
@@ -220,10 +225,9 @@ def _plan(agent: Agent, q: Array, tables: dict, moment: Array, step: LearnedStep
     return q, tables, ok | ~moment
 
 
-def _select(agent: Agent, q: Array, tables: dict, step: LearnedStep, num_actions: int
-            ) -> Array:
+def _select(agent: Agent, q: Array, tables: dict, step: LearnedStep) -> Array:
     """The next action in ``act_state``, from the tables as written."""
-    A = num_actions
+    A = step.num_actions
     learner_specs = agent.learner.tables()
     q_next = take_row(q, step.pair_base + step.act_state * A, A)
     learner_next = {name: learner_rows(tables[name], step.pair_base + step.act_state * A, A,

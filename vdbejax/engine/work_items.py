@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from vdbejax.engine.lockstep import _next_power_of_two
 from vdbejax.engine.state import state_bytes
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams, table_layout
@@ -51,6 +50,12 @@ def sequential_groups(kinds: np.ndarray, threads: int, costs: np.ndarray | None 
     return sorted(groups, key=lambda group: (-costs[group].sum(), -len(group)))
 
 
+def next_power_of_two(n: int) -> int:
+    """The least power of two ≥ ``n`` (1 for ``n`` ≤ 1): the sizes batches and buffers
+    are padded to, so that few shapes are compiled."""
+    return 1 << max(0, (n - 1).bit_length())
+
+
 #: Agents whose state (Q, ε(s)) exceeds this many bytes are created in their work items,
 #: on the device, instead of on the host first (no host copy of large tables).
 HOST_INIT_MAX_BYTES = 1 << 20
@@ -59,16 +64,17 @@ HOST_INIT_MAX_BYTES = 1 << 20
 def padded_rows(index: np.ndarray, rows: int = 0) -> np.ndarray:
     """A work item's rows, repeated up to a power of two, or to ``rows`` if more (few
     shapes to compile; padding rows never run)."""
-    return np.resize(index, max(_next_power_of_two(index.size), rows))
+    return np.resize(index, max(next_power_of_two(index.size), rows))
 
 
 def common_rows(groups: list[np.ndarray]) -> int:
     """One padded size for every work item (one program for all: its trace is most of
     what a run pays besides the steps), unless that more than doubles the rows; else 0."""
-    size = _next_power_of_two(max(group.size for group in groups))
+    size = next_power_of_two(max(group.size for group in groups))
     return size if size * len(groups) <= 2 * sum(group.size for group in groups) else 0
 
 
 def created_in_items(mdp: TabularMDP, params: AgentParams) -> bool:
-    """Whether an agent's tables exceed :data:`HOST_INIT_MAX_BYTES` (see _SequentialRun)."""
+    """Whether an agent's tables exceed :data:`HOST_INIT_MAX_BYTES` (see
+    :class:`~vdbejax.engine.sequential.SequentialRun`)."""
     return state_bytes(mdp, table_layout(params)) > HOST_INIT_MAX_BYTES
