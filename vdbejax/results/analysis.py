@@ -1,10 +1,11 @@
-"""Statistics of a grid (:class:`~vdbejax.experiment.GridResult`): the summary table,
+"""Statistics of a grid (:class:`~vdbejax.results.grid_result.GridResult`): the summary table,
 pairwise comparisons, truncation diagnostics and ε(s) snapshots.
 
 The array-level statistics and their conventions (smoothing, final return, bootstrap
-intervals, IQM, probability of improvement) live in :mod:`vdbejax.results.stats` and are
-re-exported here; the convergence episode (against the task's optimum, per agent, and its
-censored median per setting) in :mod:`vdbejax.results.solving`.
+intervals, IQM, probability of improvement) live in :mod:`vdbejax.results.stats`,
+:mod:`vdbejax.results.curves` and :mod:`vdbejax.results.bootstrap`; the convergence
+episode (against the task's optimum, per agent, and its censored median per setting) in
+:mod:`vdbejax.results.solving`.
 """
 from __future__ import annotations
 
@@ -13,27 +14,14 @@ from typing import Any
 
 import numpy as np
 
+from vdbejax.results.bootstrap import probability_of_improvement_ci
+from vdbejax.results.curves import LAST, WINDOW, final_return
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.optimal_actions import OPTIMAL_ACTION_COLUMNS, optimal_action_summary
 from vdbejax.results.policy import POLICY_COLUMNS, policy_summary
 from vdbejax.results.regret import Scale, as_scale
 from vdbejax.results.solving import episodes_to_converge, summarize_solving
-from vdbejax.results.stats import (  # noqa: F401  (re-exported: the historical home of these names)
-    LAST,
-    LEVEL,
-    NUM_RESAMPLES,
-    WINDOW,
-    CurveStatistics,
-    bootstrap_ci,
-    bootstrap_indices,
-    curve_statistics,
-    final_return,
-    final_return_ci,
-    interquartile_mean,
-    mean_curve_ci,
-    moving_average,
-    probability_of_improvement_ci,
-)
+from vdbejax.results.stats import CurveStatistics, curve_statistics
 from vdbejax.results.summary import SUMMARY_COLUMNS, SummaryRow
 
 
