@@ -10,8 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from vdbejax.paper.claim_table import mark
-from vdbejax.paper.claims import ABOUT, NEAR, STABLE, TIE, Check, ClaimResult, stable_count
+from vdbejax.paper.claims import ABOUT, NEAR, STABLE, TIE, Check, ClaimResult, mark, stable_count
 from vdbejax.results.solving import CONVERGENCE_TEXT
 
 

@@ -111,7 +111,8 @@ def load_scaling(out_dir: str | Path) -> tuple[list[dict[str, Any]], list[dict[s
     return rows, list(meta["variants"]), meta
 
 
-def _row_setting(row: dict[str, Any]) -> Setting:
+def row_setting(row: dict[str, Any]) -> Setting:
+    """The setting a row of the scaling table belongs to (kept with the row, never written)."""
     return row["_setting"]
 
 
@@ -122,7 +123,7 @@ def growth_exponents(rows: Sequence[dict[str, Any]]) -> dict[Setting, tuple[floa
     """
     points: dict[Setting, list[tuple[float, float]]] = {}
     for r in rows:
-        setting = _row_setting(r)
+        setting = row_setting(r)
         points.setdefault(setting, [])
         if r["status"] == "run" and math.isfinite(r["median_episodes"]):
             points[setting].append((math.log(r["states"]), math.log(r["median_episodes"])))
@@ -181,7 +182,7 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
     slopes = growth_exponents(rows)
     pivot: dict[Setting, dict[str, str]] = {}
     for r in rows:
-        setting = _row_setting(r)
+        setting = row_setting(r)
         cells = pivot.setdefault(setting, {"method": f"{r['method']} ({param_text(setting)})"})
         cells[f"{r['size']} ({r['states']})"] = (
             "-" if r["status"] != "run" else f"{r['median_text']} ({r['solved']}/{r['agents']})")
@@ -241,8 +242,8 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
             mine = [r for r in ran if r["explorer"] == explorer]
             if not mine:
                 continue
-            label = (method_label(_row_setting(mine[0])).split(" ", 1)[1]
-                     + f" ({param_text(_row_setting(mine[0]))})")
+            label = (method_label(row_setting(mine[0])).split(" ", 1)[1]
+                     + f" ({param_text(row_setting(mine[0]))})")
             spread = 1.0 + 0.015 * (j - (len(explorers) - 1) / 2)
             x = column(mine, "states") * spread
             median, low, budget = (column(mine, k) for k in ("median_episodes", "median_low",
