@@ -17,6 +17,7 @@ import numpy as np
 from vdbejax.results.bootstrap import probability_of_improvement_ci
 from vdbejax.results.curves import LAST, WINDOW, final_return
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.markdown import table_lines
 from vdbejax.results.optimal_actions import OPTIMAL_ACTION_COLUMNS, optimal_action_summary
 from vdbejax.results.policy import POLICY_COLUMNS, policy_summary
 from vdbejax.results.regret import Scale, as_scale
@@ -266,7 +267,8 @@ def action_probabilities(
 
 def markdown_table(rows: Sequence[Mapping[str, Any]], columns: Sequence[str],
                    digits: int = 3) -> str:
-    """Rows as a markdown table (floats rounded to ``digits``), e.g. for notebooks.
+    """Rows as a markdown table (floats rounded to ``digits``), e.g. for notebooks
+    (written by :func:`vdbejax.results.markdown.table_lines`).
 
     Args:
       rows: mappings holding at least ``columns`` (dicts, or
@@ -283,6 +285,4 @@ def markdown_table(rows: Sequence[Mapping[str, Any]], columns: Sequence[str],
         # Tiny parameters (τ = 0.0001) would round to 0: show them in full.
         return f"{value:g}" if 0 < np.abs(value) < 10.0 ** -digits else f"{value:.{digits}f}"
 
-    lines = ["| " + " | ".join(columns) + " |", "| " + " | ".join("---" for _ in columns) + " |"]
-    lines += ["| " + " | ".join(cell(r[c]) for c in columns) + " |" for r in rows]
-    return "\n".join(lines)
+    return "\n".join(table_lines(columns, ([cell(r[c]) for c in columns] for r in rows)))

@@ -22,6 +22,7 @@ import numpy as np
 
 from vdbejax.methods.agents import Setting, with_parameter_names
 from vdbejax.results import io
+from vdbejax.results.analysis import markdown_table
 from vdbejax.results.folder_lock import MARKER_FILE, marked_stage
 
 #: The files of a study folder (``runs/`` holds one result folder ``NxK/`` per variant).
@@ -141,8 +142,6 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
                      meta: dict[str, Any]) -> str:
     """``scaling.md``: the variants, then one row per method with a column per variant
     (median episodes to solve [95% interval], solved/agents) and its growth exponent."""
-    from vdbejax.results.analysis import markdown_table
-
     options = meta["options"]
     lines = ["# Episodes to solve against task size", ""]
     if meta.get("command"):
