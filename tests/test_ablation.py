@@ -5,7 +5,8 @@ import json
 import pytest
 
 from vdbejax import cli
-from vdbejax.paper import ablation
+from vdbejax.paper import ablation, ablation_document, ablation_variants
+from vdbejax.paper.reproduce import AUTHORS_DETAILS
 
 VARIANTS = "spec,invalid_fail"
 
@@ -51,12 +52,12 @@ def test_document(ablated):
 def test_reuse_saved_results(ablated):
     out, raw, _ = ablated
     before = json.loads((raw / "spec" / "meta.json").read_text())
-    results = ablation.ablate(out, results_dir=raw, variants=ablation.select_variants("spec"),
+    results = ablation.ablate(out, results_dir=raw, variants=ablation_variants.select_variants("spec"),
                               seeds=2, episodes=12, progress=False)
     after = json.loads((raw / "spec" / "meta.json").read_text())
     assert after["elapsed_seconds"] == before["elapsed_seconds"]  # reused, not retrained
     assert [r.how for r in results] == ["reused"]  # and said so in the status line
-    table = ablation.claims_table(results)
+    table = ablation_document.claims_table(results)
     assert [row["claim"] for row in table] == [1, 2, 3, 4, 5, 6]
     assert all(row["spec"] in ("reproduced", "partly", "not reproduced", "unstable",
                                "undecided")
@@ -64,15 +65,15 @@ def test_reuse_saved_results(ablated):
 
 
 def test_variants_cover_each_open_detail():
-    names = {v.name for v in ablation.VARIANTS}
-    assert ablation.VARIANTS[0].options() == {"max_steps": 100, "invalid_action": "noop",
+    names = {v.name for v in ablation_variants.VARIANTS}
+    assert ablation_variants.VARIANTS[0].options() == {"max_steps": 100, "invalid_action": "noop",
                                               "tie_break": "random", "q_init": 0.0, "alpha": 0.8,
                                               "reading": "textbook", "details": {}}
-    assert {v.invalid_action for v in ablation.VARIANTS} == {"noop", "fail"}
-    assert {v.tie_break for v in ablation.VARIANTS} == {"random", "first"}
-    assert len({v.max_steps for v in ablation.VARIANTS}) >= 3
-    assert len({v.q_init for v in ablation.VARIANTS}) >= 3
-    assert len(names) == len(ablation.VARIANTS)
+    assert {v.invalid_action for v in ablation_variants.VARIANTS} == {"noop", "fail"}
+    assert {v.tie_break for v in ablation_variants.VARIANTS} == {"random", "first"}
+    assert len({v.max_steps for v in ablation_variants.VARIANTS}) >= 3
+    assert len({v.q_init for v in ablation_variants.VARIANTS}) >= 3
+    assert len(names) == len(ablation_variants.VARIANTS)
 
 
 @pytest.mark.parametrize("args, message", [
@@ -108,10 +109,10 @@ def test_attribution_mode_switches_one_authors_detail_at_a_time(tmp_path):
     assert switched.meta["mdp"] == "table_cleaning"
     removed = GridResult.load(tmp_path / "raw" / "authors-failure_update")
     assert removed.meta["mdp"] == "cruz2018" and "failure_update" not in removed.meta["details"]
-    assert len(removed.meta["details"]) == len(ablation.AUTHORS_DETAILS) - 1
+    assert len(removed.meta["details"]) == len(AUTHORS_DETAILS) - 1
     # Each detail of the authors' code appears once added and once removed.
-    variant_names = {v.name for v in ablation.ATTRIBUTION_VARIANTS}
-    for detail in ablation.AUTHORS_DETAILS:
+    variant_names = {v.name for v in ablation_variants.ATTRIBUTION_VARIANTS}
+    for detail in AUTHORS_DETAILS:
         assert {f"textbook+{detail}", f"authors-{detail}"} <= variant_names
 
 
@@ -123,18 +124,18 @@ def test_unknown_mode_is_one_line(capsys):
 def test_factorial_variants_are_every_combination_from_each_reading():
     import itertools
 
-    variants = ablation.FACTORIAL_VARIANTS
+    variants = ablation_variants.FACTORIAL_VARIANTS
     assert len(variants) == 2 * 2 * 2 * 3 * 2 and len({v.name for v in variants}) == len(variants)
     for reading in ("textbook", "authors"):
         mine = [v for v in variants if v.reading == reading]
         combos = {(dict(v.details)["failure_update"], dict(v.details)["goal_update"], v.alpha,
                    dict(v.details)["q_init_distribution"]) for v in mine}
-        assert combos == set(itertools.product(*ablation.FACTORIAL_FACTORS.values()))
+        assert combos == set(itertools.product(*ablation_variants.FACTORIAL_FACTORS.values()))
         if reading == "authors":  # the reading's other details stay
             assert all(dict(v.details)["next_action"] == "redrawn" and v.tie_break == "first"
                        for v in mine)
         else:
-            assert all(set(dict(v.details)) == set(ablation.FACTORIAL_FACTORS) - {"alpha"}
+            assert all(set(dict(v.details)) == set(ablation_variants.FACTORIAL_FACTORS) - {"alpha"}
                        for v in mine)
     assert all("/" not in v.name and ":" not in v.name for v in variants)  # folder names
 
@@ -152,13 +153,13 @@ def test_factorial_mode_and_sections_in_the_document(tmp_path):
     assert grid.meta["details"]["goal_update"] == "skip"
     # REPRODUCTION.md's sections: a variants × claims table per other mode, with "Most".
     results = ablation.ablate(tmp_path / "doc", results_dir=tmp_path / "raw",
-                              variants=ablation.select_variants("spec"), seeds=2, episodes=12,
+                              variants=ablation_variants.select_variants("spec"), seeds=2, episodes=12,
                               progress=False)
     section = ("Factorial", "intro text", "factorial", [
         ablation.run_variant(v, tmp_path / "factorial" / v.name, seeds=2, episodes=12,
                              replicates=5, figures=False)  # the command's: reused
-        for v in ablation.select_variants(names, "factorial")])
-    doc = ablation.render_document(results, "ablation", "cmd", sections=[section])
+        for v in ablation_variants.select_variants(names, "factorial")])
+    doc = ablation_document.render_document(results, "ablation", "cmd", sections=[section])
     assert "## Factorial" in doc and "intro text" in doc
     assert "[report](factorial/authors-td-td-alpha0.8-constant/report.md)" in doc
     assert "Most claims fully reproduced" in doc
@@ -168,7 +169,7 @@ def test_a_variant_left_half_written_by_a_killed_run_is_continued(tmp_path):
     from vdbejax.results.folder_lock import MARKER_FILE, mark
     from vdbejax.results.grid_result import GridResult
 
-    (variant,) = ablation.select_variants("spec")
+    (variant,) = ablation_variants.select_variants("spec")
     folder = tmp_path / "spec"
     first = ablation.run_variant(variant, folder, seeds=2, episodes=12)
     assert first.how == "trained"
@@ -197,7 +198,7 @@ def test_loop_table_gives_each_looping_setting_its_rate_and_interval(tmp_path):
                      convergence_episode=5, truncated_fraction=0.1, mean_length=900.0,
                      nonfinite_agents=0, episodes_cut=800, agents_cut=11)
     quiet = dataclasses.replace(row, config=1, param=0.001, agents_cut=0)
-    result = ablation.VariantResult(ablation.VARIANTS[1], [row, quiet], [], 0.86, tmp_path)
+    result = ablation_variants.VariantResult(ablation_variants.VARIANTS[1], [row, quiet], [], 0.86, tmp_path)
     low, high = wilson_interval(11, 100)
     lines = _loop_table([result], [result.summary])
     assert f"| `authors` | SARSA softmax 0.0001 | 11/100 | 11.0% [{low:.1%}, {high:.1%}] |" in lines

@@ -83,7 +83,7 @@ def test_epsilon_heatmap(tmp_path):
 
 
 def test_figure3_as_the_authors_plot_it(grid):
-    from vdbejax.results import stats
+    from vdbejax.results import curves
 
     window = 20
     fig = plotting.figure3(grid, smoothing="authors", window=window)
@@ -94,7 +94,7 @@ def test_figure3_as_the_authors_plot_it(grid):
     assert x[0] == window and len(x) == grid.num_episodes
     np.testing.assert_allclose(y, full[window - 1:])
     # Up to the last episode it is the trailing moving average; past it, it falls off.
-    trailing = stats.moving_average(grid.returns[0].mean(0), window)
+    trailing = curves.moving_average(grid.returns[0].mean(0), window)
     np.testing.assert_allclose(y[: grid.num_episodes - window + 1], trailing[window - 1:], atol=1e-12)
     assert "np.convolve" in fig._suptitle.get_text()
     plt.close(fig)

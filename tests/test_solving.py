@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from vdbejax.methods.agents import Setting
-from vdbejax.results import stats
 from vdbejax.results.analysis import summarize
+from vdbejax.results.bootstrap import bootstrap_ci, bootstrap_indices
+from vdbejax.results.curves import moving_average
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.solving import (
     CONVERGENCE_TEXT,
@@ -67,7 +68,7 @@ def test_partial_windows_at_the_start_do_not_count():
     # A lucky first episode: the moving average's partial window (1 episode) would be 1.0.
     curve = np.zeros(30, np.float32)
     curve[0] = 1.0
-    assert stats.moving_average(curve, 5)[0] == 1.0
+    assert moving_average(curve, 5)[0] == 1.0
     assert not episodes_to_converge(curve, 1.0, 0.0, window=5).solved.item()
     # A whole run shorter than the window is never solved.
     short = episodes_to_converge(np.ones(3, np.float32), 1.0, 0.0, window=5)
@@ -86,7 +87,7 @@ def test_moving_average_is_stats_trailing_one():
     curves = rng.uniform(-1, 1, size=(6, 200)).astype(np.float32)
     best, baseline, window = 0.5, -0.3, 7
     times = episodes_to_converge(curves, best, baseline, fraction=0.9, window=window)
-    smoothed = stats.moving_average((curves.astype(np.float64) - baseline) / 0.8, window)
+    smoothed = moving_average((curves.astype(np.float64) - baseline) / 0.8, window)
     for row, episode, solved in zip(smoothed, times.episodes, times.solved):
         hits = np.flatnonzero(row[window - 1:] >= 0.9 - 1e-6) + window
         assert solved == bool(hits.size)
@@ -168,7 +169,7 @@ def test_fraction_interval_is_stats_bootstrap_of_the_indicators():
     solved = np.array([True, False, True, True, False, True, True, False])
     episodes = np.where(solved, 50, 200)
     s = summarize_solving(episodes, solved)
-    assert (s.fraction_low, s.fraction_high) == stats.bootstrap_ci(solved.astype(float))
+    assert (s.fraction_low, s.fraction_high) == bootstrap_ci(solved.astype(float))
     assert s.fraction_low <= s.fraction <= s.fraction_high
 
 
@@ -176,7 +177,7 @@ def test_median_interval_uses_the_stats_resamples():
     rng = np.random.default_rng(3)
     episodes = rng.integers(100, 1000, size=12)
     s = summarize_solving(episodes, np.ones(12, bool), num_resamples=500, seed=2)
-    medians = np.sort(np.median(episodes[stats.bootstrap_indices(12, 500, 2)], axis=1))
+    medians = np.sort(np.median(episodes[bootstrap_indices(12, 500, 2)], axis=1))
     assert s.median_low == medians[int(np.floor(499 * 0.025))]
     assert s.median_high == medians[int(np.ceil(499 * 0.975))]
     assert s.median == np.median(episodes)

@@ -10,8 +10,9 @@ from synthetic_grid import BEST, synthetic_grid
 
 from vdbejax.paper import claims
 from vdbejax.results import plotting
-from vdbejax.results.analysis import SUMMARY_COLUMNS, summarize, summary_columns
+from vdbejax.results.analysis import summarize, summary_columns
 from vdbejax.results.summary import (
+    SUMMARY_COLUMNS,
     SummaryRow,
     read_summary,
     summary_row,

@@ -101,7 +101,7 @@ def add_ablate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=parse_cli_number, default=0, help="root random seed (default 0)")
     p.add_argument("--variants", default=None,
                    help="comma-separated variant names"
-                        " (default: all; see vdbejax.paper.ablation.VARIANTS)")
+                        " (default: all; see vdbejax.paper.ablation_variants.VARIANTS)")
     p.add_argument("--notes", default=None,
                    help="a file of hand-written discussion appended to the document (this"
                         " repository's: docs/reproduction_notes.md)")
@@ -121,7 +121,8 @@ def add_ablate(sub: argparse._SubParsersAction) -> None:
 
 
 def ablate_command(args: argparse.Namespace) -> None:
-    from vdbejax.paper.ablation import ablate, select_variants
+    from vdbejax.paper.ablation import ablate
+    from vdbejax.paper.ablation_variants import select_variants
 
     results = ablate(args.out, results_dir=args.results,
                      variants=select_variants(args.variants, args.mode), mode=args.mode,

@@ -15,7 +15,7 @@ Regenerate the committed document with::
 
 This module runs the variants (:func:`run_variant`, :func:`ablate`); the variants
 themselves are in :mod:`vdbejax.paper.ablation_variants` and the document's rendering in
-:mod:`vdbejax.paper.ablation_document`, both re-exported here.
+:mod:`vdbejax.paper.ablation_document`.
 """
 from __future__ import annotations
 
@@ -27,15 +27,9 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from vdbejax.paper.ablation_document import (  # noqa: F401  (re-exported)
-    VERDICT_MARKS,
-    claims_table,
-    render_document,
-)
-from vdbejax.paper.ablation_variants import (  # noqa: F401  (re-exported)
+from vdbejax.paper.ablation_document import claims_table, render_document
+from vdbejax.paper.ablation_variants import (
     ATTRIBUTION_VARIANTS,
-    AUTHORS_OPTIONS,
-    FACTORIAL_FACTORS,
     FACTORIAL_VARIANTS,
     MODES,
     VARIANTS,
@@ -44,13 +38,7 @@ from vdbejax.paper.ablation_variants import (  # noqa: F401  (re-exported)
     mode_variants,
     select_variants,
 )
-from vdbejax.paper.reproduce import (  # noqa: F401  (AUTHORS_DETAILS: re-exported)
-    AUTHORS_DETAILS,
-    FIGURE_FILE,
-    SENSITIVITY_FILE,
-    reproduce,
-    write_outputs,
-)
+from vdbejax.paper.reproduce import FIGURE_FILE, SENSITIVITY_FILE, reproduce
 from vdbejax.results import io
 from vdbejax.results.replicates import REPLICATE_FILES, check_replicates
 from vdbejax.runs import RunOptions

@@ -13,6 +13,7 @@ from vdbejax.paper.ablation_variants import VariantResult
 from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimTable, stable_count
 from vdbejax.paper.reproduce import FIGURE_FILE, SENSITIVITY_FILE
 from vdbejax.results import io
+from vdbejax.results.markdown import table_lines
 from vdbejax.results.replicates import POOLED_SUMMARY_FILE
 from vdbejax.results.solving import CONVERGENCE_TEXT
 from vdbejax.results.stats import wilson_interval
@@ -61,11 +62,10 @@ def render_document(
         "",
         "## Variants",
         "",
-        "| variant | options | best return |",
-        "| --- | --- | --- |",
+        *table_lines(["variant", "options", "best return"],
+                     ([f"`{r.variant.name}`", r.variant.description, f"{r.best_return:.2f}"]
+                      for r in results)),
     ]
-    for r in results:
-        lines.append(f"| `{r.variant.name}` | {r.variant.description} | {r.best_return:.2f} |")
     numbers = sorted({c.number for r in results for c in r.claims})
 
     def cell(r: VariantResult, n: int) -> str:
@@ -79,15 +79,13 @@ def render_document(
 
     if len(results) <= 10:  # claims as rows, variants as columns
         lines += ["", "## Claims × variants", "",
-                  "| claim | " + " | ".join(f"`{r.variant.name}`" for r in results) + " |",
-                  "| --- | " + " | ".join("---" for _ in results) + " |"]
-        lines += [f"| {n} | " + " | ".join(cell(r, n) for r in results) + " |" for n in numbers]
+                  *table_lines(["claim", *(f"`{r.variant.name}`" for r in results)],
+                               ([str(n), *(cell(r, n) for r in results)] for n in numbers))]
     else:  # many variants: one row each
         lines += ["", "## Variants × claims", "",
-                  "| variant | " + " | ".join(f"claim {n}" for n in numbers) + " |",
-                  "| --- | " + " | ".join("---" for _ in numbers) + " |"]
-        lines += [f"| `{r.variant.name}` | " + " | ".join(cell(r, n) for n in numbers) + " |"
-                  for r in results]
+                  *table_lines(["variant", *(f"claim {n}" for n in numbers)],
+                               ([f"`{r.variant.name}`", *(cell(r, n) for n in numbers)]
+                                for r in results))]
     reproduced = {r.variant.name: sum(c.verdict == "reproduced" for c in r.claims) for r in results}
     top = max(reproduced.values())
     lines += ["", "Claims fully reproduced per variant: " + ", ".join(
@@ -106,10 +104,10 @@ def render_document(
         lines.append(f"{c.number}. {c.claim}")
     for title, intro, reports, section in sections:
         lines += ["", f"## {title}", "", intro, "",
-                  "| variant | " + " | ".join(f"claim {n}" for n in numbers) + " | report |",
-                  "| --- | " + " | ".join("---" for _ in numbers) + " | --- |"]
-        lines += [f"| `{r.variant.name}` | " + " | ".join(cell(r, n) for n in numbers)
-                  + f" | [report]({reports}/{r.variant.name}/report.md) |" for r in section]
+                  *table_lines(["variant", *(f"claim {n}" for n in numbers), "report"],
+                               ([f"`{r.variant.name}`", *(cell(r, n) for n in numbers),
+                                 f"[report]({reports}/{r.variant.name}/report.md)"]
+                                for r in section))]
         counts = {r.variant.name: sum(c.verdict == "reproduced" for c in r.claims) for r in section}
         most = max(counts.values())
         lines += ["", f"Most claims fully reproduced ({most}/{len(first.claims)}): "
@@ -125,9 +123,9 @@ def render_document(
               "episodes cut off at max_steps, SARSA + VDBE (σ ≥ 0.1).", ""]
     header = (["variant"] + [f"{LEARNER_NAMES[lr]} {e}" for lr in LEARNER_NAMES for e in EXPLORERS]
               + ["SARSA+VDBE truncated"])
-    lines += ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
     # Read once: the key numbers, convergence and loop tables all use the pooled agents.
     pooled = [_pooled_rows(r) for r in results]
+    key_rows = []
     for r, rows in zip(results, pooled, strict=True):
         near = r.best_return - NEAR
         table = ClaimTable(rows)
@@ -145,15 +143,15 @@ def render_document(
                  if x.learner == "sarsa" and x.explorer == "vdbe" and x.swept_param() >= 0.1
                  and x.truncated_fraction is not None]
         cells.append(f"{sum(stuck) / len(stuck):.2f}" if stuck else "—")
-        lines.append("| " + " | ".join(cells) + " |")
+        key_rows.append(cells)
+    lines += table_lines(header, key_rows)
 
     lines += _convergence_table(results, pooled) + _loop_table(results, pooled)
     lines += ["", "## Figures" if figures else "## Per variant", ""]
     for r in results:
         lines += [f"### `{r.variant.name}`: {r.variant.description}", "",
-                  "| claim | " + " | ".join(str(c.number) for c in r.claims) + " |",
-                  "| --- | " + " | ".join("---" for _ in r.claims) + " |",
-                  "| verdict | " + " | ".join(VERDICT_MARKS[c.verdict] for c in r.claims) + " |",
+                  *table_lines(["claim", *(str(c.number) for c in r.claims)],
+                               [["verdict", *(VERDICT_MARKS[c.verdict] for c in r.claims)]]),
                   ""]
         if figures:
             lines += [
@@ -175,8 +173,8 @@ def _convergence_table(results: Sequence[VariantResult],
     lines = ["", "## Convergence episodes per method family", "",
              "Per learner × explorer: the lowest and highest convergence episode of its"
              " settings that end near the best return (pooled agents; in brackets how many"
-             " settings that is); — none ends near it.", "",
-             "| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
+             " settings that is); — none ends near it.", ""]
+    cells_per_variant = []
     for r, rows in zip(results, pooled, strict=True):
         table = ClaimTable(rows, r.best_return)
         cells = [f"`{r.variant.name}`"]
@@ -186,8 +184,8 @@ def _convergence_table(results: Sequence[VariantResult],
                         if x.final_return >= table.near]
                 cells.append(f"{episode_text(min(good))}–{episode_text(max(good))}"
                              f" ({len(good)})" if good else "—")
-        lines.append("| " + " | ".join(cells) + " |")
-    return lines
+        cells_per_variant.append(cells)
+    return lines + table_lines(header, cells_per_variant)
 
 
 def _loop_table(results: Sequence[VariantResult],
@@ -202,18 +200,19 @@ def _loop_table(results: Sequence[VariantResult],
     lines = ["", "## Agents caught in a loop", "",
              "Agents with at least one episode cut at the safety cap (the task has no step"
              " limit: such an agent looped), per setting where any did (pooled agents), with"
-             " the rate's 95 % Wilson interval.", "",
-             "| variant | setting | agents looping / agents | rate [95 % CI] |",
-             "| --- | --- | --- | --- |"]
+             " the rate's 95 % Wilson interval.", ""]
+    looping = []
     for r, rows in capped:
         agents = int(io.load_json(r.folder / io.META_FILE).get("num_seeds", 0))
         for x in rows:
             if x.agents_cut and agents:
                 low, high = wilson_interval(x.agents_cut, agents)
-                lines.append(f"| `{r.variant.name}` | {LEARNER_NAMES.get(x.learner, x.learner)}"
-                             f" {x.explorer} {x.swept_param():g} | {x.agents_cut}/{agents} |"
-                             f" {x.agents_cut / agents:.1%} [{low:.1%}, {high:.1%}] |")
-    return lines
+                looping.append([f"`{r.variant.name}`",
+                                f"{LEARNER_NAMES.get(x.learner, x.learner)} {x.explorer}"
+                                f" {x.swept_param():g}", f"{x.agents_cut}/{agents}",
+                                f"{x.agents_cut / agents:.1%} [{low:.1%}, {high:.1%}]"])
+    return lines + table_lines(["variant", "setting", "agents looping / agents",
+                                "rate [95 % CI]"], looping)
 
 
 def _run_size(result: VariantResult) -> str:

@@ -10,8 +10,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from vdbejax.paper.claim_table import mark
-from vdbejax.paper.claims import ABOUT, NEAR, STABLE, TIE, Check, ClaimResult, stable_count
+from vdbejax.paper.claims import ABOUT, NEAR, STABLE, TIE, Check, ClaimResult, mark, stable_count
+from vdbejax.results.markdown import table_lines
 from vdbejax.results.solving import CONVERGENCE_TEXT
 
 
@@ -108,20 +108,20 @@ def _flips(claims: Sequence[ClaimResult]) -> list[str]:
 
 def _summary_table(claims: Sequence[ClaimResult], replicates: int) -> list[str]:
     if not replicates:
-        lines = ["| # | verdict | checks passed | undecided |", "| --- | --- | --- | --- |"]
-        return lines + [f"| {c.number} | **{c.verdict}** |"
-                        f" {c.passed_count}/{len(c.checks)} | {c.undecided_count} |"
-                        for c in claims]
-    lines = ["| # | headline | pooled | checks passed (pooled) | undecided (pooled) |"
-             " replicates agreeing | replicates' verdicts |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+        return table_lines(["#", "verdict", "checks passed", "undecided"],
+                           ([str(c.number), f"**{c.verdict}**",
+                             f"{c.passed_count}/{len(c.checks)}", str(c.undecided_count)]
+                            for c in claims))
+    rows = []
     for c in claims:
         counts = ", ".join(f"{c.replicate_verdicts.count(v)} {v}"
                            for v in dict.fromkeys(c.replicate_verdicts))
-        lines.append(f"| {c.number} | **{c.verdict}** | {c.pooled_verdict} |"
-                     f" {c.passed_count}/{len(c.checks)} | {c.undecided_count} |"
-                     f" {c.agreeing} of {replicates} | {counts} |")
-    return lines
+        rows.append([str(c.number), f"**{c.verdict}**", c.pooled_verdict,
+                     f"{c.passed_count}/{len(c.checks)}", str(c.undecided_count),
+                     f"{c.agreeing} of {replicates}", counts])
+    return table_lines(["#", "headline", "pooled", "checks passed (pooled)",
+                        "undecided (pooled)", "replicates agreeing", "replicates' verdicts"],
+                       rows)
 
 
 def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_return: float) -> str:

@@ -23,6 +23,7 @@ __all__ = [
     "curves",
     "export",
     "grid_result",
+    "markdown",
     "optimal_actions",
     "plotting",
     "policy",

@@ -2,9 +2,10 @@
 pairwise comparisons, truncation diagnostics and ε(s) snapshots.
 
 The array-level statistics and their conventions (smoothing, final return, bootstrap
-intervals, IQM, probability of improvement) live in :mod:`vdbejax.results.stats` and are
-re-exported here; the convergence episode (against the task's optimum, per agent, and its
-censored median per setting) in :mod:`vdbejax.results.solving`.
+intervals, IQM, probability of improvement) live in :mod:`vdbejax.results.stats`,
+:mod:`vdbejax.results.curves` and :mod:`vdbejax.results.bootstrap`; the convergence
+episode (against the task's optimum, per agent, and its censored median per setting) in
+:mod:`vdbejax.results.solving`.
 """
 from __future__ import annotations
 
@@ -13,27 +14,15 @@ from typing import Any
 
 import numpy as np
 
+from vdbejax.results.bootstrap import probability_of_improvement_ci
+from vdbejax.results.curves import LAST, WINDOW, final_return
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.markdown import table_lines
 from vdbejax.results.optimal_actions import OPTIMAL_ACTION_COLUMNS, optimal_action_summary
 from vdbejax.results.policy import POLICY_COLUMNS, policy_summary
 from vdbejax.results.regret import Scale, as_scale
 from vdbejax.results.solving import episodes_to_converge, summarize_solving
-from vdbejax.results.stats import (  # noqa: F401  (re-exported: the historical home of these names)
-    LAST,
-    LEVEL,
-    NUM_RESAMPLES,
-    WINDOW,
-    CurveStatistics,
-    bootstrap_ci,
-    bootstrap_indices,
-    curve_statistics,
-    final_return,
-    final_return_ci,
-    interquartile_mean,
-    mean_curve_ci,
-    moving_average,
-    probability_of_improvement_ci,
-)
+from vdbejax.results.stats import CurveStatistics, curve_statistics
 from vdbejax.results.summary import SUMMARY_COLUMNS, SummaryRow
 
 
@@ -278,7 +267,8 @@ def action_probabilities(
 
 def markdown_table(rows: Sequence[Mapping[str, Any]], columns: Sequence[str],
                    digits: int = 3) -> str:
-    """Rows as a markdown table (floats rounded to ``digits``), e.g. for notebooks.
+    """Rows as a markdown table (floats rounded to ``digits``), e.g. for notebooks
+    (written by :func:`vdbejax.results.markdown.table_lines`).
 
     Args:
       rows: mappings holding at least ``columns`` (dicts, or
@@ -295,6 +285,4 @@ def markdown_table(rows: Sequence[Mapping[str, Any]], columns: Sequence[str],
         # Tiny parameters (τ = 0.0001) would round to 0: show them in full.
         return f"{value:g}" if 0 < np.abs(value) < 10.0 ** -digits else f"{value:.{digits}f}"
 
-    lines = ["| " + " | ".join(columns) + " |", "| " + " | ".join("---" for _ in columns) + " |"]
-    lines += ["| " + " | ".join(cell(r[c]) for c in columns) + " |" for r in rows]
-    return "\n".join(lines)
+    return "\n".join(table_lines(columns, ([cell(r[c]) for c in columns] for r in rows)))

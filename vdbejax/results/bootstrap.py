@@ -96,7 +96,8 @@ def _counts(indices: np.ndarray, num_seeds: int) -> np.ndarray:
     return counts
 
 
-def _interval(values: np.ndarray, level: float, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def percentile_interval(values: np.ndarray, level: float,
+                        axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Percentile interval along ``axis``: equal, bit for bit, to ``np.quantile(values,
     [α, 1 − α], axis)`` (its default "linear" method), but from one sort of a contiguous
     copy: ≈ 2.5× faster for a band of 2000 resamples × 1000 episodes (numpy's vectorised
@@ -140,7 +141,7 @@ def bootstrap_ci(
     samples = np.asarray(samples, np.float64)
     means = np.concatenate([samples[indices].mean(-1) for indices in
                             resample_blocks(len(samples), num_resamples, seed)])
-    low, high = _interval(means, level)
+    low, high = percentile_interval(means, level)
     return float(low), float(high)
 
 
@@ -175,7 +176,7 @@ def interquartile_mean_ci(
     values = np.asarray(values, np.float64)
     resampled = np.concatenate([interquartile_mean(values[indices]) for indices in
                                 resample_blocks(len(values), num_resamples, seed)])
-    low, high = _interval(resampled, level)
+    low, high = percentile_interval(resampled, level)
     return float(interquartile_mean(values)), float(low), float(high)
 
 
@@ -215,6 +216,6 @@ def probability_of_improvement_ci(
     y = np.asarray(y, np.float64)
     rx = x[bootstrap_indices(len(x), num_resamples, seed)]
     ry = y[bootstrap_indices(len(y), num_resamples, seed + 1)]
-    low, high = _interval(probability_of_improvement(rx, ry), level)
+    low, high = percentile_interval(probability_of_improvement(rx, ry), level)
     return float(probability_of_improvement(x, y)), float(low), float(high)
 

@@ -13,6 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from vdbejax.results.markdown import table_lines
 from vdbejax.results.replicates import POOLED_SUMMARY_FILE
 from vdbejax.results.summary import SUMMARY_FILE, SummaryRow, episode_text, read_summary
 
@@ -86,14 +87,15 @@ def render_comparison(table: list[dict[str, Any]], a: str, b: str) -> str:
         value = entry[f"{side}_convergence"]
         return "–" if math.isnan(value) else episode_text(value)
 
+    def difference(entry: dict[str, Any]) -> str:
+        return "–" if math.isnan(entry["difference"]) else f"{entry['difference']:+.3f}"
+
     lines = [f"A = {a}, B = {b}: final return (mean of the last 100 episodes, 95 % bootstrap"
              " interval over agents) and convergence episode per setting", "",
-             "| setting | A final | B final | B − A | intervals | A converges | B converges |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
-    for entry in table:
-        overlap = {True: "overlap", False: "apart", None: "–"}[entry["overlap"]]
-        difference = "–" if math.isnan(entry["difference"]) else f"{entry['difference']:+.3f}"
-        lines.append(f"| {entry['setting']} | {final(entry, 'a')} | {final(entry, 'b')} |"
-                     f" {difference} | {overlap} | {episode(entry, 'a')} |"
-                     f" {episode(entry, 'b')} |")
+             *table_lines(
+                 ["setting", "A final", "B final", "B − A", "intervals", "A converges",
+                  "B converges"],
+                 ([entry["setting"], final(entry, "a"), final(entry, "b"), difference(entry),
+                   {True: "overlap", False: "apart", None: "–"}[entry["overlap"]],
+                   episode(entry, "a"), episode(entry, "b")] for entry in table))]
     return "\n".join(lines) + "\n"

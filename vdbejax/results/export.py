@@ -39,7 +39,18 @@ from typing import Any
 import numpy as np
 
 from vdbejax.results import io
-from vdbejax.results.grid_result import GridResult
+from vdbejax.results.analysis import summarize
+from vdbejax.results.grid_result import (
+    Columns,
+    GridResult,
+    agent_columns,
+    hyperparameter_names,
+    returns_columns,
+    setting_columns,
+)
+from vdbejax.results.policy import optimal_agents, policy_gaps
+from vdbejax.results.replicates import POOLED_SUMMARY_FILE, REPLICATES_FILE
+from vdbejax.results.summary import SUMMARY_FILE, read_summary
 from vdbejax.validation import check_choice
 
 #: The tables, each written as ``<name>.csv`` or ``<name>.parquet``.
@@ -51,74 +62,12 @@ EXPORT_FILES = [f"{name}.{ext}" for name in TABLE_FILES.values() for ext in FORM
 #: Rows per block of a CSV being written (its text is never held whole).
 CSV_BLOCK_ROWS = 100_000
 
-Columns = dict[str, np.ndarray]
-
-
-def hyperparameter_names(results: Sequence[GridResult], everything: bool = False) -> list[str]:
-    """The hyperparameter columns of ``results``' tables: those whose values differ
-    between their settings (all of them with ``everything``), sorted."""
-    per_config = [values for result in results
-                  for values in (result.hyperparameters(c) for c in range(len(result.settings)))]
-    names = sorted({name for values in per_config for name in values})
-    if everything:
-        return names
-    return [n for n in names if len({repr(values.get(n)) for values in per_config}) > 1]
-
-
-def setting_columns(result: GridResult, names: Sequence[str]) -> Columns:
-    """One row per setting: ``config``, ``setting``, ``learner``, ``explorer``, ``param``
-    and the hyperparameters ``names`` (None where a setting has no such field)."""
-    per_config = [result.hyperparameters(c) for c in range(len(result.settings))]
-
-    def column(values: list[Any]) -> np.ndarray:
-        array = np.empty(len(values), dtype=object)
-        array[:] = values
-        return array
-
-    columns = {"config": np.arange(len(result.settings)),
-               "setting": column([s.label for s in result.settings]),
-               "learner": column([s.learner for s in result.settings]),
-               "explorer": column([s.explorer for s in result.settings]),
-               "param": column([s.param for s in result.settings])}
-    for name in names:
-        columns[name] = column([values.get(name) for values in per_config])
-    return columns
-
-
-def _per_agent(result: GridResult, names: Sequence[str], inner: int) -> Columns:
-    """The setting's columns, ``seed`` (and ``replicate``) repeated for ``inner`` rows per
-    agent, in the order setting, agent, inner row."""
-    configs, seeds = result.returns.shape[:2]
-    columns = {name: np.repeat(values, seeds * inner)
-               for name, values in setting_columns(result, names).items()}
-    seed = np.tile(np.repeat(np.arange(seeds), inner), configs)
-    columns["seed"] = seed
-    if int(result.meta.get("replicates", 1)) > 1:
-        columns["replicate"] = seed // int(result.meta.get("agents_per_replicate") or seeds)
-    return columns
-
-
-def returns_columns(result: GridResult, names: Sequence[str]) -> Columns:
-    """The returns table of one run (module docstring), ``names`` its hyperparameter
-    columns: rows in the order setting, agent, episode (1-based)."""
-    configs, seeds, episodes = result.returns.shape
-    columns = _per_agent(result, names, episodes)
-    columns["episode"] = np.tile(np.arange(1, episodes + 1), configs * seeds)
-    columns["return"] = result.returns.reshape(-1)
-    columns["length"] = result.lengths.reshape(-1)
-    if result.optimal_actions is not None:
-        columns["optimal_actions"] = result.optimal_actions.reshape(-1)
-    return columns
-
-
 def evaluation_columns(result: GridResult, names: Sequence[str]) -> Columns | None:
     """The evaluations table of one run (None: it has no policy evaluations)."""
-    from vdbejax.results.policy import optimal_agents, policy_gaps
-
     if result.policy_values is None:
         return None
     configs, seeds, evaluations = result.policy_values.shape
-    columns = _per_agent(result, names, evaluations)
+    columns = agent_columns(result, names, evaluations)
     columns["evaluation"] = np.tile(np.arange(1, evaluations + 1), configs * seeds)
     columns["episode"] = np.tile(result.evaluation_episodes, configs * seeds)
     columns["policy_value"] = result.policy_values.reshape(-1)
@@ -132,13 +81,8 @@ def evaluation_columns(result: GridResult, names: Sequence[str]) -> Columns | No
 
 def _summary_scopes(result: GridResult, folder: Path) -> list[tuple[str, list[dict[str, Any]]]]:
     """``(scope, rows)`` of a run's summaries (module docstring), rows as column dicts."""
-    from vdbejax.results.replicates import POOLED_SUMMARY_FILE, REPLICATES_FILE
-    from vdbejax.results.summary import SUMMARY_FILE, read_summary
-
     replicates = int(result.meta.get("replicates", 1))
     if not (folder / SUMMARY_FILE).is_file():
-        from vdbejax.results.analysis import summarize
-
         return [("all agents", [row.as_dict() for row in summarize(result)])]
     scopes = [("all agents" if replicates == 1 else "replicate 0",
                [row.as_dict() for row in read_summary(folder / SUMMARY_FILE)])]
@@ -365,4 +309,4 @@ def _pyarrow() -> tuple[Any, Any]:
 
 
 __all__ = ["EXPORT_FILES", "FORMATS", "TABLE_FILES", "export_results", "result_folders",
-           "returns_columns", "write_csv"]
+           "write_csv"]

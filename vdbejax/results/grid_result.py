@@ -1,4 +1,5 @@
-"""The result of a grid run: :class:`GridResult`, its files, and their checks on loading."""
+"""The result of a grid run: :class:`GridResult`, its files, their checks on loading, and
+its long-format columns (the rows :mod:`vdbejax.results.export` writes)."""
 from __future__ import annotations
 
 import dataclasses
@@ -6,6 +7,7 @@ import hashlib
 import io as io_bytes
 import json
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -111,8 +113,6 @@ class GridResult:
           ``{column: array}``, all of length configs × seeds × episodes, in the order
           config, seed, episode.
         """
-        from vdbejax.results.export import hyperparameter_names, returns_columns
-
         return returns_columns(self, hyperparameter_names([self], all_hyperparameters))
 
     def to_dataframe(self, all_hyperparameters: bool = False) -> Any:
@@ -241,6 +241,67 @@ class GridResult:
         check_optimal_actions(returns_path, returns, lengths, optimal_actions)
         return cls(settings, returns, lengths, nonfinite, meta, episodes_run, policy_values,
                    optimal_actions)
+
+
+#: A long table as ``{column: array}``, all of one length.
+Columns = dict[str, np.ndarray]
+
+
+def hyperparameter_names(results: Sequence[GridResult], everything: bool = False) -> list[str]:
+    """The hyperparameter columns of ``results``' tables: those whose values differ
+    between their settings (all of them with ``everything``), sorted."""
+    per_config = [values for result in results
+                  for values in (result.hyperparameters(c) for c in range(len(result.settings)))]
+    names = sorted({name for values in per_config for name in values})
+    if everything:
+        return names
+    return [n for n in names if len({repr(values.get(n)) for values in per_config}) > 1]
+
+
+def setting_columns(result: GridResult, names: Sequence[str]) -> Columns:
+    """One row per setting: ``config``, ``setting``, ``learner``, ``explorer``, ``param``
+    and the hyperparameters ``names`` (None where a setting has no such field)."""
+    per_config = [result.hyperparameters(c) for c in range(len(result.settings))]
+
+    def column(values: list[Any]) -> np.ndarray:
+        array = np.empty(len(values), dtype=object)
+        array[:] = values
+        return array
+
+    columns = {"config": np.arange(len(result.settings)),
+               "setting": column([s.label for s in result.settings]),
+               "learner": column([s.learner for s in result.settings]),
+               "explorer": column([s.explorer for s in result.settings]),
+               "param": column([s.param for s in result.settings])}
+    for name in names:
+        columns[name] = column([values.get(name) for values in per_config])
+    return columns
+
+
+def agent_columns(result: GridResult, names: Sequence[str], inner: int) -> Columns:
+    """The setting's columns, ``seed`` (and ``replicate``) repeated for ``inner`` rows per
+    agent, in the order setting, agent, inner row."""
+    configs, seeds = result.returns.shape[:2]
+    columns = {name: np.repeat(values, seeds * inner)
+               for name, values in setting_columns(result, names).items()}
+    seed = np.tile(np.repeat(np.arange(seeds), inner), configs)
+    columns["seed"] = seed
+    if int(result.meta.get("replicates", 1)) > 1:
+        columns["replicate"] = seed // int(result.meta.get("agents_per_replicate") or seeds)
+    return columns
+
+
+def returns_columns(result: GridResult, names: Sequence[str]) -> Columns:
+    """The returns table of one run (:mod:`vdbejax.results.export`), ``names`` its
+    hyperparameter columns: rows in the order setting, agent, episode (1-based)."""
+    configs, seeds, episodes = result.returns.shape
+    columns = agent_columns(result, names, episodes)
+    columns["episode"] = np.tile(np.arange(1, episodes + 1), configs * seeds)
+    columns["return"] = result.returns.reshape(-1)
+    columns["length"] = result.lengths.reshape(-1)
+    if result.optimal_actions is not None:
+        columns["optimal_actions"] = result.optimal_actions.reshape(-1)
+    return columns
 
 
 def _check_saved_arrays(path: Path, num_settings: int, returns: np.ndarray, lengths: np.ndarray,

@@ -25,8 +25,9 @@ import numpy as np
 
 from vdbejax.methods.agents import parameter_name
 from vdbejax.methods.api import EXPLORERS, explorer_title, learner_title
+from vdbejax.results.curves import WINDOW, convolve_full
 from vdbejax.results.grid_result import GridResult
-from vdbejax.results.stats import WINDOW, CurveStatistics, convolve_full, curve_statistics
+from vdbejax.results.stats import CurveStatistics, curve_statistics
 from vdbejax.results.summary import SummaryRow, summary_rows
 from vdbejax.validation import check_choice
 
@@ -108,9 +109,9 @@ def figure3(
       bands: shade each curve's pointwise 95% bootstrap interval over seeds.
       statistics: the curves (and, for ``bands``, their bands) already computed by
         :func:`~vdbejax.results.stats.curve_statistics` with this ``window``.
-      smoothing: ``"trailing"`` (:func:`~vdbejax.results.stats.moving_average`, from episode 1)
+      smoothing: ``"trailing"`` (:func:`~vdbejax.results.curves.moving_average`, from episode 1)
         or ``"authors"``: as the first author's code plots Figure 3 —
-        :func:`~vdbejax.results.stats.convolve_full` of the agents' mean, from episode ``window``
+        :func:`~vdbejax.results.curves.convolve_full` of the agents' mean, from episode ``window``
         to its end, the fall-off past the last episode included (no bands).
 
     Returns:

@@ -29,9 +29,9 @@ import numpy as np
 from vdbejax.results.bootstrap import (
     LEVEL,
     NUM_RESAMPLES,
-    _interval,
     bootstrap_indices,
     interquartile_mean,
+    percentile_interval,
     probability_of_improvement,
 )
 
@@ -157,7 +157,7 @@ def aggregate_iqm(scores: Sequence[np.ndarray], level: float = LEVEL,
     """
     rows = _check_tasks(scores, "scores")
     resampled = np.concatenate(_stratified(rows, num_resamples, seed), axis=1)
-    low, high = _interval(interquartile_mean(resampled), level)
+    low, high = percentile_interval(interquartile_mean(resampled), level)
     return Interval(float(interquartile_mean(np.concatenate(rows))), float(low), float(high))
 
 
@@ -180,7 +180,7 @@ def performance_profile(scores: Sequence[np.ndarray], thresholds: np.ndarray,
     pooled = np.concatenate(rows)
     fraction = (pooled[:, None] > thresholds).mean(0)
     resampled = np.concatenate(_stratified(rows, num_resamples, seed), axis=1)
-    low, high = _interval((resampled[..., None] > thresholds).mean(1), level)
+    low, high = percentile_interval((resampled[..., None] > thresholds).mean(1), level)
     return fraction, low, high
 
 
@@ -208,7 +208,7 @@ def task_probability_of_improvement(x: Sequence[np.ndarray], y: Sequence[np.ndar
     ry = _stratified(ys, num_resamples, seed + len(xs))
     resampled = np.mean([probability_of_improvement(a, b) for a, b in zip(rx, ry, strict=True)],
                         axis=0)
-    low, high = _interval(resampled, level)
+    low, high = percentile_interval(resampled, level)
     return Interval(float(value), float(low), float(high))
 
 

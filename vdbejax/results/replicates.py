@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from vdbejax.results import io
+from vdbejax.results.analysis import summarize
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.stats import CurveStatistics
 from vdbejax.results.summary import SummaryRow, write_summary
@@ -103,8 +104,6 @@ def summarize_replicates(result: GridResult, first: list[SummaryRow],
       first: replicate 0's rows, already computed (``summary.csv``).
       statistics: the whole grid's statistics, if already computed.
     """
-    from vdbejax.results.analysis import summarize
-
     pooled = summarize(result, statistics=statistics)
     others = [summarize(replicate(result, r)) for r in range(1, replicate_count(result))]
     return ReplicateSummaries(pooled, [first, *others])

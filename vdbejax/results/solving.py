@@ -8,8 +8,8 @@ and notebook 03):
   episode of ``summary.csv``, the sensitivity figure and the claims, and the episodes to
   solve of ``bench``, ``depth`` and ``scale``, whose stop policy
   :class:`~vdbejax.runs.UntilSolved` applies it during training): the first episode ``e``
-  (1-based) at which the trailing :func:`~vdbejax.results.stats.moving_average` over
-  ``window`` episodes (default :data:`~vdbejax.results.stats.WINDOW` = 20, the paper's
+  (1-based) at which the trailing :func:`~vdbejax.results.curves.moving_average` over
+  ``window`` episodes (default :data:`~vdbejax.results.curves.WINDOW` = 20, the paper's
   smoothing) of an agent's *normalised* returns (:mod:`vdbejax.results.regret`: 0 the
   uniformly random policy's expected return, 1 the exact best) reaches ``fraction`` = 0.9,
   i.e. its returns' average reaches ``baseline + 0.9 × (best − baseline)``
@@ -22,12 +22,12 @@ and notebook 03):
 * **Censored**: an agent that never reaches the threshold within the episodes it ran is
   censored at that count (its budget): all we know is that it needs more.
 * **Fraction solved**: the mean of the solved indicators, with the percentile bootstrap
-  interval of :func:`vdbejax.results.stats.bootstrap_ci` (agents are the sample).
+  interval of :func:`vdbejax.results.bootstrap.bootstrap_ci` (agents are the sample).
 * **Median episodes to solve**: censored agents count as ``> budget`` (+∞ in the order),
   so the median is defined while fewer than half of the agents are censored; otherwise it
   is reported as censored, ``"> budget"`` — never as a mean or median of censoring points.
   Its interval: the same bootstrap resamples of agents
-  (:func:`vdbejax.results.stats.bootstrap_indices`,
+  (:func:`vdbejax.results.bootstrap.bootstrap_indices`,
   2000 resamples, fixed seed), each resample's median (+∞ when censored), and the order
   statistics just outside the percentile positions (numpy's ``"lower"`` / ``"higher"``
   quantile methods: no interpolation between a finite median and +∞). An upper bound of +∞
@@ -44,14 +44,14 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from vdbejax.results import stats
+from vdbejax.results import bootstrap, curves
 from vdbejax.results.regret import Scale, normalised_returns
 from vdbejax.validation import check_in_range, check_int
 
 #: Default normalised score that counts as solved (0 = random policy, 1 = the exact best).
 FRACTION = 0.9
-#: Default moving-average window (the paper's smoothing, :data:`vdbejax.results.stats.WINDOW`).
-WINDOW = stats.WINDOW
+#: Default moving-average window (the paper's smoothing, :data:`vdbejax.results.curves.WINDOW`).
+WINDOW = curves.WINDOW
 #: Slack of the threshold comparison: returns are float32 sums of float32 rewards.
 TOLERANCE = 1e-6
 
@@ -94,7 +94,7 @@ def _first_window_reaching(values: np.ndarray, threshold: float, window: int,
     run = _episodes_run(episodes_run, values.shape[:-1], length)
     if length == 0:
         return SolveTimes(run.copy(), np.zeros(run.shape, bool))
-    smoothed = stats.moving_average(values, window)  # a column depends on earlier ones only
+    smoothed = curves.moving_average(values, window)  # a column depends on earlier ones only
     columns = np.arange(length)
     eligible = (columns >= window - 1) & (columns < run[..., None])
     with np.errstate(invalid="ignore"):  # NaN padding past an agent's stop never counts
@@ -253,8 +253,8 @@ def summarize_solving(
     episodes: Any,
     solved: Any,
     *,
-    level: float = stats.LEVEL,
-    num_resamples: int = stats.NUM_RESAMPLES,
+    level: float = bootstrap.LEVEL,
+    num_resamples: int = bootstrap.NUM_RESAMPLES,
     seed: int = 0,
 ) -> SolveSummary:
     """Fraction solved and median episodes to solve of one setting, with bootstrap intervals.
@@ -263,7 +263,7 @@ def summarize_solving(
       episodes: ``[agents]`` solve episodes, censoring points where not solved
         (:attr:`SolveTimes.episodes`).
       solved: bool ``[agents]``.
-      level, num_resamples, seed: bootstrap settings (:mod:`vdbejax.results.stats`).
+      level, num_resamples, seed: bootstrap settings (:mod:`vdbejax.results.bootstrap`).
 
     Returns:
       the :class:`SolveSummary`.
@@ -276,12 +276,12 @@ def summarize_solving(
     seed = check_int("seed", seed, 0)
     counts, solved = _check_sample(episodes, solved)
     values = np.where(solved, counts, np.inf)
-    resamples = stats.bootstrap_indices(values.size, num_resamples, seed)
+    resamples = bootstrap.bootstrap_indices(values.size, num_resamples, seed)
     medians = np.sort(_medians(values[resamples]))
     alpha = (1.0 - level) / 2.0
     low = medians[math.floor((num_resamples - 1) * alpha)]
     high = medians[math.ceil((num_resamples - 1) * (1.0 - alpha))]
-    fraction_low, fraction_high = stats.bootstrap_ci(solved.astype(np.float64), level,
+    fraction_low, fraction_high = bootstrap.bootstrap_ci(solved.astype(np.float64), level,
                                                      num_resamples, seed)
     censored = counts[~solved]
     budget = int(censored.min()) if censored.size else int(counts.max())

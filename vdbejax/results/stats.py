@@ -18,11 +18,11 @@ Conventions (used everywhere, stated once):
 
 Array layout: seeds on the first axis, episodes on the last (``[seeds, episodes]``).
 
-The pieces live in one module each and are re-exported here: the statistics of one curve
-(smoothing, final return) in :mod:`vdbejax.results.curves`; those of one value
-per seed (bootstrap resamples and intervals, IQM, probability of improvement) in
-:mod:`vdbejax.results.bootstrap`. This module holds the intervals of curves and the per-setting
-statistics of a grid (:func:`curve_statistics`).
+The pieces live in one module each: the statistics of one curve (smoothing, final return)
+in :mod:`vdbejax.results.curves`; those of one value per seed (bootstrap resamples and
+intervals, IQM, probability of improvement) in :mod:`vdbejax.results.bootstrap`. This module
+holds the intervals of curves, the per-setting statistics of a grid (:func:`curve_statistics`)
+and the Wilson interval of a rate.
 """
 from __future__ import annotations
 
@@ -33,28 +33,16 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from vdbejax.results.bootstrap import (  # noqa: F401  (re-exported)
-    IQM_TRIM,
+from vdbejax.results.bootstrap import (
     LEVEL,
     NUM_RESAMPLES,
-    _interval,
     bootstrap_ci,
-    bootstrap_indices,
-    bootstrap_weights,
     interquartile_mean,
-    interquartile_mean_ci,
-    probability_of_improvement,
-    probability_of_improvement_ci,
+    percentile_interval,
     rows_per_block,
     weight_blocks,
 )
-from vdbejax.results.curves import (  # noqa: F401  (re-exported)
-    LAST,
-    WINDOW,
-    convolve_full,
-    final_return,
-    moving_average,
-)
+from vdbejax.results.curves import LAST, WINDOW, final_return, moving_average
 
 
 def mean_curve_ci(
@@ -85,7 +73,7 @@ def mean_curve_ci(
     # Episode block by episode block, and resample block by resample block for many seeds
     # (one block each unless the run is long or wide: memory bounded).
     columns = rows_per_block(num_resamples)
-    edges = [_interval(np.concatenate([
+    edges = [percentile_interval(np.concatenate([
         weights @ smoothed[:, i:i + columns]
         for weights in _distinct_weights(len(returns), num_resamples, seed)]), level)
         for i in range(0, smoothed.shape[-1], columns)]
@@ -152,8 +140,9 @@ def curve_statistics(
 ) -> CurveStatistics:
     """:class:`CurveStatistics` of ``[settings, seeds, episodes]`` returns.
 
-    Every setting uses the same bootstrap resamples (:func:`bootstrap_weights`) and the
-    same functions as one setting alone (:func:`final_return_ci`, :func:`mean_curve_ci`),
+    Every setting uses the same bootstrap resamples
+    (:func:`~vdbejax.results.bootstrap.bootstrap_weights`) and the same functions as one
+    setting alone (:func:`final_return_ci`, :func:`mean_curve_ci`),
     so the numbers are those, bit for bit; the per-setting curves and bands run on
     ``workers`` threads (default: the CPU count), which numpy's array operations let run
     in parallel.

@@ -22,6 +22,7 @@ import numpy as np
 
 from vdbejax.results import io
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.markdown import table_lines
 from vdbejax.results.optimal_actions import OPTIMAL_ACTION_COLUMNS
 from vdbejax.results.policy import POLICY_COLUMNS, policy_gap_figure
 from vdbejax.results.regret import (
@@ -185,15 +186,14 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
            " largest mean), mean over agents; **reward per step**: their return over their"
            " steps; 95 % bootstrap intervals over agents.", ""] if recorded else []),
         "## Across tasks", "",
-        "| method | family | IQM score [95 % CI] | mean rank | P(better than ε-greedy) |"
-        " tasks |",
-        "| --- | --- | --- | --- | --- | --- |"]
-    for a in aggregate:
-        p = ("-" if math.isnan(a["p_vs_reference"])
-             else _interval(a["p_vs_reference"], a["p_low"], a["p_high"], 2))
-        lines.append(f"| {a['title']} | {a['family']} |"
-                     f" {_interval(a['iqm'], a['iqm_low'], a['iqm_high'])} |"
-                     f" {a['mean_rank']:.1f} | {p} | {a['tasks']} of {total} |")
+        *table_lines(
+            ["method", "family", "IQM score [95 % CI]", "mean rank", "P(better than ε-greedy)",
+             "tasks"],
+            ([a["title"], a["family"], _interval(a["iqm"], a["iqm_low"], a["iqm_high"]),
+              f"{a['mean_rank']:.1f}",
+              "-" if math.isnan(a["p_vs_reference"])
+              else _interval(a["p_vs_reference"], a["p_low"], a["p_high"], 2),
+              f"{a['tasks']} of {total}"] for a in aggregate))]
     left_out = meta.get("left_out", [])
     titles = {m["name"]: m["title"] for m in meta["methods"]}
     if left_out:
@@ -211,23 +211,20 @@ def markdown(rows: Sequence[dict[str, Any]], aggregate: Sequence[dict[str, Any]]
                   f"{task['states']} states, {task['actions']} actions, horizon"
                   f" {task['horizon']}; best return {task['best_return']:.4g}, random policy"
                   f" {task['random_return']:.4g}.", "",
-                  "| rank | method | tuned | score [95 % CI] | realized regret [95 % CI] |"
-                  " final return | solved | median episodes |"
-                  + (" policy gap [95 % CI] | optimal policies |" if evaluated else "")
-                  + (" % optimal action [95 % CI] | reward per step [95 % CI] |"
-                     if recorded else ""),
-                  "| --- | --- | --- | --- | --- | --- | --- | --- |"
-                  + (" --- | --- |" if evaluated else "") + (" --- | --- |" if recorded else "")]
+                  *table_lines(
+                      ["rank", "method", "tuned", "score [95 % CI]",
+                       "realized regret [95 % CI]", "final return", "solved", "median episodes",
+                       *(["policy gap [95 % CI]", "optimal policies"] if evaluated else []),
+                       *(["% optimal action [95 % CI]", "reward per step [95 % CI]"]
+                         if recorded else [])],
+                      ([str(r["rank"]), r["title"],
+                        f"{r['tuned']} = {r['value']:.3g}" if r["tuned"] else "-",
+                        _interval(r["score"], r["score_low"], r["score_high"]),
+                        f"{r['regret']:.4g} [{r['regret_low']:.4g}, {r['regret_high']:.4g}]",
+                        f"{r['final_return']:.4g}", f"{r['fraction_solved']:.0%}",
+                        r["median_text"], *(policy_cells(r) if evaluated else []),
+                        *(optimal_cells(r) if recorded else [])] for r in mine))]
         skipped = [titles[x["method"]] for x in left_out if x["task"] == task["name"]]
-        for r in mine:
-            tuned = f"{r['tuned']} = {r['value']:.3g}" if r["tuned"] else "-"
-            lines.append(
-                f"| {r['rank']} | {r['title']} | {tuned} |"
-                f" {_interval(r['score'], r['score_low'], r['score_high'])} |"
-                f" {r['regret']:.4g} [{r['regret_low']:.4g}, {r['regret_high']:.4g}] |"
-                f" {r['final_return']:.4g} | {r['fraction_solved']:.0%} | {r['median_text']} |"
-                + (policy_cells(r) if evaluated else "")
-                + (optimal_cells(r) if recorded else ""))
         if skipped:
             lines += ["", f"Not run here (cost rule): {', '.join(skipped)}."]
     return "\n".join(lines) + "\n"
@@ -248,19 +245,19 @@ def _rounded(gap: float) -> str:
     return f"{round(gap, 4) + 0.0:.4f}"
 
 
-def policy_cells(row: dict[str, Any]) -> str:
-    """The policy gap and optimal share of a ranking row, as table cells."""
+def policy_cells(row: dict[str, Any]) -> list[str]:
+    """The policy gap and optimal share of a ranking row, as two table cells."""
     gap = [_rounded(row[k]) for k in ("policy_gap", "policy_gap_ci_low", "policy_gap_ci_high")]
-    return (f" {gap[0]} [{gap[1]}, {gap[2]}] | {row['optimal_fraction']:.0%}"
-            f" [{row['optimal_ci_low']:.0%}, {row['optimal_ci_high']:.0%}] |")
+    return [f"{gap[0]} [{gap[1]}, {gap[2]}]", f"{row['optimal_fraction']:.0%}"
+            f" [{row['optimal_ci_low']:.0%}, {row['optimal_ci_high']:.0%}]"]
 
 
-def optimal_cells(row: dict[str, Any]) -> str:
-    """The % optimal action and reward per step of a ranking row, as table cells."""
+def optimal_cells(row: dict[str, Any]) -> list[str]:
+    """The % optimal action and reward per step of a ranking row, as two table cells."""
     reward = _interval(row["reward_per_step"], row["reward_per_step_ci_low"],
                        row["reward_per_step_ci_high"])
-    return (f" {row['optimal_actions']:.0%} [{row['optimal_actions_ci_low']:.0%},"
-            f" {row['optimal_actions_ci_high']:.0%}] | {reward} |")
+    return [f"{row['optimal_actions']:.0%} [{row['optimal_actions_ci_low']:.0%},"
+            f" {row['optimal_actions_ci_high']:.0%}]", reward]
 
 
 def bench_meta(command: str | None, tasks: Sequence[Any], methods: Sequence[Any],

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from vdbejax.results import io
+from vdbejax.results.markdown import table_lines
 
 MARKDOWN_FILE, FIGURE_FILE = "depth.md", "depth.png"
 #: The greedy policies' gap against depth (a run with ``--evaluate-every``).
@@ -48,18 +49,17 @@ def policy_table(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, Any]
     """A family's table of the greedy policies at each agent's last evaluation: mean gap
     ``V* − V^π`` [95 % bootstrap interval] and the share of optimal greedy policies."""
     lines = ["Greedy policies at each agent's last evaluation (exact, vdbejax.runs.evaluation):"
-             " mean V* − V^π [95 % interval], share of optimal ones.", "",
-             "| method | " + " | ".join(f"N = {n}" for n in sizes) + " |",
-             "| --- | " + " | ".join("---" for _ in sizes) + " |"]
+             " mean V* − V^π [95 % interval], share of optimal ones.", ""]
+
     def cell(row: dict[str, Any]) -> str:
         if not math.isfinite(row["policy_gap"]):
             return "-"
         return (f"{row['policy_gap']:.3g} [{row['policy_gap_ci_low']:.3g},"
                 f" {row['policy_gap_ci_high']:.3g}], {row['optimal_fraction']:.0%}")
 
-    for slope in (s for s in slopes if s["family"] == family):
-        lines.append(f"| {slope['title']} | "
-                     + " | ".join(depth_cells(rows, slope, family, sizes, cell)) + " |")
+    lines += table_lines(["method", *(f"N = {n}" for n in sizes)],
+                         ([slope["title"], *depth_cells(rows, slope, family, sizes, cell)]
+                          for slope in slopes if slope["family"] == family))
     return [*lines, ""]
 
 
@@ -97,18 +97,13 @@ def depth_markdown(rows: Sequence[dict[str, Any]], slopes: Sequence[dict[str, An
         " at the budget).", ""]
     for family in options["families"]:
         sizes = options["sizes"]
-        lines += [f"## {FAMILY_TITLES.get(family, family)}", "",
-                  "| method | family | " + " | ".join(f"N = {n}" for n in sizes)
-                  + " | exponent | doubling |",
-                  "| --- | --- | " + " | ".join("---" for _ in sizes) + " | --- | --- |"]
-        for slope in (s for s in slopes if s["family"] == family):
-            cells = depth_cells(
-                rows, slope, family, sizes,
-                lambda row: f"{row['median_text']}, {row['solved']}/{row['agents']}")
-            lines.append(f"| {slope['title']} | {slope['method_family']} | "
-                         + " | ".join(cells) + f" | {interval_text(slope, 'exponent')}"
-                         f" | {interval_text(slope, 'doubling', 3)} |")
-        lines.append("")
+        lines += [f"## {FAMILY_TITLES.get(family, family)}", "", *table_lines(
+            ["method", "family", *(f"N = {n}" for n in sizes), "exponent", "doubling"],
+            ([slope["title"], slope["method_family"],
+              *depth_cells(rows, slope, family, sizes,
+                           lambda row: f"{row['median_text']}, {row['solved']}/{row['agents']}"),
+              interval_text(slope, "exponent"), interval_text(slope, "doubling", 3)]
+             for slope in slopes if slope["family"] == family)), ""]
         if options.get("evaluate_every"):
             lines += policy_table(rows, slopes, family, sizes)
     tasks = meta["tasks"]

@@ -51,10 +51,10 @@ from vdbejax.studies.scaling_report import (
     META_FILE,
     ROW_COLUMNS,
     RUNS_FOLDER,
-    _row_setting,
     growth_exponents,
     load_scaling,
     method_label,
+    row_setting,
     scaling_figure,
     scaling_markdown,
     write_reports,
@@ -304,7 +304,7 @@ def run_scaling(
                 agent_steps=run.agent_steps, training_seconds=run.elapsed_seconds,
                 compile_seconds=run.compile_seconds, steps_per_second=run.steps_per_second))
         rank = {task[0]: i for i, task in enumerate(tasks)}
-        rows.sort(key=lambda r: (rank[r["size"]], order[_row_setting(r)]))
+        rows.sort(key=lambda r: (rank[r["size"]], order[row_setting(r)]))
         options = {"sizes": [t[0] for t in tasks], "seeds": seeds, "episodes": episodes,
                    "episodes_per_state": episodes_per_state, "seconds": seconds, "seed": seed,
                    "learners": list(learners),

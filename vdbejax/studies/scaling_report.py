@@ -22,6 +22,7 @@ import numpy as np
 
 from vdbejax.methods.agents import Setting, with_parameter_names
 from vdbejax.results import io
+from vdbejax.results.analysis import markdown_table
 from vdbejax.results.folder_lock import MARKER_FILE, marked_stage
 
 #: The files of a study folder (``runs/`` holds one result folder ``NxK/`` per variant).
@@ -111,7 +112,8 @@ def load_scaling(out_dir: str | Path) -> tuple[list[dict[str, Any]], list[dict[s
     return rows, list(meta["variants"]), meta
 
 
-def _row_setting(row: dict[str, Any]) -> Setting:
+def row_setting(row: dict[str, Any]) -> Setting:
+    """The setting a row of the scaling table belongs to (kept with the row, never written)."""
     return row["_setting"]
 
 
@@ -122,7 +124,7 @@ def growth_exponents(rows: Sequence[dict[str, Any]]) -> dict[Setting, tuple[floa
     """
     points: dict[Setting, list[tuple[float, float]]] = {}
     for r in rows:
-        setting = _row_setting(r)
+        setting = row_setting(r)
         points.setdefault(setting, [])
         if r["status"] == "run" and math.isfinite(r["median_episodes"]):
             points[setting].append((math.log(r["states"]), math.log(r["median_episodes"])))
@@ -140,8 +142,6 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
                      meta: dict[str, Any]) -> str:
     """``scaling.md``: the variants, then one row per method with a column per variant
     (median episodes to solve [95% interval], solved/agents) and its growth exponent."""
-    from vdbejax.results.analysis import markdown_table
-
     options = meta["options"]
     lines = ["# Episodes to solve against task size", ""]
     if meta.get("command"):
@@ -181,7 +181,7 @@ def scaling_markdown(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str
     slopes = growth_exponents(rows)
     pivot: dict[Setting, dict[str, str]] = {}
     for r in rows:
-        setting = _row_setting(r)
+        setting = row_setting(r)
         cells = pivot.setdefault(setting, {"method": f"{r['method']} ({param_text(setting)})"})
         cells[f"{r['size']} ({r['states']})"] = (
             "-" if r["status"] != "run" else f"{r['median_text']} ({r['solved']}/{r['agents']})")
@@ -241,8 +241,8 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
             mine = [r for r in ran if r["explorer"] == explorer]
             if not mine:
                 continue
-            label = (method_label(_row_setting(mine[0])).split(" ", 1)[1]
-                     + f" ({param_text(_row_setting(mine[0]))})")
+            label = (method_label(row_setting(mine[0])).split(" ", 1)[1]
+                     + f" ({param_text(row_setting(mine[0]))})")
             spread = 1.0 + 0.015 * (j - (len(explorers) - 1) / 2)
             x = column(mine, "states") * spread
             median, low, budget = (column(mine, k) for k in ("median_episodes", "median_low",
