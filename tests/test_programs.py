@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from vdbejax.engine import programs, run_agents
-from vdbejax.envs.table_cleaning import env as table_env
+from vdbejax.envs.table_cleaning import core as table_core
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.experiment import grid_agents
 from vdbejax.methods import explorers, learners, selection
@@ -132,7 +132,7 @@ def test_the_trace_key_follows_jax_configuration():
 
 def test_a_patched_environment_constant_is_seen(monkeypatch):
     before = _run()
-    monkeypatch.setattr(table_env, "STEP_REWARD", -0.5)
+    monkeypatch.setattr(table_core, "STEP_REWARD", -0.5)
     patched = _run()
     assert (patched <= before).all() and (patched < before).any()
 
