@@ -24,7 +24,7 @@ import jax.numpy as jnp
 from vdbejax._numerics import rounded
 from vdbejax._pytree import static_field
 from vdbejax.methods.contract import Context, LearnerUpdate, TaskFacts, Transition
-from vdbejax.methods.finite_horizon import _StageLearner, backward_induction
+from vdbejax.methods.finite_horizon import StageLearner, backward_induction
 from vdbejax.methods.model import Model
 from vdbejax.methods.registry import learner
 from vdbejax.validation import check_choice, check_in_range
@@ -144,7 +144,7 @@ def dirichlet_expected(values: Array, sample: Array) -> Array:
 
 
 @learner("psrl", title="PSRL")
-class PSRL(_StageLearner):
+class PSRL(StageLearner):
     """Posterior sampling for RL (Osband, Russo & Van Roy 2013, "(More) efficient
     reinforcement learning via posterior sampling", NeurIPS, Alg. 1): before each episode
     (``plan_at = "episode"``) one MDP is drawn from the posterior (:func:`posterior_sample`:
