@@ -165,7 +165,7 @@ def test_a_reloaded_module_gets_a_new_program(tmp_path, monkeypatch):
         assert not np.array_equal(before, after)
     finally:
         sys.modules.pop("reload_probe_module", None)
-        explorers_registry = importlib.import_module("vdbejax.methods.api").EXPLORERS
+        explorers_registry = importlib.import_module("vdbejax.methods.registry").EXPLORERS
         explorers_registry.pop("reload_probe", None)
 
 
