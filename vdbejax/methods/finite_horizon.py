@@ -32,7 +32,7 @@ from vdbejax.methods.contract import (
     Transition,
 )
 from vdbejax.methods.learners import masked_value
-from vdbejax.methods.model import Model, expected_under
+from vdbejax.methods.model import Model, bellman_backup, expected_under
 from vdbejax.methods.registry import learner
 from vdbejax.validation import check_choice, check_in_range, check_int
 
@@ -84,8 +84,7 @@ def ucbvi_values(model: Model, bonus: Any, gamma: Any, r_max: Any, horizon: int,
         expected = expected_under(probabilities, model.next_state, values)
         if convention == "rlberry":
             expected = jnp.where(visited, expected, jnp.mean(values))
-        future = rounded(gamma * expected, gamma)
-        backed = reward + bonus(model.visits, v_max, h) + future
+        backed = bellman_backup(reward + bonus(model.visits, v_max, h), gamma, expected)
         q = (backed if convention == "rlberry"
              else jnp.where(visited, jnp.minimum(backed, v_max), v_max))
         values = jnp.max(q, axis=1)

@@ -25,7 +25,7 @@ from vdbejax._numerics import rounded
 from vdbejax._pytree import static_field
 from vdbejax.methods.contract import Context, LearnerUpdate, TaskFacts, Transition
 from vdbejax.methods.finite_horizon import StageLearner, backward_induction
-from vdbejax.methods.model import Model
+from vdbejax.methods.model import Model, bellman_backup
 from vdbejax.methods.registry import learner
 from vdbejax.validation import check_choice, check_in_range
 
@@ -197,8 +197,7 @@ class PSRL(StageLearner):
                                                 self.terminal_outcome == "always")
 
         def stage(values: Array, _: Any) -> tuple:
-            expected = dirichlet_expected(values, transitions)
-            q_h = rewards + rounded(self.gamma * expected, self.gamma)
+            q_h = bellman_backup(rewards, self.gamma, dirichlet_expected(values, transitions))
             return jnp.max(q_h, axis=1), q_h
 
         stages = backward_induction(stage, jnp.zeros(q.shape[0], jnp.float32), self.horizon)
