@@ -15,8 +15,8 @@ import argparse
 
 import jax.numpy as jnp
 
-from vdbejax.methods import Learner, LearnerUpdate, learner, rounded
-from vdbejax.methods.model import greedy_values, value_iteration
+from vdbejax.methods import Learner, LearnerUpdate, learner
+from vdbejax.methods.model import bellman_backup, greedy_values, value_iteration
 
 
 @learner("ucb_vi", title="UCB value iteration")
@@ -43,8 +43,9 @@ class UCBValueIteration(Learner):
         optimistic = self.r_max / (1.0 - self.gamma)
 
         def backup(values):
-            future = rounded(self.gamma * model.expected(greedy_values(values)), self.gamma)
-            return jnp.where(visited, model.mean_reward() + bonus + future, optimistic)
+            future = model.expected(greedy_values(values))
+            backed = bellman_backup(model.mean_reward() + bonus, self.gamma, future)
+            return jnp.where(visited, backed, optimistic)
 
         return value_iteration(backup, q, tolerance=1e-4, max_sweeps=500), {}
 

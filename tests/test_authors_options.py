@@ -150,7 +150,7 @@ def test_reproduce_reading_errors_are_one_line(tmp_path, args, message):
 def test_float64_softmax_draw_by_hand():
     import jax.numpy as jnp
 
-    from vdbejax.methods.explorers import float64_softmax_draw
+    from vdbejax.methods.selection import float64_softmax_draw
 
     stable = jnp.array([2, 2, 2, 1], jnp.int32)
     q = jnp.array([

@@ -11,7 +11,7 @@ from vdbejax.envs.reward_noise import BERNOULLI, GAUSSIAN
 from vdbejax.envs.suite import NAMES, make_suite_task, task_info
 from vdbejax.envs.suite.bandits import arm_means, make_bandit, optimal_arms
 from vdbejax.methods.agents import Setting, make_agent, stack_agents
-from vdbejax.methods.api import Transition
+from vdbejax.methods.contract import Transition
 from vdbejax.methods.learners import make_learner
 
 

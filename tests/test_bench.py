@@ -10,7 +10,7 @@ import pytest
 
 from vdbejax import cli
 from vdbejax.methods.agents import make_agent
-from vdbejax.methods.api import EXPLORERS, LEARNERS
+from vdbejax.methods.registry import EXPLORERS, LEARNERS
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.regret import cumulative_regret
 from vdbejax.studies import bench

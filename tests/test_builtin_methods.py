@@ -13,6 +13,8 @@ from absl.testing import parameterized
 from vdbejax.engine import agent_keys, run_agents
 from vdbejax.envs.table_cleaning import make_mdp as _make_mdp
 from vdbejax.methods import (
+    EXPLORERS,
+    LEARNERS,
     Context,
     Explorer,
     Learner,
@@ -21,26 +23,23 @@ from vdbejax.methods import (
     Table,
     Transition,
     explorer,
-    explorers,
     learner,
-    learners,
     make_agent,
     stack_agents,
 )
-from vdbejax.methods.explorers import (
-    UCB1,
-    decayed,
-    greedy,
-    greedy_probabilities,
-    make_explorer,
-    mixture_probabilities,
-    softmax_probabilities,
-)
+from vdbejax.methods.explorers import UCB1, make_explorer
 from vdbejax.methods.learners import (
     double_q_learning_target,
     expected_sarsa_target,
     make_learner,
     td_update,
+)
+from vdbejax.methods.selection import (
+    decayed,
+    greedy,
+    greedy_probabilities,
+    mixture_probabilities,
+    softmax_probabilities,
 )
 from vdbejax.runs import run_grid
 
@@ -666,7 +665,7 @@ def test_plugin_without_select_or_gamma_fails_at_decoration():
         class NoSelect(Explorer):
             epsilon: float = 0.1
     assert "\n" not in str(info.value)
-    assert "tbm_no_select" not in explorers.EXPLORERS
+    assert "tbm_no_select" not in EXPLORERS
 
     with pytest.raises(ValueError, match="tbm_no_gamma.*gamma") as info:
         @learner("tbm_no_gamma")
@@ -677,7 +676,7 @@ def test_plugin_without_select_or_gamma_fails_at_decoration():
                 new, delta_q = td_update(t.q, t.reward, self.alpha)
                 return LearnerUpdate(new, {}, delta_q)
     assert "\n" not in str(info.value)
-    assert "tbm_no_gamma" not in learners.LEARNERS
+    assert "tbm_no_gamma" not in LEARNERS
 
 
 @pytest.mark.parametrize("build", [

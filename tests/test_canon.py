@@ -15,8 +15,10 @@ from vdbejax import RunOptions, run_grid
 from vdbejax.envs.tabular import make_tabular_mdp
 from vdbejax.methods import model as model_lib
 from vdbejax.methods.agents import AgentOptions, Setting
-from vdbejax.methods.api import Learner, LearnerUpdate, check_plugin, learner
+from vdbejax.methods.contract import Learner, LearnerUpdate
 from vdbejax.methods.learners import pair_mask
+from vdbejax.methods.plugin_check import check_plugin
+from vdbejax.methods.registry import learner
 from vdbejax.methods.traces import trace_update
 
 F = np.float32
@@ -554,7 +556,7 @@ def test_planning_moments_are_kept(moment):
     from vdbejax.engine import run_agents
     from vdbejax.engine.state import agent_keys, broadcast_agents
     from vdbejax.methods.agents import make_agent, stack_agents
-    from vdbejax.methods.api import Table
+    from vdbejax.methods.contract import Table
 
     class Counting(Learner):
         gamma: float = 0.9
@@ -777,7 +779,7 @@ def test_a_whole_table_learner_writes_its_stage_tables_back_to_its_own_rows():
     from vdbejax.engine import run_agents
     from vdbejax.engine.state import agent_keys, broadcast_agents
     from vdbejax.methods.agents import make_agent, stack_agents
-    from vdbejax.methods.api import Table
+    from vdbejax.methods.contract import Table
 
     class StageCounts(Learner):
         gamma: float = 0.9

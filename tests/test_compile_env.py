@@ -5,9 +5,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vdbejax.envs.compiled import compile_env
+from vdbejax.envs.table_cleaning import core as table_core
 from vdbejax.envs.table_cleaning import env as table_env
 from vdbejax.envs.table_cleaning import make_mdp
-from vdbejax.envs.compiled import compile_env
 
 
 def _tables(mdp):
@@ -44,26 +45,26 @@ class ShapesFromParams(table_env.TableCleaning):
 
 
 def test_a_users_subclass_gives_the_builtin_tables():
-    users = compile_env(UsersTableCleaning(), table_env.make_params(100, "noop"),
+    users = compile_env(UsersTableCleaning(), table_core.make_params(100, "noop"),
                         name="table_cleaning")
     _same(_tables(make_mdp()), _tables(users))
 
 
 def test_an_env_that_needs_concrete_params_compiles():
-    mdp = compile_env(ParamsAsConstants(), table_env.make_params(100, "fail"),
+    mdp = compile_env(ParamsAsConstants(), table_core.make_params(100, "fail"),
                       name="table_cleaning")
     _same(_tables(make_mdp(invalid_action="fail")), _tables(mdp))
 
 
 def test_an_env_whose_params_set_shapes_compiles():
-    mdp = compile_env(ShapesFromParams(), table_env.make_params(100, "noop"),
+    mdp = compile_env(ShapesFromParams(), table_core.make_params(100, "noop"),
                       name="table_cleaning")
     _same(_tables(make_mdp()), _tables(mdp))
 
 
 def test_a_patched_environment_constant_is_seen_and_undone(monkeypatch):
     before = make_mdp()
-    monkeypatch.setattr(table_env, "STEP_REWARD", -0.5)
+    monkeypatch.setattr(table_core, "STEP_REWARD", -0.5)
     patched = make_mdp()
     step = ~np.asarray(patched.terminal)
     assert np.all(np.asarray(patched.reward)[step] == np.float32(-0.5))

@@ -14,8 +14,8 @@ from vdbejax import engine
 from vdbejax.engine import packing, sequential, work_items
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents
-from vdbejax.methods.explorers import select_action
 from vdbejax.methods.learners import q_learning_target, sarsa_target
+from vdbejax.methods.selection import select_action
 
 SETTINGS = [
     Setting("sarsa", "vdbe", 0.001),

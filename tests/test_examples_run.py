@@ -63,7 +63,7 @@ def test_the_python_examples_of_every_page_run_as_written(tmp_path, page):
 
 def test_the_docstring_examples_are_found():
     where = [name for name, _ in docstring_examples()]
-    assert "vdbejax/methods/api.py:module" in where and "vdbejax/__init__.py:module" in where
+    assert "vdbejax/methods/contract.py:module" in where and "vdbejax/__init__.py:module" in where
 
 
 @pytest.mark.parametrize("where, code", docstring_examples(),

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from absl.testing import parameterized
 
-from vdbejax.methods import explorers
+from vdbejax._numerics import sample_categorical
+from vdbejax.methods import explorers, selection
 
 NUM_DRAWS = 20_000
 Q = jnp.array([0.1, 0.5, -0.2, 0.3, 0.0, -1.0, 0.45])  # unique maximum: action 1
@@ -32,57 +33,57 @@ def greedy_onehot(q):
 
 @pytest.mark.parametrize("epsilon", [0.0, 0.1, 0.3, 1.0])
 def test_egreedy_frequencies(epsilon):
-    freq = frequencies(lambda k: explorers.egreedy(k, Q, epsilon))
+    freq = frequencies(lambda k: selection.egreedy(k, Q, epsilon))
     assert_matches(freq, (1 - epsilon) * greedy_onehot(Q) + epsilon / 7)
 
 
 @pytest.mark.parametrize("tau", [0.05, 0.3, 1.0, 10.0])
 def test_softmax_frequencies(tau):
-    freq = frequencies(lambda k: explorers.softmax(k, Q, tau))
+    freq = frequencies(lambda k: selection.softmax(k, Q, tau))
     logits = np.asarray(Q, np.float64) / tau
     probs = np.exp(logits - logits.max())
     assert_matches(freq, probs / probs.sum())
-    np.testing.assert_allclose(explorers.softmax_probabilities(Q, tau), probs / probs.sum(), rtol=1e-5)
+    np.testing.assert_allclose(selection.softmax_probabilities(Q, tau), probs / probs.sum(), rtol=1e-5)
 
 
 @pytest.mark.parametrize("state_epsilon", [0.0, 0.25, 0.9])
 def test_vdbe_frequencies(state_epsilon):
-    freq = frequencies(lambda k: explorers.vdbe(k, Q, state_epsilon))
+    freq = frequencies(lambda k: selection.vdbe(k, Q, state_epsilon))
     assert_matches(freq, (1 - state_epsilon) * greedy_onehot(Q) + state_epsilon / 7)
 
 
 @pytest.mark.parametrize("state_epsilon, tau", [(0.5, 0.2), (0.3, 1.0)])
 def test_vdbe_softmax_frequencies(state_epsilon, tau):
-    freq = frequencies(lambda k: explorers.vdbe_softmax(k, Q, state_epsilon, tau))
-    soft = np.asarray(explorers.softmax_probabilities(Q, tau), np.float64)
+    freq = frequencies(lambda k: selection.vdbe_softmax(k, Q, state_epsilon, tau))
+    soft = np.asarray(selection.softmax_probabilities(Q, tau), np.float64)
     assert_matches(freq, (1 - state_epsilon) * greedy_onehot(Q) + state_epsilon * soft)
 
 
 def test_random_tie_break_is_uniform_among_maxima_and_first_picks_lowest():
     q = jnp.array([0.0, 0.7, 0.2, 0.7, 0.7, -1.0, 0.0])
-    freq = frequencies(lambda k: explorers.egreedy(k, q, 0.0))
+    freq = frequencies(lambda k: selection.egreedy(k, q, 0.0))
     assert_matches(freq, [0, 1 / 3, 0, 1 / 3, 1 / 3, 0, 0])
-    freq = frequencies(lambda k: explorers.egreedy(k, q, 0.0, tie_break="first"))
+    freq = frequencies(lambda k: selection.egreedy(k, q, 0.0, tie_break="first"))
     assert_matches(freq, [0, 1, 0, 0, 0, 0, 0])
 
 
 @pytest.mark.parametrize("tau", [0.0001, 0.001])
 def test_tiny_tau_is_stable(tau):
     q = jnp.array([0.86, 0.8599, -1.0, 0.5, 0.86, 0.1, -0.01])
-    weights = explorers.softmax_weights(q, tau)
+    weights = selection.softmax_weights(q, tau)
     assert bool(jnp.all(jnp.isfinite(weights)))
-    probs = explorers.softmax_probabilities(q, tau)
+    probs = selection.softmax_probabilities(q, tau)
     assert bool(jnp.all(jnp.isfinite(probs))) and float(probs.sum()) == pytest.approx(1.0)
-    freq = frequencies(lambda k: explorers.softmax(k, q, tau))
+    freq = frequencies(lambda k: selection.softmax(k, q, tau))
     assert_matches(freq, np.asarray(probs, np.float64))
     # Huge value gaps: still finite, all mass on the maximum.
-    assert int(explorers.softmax(jax.random.PRNGKey(0), jnp.array([1e4, -1e4, 0.0]), tau)) == 0
+    assert int(selection.softmax(jax.random.PRNGKey(0), jnp.array([1e4, -1e4, 0.0]), tau)) == 0
 
 
 def test_sample_categorical_never_returns_zero_weight():
     weights = jnp.array([0.0, 1.0, 0.0, 2.0, 0.0])
     edge_uniforms = jnp.array([0.0, 1 / 3 - 1e-7, 1 / 3, 1.0 - 2.0**-23])
-    picks = jax.vmap(lambda u: explorers.sample_categorical(weights, u))(edge_uniforms)
+    picks = jax.vmap(lambda u: sample_categorical(weights, u))(edge_uniforms)
     assert set(np.asarray(picks).tolist()) <= {1, 3}
     assert int(picks[-1]) == 3
 
@@ -110,10 +111,10 @@ class SampleCategoricalTest(parameterized.TestCase):
         weights[:, 2::9] += (weights[:, 2::9].sum(axis=0) == 0)  # keep a positive total
         u = (rng.integers(0, 2**23, 256) * 2.0**-23).astype(np.float32)
         u[:3] = [0.0, 0.5, 1.0 - 2.0**-23]
-        draw = self.variant(explorers.sample_categorical)
+        draw = self.variant(sample_categorical)
         expected = _numpy_draw(weights, u)
         np.testing.assert_array_equal(draw(jnp.asarray(weights), jnp.asarray(u)), expected)
-        per_column = jax.vmap(explorers.sample_categorical, in_axes=(1, 0))
+        per_column = jax.vmap(sample_categorical, in_axes=(1, 0))
         np.testing.assert_array_equal(per_column(jnp.asarray(weights), jnp.asarray(u)),
                                       expected)
         shared = draw(jnp.asarray(weights[:, 0]), jnp.asarray(u))  # [n] weights, [256] u
@@ -122,7 +123,7 @@ class SampleCategoricalTest(parameterized.TestCase):
 
     @chex.variants(with_jit=True, without_jit=True)
     def test_weights_that_are_no_distribution_give_n(self):
-        draw = self.variant(explorers.sample_categorical)
+        draw = self.variant(sample_categorical)
         for n in (4, 40):  # both paths
             bad = np.ones((n, 3), np.float32)
             bad[1, 0], bad[:, 1], bad[2, 2] = np.nan, 0.0, np.inf
@@ -132,12 +133,12 @@ class SampleCategoricalTest(parameterized.TestCase):
 
 def test_vdbe_epsilon_update_hand_computed():
     # f = (1 − e^{−0.96}) / (1 + e^{−0.96}) = 0.446245; ε' = 0.1·f + 0.9·1
-    assert float(explorers.vdbe_epsilon_update(1.0, 0.096, 0.1, 0.1)) == pytest.approx(0.9446244, abs=1e-6)
+    assert float(selection.vdbe_epsilon_update(1.0, 0.096, 0.1, 0.1)) == pytest.approx(0.9446244, abs=1e-6)
     # Sign of ΔQ does not matter; σ = 1, ε = 0.5: f = tanh(0.24)
-    assert float(explorers.vdbe_epsilon_update(0.5, -0.48, 1.0, 0.1)) == pytest.approx(0.4735496, abs=1e-6)
+    assert float(selection.vdbe_epsilon_update(0.5, -0.48, 1.0, 0.1)) == pytest.approx(0.4735496, abs=1e-6)
     # No change → f = 0 → ε decays by (1 − δ); tiny σ → f = 1 without NaN.
-    assert float(explorers.vdbe_epsilon_update(0.5, 0.0, 0.01, 0.1)) == pytest.approx(0.45)
-    assert float(explorers.vdbe_epsilon_update(0.0, 0.5, 1e-30, 0.1)) == pytest.approx(0.1)
+    assert float(selection.vdbe_epsilon_update(0.5, 0.0, 0.01, 0.1)) == pytest.approx(0.45)
+    assert float(selection.vdbe_epsilon_update(0.0, 0.5, 1e-30, 0.1)) == pytest.approx(0.1)
 
 
 def test_make_explorer_builds_the_registered_classes():
@@ -162,11 +163,11 @@ class ExplorerVariantsTest(parameterized.TestCase):
 
     @chex.variants(with_jit=True, without_jit=True)
     @parameterized.named_parameters(
-        ("egreedy", lambda k, q: explorers.egreedy(k, q, 0.2)),
-        ("softmax", lambda k, q: explorers.softmax(k, q, 0.3)),
-        ("vdbe", lambda k, q: explorers.vdbe(k, q, 0.4)),
-        ("vdbe_softmax", lambda k, q: explorers.vdbe_softmax(k, q, 0.4, 0.2)),
-        ("greedy", lambda k, q: explorers.greedy(q, jax.random.uniform(k))),
+        ("egreedy", lambda k, q: selection.egreedy(k, q, 0.2)),
+        ("softmax", lambda k, q: selection.softmax(k, q, 0.3)),
+        ("vdbe", lambda k, q: selection.vdbe(k, q, 0.4)),
+        ("vdbe_softmax", lambda k, q: selection.vdbe_softmax(k, q, 0.4, 0.2)),
+        ("greedy", lambda k, q: selection.greedy(q, jax.random.uniform(k))),
     )
     def test_jit_and_vmap_agree(self, fn):
         keys = jax.random.split(jax.random.PRNGKey(3), 64)
@@ -180,10 +181,10 @@ class ExplorerVariantsTest(parameterized.TestCase):
 
     @chex.variants(with_jit=True, without_jit=True)
     def test_vdbe_update_variants(self):
-        update = self.variant(explorers.vdbe_epsilon_update)
+        update = self.variant(selection.vdbe_epsilon_update)
         got = update(jnp.float32(1.0), jnp.float32(0.096), jnp.float32(0.1), jnp.float32(0.1))
         np.testing.assert_allclose(got, 0.9446244, atol=1e-6)
-        batched = jax.vmap(explorers.vdbe_epsilon_update)(
+        batched = jax.vmap(selection.vdbe_epsilon_update)(
             jnp.array([1.0, 0.5]), jnp.array([0.096, -0.48]), jnp.array([0.1, 1.0]), jnp.array([0.1, 0.1])
         )
         np.testing.assert_allclose(batched, [0.9446244, 0.4735496], atol=1e-6)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from vdbejax.engine import programs, run_agents
-from vdbejax.envs.table_cleaning import env as table_env
+from vdbejax.envs.table_cleaning import core as table_core
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods import explorers, learners, selection
 from vdbejax.methods.agents import Setting
@@ -132,7 +132,7 @@ def test_the_trace_key_follows_jax_configuration():
 
 def test_a_patched_environment_constant_is_seen(monkeypatch):
     before = _run()
-    monkeypatch.setattr(table_env, "STEP_REWARD", -0.5)
+    monkeypatch.setattr(table_core, "STEP_REWARD", -0.5)
     patched = _run()
     assert (patched <= before).all() and (patched < before).any()
 
@@ -165,7 +165,7 @@ def test_a_reloaded_module_gets_a_new_program(tmp_path, monkeypatch):
         assert not np.array_equal(before, after)
     finally:
         sys.modules.pop("reload_probe_module", None)
-        explorers_registry = importlib.import_module("vdbejax.methods.api").EXPLORERS
+        explorers_registry = importlib.import_module("vdbejax.methods.registry").EXPLORERS
         explorers_registry.pop("reload_probe", None)
 
 

@@ -297,8 +297,7 @@ def test_nan_or_vanishing_action_weights_are_flagged_not_hidden():
     # flagged (nonfinite), not silently take some action.
     import jax.numpy as jnp
 
-    from vdbejax.methods import Explorer, explorer
-    from vdbejax.methods.explorers import sample_categorical
+    from vdbejax.methods import Explorer, explorer, sample_categorical
 
     @explorer("raw_softmax_test", parameter="tau")
     class RawSoftmax(Explorer):

@@ -20,7 +20,7 @@ from vdbejax.envs.table_cleaning import (
     make_variant,
     make_variant_mdp,
 )
-from vdbejax.envs.table_cleaning import env as table_env
+from vdbejax.envs.table_cleaning import core as table_core
 
 
 def oracle(state, action, n, k, invalid_action="noop"):
@@ -108,8 +108,8 @@ def test_n2_k1_is_exactly_the_papers_task(invalid_action, max_steps):
 
 
 def test_a_patched_reward_constant_is_seen_by_every_variant(monkeypatch):
-    """The rewards are the paper's module's constants, read when a variant is traced."""
-    monkeypatch.setattr(table_env, "GOAL_REWARD", 2.0)
+    """The rewards are the core module's constants, read when a variant is traced."""
+    monkeypatch.setattr(table_core, "GOAL_REWARD", 2.0)
     for mdp in (make_mdp(), make_variant_mdp(3, 2)):
         reward, terminal = np.asarray(mdp.reward), np.asarray(mdp.terminal)
         assert (reward == 2.0).any() and not (reward == 1.0).any()

@@ -119,6 +119,16 @@ def check_bool(name: str, value: Any) -> bool:
     return bool(value)
 
 
+def first_bad(label: str, arr: np.ndarray, bad: np.ndarray, allowed: str) -> None:
+    """Raise for the first element of ``arr`` where ``bad`` holds, naming its position
+    (``label[i, j, …] = value: allowed``)."""
+    if np.any(bad):
+        where = tuple(int(i) for i in np.unravel_index(np.argmax(bad), bad.shape))
+        value = arr[where]
+        value = value.item() if isinstance(value, np.generic) else value
+        raise ValueError(f"{label}{list(where)} = {value!r}: {allowed}")
+
+
 def json_plain(value: Any) -> Any:
     """A NumPy scalar or array as the Python number or list JSON writes (``json.dumps``'s
     ``default``: any other type is refused as JSON refuses it)."""

@@ -31,7 +31,7 @@ from vdbejax.engine.work_items import created_in_items, next_power_of_two
 from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams
-from vdbejax.methods.api import check_plugin
+from vdbejax.methods.plugin_check import check_plugin
 from vdbejax.validation import check_choice, check_int
 
 Array = jax.Array
@@ -338,12 +338,12 @@ def compile_seconds() -> float:
 def check_params(params: Any, num_actions: int,
                  num_states: int | None = None) -> dict[str, str]:
     """Check a batch's hyperparameters: an :class:`AgentParams` whose every kind's
-    plug-ins trace on one agent (:func:`~vdbejax.methods.api.check_plugin`; with
+    plug-ins trace on one agent (:func:`~vdbejax.methods.plugin_check.check_plugin`; with
     ``num_states``, their initial Q has the task's shape).
 
     Returns:
       ``{"learner/explorer": digest}`` of every kind with a user plug-in (its traced
-      programs, :func:`~vdbejax.methods.api.check_plugin`); built-ins are the package's.
+      programs, :func:`~vdbejax.methods.plugin_check.check_plugin`); built-ins are the package's.
     """
     if not isinstance(params, AgentParams):
         raise ValueError(f"params={type(params).__name__} is invalid: must be an AgentParams"

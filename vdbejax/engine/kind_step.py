@@ -15,8 +15,7 @@ import jax.numpy as jnp
 from vdbejax import _pytree
 from vdbejax.engine.lanes import is_unrolled, learner_rows, rows_of
 from vdbejax.methods.agents import Agent
-from vdbejax.methods.api import Context, Transition
-from vdbejax.methods.contract import as_draws, behaviour_values
+from vdbejax.methods.contract import Context, Transition, as_draws, behaviour_values
 
 Array = jax.Array
 

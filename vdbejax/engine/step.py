@@ -39,7 +39,7 @@ from vdbejax.engine.whole import LearnedStep, after_learning, defers_selection, 
 from vdbejax.envs.reward_noise import noisy_reward
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Agent
-from vdbejax.methods.api import Context
+from vdbejax.methods.contract import Context
 from vdbejax.methods.model import capacity
 
 Array = jax.Array

@@ -25,6 +25,7 @@ from jax.scipy.special import ndtri
 
 from vdbejax._numerics import rounded
 from vdbejax._pytree import pytree_dataclass
+from vdbejax.validation import first_bad
 
 Array = jax.Array
 
@@ -80,8 +81,6 @@ def make_reward_noise(reward: np.ndarray, reward_noise: Any, reward_std: Any,
     Raises:
       ValueError: one line naming the parameter, the value and what is allowed.
     """
-    from vdbejax.envs.tabular import first_bad
-
     shape = reward.shape
     if reward_noise is None:
         if reward_std is not None:

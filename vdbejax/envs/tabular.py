@@ -19,6 +19,7 @@ import numpy as np
 from vdbejax._numerics import sample_categorical
 from vdbejax._pytree import pytree_dataclass, static_field
 from vdbejax.envs.reward_noise import RewardNoise, make_reward_noise, noisy_reward
+from vdbejax.validation import INT32_MAX, check_int, check_positive, first_bad
 
 Array = jax.Array
 
@@ -169,15 +170,6 @@ def _as_array(label: str, value: Any, dtype: Any = None) -> np.ndarray:
                          " must be a rectangular array of numbers") from None
 
 
-def first_bad(label: str, arr: np.ndarray, bad: np.ndarray, allowed: str) -> None:
-    """Raise for the first element of ``arr`` where ``bad`` holds, naming its position."""
-    if np.any(bad):
-        where = tuple(int(i) for i in np.unravel_index(np.argmax(bad), bad.shape))
-        value = arr[where]
-        value = value.item() if isinstance(value, np.generic) else value
-        raise ValueError(f"{label}{list(where)} = {value!r}: {allowed}")
-
-
 def _on_device(value: Any, dtype: Any) -> Array:
     """``value`` as a device array of ``dtype``, converted on the host (a plain copy to
     the device: ``jnp.asarray`` would compile a small conversion program per shape)."""
@@ -233,8 +225,6 @@ def make_tabular_mdp(
         sums other than 1, non-finite rewards, ``max_steps`` not in [1, 2**31 − 1], an
         unknown noise model, a negative standard deviation, …).
     """
-    from vdbejax.validation import INT32_MAX, check_int, check_positive
-
     if not isinstance(name, str) or not name:
         raise ValueError(f"name={name!r} is invalid: must be a non-empty string")
     check_positive("atol", atol)

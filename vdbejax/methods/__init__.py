@@ -1,10 +1,11 @@
 """The plug-in surface: explorers, learners and the agents built from them.
 
-* :mod:`vdbejax.methods.api` — the plug-in surface in one import: the contract
-  (:mod:`~vdbejax.methods.contract`: :class:`Explorer`, :class:`Learner`, :class:`Table`,
-  :class:`TaskFacts`, :class:`Context`, :class:`Transition`), the registry and its decorators
-  (:mod:`~vdbejax.methods.registry`) and the plug-in check
-  (:mod:`~vdbejax.methods.plugin_check`).
+* the plug-in surface, importable from here (``__all__``): the contract
+  (:mod:`vdbejax.methods.contract`, whose docstring states it: :class:`Explorer`,
+  :class:`Learner`, :class:`Table`, :class:`TaskFacts`, :class:`Context`,
+  :class:`Transition`, :class:`Draws`), the registry and its decorators
+  (:mod:`vdbejax.methods.registry`) and the plug-in check
+  (:mod:`vdbejax.methods.plugin_check`).
 * :mod:`vdbejax.methods.selection` — the action-selection rules as pure functions
   (greedy, softmax, the paper's one rule, the VDBE ε(s) update).
 * :mod:`vdbejax.methods.explorers` — greedy, ε-greedy, softmax, VDBE, VDBE-Softmax, Max-Boltzmann,
@@ -43,23 +44,26 @@ from vdbejax.methods.agents import (
     paper_settings,
     stack_agents,
 )
-from vdbejax.methods.api import (
-    EXPLORERS,
-    LEARNERS,
+from vdbejax.methods.contract import (
     Context,
+    Draws,
     Explorer,
     Learner,
     LearnerUpdate,
     Table,
     TaskFacts,
     Transition,
-    check_plugin,
+)
+from vdbejax.methods.grid_axes import sweep
+from vdbejax.methods.plugin_check import check_plugin
+from vdbejax.methods.registry import (
+    EXPLORERS,
+    LEARNERS,
     explorer,
     explorer_title,
     learner,
     learner_title,
 )
-from vdbejax.methods.grid_axes import sweep
 from vdbejax.methods.selection import greedy, select_action, softmax_weights
 
 __all__ = [
@@ -69,6 +73,7 @@ __all__ = [
     "AgentOptions",
     "AgentParams",
     "Context",
+    "Draws",
     "Explorer",
     "Learner",
     "LearnerUpdate",

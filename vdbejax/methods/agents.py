@@ -2,7 +2,7 @@
 
 A :class:`Setting` names one point of a grid: learner, explorer, the explorer's swept
 parameter and any other hyperparameter values. :func:`make_agent` resolves it into an
-:class:`Agent` (two plug-in instances, :mod:`vdbejax.methods.api`), and
+:class:`Agent` (two plug-in instances, :mod:`vdbejax.methods.contract`), and
 :func:`stack_agents` batches agents of any kinds into one :class:`AgentParams` pytree for
 the engine. The settings of a product of axes: :func:`vdbejax.methods.grid_axes.sweep`.
 """
@@ -17,24 +17,12 @@ import jax
 import numpy as np
 
 from vdbejax._pytree import pytree_dataclass
-from vdbejax.methods.api import (
-    EXPLORERS,
-    Explorer,
-    Learner,
-    Table,
-    build,
-    field_names,
-    hyperparameters,
-    static_names,
-)
-from vdbejax.methods.explorers import (
-    PAPER_EXPLORERS,
-    VDBE_DELTA,
-    VDBE_SOFTMAX_TAU,
-    explorer_class,
-)
+from vdbejax.methods.contract import Explorer, Learner, Table
+from vdbejax.methods.explorers import PAPER_EXPLORERS, explorer_class
 from vdbejax.methods.learners import PAPER_ALPHA, PAPER_GAMMA, PAPER_LEARNERS, learner_class
 from vdbejax.methods.model import MODEL_PREFIX, MODEL_TABLES
+from vdbejax.methods.registry import EXPLORERS, build, field_names, hyperparameters, static_names
+from vdbejax.methods.selection import VDBE_DELTA, VDBE_SOFTMAX_TAU
 
 #: The paper's swept values (spec, "Exploration").
 PAPER_PARAMETERS: dict[str, tuple[float, ...]] = {

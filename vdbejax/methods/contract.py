@@ -1,10 +1,77 @@
-"""The plug-in contract's types: the :class:`Explorer` and :class:`Learner` base classes,
-the :class:`Table` an agent keeps, and what the engine hands a plug-in (:class:`TaskFacts`,
-:class:`Context`, :class:`Transition`) and takes back (:class:`LearnerUpdate`).
+"""The plug-in contract: an explorer or a learner is data plus a few pure functions.
 
-The contract in prose (what each method receives and returns) is :mod:`vdbejax.methods.api`'s
-docstring; :mod:`vdbejax.methods.registry` registers and builds plug-ins and
-:mod:`vdbejax.methods.plugin_check` checks one before training.
+An explorer or learner is a frozen dataclass registered as a pytree (rejax style): its
+numeric fields are the hyperparameters, pytree leaves, so a sweep is a ``vmap`` over a
+batch of instances; fields declared with :func:`vdbejax.methods.static_field` (e.g.
+``tie_break``) are part of the program. Its methods are pure JAX functions of **one
+agent**: a Q row is ``[num_actions]``, a per-state table value a scalar, a per-(state,
+action) table a row ``[num_actions]``; the engine ``vmap``s them over its lanes and calls
+them inside its jitted step loop (:mod:`vdbejax.engine.step`). The type (class and static
+fields) is the *kind* of the agent: each kind's step is its own code (on a CPU one branch
+of the run's one program, :mod:`vdbejax.engine.kinds`), so a plug-in costs what its own
+arithmetic costs (MushroomRL's "the policy is an object handed to the algorithm", with
+JAX's "the object is data").
+
+Write one with :func:`~vdbejax.methods.registry.explorer` /
+:func:`~vdbejax.methods.registry.learner`::
+
+    import jax.numpy as jnp
+    import vdbejax
+    from vdbejax.methods import Explorer, Setting, Table, explorer, greedy
+
+    @explorer("my_count_bonus", parameter="beta")   # count_bonus is a built-in's name
+    class CountBonus(Explorer):
+        beta: float = 0.1
+        def tables(self):                        # N(s, a), starts at 0
+            return {"counts": Table("pair", 0.0)}
+        def select(self, q, tables, context, uniforms):
+            bonus = self.beta / jnp.sqrt(tables["counts"] + 1.0)
+            return greedy(q + bonus, uniforms[0])
+        def update(self, tables, action, delta_q, context):
+            counts = tables["counts"]
+            return {"counts": counts + (jnp.arange(counts.shape[0]) == action)}
+
+    from vdbejax.envs.table_cleaning import make_mdp
+
+    grid = vdbejax.run_grid(make_mdp(), [Setting("qlearning", "my_count_bonus", 0.5)])
+
+Contract (checked by :func:`~vdbejax.methods.plugin_check.check_plugin` before any
+training, one-line ``ValueError``):
+
+* **Explorer**: ``select(q, tables, context, uniforms) -> int action``; optional
+  ``tables() -> {name: Table}``, ``update(tables, action, delta_q, context) -> tables``
+  (after every learning step, with the tables of the state just left), ``probabilities(q,
+  tables, context) -> [A]`` (the exact distribution ``select`` samples; Expected SARSA
+  and :func:`vdbejax.results.analysis.action_probabilities` use it), ``num_uniforms`` (uniforms in
+  [0, 1) handed to ``select``; 3 by default) or, for draws sized from the task or of
+  other laws, ``draws(num_actions) -> Draws(uniforms, normals, keys)`` (handed to
+  ``select`` in that order; :class:`~vdbejax.methods.contract.Draws`).
+* **Learner**: ``update(transition) -> LearnerUpdate`` (new Q(s,a), new values of its own
+  tables at (s,a), and ΔQ for the explorer); a ``gamma`` field (the engine passes
+  ``discount = 0`` on terminal steps, ``gamma`` otherwise); optional ``tables()`` (extra
+  per-(state, action) tables, e.g. Double Q's second table), ``behaviour(q, tables)``
+  (the values the explorer acts on), ``initial_q(key, S, A)``, ``uses_next_action``
+  (SARSA: a′ is drawn before the update and passed in), ``uses_next_probabilities``
+  (Expected SARSA: π(·|s′) passed in), ``num_uniforms`` or ``draws(num_actions)``,
+  ``for_task(task) -> learner``
+  (the engine hands every learner the facts of its task before training,
+  :class:`~vdbejax.methods.contract.TaskFacts`: its reward range and whether it has terminal
+  outcomes; a method whose convention depends on them sets its static fields from them,
+  e.g. UCBVI's rlberry convention and PSRL's prior).
+
+The random numbers come from the engine's per-agent counter-based stream, so results
+depend only on an agent's key and hyperparameters. If your update adds a product to
+something, wrap the product in :func:`vdbejax.methods.rounded` when you need the last
+bit to be the same in every engine strategy (XLA may fuse it into an FMA differently).
+
+The types are this module's: the :class:`Explorer` and :class:`Learner` base classes, the
+:class:`Table` an agent keeps, and what the engine hands a plug-in (:class:`TaskFacts`,
+:class:`Context`, :class:`Transition`, :class:`Draws`) and takes back
+(:class:`LearnerUpdate`). The registry, its decorators and
+:func:`~vdbejax.methods.registry.build` are :mod:`vdbejax.methods.registry`'s, and
+:func:`~vdbejax.methods.plugin_check.check_plugin` is
+:mod:`vdbejax.methods.plugin_check`'s; :mod:`vdbejax.methods` lists the plug-in surface
+in one import.
 """
 from __future__ import annotations
 
@@ -175,7 +242,7 @@ class LearnerUpdate:
 
 
 class Explorer:
-    """Base class of action-selection methods (see :mod:`vdbejax.methods.api`)."""
+    """Base class of action-selection methods (the contract: the module docstring)."""
 
     name: ClassVar[str] = ""
     #: The name figures and tables show (``"VDBE-Softmax"``; default: :attr:`name`).
@@ -216,7 +283,7 @@ class Explorer:
 
 
 class Learner:
-    """Base class of learning rules (see :mod:`vdbejax.methods.api`)."""
+    """Base class of learning rules (the contract: the module docstring)."""
 
     name: ClassVar[str] = ""
     #: The name figures and tables show (``"Q-learning"``; default: :attr:`name`).

@@ -17,11 +17,11 @@ The paper's four explorers are one rule, :func:`~vdbejax.methods.selection.selec
 | ``softmax_decay``        | 1        | τ₀·dᵏ ∨ τ_min | –              |
 | ``ucb1``                 | argmax Q + c·√(ln N(s) / N(s,a)), untried actions first | N(s,a) |
 
-Each explorer is a plug-in (:mod:`vdbejax.methods.api`): a pytree dataclass of its
+Each explorer is a plug-in (:mod:`vdbejax.methods.contract`): a pytree dataclass of its
 hyperparameters whose ``select``/``update``/``probabilities`` act on one agent's Q row.
 The pure rules (``greedy``, ``select_action``, ``mixture_probabilities``,
 ``vdbe_epsilon_update``, the ``key``-taking ``egreedy``/``softmax``/``vdbe``/
-``vdbe_softmax`` …) live in :mod:`vdbejax.methods.selection` and are re-exported here.
+``vdbe_softmax`` …) live in :mod:`vdbejax.methods.selection`.
 """
 from __future__ import annotations
 
@@ -34,27 +34,22 @@ import jax.numpy as jnp
 
 from vdbejax._numerics import rounded, sample_categorical
 from vdbejax._pytree import static_field
-from vdbejax.methods.api import EXPLORERS, Context, Explorer, Table, build, explorer
-from vdbejax.methods.selection import (  # noqa: F401  (re-exported: the rules' historical home)
-    NUM_ACTION_UNIFORMS,
+from vdbejax.methods.contract import Context, Explorer, Table
+from vdbejax.methods.registry import EXPLORERS, build, explorer
+from vdbejax.methods.selection import (
     SOFTMAX_NUMERICS,
     TIE_BREAKS,
     VDBE_DELTA,
     VDBE_SOFTMAX_TAU,
     count_visit,
     decayed,
-    egreedy,
-    float64_softmax_draw,
     greedy,
     greedy_probabilities,
     mixture_probabilities,
     select_action,
-    softmax,
     softmax_probabilities,
     softmax_weights,
-    vdbe,
     vdbe_epsilon_update,
-    vdbe_softmax,
 )
 from vdbejax.validation import check_bool, check_choice, check_in_range, check_positive
 

@@ -31,7 +31,7 @@ from vdbejax.methods.contract import (
     Transition,
 )
 from vdbejax.methods.learners import masked_value
-from vdbejax.methods.model import Model, expected_under
+from vdbejax.methods.model import Model, bellman_backup, expected_under
 from vdbejax.methods.registry import learner
 from vdbejax.validation import check_choice, check_in_range, check_int
 
@@ -83,8 +83,7 @@ def ucbvi_values(model: Model, bonus: Any, gamma: Any, r_max: Any, horizon: int,
         expected = expected_under(probabilities, model.next_state, values)
         if convention == "rlberry":
             expected = jnp.where(visited, expected, jnp.mean(values))
-        future = rounded(gamma * expected, gamma)
-        backed = reward + bonus(model.visits, v_max, h) + future
+        backed = bellman_backup(reward + bonus(model.visits, v_max, h), gamma, expected)
         q = (backed if convention == "rlberry"
              else jnp.where(visited, jnp.minimum(backed, v_max), v_max))
         values = jnp.max(q, axis=1)
@@ -104,9 +103,10 @@ def backward_induction(stage: Any, start: Any, horizon: int) -> Array:
 
 
 @pytree_dataclass
-class _StageLearner(Learner):
-    """A finite-horizon learner: Q_h in a stage table ``q_stage``, acting on the episode
-    step's stage (see the module docstring)."""
+class StageLearner(Learner):
+    """The base of the finite-horizon learners (UCBVI, UCB-H, and PSRL,
+    :class:`vdbejax.methods.posterior.PSRL`): Q_h in a stage table ``q_stage``, acting on
+    the episode step's stage (see the module docstring)."""
 
     horizon: int = static_field(100)
     behaviour_uses_context = True
@@ -123,7 +123,7 @@ class _StageLearner(Learner):
 
 
 @learner("ucbvi", title="UCBVI")
-class UCBVI(_StageLearner):
+class UCBVI(StageLearner):
     """UCBVI (Azar, Osband & Munos 2017, "Minimax regret bounds for reinforcement
     learning", ICML, Alg. 1): before each episode (``plan_at = "episode"``), Q_h by
     backward induction on the empirical model plus a bonus (:func:`ucbvi_values`).
@@ -248,7 +248,7 @@ class UCBVI(_StageLearner):
 
 
 @learner("ucb_h", title="UCB-H")
-class UCBH(_StageLearner):
+class UCBH(StageLearner):
     """Q-learning with UCB-Hoeffding exploration (Jin, Allen-Zhu, Bubeck & Jordan 2018,
     "Is Q-learning provably efficient?", NeurIPS, Alg. 1): after the step at stage h,
     with t the visits of (s, a) at stage h, ``Q_h(s,a) ← (1 − α_t) Q_h(s,a) + α_t (r +

@@ -1,5 +1,5 @@
 """Learning rules as pure functions of one transition (rlax style), and the learners
-(plug-ins, :mod:`vdbejax.methods.api`) built on them: Q-learning, SARSA, Expected SARSA,
+(plug-ins, :mod:`vdbejax.methods.contract`) built on them: Q-learning, SARSA, Expected SARSA,
 Double Q-learning and the sample average.
 
 ``discount`` is γ for a non-terminal transition and 0 for a terminal one, so terminal
@@ -16,7 +16,8 @@ import jax.numpy as jnp
 
 from vdbejax._numerics import rounded
 from vdbejax._pytree import pytree_dataclass, static_field
-from vdbejax.methods.api import LEARNERS, Learner, LearnerUpdate, Table, Transition, build, learner
+from vdbejax.methods.contract import Learner, LearnerUpdate, Table, Transition
+from vdbejax.methods.registry import LEARNERS, build, learner
 from vdbejax.validation import check_choice, check_finite, check_in_range
 
 Array = jax.Array

@@ -96,6 +96,17 @@ def expected_under(probabilities: Array, next_state: Array, values: Array) -> Ar
     return total
 
 
+def bellman_backup(reward: Array, gamma: float | Array, expected: Array) -> Array:
+    """One Bellman backup, ``r(s, a) + γ · E[V(s′) | s, a]``, from the expected next value
+    (:func:`expected_under` over listed outcomes, or PSRL's sum over a sampled table).
+
+    The discounted term is rounded before the addition (never fused into an FMA), so value
+    iteration, the finite-horizon stages and the evaluation of a policy back up alike, with
+    the same bits in every engine strategy.
+    """
+    return reward + rounded(gamma * expected, gamma)
+
+
 def observe(rows: dict[str, Array], next_state: Array, reward: Array,
             terminal: Array) -> dict[str, Array]:
     """One (s, a)'s model rows after the outcome ``(r, s′, terminal)``: ``rows`` maps
@@ -139,5 +150,5 @@ def value_iteration(backup: Callable[[Array], Array], q: Array, *, tolerance: fl
     return jax.lax.while_loop(go, sweep, start)[0]
 
 
-__all__ = ["MODEL_TABLES", "Model", "capacity", "expected_under", "greedy_values", "observe",
-           "value_iteration"]
+__all__ = ["MODEL_TABLES", "Model", "bellman_backup", "capacity", "expected_under",
+           "greedy_values", "observe", "value_iteration"]

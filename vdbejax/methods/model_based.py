@@ -19,7 +19,7 @@ from vdbejax._numerics import rounded
 from vdbejax._pytree import pytree_dataclass, static_field
 from vdbejax.methods.contract import Context, Learner, LearnerUpdate, Transition
 from vdbejax.methods.learners import PAPER_GAMMA
-from vdbejax.methods.model import Model, greedy_values, value_iteration
+from vdbejax.methods.model import Model, bellman_backup, greedy_values, value_iteration
 from vdbejax.methods.registry import learner
 from vdbejax.validation import check_finite, check_in_range, check_int
 
@@ -30,8 +30,7 @@ def optimistic_backup(model: Model, q: Array, gamma: float | Array, bonus: Array
                       known: Array, v_max: float | Array) -> Array:
     """One sweep ``r̂(s,a) + bonus(s,a) + γ Σ_s′ P̂(s′|s,a) max_a′ Q(s′,a′)`` where
     ``known``, ``v_max`` elsewhere."""
-    future = model.expected(greedy_values(q))
-    backed = model.mean_reward() + bonus + rounded(gamma * future, gamma)
+    backed = bellman_backup(model.mean_reward() + bonus, gamma, model.expected(greedy_values(q)))
     return jnp.where(known, backed, v_max)
 
 

@@ -24,8 +24,8 @@ import jax.numpy as jnp
 from vdbejax._numerics import rounded
 from vdbejax._pytree import static_field
 from vdbejax.methods.contract import Context, LearnerUpdate, TaskFacts, Transition
-from vdbejax.methods.finite_horizon import _StageLearner, backward_induction
-from vdbejax.methods.model import Model
+from vdbejax.methods.finite_horizon import StageLearner, backward_induction
+from vdbejax.methods.model import Model, bellman_backup
 from vdbejax.methods.registry import learner
 from vdbejax.validation import check_choice, check_in_range
 
@@ -144,7 +144,7 @@ def dirichlet_expected(values: Array, sample: Array) -> Array:
 
 
 @learner("psrl", title="PSRL")
-class PSRL(_StageLearner):
+class PSRL(StageLearner):
     """Posterior sampling for RL (Osband, Russo & Van Roy 2013, "(More) efficient
     reinforcement learning via posterior sampling", NeurIPS, Alg. 1): before each episode
     (``plan_at = "episode"``) one MDP is drawn from the posterior (:func:`posterior_sample`:
@@ -197,8 +197,7 @@ class PSRL(_StageLearner):
                                                 self.terminal_outcome == "always")
 
         def stage(values: Array, _: Any) -> tuple:
-            expected = dirichlet_expected(values, transitions)
-            q_h = rewards + rounded(self.gamma * expected, self.gamma)
+            q_h = bellman_backup(rewards, self.gamma, dirichlet_expected(values, transitions))
             return jnp.max(q_h, axis=1), q_h
 
         stages = backward_induction(stage, jnp.zeros(q.shape[0], jnp.float32), self.horizon)

@@ -249,8 +249,9 @@ def action_probabilities(
     """
     import jax.numpy as jnp
 
-    from vdbejax.methods.api import Context, field_names
+    from vdbejax.methods.contract import Context
     from vdbejax.methods.explorers import explorer_class, make_explorer
+    from vdbejax.methods.registry import field_names
 
     if "tie_break" in field_names(explorer_class(explorer)):
         values.setdefault("tie_break", tie_break)

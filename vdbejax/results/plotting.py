@@ -24,7 +24,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from vdbejax.methods.agents import parameter_name
-from vdbejax.methods.api import EXPLORERS, explorer_title, learner_title
+from vdbejax.methods.registry import EXPLORERS, explorer_title, learner_title
 from vdbejax.results.curves import WINDOW, convolve_full
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.stats import CurveStatistics, curve_statistics

@@ -48,6 +48,7 @@ from vdbejax.envs.solvers import best_return
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams
 from vdbejax.methods.contract import Context, Learner, behaviour_values
+from vdbejax.methods.model import bellman_backup
 from vdbejax.methods.selection import greedy_probabilities
 from vdbejax.runs.options import RunOptions
 from vdbejax.runs.state import RunState
@@ -177,8 +178,10 @@ def _policy_returns(mdp: TabularMDP, learner: Learner, q: Array, tables: dict[st
         # steps_left − 1 steps of the episode.
         steps_left, value, _ = carry
         pi = fixed if fixed is not None else policy(steps_left - 1)
-        future = (weight * value[:, mdp.next_state]).sum(-1)  # [agents, S, A]
-        new = (pi * (expected_reward + future)).sum(-1)
+        # [agents, S, A]; the compiler's sum over outcomes (an ordered one, as the model's
+        # expected_under, would give other bits than these returns always had)
+        future = (weight * value[:, mdp.next_state]).sum(-1)
+        new = (pi * bellman_backup(expected_reward, 1.0, future)).sum(-1)  # undiscounted
         same = jnp.all((new == value) | (jnp.isnan(new) & jnp.isnan(value)))
         return steps_left - 1, new, same
 

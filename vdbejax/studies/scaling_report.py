@@ -54,7 +54,7 @@ VARIANT_COLUMNS = [
 def method_label(setting: Setting) -> str:
     """``Q-learning VDBE-Softmax`` style names (figure legends, tables): the plug-ins'
     titles."""
-    from vdbejax.methods.api import explorer_title, learner_title
+    from vdbejax.methods.registry import explorer_title, learner_title
 
     return f"{learner_title(setting.learner)} {explorer_title(setting.explorer)}"
 
@@ -216,7 +216,7 @@ def scaling_figure(rows: Sequence[dict[str, Any]], variants: Sequence[dict[str, 
         matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from vdbejax.methods.api import learner_title
+    from vdbejax.methods.registry import learner_title
 
     learners = list(dict.fromkeys(r["learner"] for r in rows))
     explorers = list(dict.fromkeys(r["explorer"] for r in rows))

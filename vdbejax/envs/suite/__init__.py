@@ -16,7 +16,7 @@ and the table-cleaning family that :mod:`vdbejax.envs.table_cleaning` and
 :mod:`vdbejax.envs.cruz2018` define. :func:`make_suite_task` builds a task from its name
 (``riverswim``, ``chain:8``, ``deepsea:20``, ``variant:3x1``, …; :data:`NAMES` lists the
 forms), :func:`task_info` describes it (:class:`TaskInfo`), :func:`make_suite_family`
-(:mod:`.families`) gives the families with a generator of instances, and
+gives the families with a generator of instances, and
 :data:`DEFAULT_SUITE` / :func:`suite_tasks` are the default benchmark. Each MDP is named
 by its registry name, except ``variant:NxK``, which keeps its builder's name
 ``table_cleaning_nN_kK`` so that it is the very MDP that
@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from vdbejax.envs.instances import TaskFamily
 from vdbejax.envs.suite import (
     bandits,
     chain,
@@ -36,7 +37,6 @@ from vdbejax.envs.suite import (
     river_swim,
     toy_text,
 )
-from vdbejax.envs.suite.families import FAMILY_NAMES, make_suite_family
 from vdbejax.envs.tabular import TabularMDP
 
 
@@ -116,6 +116,8 @@ DEFAULT_SIZES = {"riverswim": 6, "riverswim_normalised": 6, "chain": 5, "deepsea
                  "gaussian_bandit": 10, "bernoulli_bandit": 10, "testbed": 10}
 #: The table-cleaning tasks' default truncation (``vdbejax.studies.sweeps.make_task``'s).
 TABLE_CLEANING_HORIZON = 100
+#: The families (:func:`parse_name`) with a generator of instances.
+FAMILY_NAMES = (*bandits.FAMILIES, "garnet", "variant")
 
 
 def _invalid(name: object) -> ValueError:
@@ -334,6 +336,62 @@ def make_suite_task(name: str, *, max_steps: int | None = None,
     sections, goblets = sizes
     return make_variant_mdp(sections, goblets, max_steps=horizon,
                             invalid_action=invalid_action)
+
+
+def make_suite_family(name: str, *, max_steps: int | None = None, invalid_action: str = "noop",
+                      shared: bool = False) -> TaskFamily:
+    """A task family of the suite by name (:class:`~vdbejax.envs.instances.TaskFamily`, one
+    of :data:`FAMILY_NAMES`): an instance per agent (``--instances per-agent``; a family's
+    parameters as sweep axes, ``task.std``, ``task.instance``), or with ``shared`` every
+    agent the named task's one instance (whose parameters a sweep can still vary).
+
+    * ``gaussian_bandit:N``, ``bernoulli_bandit:N``, ``testbed:N``
+      (:func:`.bandits.bandit_family`) and ``garnet:SxAxB`` (:func:`.garnet.garnet_family`):
+      instances differ in their random tables; the named task is the instance of seed 0,
+      the shared family's default.
+    * ``variant:NxK`` (:func:`vdbejax.envs.table_cleaning.starts.variant_family`): instances
+      are the variant with one start state each; the named task starts from several, so no
+      instance is it and there is no shared family.
+
+    Args:
+      name: ``gaussian_bandit:N``, ``bernoulli_bandit:N``, ``testbed:N``, ``garnet:SxAxB``
+        or ``variant:NxK``.
+      max_steps: the truncation (default: the named task's horizon).
+      invalid_action: ``noop`` or ``fail``, ``variant:NxK`` only.
+      shared: every agent the named task (not for ``variant:NxK``).
+
+    Raises:
+      ValueError: an unknown name, a task without a generator of instances,
+        ``variant:NxK`` with ``shared``, or a bad size, ``max_steps`` or
+        ``invalid_action``.
+    """
+    family, sizes = parse_name(name)
+    if family not in FAMILY_NAMES:
+        forms = [form for form in NAMES if form.partition(":")[0] in FAMILY_NAMES]
+        raise ValueError(f"task={name!r} has no generator of instances: an instance per agent"
+                         f" and task parameters (task.…) need one of {', '.join(forms)}")
+    if family != "variant" and invalid_action != "noop":
+        raise ValueError(f"invalid_action={invalid_action!r} is invalid with task={name!r}:"
+                         " of the families only variant:NxK has invalid actions")
+    horizon = task_info(name).horizon if max_steps is None else max_steps
+    if family == "variant":
+        if shared:
+            raise ValueError(f"task={name!r} has no shared instance (each of its instances"
+                             " starts in one state, the task from several): task values"
+                             " (task.instance) need an instance per agent, --instances"
+                             " per-agent")
+        from vdbejax.envs.table_cleaning.starts import variant_family
+
+        sections, goblets = sizes
+        return variant_family(sections, goblets, max_steps=horizon,
+                              invalid_action=invalid_action, name=name)
+    if family == "garnet":
+        states, actions, branching = sizes
+        return garnet.garnet_family(states, actions, branching, max_steps=horizon, name=name,
+                                    instance=garnet.INSTANCE_SEED if shared else None)
+    size = sizes[0] if sizes else DEFAULT_SIZES[family]
+    return bandits.bandit_family(family, size, pulls=horizon, name=name,
+                                 instance=bandits.INSTANCE_SEED if shared else None)
 
 
 def suite_tasks() -> dict[str, TaskInfo]:

@@ -1,10 +1,9 @@
-"""What every table-cleaning task shares: its options, its state, the mixed-radix state
-codes and the time-limited gymnax-style ``step``.
+"""What every table-cleaning task shares: its options, its rewards, its state, the
+mixed-radix state codes and the time-limited gymnax-style ``step``.
 
 The tasks themselves are :class:`~vdbejax.envs.table_cleaning.generator.TableCleaningVariant`
 (``n`` sections, ``k`` goblets; its module states the rules) and the paper's task,
-:class:`~vdbejax.envs.table_cleaning.env.TableCleaning`, the variant ``n = 2, k = 1``. The
-names here are re-exported by :mod:`vdbejax.envs.table_cleaning.env`.
+:class:`~vdbejax.envs.table_cleaning.env.TableCleaning`, the variant ``n = 2, k = 1``.
 """
 from __future__ import annotations
 
@@ -21,6 +20,12 @@ Array = jax.Array
 FREE, SPONGE, GOBLET = 0, 1, 2
 #: The values of the ``invalid_action`` option.
 INVALID_ACTIONS = ("noop", "fail")
+
+# The rewards of the paper's task and of every variant, read when a transition is traced
+# (a patched constant is seen by every task compiled after).
+STEP_REWARD = -0.01
+GOAL_REWARD = 1.0
+FAILURE_REWARD = -1.0
 
 
 @pytree_dataclass

@@ -13,8 +13,8 @@ and ``step(key, state, action, params)``, with the pure transition rule in
 :meth:`TableCleaning.transition` so it can be compiled into tables
 (:func:`vdbejax.envs.compile_env`, :func:`make_mdp`).
 
-This module holds the task's rewards (:data:`STEP_REWARD`, :data:`GOAL_REWARD`,
-:data:`FAILURE_REWARD`), which every variant reads from here when it is traced.
+The task's rewards are those of every variant, :mod:`vdbejax.envs.table_cleaning.core`'s
+``STEP_REWARD``, ``GOAL_REWARD`` and ``FAILURE_REWARD``.
 """
 from __future__ import annotations
 
@@ -25,13 +25,8 @@ import jax.numpy as jnp
 
 from vdbejax._numerics import sample_categorical
 from vdbejax.envs.table_cleaning.core import (
-    FREE,
-    GOBLET,
-    INVALID_ACTIONS,
-    SPONGE,
     EnvParams,
     EnvState,
-    TimeLimitedStep,
     make_params,
     mixed_radix_decode,
     mixed_radix_encode,
@@ -42,16 +37,14 @@ if TYPE_CHECKING:
     from vdbejax.envs.tabular import TabularMDP
 
 __all__ = [
-    "ABORT", "ACTION_NAMES", "CLEAN", "DROP", "FAILURE_REWARD", "FIELD_NAMES", "FREE", "GET",
-    "GOAL_REWARD", "GOBLET", "GO_HOME", "GO_LEFT", "GO_RIGHT", "HOME", "INVALID_ACTIONS",
-    "IN_HAND", "LEFT", "RADICES", "RIGHT", "SPONGE", "STEP_REWARD", "EnvParams", "EnvState",
-    "TableCleaning", "TimeLimitedStep", "decode", "encode", "make_mdp", "make_params",
-    "mixed_radix_decode", "mixed_radix_encode",
+    "ABORT", "ACTION_NAMES", "CLEAN", "DROP", "FIELD_NAMES", "GET", "GO_HOME", "GO_LEFT",
+    "GO_RIGHT", "HOME", "IN_HAND", "LEFT", "RADICES", "RIGHT", "TableCleaning", "decode",
+    "encode", "make_mdp",
 ]
 
 Array = jax.Array
 
-# Field values (hand_obj: FREE, SPONGE, GOBLET from core).
+# Field values (hand_obj: core's FREE, SPONGE, GOBLET).
 LEFT, RIGHT, HOME = 0, 1, 2  # hand_pos; goblet_pos uses LEFT, RIGHT and IN_HAND
 IN_HAND = 2
 # Actions.
@@ -61,11 +54,6 @@ FIELD_NAMES = ("hand_obj", "hand_pos", "goblet_pos", "left_clean", "right_clean"
 #: The paper's generator: 2 sections, 1 goblet.
 _PAPER = TableCleaningGenerator(num_sections=2, num_goblets=1)
 RADICES = _PAPER.radices  # (3, 3, 3, 2, 2)
-
-# The rewards of the task and of every variant (read at trace time: patching one is seen).
-STEP_REWARD = -0.01
-GOAL_REWARD = 1.0
-FAILURE_REWARD = -1.0
 
 
 def encode(fields: Array) -> Array:

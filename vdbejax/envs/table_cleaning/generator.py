@@ -41,7 +41,7 @@ n+3 clean, n+4 abort`` — for ``n = 2`` exactly the paper's seven.
 **Rewards.** Goal (``GOAL_REWARD`` = +1, terminal): after a transition that is no failure,
 the hand is free at home and every section is clean. Failure (``FAILURE_REWARD`` = -1,
 terminal). Otherwise ``STEP_REWARD`` = -0.01. ``max_steps`` truncates (not terminal). The
-three rewards are constants of :mod:`vdbejax.envs.table_cleaning.env`, read when a
+three rewards are constants of :mod:`vdbejax.envs.table_cleaning.core`, read when a
 transition is traced: a patched constant is seen by the paper's task and every variant.
 
 **Initial state** (:class:`TableCleaningGenerator`): hand free at home, every section
@@ -59,6 +59,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vdbejax.envs.table_cleaning import core
 from vdbejax.envs.table_cleaning.core import (
     FREE,
     GOBLET,
@@ -222,10 +223,6 @@ class TableCleaningVariant(TimeLimitedStep):
         Returns:
           ``(next_fields, reward, terminal)``.
         """
-        # The rewards are the paper's module's constants, looked up now (at trace time) so
-        # that a patched constant is seen (env imports this module: no import at the top).
-        from vdbejax.envs.table_cleaning import env as paper
-
         n, k, home = self.num_sections, self.num_goblets, self.generator.home
         # A Python int action would make the masks below Python bools, whose ``~`` is an int.
         action = jnp.asarray(action, jnp.int32)
@@ -277,8 +274,9 @@ class TableCleaningVariant(TimeLimitedStep):
             & (new_hand_pos == home)
             & jnp.all(new_clean == 1)
         )
-        reward = jnp.select([failure, goal], [paper.FAILURE_REWARD, paper.GOAL_REWARD],
-                            paper.STEP_REWARD)
+        # The rewards are looked up now (at trace time): a patched constant is seen.
+        reward = jnp.select([failure, goal], [core.FAILURE_REWARD, core.GOAL_REWARD],
+                            core.STEP_REWARD)
         return next_fields, reward.astype(jnp.float32), failure | goal
 
     # --- gymnax-style API ----------------------------------------------------------------
