@@ -74,8 +74,8 @@ class StepOperands:
       sa_index: the flat index of ``(s, a)`` in a Q-shaped table.
       pair_base: the flat index of each lane's first ``(s, a)`` in a Q-shaped table.
       state_base: the flat index of each lane's first state in a per-state table.
-      update_context: the :class:`~vdbejax.methods.api.Context` of the update.
-      select_context: the :class:`~vdbejax.methods.api.Context` of the next choice.
+      update_context: the :class:`~vdbejax.methods.contract.Context` of the update.
+      select_context: the :class:`~vdbejax.methods.contract.Context` of the next choice.
       u: the iteration's uniforms (:func:`uniform_parts`).
       s_next: the state reached.
       time: the agent's counter (its iterations so far).
@@ -117,8 +117,8 @@ class AgentStepInputs:
       terminal: the step ended its episode.
       self_loop: the next action is chosen in the state just left (its rows must show
         this step's update for learners that choose after it).
-      update_context: the :class:`~vdbejax.methods.api.Context` of the update.
-      select_context: the :class:`~vdbejax.methods.api.Context` of the next choice.
+      update_context: the :class:`~vdbejax.methods.contract.Context` of the update.
+      select_context: the :class:`~vdbejax.methods.contract.Context` of the next choice.
       explorer_uniforms: the explorer's draws.
       learner_uniforms: the learner's draws.
       redraw_uniforms: for a learner that ``redraws_next_action`` (the authors' SARSA),
