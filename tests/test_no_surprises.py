@@ -315,6 +315,47 @@ def test_a_plug_in_that_exits_on_import_is_one_line(tmp_path, capsys):
     assert str(plugin) in line and "sys.exit(3)" in line, line
 
 
+SELECT_PLUGIN = """
+import sys
+
+import jax.numpy as jnp
+
+from vdbejax.methods import Explorer, explorer, greedy
+
+
+@explorer({name!r})
+class Faulty(Explorer):
+    num_uniforms = 1
+
+    def select(self, q, tables, context, uniforms):
+{body}
+"""
+
+
+@pytest.mark.parametrize("name, body, shown", [
+    ("exits_0", "        sys.exit(0)", "it called sys.exit(0); a plug-in function returns"),
+    ("exits_4", "        sys.exit(4)", "it called sys.exit(4)"),
+    ("python_if", "        if q[0] > 0:\n            return jnp.int32(0)\n"
+     "        return greedy(q, uniforms[0])", "write it with jnp.where or jax.lax.cond"),
+    ("reads_two", "        return greedy(q + uniforms[1], uniforms[0])",
+     "IndexError: tuple index out of range (a draw u[i] past those declared? a plug-in gets"
+     " num_uniforms uniforms"),
+])
+def test_a_plug_in_mistake_in_select_is_one_line_that_says_what_to_change(
+        tmp_path, trainings, capsys, name, body, shown):
+    """sys.exit in a plug-in method is the same one-line error as any exception (exit 2,
+    not the plug-in's code); Python control flow on a traced value and a draw past
+    num_uniforms say what to change."""
+    plugin = tmp_path / f"{name}.py"
+    plugin.write_text(SELECT_PLUGIN.format(name=name, body=body))
+    out = tmp_path / "out"
+    assert cli.main(["run", "--plugin", str(plugin), "--learners", "qlearning", "--explorers",
+                     name, "--seeds", "2", "--episodes", "5", "--quiet", "--out", str(out)]) == 2
+    line = one_error_line(capsys)
+    assert f"explorer {name!r} select()" in line and shown in line, line
+    assert not trainings and not out.exists()
+
+
 # --------------------------------------------------------------- point 13: vdbejax compare
 def test_compare_puts_two_folders_settings_side_by_side(finished, tmp_path, capsys):
     import csv

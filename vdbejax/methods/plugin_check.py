@@ -80,11 +80,8 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
             closed = jax.make_jaxpr(fn)(*args)
         except ValueError:
             raise
-        except Exception as error:
-            message = (str(error).strip().splitlines()[0] if str(error).strip()
-                       else type(error).__name__)
-            raise ValueError(f"{what} fails on one agent's inputs: {type(error).__name__}: "
-                             f"{message}") from None
+        except (Exception, SystemExit) as error:
+            raise failure(f"{what} fails on one agent's inputs", error) from None
         if closed.effects:
             raise ValueError(f"{what} has side effects ({sorted(map(str, closed.effects))}):"
                              " plug-in functions must be pure")
@@ -117,9 +114,8 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
         try:
             first = jax.eval_shape(lambda key: agent_learner.initial_q(key, num_states, A),
                                    _abstract((2,), jnp.uint32))
-        except Exception as error:
-            raise ValueError(f"{lname} initial_q() fails on one agent's inputs:"
-                             f" {type(error).__name__}: {error}") from None
+        except (Exception, SystemExit) as error:
+            raise failure(f"{lname} initial_q() fails on one agent's inputs", error) from None
         if getattr(first, "shape", None) != (num_states, A):
             raise ValueError(f"{lname} initial_q() returned {_describe(first)}: must be the"
                              f" task's [{num_states}, {A}] (states × actions) Q table")
@@ -151,6 +147,31 @@ def check_plugin(agent_learner: Learner, agent_explorer: Explorer, num_actions: 
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+#: JAX's errors for Python control flow on a traced value (``if x > 0:``, ``int(x)``).
+_TRACED_IN_PYTHON = (jax.errors.TracerBoolConversionError,
+                     jax.errors.TracerIntegerConversionError,
+                     jax.errors.ConcretizationTypeError)
+
+
+def failure(what: str, error: BaseException) -> ValueError:
+    """The one-line error for a plug-in function that failed where the check ran it:
+    ``what`` (which function, on what), the error's type and first line, and what to change
+    where the cause is a known mistake (Python control flow on a traced value, a draw past
+    those declared, ``sys.exit`` in a plug-in)."""
+    if isinstance(error, SystemExit):
+        return ValueError(f"{what}: it called sys.exit({error.code!r}); a plug-in function"
+                          " returns its result and never ends the program")
+    text = str(error).strip()
+    message = f"{what}: {type(error).__name__}: {text.splitlines()[0] if text else ''}".rstrip()
+    if isinstance(error, _TRACED_IN_PYTHON):
+        message += (" (a Python if, while, and/or, bool() or int() on a traced value:"
+                    " write it with jnp.where or jax.lax.cond)")
+    elif isinstance(error, IndexError) and "tuple index" in text:
+        message += (" (a draw u[i] past those declared? a plug-in gets num_uniforms"
+                    " uniforms, or what its draws(num_actions) asks for: raise num_uniforms)")
+    return ValueError(message)
+
+
 #: The contract's flags, part of a plug-in's code digest (:func:`check_plugin`).
 _FLAGS = ("num_uniforms", "uses_next_action", "uses_next_probabilities", "redraws_next_action",
           "behaviour_uses_context", "uses_model", "updates_whole_table", "plan_at",
@@ -163,10 +184,8 @@ def _abstract_draws(name: str, plugin: Explorer | Learner, num_actions: int) -> 
     _count(name, plugin.num_uniforms)  # what the default draws() hands on
     try:
         draws = plugin.draws(num_actions)
-    except Exception as error:
-        raise ValueError(f"{name} draws({num_actions}) fails: {type(error).__name__}:"
-                         f" {str(error).strip().splitlines()[0] if str(error).strip() else ''}"
-                         ) from None
+    except (Exception, SystemExit) as error:
+        raise failure(f"{name} draws({num_actions}) fails", error) from None
     if type(draws) is not Draws:
         raise ValueError(f"{name} draws({num_actions}) returned {type(draws).__name__}: must"
                          " return Draws(uniforms, normals, keys)")
@@ -214,10 +233,8 @@ def _check_actions_in_range(name: str, agent_explorer: Explorer, num_actions: in
     try:
         chosen = np.asarray(jax.vmap(agent_explorer.select)(jnp.asarray(q), tables, context,
                                                              given))
-    except Exception as error:
-        message = str(error).strip().splitlines()[0] if str(error).strip() else ""
-        raise ValueError(f"{name} select() fails on sample states: {type(error).__name__}:"
-                         f" {message}") from None
+    except (Exception, SystemExit) as error:
+        raise failure(f"{name} select() fails on sample states", error) from None
     bad = (chosen < 0) | (chosen >= A)
     if bad.any():
         raise ValueError(f"{name} select() returned action {int(chosen[bad][0])} on a"
