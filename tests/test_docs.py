@@ -169,6 +169,10 @@ def test_pages_state_results_not_the_work_log():
     assert WORK_LOG.search("measured in one sitting") and WORK_LOG.search("(issue 21)")
     assert WORK_LOG.search("Session 2026-12-06") and WORK_LOG.search("issues 22, 23")
     assert not WORK_LOG.search("a known issue; sessionless")
+    # The scaling study's page names no commit: its result folder's meta.json does.
+    prose = [line for line in (DOCS / "SCALING.md").read_text(encoding="utf-8").splitlines()
+             if not line.startswith("|")]
+    assert not [line for line in prose if re.search(r"`[0-9a-f]{7,40}`", line)]
 
 
 def test_results_sections_state_date_commit_machine_and_command():
