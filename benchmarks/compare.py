@@ -477,7 +477,7 @@ def main(argv=None) -> int:
         f"- Load average (1/5/15 min) before: {load_before[0]:.1f}/{load_before[1]:.1f}/"
         f"{load_before[2]:.1f}, after: {load_after[0]:.1f}/{load_after[1]:.1f}/"
         f"{load_after[2]:.1f}. The machine is shared; a load above the core count inflates "
-        "every wall time (all peers ran in the same session, one after another).",
+        "every wall time (all peers ran in the same run, one after another).",
         "- Threads: vdbejax's sequential strategy"
         + (f" and `{par_name}`" if par_warm is not None else "")
         + f" ran on {threads} threads (`--threads`; default: the CPUs the process may use); "

@@ -10,9 +10,10 @@ root, then the start of a section's heading, of any level)::
     <!-- results:end -->
 
 (``| table 2`` after the section: its second table) and this module writes between the
-two lines the first table of that section, verbatim,
-after one line naming the file and the section (and the file's ``Date``/``Machine``
-header lines where the heading has no date of its own). ``tests/test_docs.py`` fails
+two lines the first table of that section, verbatim, after one line naming the file and
+the section and saying when and where it was measured: the section's own ``- Date:``,
+``- Commit:`` and ``- Machine:`` lines, or else the file's header lines (those before its
+first section) where the heading has no date of its own. ``tests/test_docs.py`` fails
 when a block differs from what the results files give.
 """
 from __future__ import annotations
@@ -68,15 +69,19 @@ def table(results: str, section: str, name: str = "the results file", number: in
     rows = tables[number - 1]
     heading = lines[start].lstrip("#").strip()
     source = f"From `{name}`, “{heading}”"
-    if not _YEAR.search(heading):
-        facts = [value for key in ("Date", "Machine")
-                 if (value := _header_value(lines[:start], key)) is not None]
+    facts = {key: value for key in ("Date", "Commit", "Machine")
+             if (value := _header_value(lines[start + 1:end], key)) is not None}
+    if not facts and not _YEAR.search(heading):
+        header = lines[:next((i for i in headings if lines[i].startswith("## ")), start)]
+        facts = {key: value for key in ("Date", "Machine")
+                 if (value := _header_value(header, key)) is not None}
+    if "Commit" in facts:
+        facts["Commit"] = f"commit {facts['Commit']}"
+    if facts.get("Machine", "").startswith(("Linux", "macOS", "Windows")):
         # the machine without its platform string (kernel and libc), as the README's table
-        facts = ["; ".join(fact.split("; ")[1:]) if fact.startswith(("Linux", "macOS",
-                                                                        "Windows")) else fact
-                 for fact in facts]
-        if facts:
-            source += f" ({'; '.join(facts)})"
+        facts["Machine"] = "; ".join(facts["Machine"].split("; ")[1:])
+    if facts:
+        source += f" ({'; '.join(facts.values())})"
     return "\n".join([source + ":", "", *rows])
 
 

@@ -164,9 +164,11 @@ def render(grid: dict, rows: list[dict], command: str, agree: dict | None = None
     device, _ = _device_summary()
     lines = [
         HEADING, "",
-        f"Command: `{command}`; {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M UTC};"
-        f" {device}; jax {jax.__version__}, Python {platform.python_version()}. Warm runs"
-        " (the same call run first; its wall, compiling included, is the *cold* column).", "",
+        f"- Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M UTC}.",
+        f"- Machine: {device}; jax {jax.__version__}, Python {platform.python_version()}.",
+        f"- Command: `{command}`.", "",
+        "Warm runs (the same call run first; its wall, compiling included, is the *cold*"
+        " column).", "",
         f"Full paper grid (46 settings × 20 agents × {grid['episodes']:,} episodes):"
         f" {grid['wall']:.2f} s, {grid['steps']:,} agent-steps, {grid['steps_per_s'] / 1e6:.1f} M"
         f" agent-steps/s, peak memory {grid['peak_bytes'] / 2**20:,.0f} MiB ({grid['peak_where']})"

@@ -7,7 +7,7 @@ its programs (the first call traces them; later calls find them by their trace k
 
 The first call also compiles or reads JAX's persistent cache; the later ones are the warm
 in-process time. ``python -m benchmarks.par`` runs this beside ``benchmarks.compare``'s
-numba-2t worker in one sitting and prints the ratios.
+numba-2t worker, interleaved, and prints the ratios.
 """
 from __future__ import annotations
 

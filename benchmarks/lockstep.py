@@ -1,4 +1,4 @@
-"""Where the lockstep strategy's time goes (issue 46): its loop body, its trips, its speed.
+"""Where the lockstep strategy's time goes: its loop body, its trips, its speed.
 
     python -m benchmarks.lockstep [--seeds 1000] [--episodes 50] [--lanes 2048]
                                   [--repeats 2] [--threads N] [--group-lanes 64,2048]

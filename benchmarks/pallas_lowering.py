@@ -1,5 +1,5 @@
 """Can the lockstep's step go into one Pallas kernel on a GPU? What Pallas's GPU lowerings
-take, asked on any machine (issue 46, point 3).
+take, asked on any machine.
 
     python -m benchmarks.pallas_lowering [--json]
 

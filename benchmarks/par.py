@@ -1,4 +1,4 @@
-"""Issue 21's par line, measured in one sitting: the paper grid's warm vdbejax times beside
+"""Par with numba-2t, measured in one run: the paper grid's warm vdbejax times beside
 the harness's 2-thread Numba peer (``numba-2t``), optionally before and after a change.
 
     python -m benchmarks.par [--rounds 3] [--calls 4] [--threads 2] [--baseline DIR]

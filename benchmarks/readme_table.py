@@ -8,8 +8,10 @@ this script copies their headline into README.md, between the markers
 ``<!-- benchmark-table:start -->`` and ``<!-- benchmark-table:end -->``, so that the README
 states no performance number by hand: the full-grid section's title, the run's date and
 machine, the warm rows of vdbejax and of the Numba peers (``numba-2t``, ``numba-1t``) with
-their wall, compile and run times, and the ratio lines (peer wall / vdbejax wall). Every
-cell and line is copied as the harness wrote it; only columns are left out.
+their wall, compile and run times, and the ratio lines (peer wall / vdbejax wall); then
+the table of the section ``## Par with numba-2t`` (``python -m benchmarks.par``: a call
+repeated in one process) with its date, commit and machine. Every cell and line is copied
+as the results file has it; only columns are left out.
 ``tests/test_docs.py`` checks that README.md's block is what this module generates.
 """
 from __future__ import annotations
@@ -30,6 +32,7 @@ END = "<!-- benchmark-table:end -->"
 COLUMNS = ("peer", "threads", "wall s", "compile s", "run s", "M steps/s", "curves agree")
 
 _SECTION = "## Full paper grid"
+_PAR = "## Par with numba-2t"
 _RATIOS = "Ratios ("
 _NUMBA_WARM = re.compile(r"^numba-\d+t \(warm\b")
 
@@ -94,12 +97,39 @@ def headline(results: str) -> str:
     ratios = [line for line in bullets if "/ vdbejax" in line]
 
     out = [f"{title}, from [`benchmarks/RESULTS.md`](benchmarks/RESULTS.md) "
-           f"({date}; {machine}):", "",
+           f"({date}; {machine}). Fresh process against fresh process: each peer in a "
+           "subprocess of its own, caches warm, interpreter start and imports excluded:", "",
            "| " + " | ".join(COLUMNS) + " |",
            "| " + " | ".join("---" for _ in COLUMNS) + " |"]
     out += ["| " + " | ".join(row[i] for i in index) + " |" for row in chosen]
     out += ["", section[at].strip(), "", *ratios]
-    return "\n".join(out)
+    return "\n".join([*out, "", *_par(lines)])
+
+
+def _par(lines: list[str]) -> list[str]:
+    """The par section's table, after a line saying when, where and what it compares."""
+    try:
+        start = next(i for i, line in enumerate(lines) if line.startswith(_PAR))
+    except StopIteration:
+        raise ValueError(f"benchmarks/RESULTS.md: no '{_PAR}' section") from None
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")),
+               len(lines))
+    section = lines[start + 1:end]
+    table = []
+    for line in section:
+        if line.startswith("|"):
+            table.append(line)
+        elif table:
+            break
+    if len(table) < 3:
+        raise ValueError("benchmarks/RESULTS.md: the par section has no table")
+    facts = "; ".join([_header_value(section, "Date"), "commit " + _header_value(section,
+                       "Commit"), _header_value(section, "Machine")])
+    return [f"A call repeated in one process, `python -m benchmarks.par` ({facts}): the first "
+            "row is vdbejax's second `run_grid` call in one process against numba-2t's "
+            "harness worker (one call in a fresh process, loading its compiled loop from "
+            "Numba's cache included); the third, fresh process against fresh process:", "",
+            *table]
 
 
 def block(results_path: Path = RESULTS) -> str:

@@ -1,4 +1,4 @@
-"""Where a warm run of the paper grid spends its time, phase by phase (issue 21's par).
+"""Where a warm run of the paper grid spends its time, phase by phase.
 
 Each measurement runs in a fresh subprocess with JAX's persistent cache warm (a first
 process fills it), as ``benchmarks.compare``'s warm vdbejax row does:

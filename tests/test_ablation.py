@@ -34,7 +34,7 @@ def test_outputs_per_variant(ablated):
 
 def test_document(ablated):
     out, raw, _ = ablated
-    text = (out / "REPRODUCTION.md").read_text()
+    text = (out / "ablation_scorecard.md").read_text()
     assert "## Claims × variants" in text
     assert "| claim | `spec` | `invalid_fail` |" in text
     for n in range(1, 7):
@@ -96,7 +96,7 @@ def test_attribution_mode_switches_one_authors_detail_at_a_time(tmp_path):
     assert code == 0
     text = (tmp_path / "ATTRIBUTION.md").read_text()
     assert "--mode attribution" in text and "which detail of which reading" in text
-    assert not (tmp_path / "REPRODUCTION.md").exists()
+    assert not (tmp_path / "ablation_scorecard.md").exists()
     assert (tmp_path / "attribution" / "authors" / "report.md").exists()
     assert not (tmp_path / "attribution" / "authors" / "fig3.png").exists()  # reports only
     # ... and the raw results draw none (the document does not show them)
@@ -151,7 +151,7 @@ def test_factorial_mode_and_sections_in_the_document(tmp_path):
     grid = GridResult.load(tmp_path / "factorial" / names.split(",")[0])
     assert grid.meta["options"]["alpha"] == pytest.approx(0.3)
     assert grid.meta["details"]["goal_update"] == "skip"
-    # REPRODUCTION.md's sections: a variants × claims table per other mode, with "Most".
+    # ablation_scorecard.md's sections: a variants × claims table per other mode, with "Most".
     results = ablation.ablate(tmp_path / "doc", results_dir=tmp_path / "raw",
                               variants=ablation_variants.select_variants("spec"), seeds=2, episodes=12,
                               progress=False)

@@ -93,6 +93,9 @@ def test_readme_table_generator_takes_the_headline_rows(tmp_path):
     assert any(r.startswith("numba-1t (warm") for r in rows)
     assert all("cold" not in r and "lockstep" not in r for r in rows[1:])
     assert "Ratios (" in text and "numba-1t / vdbejax" in text
+    # ... then the par table: a call repeated in one process, with its date and commit.
+    assert "`python -m benchmarks.par` (" in text and "; commit `" in text
+    assert any(r.startswith("`run_grid` again in one process") for r in rows)
     # main() rewrites only the block of the file it is given, and --check agrees.
     readme = tmp_path / "README.md"
     readme.write_text(f"before\n{readme_table.START}\nstale\n{readme_table.END}\nafter\n")
@@ -129,6 +132,13 @@ def test_doc_blocks_copy_the_named_table_and_refuse_what_is_missing(tmp_path):
         "| b |\n| --- |\n| 2 |\n<!-- results:end -->\n"
         "<!-- results: R.md | Other -->\nFrom `R.md`, “Other 2026”:\n\n"
         "| c |\n| --- |\n| 3 |\n<!-- results:end -->\nend\n")
+    # A section with its own date, commit and machine lines says those, not the file's.
+    (tmp_path / "S.md").write_text("# S\n- Date: today.\n\n## Own\n\n- Date: 2026-01-02.\n"
+                                   "- Commit: `abc1234`.\n- Machine: two cores.\n\n"
+                                   "| d |\n| --- |\n| 4 |\n")
+    assert doc_blocks.render("<!-- results: S.md | Own -->\n<!-- results:end -->\n",
+                             tmp_path).splitlines()[1] == (
+        "From `S.md`, “Own” (2026-01-02; commit `abc1234`; two cores):")
     with pytest.raises(ValueError, match="no section whose heading starts with 'Nope'"):
         doc_blocks.render("<!-- results: R.md | Nope -->\n<!-- results:end -->\n", tmp_path)
     with pytest.raises(ValueError, match="has 2 table"):
@@ -136,6 +146,51 @@ def test_doc_blocks_copy_the_named_table_and_refuse_what_is_missing(tmp_path):
                           tmp_path)
     with pytest.raises(ValueError, match="has no"):
         doc_blocks.render("<!-- results: R.md | Speed -->\n", tmp_path)
+
+
+#: Words of the project's work log, not of its results: a page states what is true today.
+WORK_LOG = re.compile(r"\b(?:sessions?|sittings?)\b|\bissues? #?\d+|\(issue\b", re.I)
+
+
+def _current_pages() -> list[Path]:
+    """The README, the docs pages and the results pages of benchmarks/ (not its archive)."""
+    return [*_pages(), *sorted((ROOT / "benchmarks").glob("*.md"))]
+
+
+def test_pages_state_results_not_the_work_log():
+    """No page names a work session, a sitting or an issue number ("issue 46", "(issue
+    21)"): results are stated with their date, commit, machine and command, and earlier
+    runs live in benchmarks/archive/, which this check does not read."""
+    found = [f"{page.relative_to(ROOT)}:{n}: {line.strip()[:100]}"
+             for page in _current_pages()
+             for n, line in enumerate(page.read_text(encoding="utf-8").splitlines(), 1)
+             if WORK_LOG.search(line)]
+    assert not found, "work-log words on a current page:\n" + "\n".join(found)
+    assert WORK_LOG.search("measured in one sitting") and WORK_LOG.search("(issue 21)")
+    assert WORK_LOG.search("Session 2026-12-06") and WORK_LOG.search("issues 22, 23")
+    assert not WORK_LOG.search("a known issue; sessionless")
+    # The scaling study's page names no commit: its result folder's meta.json does.
+    prose = [line for line in (DOCS / "SCALING.md").read_text(encoding="utf-8").splitlines()
+             if not line.startswith("|")]
+    assert not [line for line in prose if re.search(r"`[0-9a-f]{7,40}`", line)]
+
+
+def test_results_sections_state_date_commit_machine_and_command():
+    """Each hand-written section of benchmarks/RESULTS.md (after its harness tables) opens
+    with its date, commit, machine and command; the archive has an index of its files."""
+    text = readme_table.RESULTS.read_text(encoding="utf-8")
+    hand = text[text.index("## Analysis"):].split("\n## ")[1:]
+    assert len(hand) >= 5
+    for section in hand:
+        heading = section.splitlines()[0]
+        keys = ("Date", "Machine", "Command") if heading.startswith("GPU") \
+            else ("Date", "Commit", "Machine", "Command")
+        for key in keys:
+            assert f"\n- {key}: " in section, f"RESULTS.md, {heading!r}: no '- {key}:' line"
+    archive = ROOT / "benchmarks" / "archive"
+    index = (archive / "README.md").read_text(encoding="utf-8")
+    assert {p.name for p in archive.glob("*.md")} - {"README.md"} == set(
+        re.findall(r"\]\(([\w.-]+\.md)\)", index))
 
 
 def test_readme_examples_are_in_the_documentation_site():

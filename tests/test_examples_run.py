@@ -59,6 +59,9 @@ def test_the_python_examples_of_every_page_run_as_written(tmp_path, page):
     assert done.returncode == 0, f"{page.name}: {done.stderr[-3000:]}"
     if page.name == "README.md":
         assert len(PAGES) > 2 and (tmp_path / "out" / "small" / "report.md").exists()
+        assert ROOT / "docs" / "tutorial.md" in PAGES
+    if page.name == "tutorial.md":  # the tutorial's figure and its table with intervals
+        assert (tmp_path / "my_study.png").exists() and "| halving_epsilon | " in done.stdout
 
 
 def test_the_docstring_examples_are_found():

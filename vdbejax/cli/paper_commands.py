@@ -87,9 +87,10 @@ def plot_command(args: argparse.Namespace) -> None:
 
 def add_ablate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("ablate",
-                       help="claims scorecard across the spec's options; writes REPRODUCTION.md")
+                       help="claims scorecard across the spec's options; writes"
+                            " ablation_scorecard.md")
     p.add_argument("--out", required=True,
-                   help="document folder: REPRODUCTION.md and ablation/<variant>/")
+                   help="document folder: ablation_scorecard.md and ablation/<variant>/")
     p.add_argument("--results", default=None,
                    help="folder for the raw results of every variant (default: OUT/ablation)")
     p.add_argument("--seeds", type=parse_cli_number, default=20,
@@ -104,18 +105,18 @@ def add_ablate(sub: argparse._SubParsersAction) -> None:
                         " (default: all; see vdbejax.paper.ablation_variants.VARIANTS)")
     p.add_argument("--notes", default=None,
                    help="a file of hand-written discussion appended to the document (this"
-                        " repository's: docs/reproduction_notes.md)")
+                        " repository's: docs/ablation_notes.md)")
     p.add_argument("--rerun", action="store_true",
                    help="ignore saved results of the same variant and size")
     p.add_argument("--mode", default="options",
                    help="options (default: the two readings and the spec's open details,"
-                        " REPRODUCTION.md), attribution (each detail of the authors' code"
+                        " ablation_scorecard.md), attribution (each detail of the authors' code"
                         " switched alone from either reading, ATTRIBUTION.md) or factorial"
                         " (failure update x goal update x alpha x initial Q from each reading,"
                         " FACTORIAL.md)")
     p.add_argument("--sections", action="store_true",
                    help="(options) also run the attribution and factorial variants and add"
-                        " their claims tables to REPRODUCTION.md")
+                        " their claims tables to ablation_scorecard.md")
     add_run_flags(p, "continue an interrupted variant from its checkpoint")
     p.add_argument("--quiet", action="store_true", help="no status lines")
 

@@ -4,12 +4,12 @@ The paper does not say what an invalid action does, how greedy ties are broken, 
 episode is cut off, or how Q is initialised; the spec fixes defaults and makes each an
 option. :func:`ablate` reruns the full grid once per :class:`Variant` (one factor at a
 time from the spec defaults, plus a combination), scores the six claims for each, and
-writes ``REPRODUCTION.md``: the claims × variants table, per-variant numbers and figures,
+writes ``ablation_scorecard.md``: the claims × variants table, per-variant numbers and figures,
 and (if given) a hand-written discussion.
 
 Regenerate the committed document with::
 
-    vdbejax ablate --out docs --results out --replicates 10 --notes docs/reproduction_notes.md
+    vdbejax ablate --out docs --results out --replicates 10 --notes docs/ablation_notes.md
 
 (the document quotes the exact command that produced it).
 
@@ -135,12 +135,12 @@ def ablate(
     memory_budget_bytes: int | str | None = None,
     overwrite: bool = False,
 ) -> list[VariantResult]:
-    """Run every variant, score the claims, write ``REPRODUCTION.md`` (mode ``options``),
+    """Run every variant, score the claims, write ``ablation_scorecard.md`` (mode ``options``),
     ``ATTRIBUTION.md`` (mode ``attribution``) or ``FACTORIAL.md`` (mode ``factorial``)
     and its figures.
 
     Args:
-      out_dir: document folder: ``REPRODUCTION.md`` and ``ablation/<variant>/`` (figures,
+      out_dir: document folder: ``ablation_scorecard.md`` and ``ablation/<variant>/`` (figures,
         summary, report).
       results_dir: raw results (``<variant>/returns.npz`` …); default ``out_dir/ablation``,
         i.e. next to the figures.
@@ -157,7 +157,7 @@ def ablate(
         or ``"factorial"`` (:data:`FACTORIAL_VARIANTS`): the document's name and figure
         folder (:data:`MODES`).
       sections: (mode ``options``) also run the attribution and factorial variants and
-        add their claims tables to the document, so that ``REPRODUCTION.md`` shows which
+        add their claims tables to the document, so that ``ablation_scorecard.md`` shows which
         detail of which reading decides each claim (results in ``results_dir``'s
         ``attribution/`` and ``factorial/`` subfolders, reports beside the document).
       resume: an interrupted variant continues from its checkpoint.
@@ -264,7 +264,7 @@ def _ablate(out_dir: str | os.PathLike, figures_dir: str, results_dir: str | os.
     return results
 
 
-#: Titles and introductions of REPRODUCTION.md's sections from the other modes.
+#: Titles and introductions of ablation_scorecard.md's sections from the other modes.
 SECTION_TITLES = {"attribution": "Which single detail decides each claim",
                   "factorial": "Factorial: failure update × goal update × α × initial Q"}
 SECTION_INTROS = {

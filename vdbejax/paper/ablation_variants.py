@@ -140,7 +140,7 @@ def _factorial_variants() -> tuple[Variant, ...]:
 #: × α × initial Q, from each reading.
 FACTORIAL_VARIANTS: tuple[Variant, ...] = _factorial_variants()
 #: Document and figure folder of each mode.
-MODES = {"options": ("REPRODUCTION.md", "ablation"),
+MODES = {"options": ("ablation_scorecard.md", "ablation"),
          "attribution": ("ATTRIBUTION.md", "attribution"),
          "factorial": ("FACTORIAL.md", "factorial")}
 
