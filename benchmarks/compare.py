@@ -89,15 +89,17 @@ def _worker_vdbejax(args) -> dict:
     # One study's programs: the scaling rows' second run reuses them (traced once), so
     # that it times the run alone, as its column says.
     study = programs.Programs()
-    result = engine.run_agents(mdp, params, keys, args.episodes, strategy=args.strategy,
-                               threads=args.threads, programs=study)
+    result = engine.run_agents(mdp, params, keys, args.episodes,
+                               engine.EngineOptions(strategy=args.strategy, threads=args.threads,
+                                                    programs=study))
     wall = time.perf_counter() - started
     compile_time = engine.compile_seconds()
     steady = None
     if args.agents:  # scaling: time a second, fully compiled run of the same work
         again = time.perf_counter()
-        engine.run_agents(mdp, params, keys, args.episodes, strategy=args.strategy,
-                          threads=args.threads, programs=study)
+        engine.run_agents(mdp, params, keys, args.episodes,
+                          engine.EngineOptions(strategy=args.strategy, threads=args.threads,
+                                               programs=study))
         steady = time.perf_counter() - again
     return {
         "steady": steady,
@@ -679,7 +681,7 @@ def main(argv=None) -> int:
                   "Agent *i* runs paper setting *i* mod 46 with its own key. Fresh subprocess "
                   "per count; *wall* = first run (compiles, JAX cache warm where the shape was "
                   "compiled before), *run s* = a second identical run in the same process "
-                  "sharing the first run's programs (`run_agents(programs=...)`: traced and "
+                  "sharing the first run's programs (`EngineOptions(programs=...)`: traced and "
                   "compiled once); throughput = real steps / run s.", "",
                   "| agents | wall s | compile s | run s | real steps | M steps/s (run) | "
                   "lane efficiency | peak RSS MB | RSS after import MB |",

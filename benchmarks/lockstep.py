@@ -111,7 +111,7 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
                threads: int | None, max_batch: int | None = None,
                mix_kinds: bool = False, **options: Any) -> dict[str, Any]:
     """The paper grid with ``strategy`` (the lockstep's kinds mixed in one batch with
-    ``mix_kinds``; ``options``: more of :func:`vdbejax.engine.run_agents`'s): programs
+    ``mix_kinds``; ``options``: more of :class:`vdbejax.engine.EngineOptions`): programs
     got once, then the best of ``repeats`` calls (one chunk); its loop trips and host
     round trips (blocks run)."""
     from vdbejax import engine
@@ -142,10 +142,11 @@ def timed_grid(strategy: str, seeds: int, episodes: int, repeats: int,
         return counted
 
     def run() -> Any:
-        lanes = {} if max_batch is None else {"max_batch": max_batch}
-        return engine.run_agents(mdp, params, keys, episodes, chunk_episodes=episodes,
-                                 strategy=strategy, threads=threads, keep_final_state=False,
-                                 mix_kinds=mix_kinds, **lanes, **options)
+        return engine.run_agents(mdp, params, keys, episodes,
+                                 engine.EngineOptions(chunk_episodes=episodes, strategy=strategy,
+                                                      threads=threads, keep_final_state=False,
+                                                      mix_kinds=mix_kinds, max_batch=max_batch,
+                                                      **options))
 
     run()
     best, result, trips = float("inf"), None, 0

@@ -28,8 +28,9 @@ def step_cost(settings: list, seeds: int, episodes: int, threads: int, strategy:
     params, keys = grid_agents(settings, seeds)
 
     def run():
-        return engine.run_agents(mdp, params, keys, episodes, threads=threads,
-                                 chunk_episodes=episodes, strategy=strategy)
+        return engine.run_agents(mdp, params, keys, episodes,
+                                 engine.EngineOptions(threads=threads, chunk_episodes=episodes,
+                                                      strategy=strategy))
 
     run()
     started = time.perf_counter()

@@ -68,15 +68,15 @@ start = time.perf_counter()
 mdp = make_mdp()
 params, keys = grid_agents(paper_settings(), 20)
 setup = time.perf_counter() - start
-study = programs.Programs()
+options = engine.EngineOptions(threads=threads, programs=programs.Programs())
 called = time.perf_counter()
-engine.run_agents(mdp, params, keys, 1000, threads=threads, programs=study)
+engine.run_agents(mdp, params, keys, 1000, options)
 first = time.perf_counter() - called
 got = engine.compile_seconds()
 again = []
 for _ in range(3):
     called = time.perf_counter()
-    engine.run_agents(mdp, params, keys, 1000, threads=threads, programs=study)
+    engine.run_agents(mdp, params, keys, 1000, options)
     again.append(time.perf_counter() - called)
 print(json.dumps({"setup": setup, "first_call": first, "getting_programs": got, **phases,
                   "run_in_first_call": first - got, "run_alone": min(again)}))

@@ -88,7 +88,8 @@ def test_sample_average_q_of_a_one_armed_bandit_is_the_mean_of_its_rewards():
     mdp = make_bandit(np.asarray([0.3]), "gaussian", std=2.0, name="one_arm")
     params = engine.broadcast_agents(stack_agents(
         [make_agent(Setting("sample_average", "egreedy", 0.1))]), 3)
-    run = engine.run_agents(mdp, params, engine.agent_keys(0, 3), 400, strategy="lockstep")
+    run = engine.run_agents(mdp, params, engine.agent_keys(0, 3), 400,
+                            engine.EngineOptions(strategy="lockstep"))
     rewards = np.asarray(run.returns, np.float64)  # one pull per episode: return = reward
     np.testing.assert_allclose(np.asarray(run.final_state.q)[:, 0, 0], rewards.mean(axis=1),
                                rtol=1e-4, atol=1e-5)
@@ -112,9 +113,10 @@ def test_sample_average_on_a_bandit_gives_the_same_bits_in_both_strategies():
         [make_agent(Setting("sample_average", "egreedy", 0.1)),
          make_agent(Setting("qlearning", "vdbe_softmax", 1.0))]), 2)
     keys = np.tile(engine.agent_keys(1, 2), (2, 1))
-    lockstep = engine.run_agents(mdp, params, keys, 40, strategy="lockstep")
-    sequential = engine.run_agents(mdp, params, keys, 40, strategy="sequential", threads=2,
-                                   chunk_episodes=15)
+    lockstep = engine.run_agents(mdp, params, keys, 40, engine.EngineOptions(strategy="lockstep"))
+    sequential = engine.run_agents(mdp, params, keys, 40,
+                                   engine.EngineOptions(strategy="sequential", threads=2,
+                                                        chunk_episodes=15))
     np.testing.assert_array_equal(lockstep.returns, sequential.returns)
     np.testing.assert_array_equal(lockstep.final_state.q, sequential.final_state.q)
     assert set(np.unique(lockstep.returns)) <= {0.0, 1.0, 2.0, 3.0}

@@ -776,7 +776,7 @@ def test_a_whole_table_learner_writes_its_stage_tables_back_to_its_own_rows():
     """Every agent's stage table, updated whole each step, stays its own: a count of its
     visits per (s, a, stage) adds up to its own steps (a block written at another agent's
     rows would not)."""
-    from vdbejax.engine import run_agents
+    from vdbejax.engine import EngineOptions, run_agents
     from vdbejax.engine.state import agent_keys, broadcast_agents
     from vdbejax.methods.agents import make_agent, stack_agents
     from vdbejax.methods.contract import Table
@@ -802,7 +802,7 @@ def test_a_whole_table_learner_writes_its_stage_tables_back_to_its_own_rows():
     params = broadcast_agents(stack_agents([make_agent(Setting("probe_stage_counts",
                                                                "egreedy", 0.5))]), 5)
     for strategy in ("sequential", "lockstep"):
-        done = run_agents(mdp, params, agent_keys(0, 5), 6, strategy=strategy)
+        done = run_agents(mdp, params, agent_keys(0, 5), 6, EngineOptions(strategy=strategy))
         seen = done.final_state.tables["seen"]
         np.testing.assert_array_equal(seen.sum(axis=(1, 2, 3)), done.lengths.sum(axis=1))
         first_steps = seen[..., 0].sum(axis=(1, 2))

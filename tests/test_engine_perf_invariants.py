@@ -74,25 +74,23 @@ def test_learner_targets_on_a_column_batch_equal_one_row_at_a_time(learner):
 
 def test_compaction_chunking_and_batch_position_do_not_change_results(mdp):
     params, keys = _grid(2)
-    base = engine.run_agents(
-        mdp, params, keys, 12, chunk_episodes=12, compact=False, strategy="lockstep"
-    )
-    grouped = engine.run_agents(
-        mdp, params, keys, 12, compact=False, max_batch=5, strategy="lockstep"
-    )
+    base = engine.run_agents(mdp, params, keys, 12,
+                             engine.EngineOptions(chunk_episodes=12, compact=False,
+                                                  strategy="lockstep"))
+    grouped = engine.run_agents(mdp, params, keys, 12,
+                                engine.EngineOptions(compact=False, max_batch=5,
+                                                     strategy="lockstep"))
     np.testing.assert_array_equal(base.returns, grouped.returns)
-    compacted = engine.run_agents(
-        mdp, params, keys, 12, chunk_episodes=5, block_iterations=8, min_batch=2, max_batch=3,
-        strategy="lockstep",
-    )
+    compacted = engine.run_agents(mdp, params, keys, 12,
+                                  engine.EngineOptions(chunk_episodes=5, block_iterations=8,
+                                                       min_batch=2, max_batch=3,
+                                                       strategy="lockstep"))
     np.testing.assert_array_equal(base.returns, compacted.returns)
     np.testing.assert_array_equal(base.lengths, compacted.lengths)
     np.testing.assert_array_equal(base.final_state.q, compacted.final_state.q)
     # One agent alone (the slowest kind: SARSA + VDBE σ = 0.001) equals itself in the batch.
-    alone = engine.run_agents(
-        mdp, jax.tree.map(lambda x: x[1:2], params), keys[1:2], 12, chunk_episodes=5,
-        strategy="lockstep",
-    )
+    alone = engine.run_agents(mdp, jax.tree.map(lambda x: x[1:2], params), keys[1:2], 12,
+                              engine.EngineOptions(chunk_episodes=5, strategy="lockstep"))
     np.testing.assert_array_equal(alone.returns[0], base.returns[1])
     np.testing.assert_array_equal(alone.lengths[0], base.lengths[1])
 
@@ -100,14 +98,15 @@ def test_compaction_chunking_and_batch_position_do_not_change_results(mdp):
 def test_lockstep_groups_on_threads_give_the_same_bits(mdp):
     """Groups run on several threads, or one after another, or as one batch: same bits."""
     params, keys = _grid(3)
-    one = engine.run_agents(mdp, params, keys, 10, max_batch=64, threads=1,
-                            strategy="lockstep")
-    threaded = engine.run_agents(mdp, params, keys, 10, max_batch=2, threads=3,
-                                 strategy="lockstep")
-    default = engine.run_agents(mdp, params, keys, 10, strategy="lockstep")
+    one = engine.run_agents(mdp, params, keys, 10,
+                            engine.EngineOptions(max_batch=64, threads=1, strategy="lockstep"))
+    threaded = engine.run_agents(mdp, params, keys, 10,
+                                 engine.EngineOptions(max_batch=2, threads=3, strategy="lockstep"))
+    default = engine.run_agents(mdp, params, keys, 10, engine.EngineOptions(strategy="lockstep"))
     # Blocks of a known trip count (the accelerators' default) overshoot harmlessly.
-    fixed = engine.run_agents(mdp, params, keys, 10, strategy="lockstep", block_iterations=7,
-                              fixed_blocks=True)
+    fixed = engine.run_agents(mdp, params, keys, 10,
+                              engine.EngineOptions(strategy="lockstep", block_iterations=7,
+                                                   fixed_blocks=True))
     _assert_same_run(one, threaded)
     _assert_same_run(one, default)
     _assert_same_run(one, fixed)
@@ -133,12 +132,13 @@ def test_sequential_strategy_equals_lockstep(mdp, tie_break):
         stack_agents([make_agent(s, options) for s in SETTINGS]), 3
     )
     keys = np.tile(engine.agent_keys(5, 3), (len(SETTINGS), 1))
-    lockstep = engine.run_agents(mdp, params, keys, 30, chunk_episodes=30, strategy="lockstep")
+    lockstep = engine.run_agents(mdp, params, keys, 30,
+                                 engine.EngineOptions(chunk_episodes=30, strategy="lockstep"))
     first = None
     for threads, chunk in [(1, 30), (2, 7), (3, 11)]:
-        sequential = engine.run_agents(
-            mdp, params, keys, 30, chunk_episodes=chunk, strategy="sequential", threads=threads
-        )
+        sequential = engine.run_agents(mdp, params, keys, 30,
+                                       engine.EngineOptions(chunk_episodes=chunk,
+                                                            strategy="sequential", threads=threads))
         _assert_same_run(sequential, lockstep)
         assert (sequential.strategy, lockstep.strategy) == ("sequential", "lockstep")
         first = first or sequential
@@ -165,9 +165,11 @@ def test_sequential_strategy_on_a_stochastic_mdp_equals_lockstep():
     stochastic = make_tabular_mdp(next_state, reward, terminal, start, probability=probability,
                                   max_steps=15)
     params, keys = _grid(2)
-    lockstep = engine.run_agents(stochastic, params, keys, 20, strategy="lockstep")
-    sequential = engine.run_agents(stochastic, params, keys, 20, strategy="sequential",
-                                   threads=2, chunk_episodes=6)
+    lockstep = engine.run_agents(stochastic, params, keys, 20,
+                                 engine.EngineOptions(strategy="lockstep"))
+    sequential = engine.run_agents(stochastic, params, keys, 20,
+                                   engine.EngineOptions(strategy="sequential", threads=2,
+                                                        chunk_episodes=6))
     _assert_same_run(sequential, lockstep)
 
 
@@ -180,10 +182,12 @@ def test_loop_width_changes_nothing(mdp, monkeypatch, lanes, seeds):
     monkeypatch.setattr(work_items, "LANES", lanes)
     monkeypatch.setattr(sequential, "LANES", lanes)
     params, keys = _grid(seeds)
-    lockstep = engine.run_agents(mdp, params, keys, 14, chunk_episodes=5, strategy="lockstep")
+    lockstep = engine.run_agents(mdp, params, keys, 14,
+                                 engine.EngineOptions(chunk_episodes=5, strategy="lockstep"))
     for threads in (1, 3):
-        run = engine.run_agents(mdp, params, keys, 14, chunk_episodes=5, threads=threads,
-                                strategy="sequential")
+        run = engine.run_agents(mdp, params, keys, 14,
+                                engine.EngineOptions(chunk_episodes=5, threads=threads,
+                                                     strategy="sequential"))
         _assert_same_run(run, lockstep)
         assert run.iterations <= run.lane_iterations
 
@@ -230,8 +234,9 @@ def test_a_self_loop_that_traps_the_agent_is_learned_in_both_strategies():
     # the last agent's rows (one state: every cell is updated often), and must not write.
     params, keys = grid_agents([Setting("qlearning", "softmax", 1e-4)], 8,
                                options=AgentOptions(q_init=-0.5))
-    lockstep = engine.run_agents(trap, params, keys, 5, strategy="lockstep")
-    sequential_run = engine.run_agents(trap, params, keys, 5, strategy="sequential", threads=1)
+    lockstep = engine.run_agents(trap, params, keys, 5, engine.EngineOptions(strategy="lockstep"))
+    sequential_run = engine.run_agents(trap, params, keys, 5,
+                                       engine.EngineOptions(strategy="sequential", threads=1))
     _assert_same_run(sequential_run, lockstep)
     trapped = (lockstep.lengths == 60).all(axis=1)
     assert trapped.any() and (lockstep.lengths[~trapped] == 1).all()
@@ -254,8 +259,9 @@ def test_many_start_states_in_both_strategies():
     start[:40] = rng.random(40)
     many = make_tabular_mdp(next_state, reward, terminal, start / start.sum(), max_steps=20)
     params, keys = _grid(2)
-    lockstep = engine.run_agents(many, params, keys, 15, strategy="lockstep")
-    sequential = engine.run_agents(many, params, keys, 15, strategy="sequential")
+    lockstep = engine.run_agents(many, params, keys, 15, engine.EngineOptions(strategy="lockstep"))
+    sequential = engine.run_agents(many, params, keys, 15,
+                                   engine.EngineOptions(strategy="sequential"))
     _assert_same_run(sequential, lockstep)
     assert lockstep.lengths.min() >= 1
 
@@ -263,9 +269,9 @@ def test_many_start_states_in_both_strategies():
 def test_bad_strategy_or_threads_is_one_line_error(mdp):
     params, keys = _grid(1)
     with pytest.raises(ValueError, match="strategy"):
-        engine.run_agents(mdp, params, keys, 2, strategy="fastest")
+        engine.run_agents(mdp, params, keys, 2, engine.EngineOptions(strategy="fastest"))
     with pytest.raises(ValueError, match="threads"):
-        engine.run_agents(mdp, params, keys, 2, threads=0)
+        engine.run_agents(mdp, params, keys, 2, engine.EngineOptions(threads=0))
 
 
 def test_hashed_stream_depends_only_on_key_and_counter():
@@ -332,10 +338,13 @@ def test_agents_kept_in_their_work_items_equal_lockstep_and_checkpoint_the_same(
             seen[name].append((done, jax.tree.map(np.array, agents), returns.copy()))
         return record
 
-    by_items = engine.run_agents(mdp, params, keys, 25, chunk_episodes=6, threads=2,
-                                 strategy="sequential", on_chunk=recorder("sequential"))
-    lockstep = engine.run_agents(mdp, params, keys, 25, chunk_episodes=6,
-                                 strategy="lockstep", on_chunk=recorder("lockstep"))
+    by_items = engine.run_agents(mdp, params, keys, 25,
+                                 engine.EngineOptions(chunk_episodes=6, threads=2,
+                                                      strategy="sequential"),
+                                 engine.ChunkHooks(on_chunk=recorder("sequential")))
+    lockstep = engine.run_agents(mdp, params, keys, 25,
+                                 engine.EngineOptions(chunk_episodes=6, strategy="lockstep"),
+                                 engine.ChunkHooks(on_chunk=recorder("lockstep")))
     _assert_same_run(by_items, lockstep)
     assert [done for done, *_ in seen["sequential"]] == [6, 12, 18, 24, 25]
     for (done_a, agents_a, returns_a), (done_b, agents_b, returns_b) in zip(
@@ -351,9 +360,11 @@ def test_agents_kept_in_their_work_items_equal_lockstep_and_checkpoint_the_same(
 def test_without_the_final_state_results_and_nonfinite_flags_are_the_same(mdp, strategy):
     params = engine.broadcast_agents(stack_agents([make_agent(s) for s in SETTINGS]), 2)
     keys = np.tile(engine.agent_keys(4, 2), (len(SETTINGS), 1))
-    full = engine.run_agents(mdp, params, keys, 12, chunk_episodes=5, strategy=strategy)
-    light = engine.run_agents(mdp, params, keys, 12, chunk_episodes=5, strategy=strategy,
-                              keep_final_state=False)
+    full = engine.run_agents(mdp, params, keys, 12,
+                             engine.EngineOptions(chunk_episodes=5, strategy=strategy))
+    light = engine.run_agents(mdp, params, keys, 12,
+                              engine.EngineOptions(chunk_episodes=5, strategy=strategy,
+                                                   keep_final_state=False))
     assert light.final_state is None and full.final_state is not None
     np.testing.assert_array_equal(light.returns, full.returns)
     np.testing.assert_array_equal(light.nonfinite, full.nonfinite)
@@ -365,13 +376,16 @@ def test_chunks_that_run_ahead_change_nothing_and_progress_stays_in_order(mdp, c
     one (no barrier); with them every agent waits at the chunk's end."""
     params, keys = _grid(3)
     calls = []
-    ahead = engine.run_agents(mdp, params, keys, 25, chunk_episodes=chunk_episodes, threads=2,
-                              strategy="sequential",
-                              progress=lambda done, total, _: calls.append((done, total)))
-    barrier = engine.run_agents(mdp, params, keys, 25, chunk_episodes=chunk_episodes,
-                                threads=2, strategy="sequential",
-                                on_chunk=lambda *_: None)
-    lockstep = engine.run_agents(mdp, params, keys, 25, strategy="lockstep")
+    ahead = engine.run_agents(mdp, params, keys, 25,
+                              engine.EngineOptions(chunk_episodes=chunk_episodes, threads=2,
+                                                   strategy="sequential"),
+                              engine.ChunkHooks(
+                                  progress=lambda done, total, _: calls.append((done, total))))
+    barrier = engine.run_agents(mdp, params, keys, 25,
+                                engine.EngineOptions(chunk_episodes=chunk_episodes, threads=2,
+                                                     strategy="sequential"),
+                                engine.ChunkHooks(on_chunk=lambda *_: None))
+    lockstep = engine.run_agents(mdp, params, keys, 25, engine.EngineOptions(strategy="lockstep"))
     _assert_same_run(ahead, lockstep)
     _assert_same_run(barrier, lockstep)
     agents = len(keys)
@@ -390,8 +404,9 @@ def test_an_error_between_chunks_stops_the_workers_and_propagates(mdp):
             raise RuntimeError("stop here")
 
     with pytest.raises(RuntimeError, match="stop here"):
-        engine.run_agents(mdp, params, keys, 25, chunk_episodes=2, threads=2,
-                          strategy="sequential", progress=progress)
+        engine.run_agents(mdp, params, keys, 25,
+                          engine.EngineOptions(chunk_episodes=2, threads=2, strategy="sequential"),
+                          engine.ChunkHooks(progress=progress))
     assert threading.active_count() == before
 
 

@@ -6,7 +6,7 @@ import jax
 import numpy as np
 import pytest
 
-from vdbejax.engine import agent_keys, broadcast_agents, run_agents
+from vdbejax.engine import EngineOptions, agent_keys, broadcast_agents, run_agents
 from vdbejax.envs import solvers
 from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents
 
@@ -89,7 +89,8 @@ def test_q_learning_greedy_policy_reaches_the_optimal_return(env_id, kwargs, max
     num_seeds = 4
     params = broadcast_agents(stack_agents([make_agent(Setting("qlearning", "egreedy", 0.1),
                                                        AgentOptions(gamma=0.9))]), num_seeds)
-    run = run_agents(mdp, params, agent_keys(0, num_seeds), 300, chunk_episodes=300)
+    run = run_agents(mdp, params, agent_keys(0, num_seeds), 300,
+                     EngineOptions(chunk_episodes=300))
     assert not run.nonfinite.any()
     for q in np.asarray(run.final_state.q):
         assert solvers.policy_return(mdp, solvers.greedy_policy(q)) == pytest.approx(best, abs=1e-5)

@@ -43,11 +43,13 @@ def assert_same_run(a: engine.RunResult, b: engine.RunResult) -> None:
 def test_kinds_mixed_in_one_batch_give_every_agent_its_bits():
     mdp = make_mdp()
     params, keys = grid(options=AgentOptions(tie_break="first"))  # the default is "random"
-    sequential = engine.run_agents(mdp, params, keys, 20, strategy="sequential")
+    sequential = engine.run_agents(mdp, params, keys, 20,
+                                   engine.EngineOptions(strategy="sequential"))
     for options in ({}, {"max_batch": 4, "min_batch": 1, "chunk_episodes": 9},
                     {"compact": False}, {"fixed_blocks": True, "block_iterations": 13}):
-        mixed = engine.run_agents(mdp, params, keys, 20, strategy="lockstep", mix_kinds=True,
-                                  **options)
+        mixed = engine.run_agents(mdp, params, keys, 20,
+                                  engine.EngineOptions(strategy="lockstep", mix_kinds=True,
+                                                       **options))
         assert_same_run(sequential, mixed)
 
 
@@ -55,7 +57,8 @@ def test_blocks_of_mixed_kinds_and_kinds_that_cannot_mix(monkeypatch):
     """More kinds than a program serves mix in blocks; a kind with a model runs alone."""
     mdp = make_mdp()
     params, keys = grid()
-    apart = engine.run_agents(mdp, params, keys, 15, strategy="lockstep", mix_kinds=False)
+    apart = engine.run_agents(mdp, params, keys, 15,
+                              engine.EngineOptions(strategy="lockstep", mix_kinds=False))
     monkeypatch.setattr(kinds, "MAX_SWITCH_KINDS", 2)
     from vdbejax.engine.lockstep import _kind_groups
 
@@ -63,8 +66,8 @@ def test_blocks_of_mixed_kinds_and_kinds_that_cannot_mix(monkeypatch):
     switches = [agent for agent, _ in groups if isinstance(agent, kinds.KindSwitch)]
     assert [len(s.kinds) for s in switches] == [2, 2, 2]  # six kinds mix, R-max alone
     assert sorted(np.concatenate([rows for _, rows in groups])) == list(range(len(keys)))
-    mixed = engine.run_agents(mdp, params, keys, 15, strategy="lockstep", mix_kinds=True,
-                              threads=2)
+    mixed = engine.run_agents(mdp, params, keys, 15,
+                              engine.EngineOptions(strategy="lockstep", mix_kinds=True, threads=2))
     assert_same_run(apart, mixed)
     # Kind after kind a chunk takes each kind's iterations; a block of kinds, its slowest's.
     assert mixed.iterations < apart.iterations
@@ -75,9 +78,11 @@ def test_mixed_kinds_on_an_instance_per_agent():
 
     params, keys = grid(SETTINGS[:5])
     instances = stack_instances([random_mdp(300 + i) for i in range(len(keys))])
-    sequential = engine.run_agents(instances, params, keys, 12, strategy="sequential")
-    mixed = engine.run_agents(instances, params, keys, 12, strategy="lockstep", mix_kinds=True,
-                              max_batch=8)
+    sequential = engine.run_agents(instances, params, keys, 12,
+                                   engine.EngineOptions(strategy="sequential"))
+    mixed = engine.run_agents(instances, params, keys, 12,
+                              engine.EngineOptions(strategy="lockstep", mix_kinds=True,
+                                                   max_batch=8))
     assert_same_run(sequential, mixed)
 
 

@@ -62,14 +62,15 @@ def test_every_strategy_batch_and_chunking_gives_every_agent_the_same_record(mdp
     params = engine.broadcast_agents(stack_agents([make_agent(s) for s in SETTINGS]), seeds)
     keys = np.tile(engine.agent_keys(0, seeds), (len(SETTINGS), 1))
     mask = optimal_action_mask(mdp)
-    plain = engine.run_agents(mdp, params, keys, 12, strategy="sequential")
+    plain = engine.run_agents(mdp, params, keys, 12, engine.EngineOptions(strategy="sequential"))
     assert plain.optimal is None
     records = []
     for options in ({"strategy": "sequential"}, {"strategy": "sequential", "chunk_episodes": 5},
                     {"strategy": "lockstep"}, {"strategy": "lockstep", "max_batch": 2,
                                                "chunk_episodes": 7, "min_batch": 1},
                     {"strategy": "lockstep", "compact": False}):
-        run = engine.run_agents(mdp, params, keys, 12, optimal_action=mask, **options)
+        run = engine.run_agents(mdp, params, keys, 12, engine.EngineOptions(**options),
+                                optimal_action=mask)
         assert np.array_equal(run.returns, plain.returns)
         assert np.array_equal(run.lengths, plain.lengths)
         records.append(run.optimal)

@@ -48,9 +48,10 @@ def test_thompson_sampling_gives_the_same_bits_in_both_strategies(task):
                 Setting("qlearning", "thompson", 0.5),
                 Setting("qlearning", "egreedy", 0.1)]
     params, keys = _grid_of(settings)
-    lockstep = engine.run_agents(mdp, params, keys, 30, strategy="lockstep")
-    sequential = engine.run_agents(mdp, params, keys, 30, strategy="sequential", threads=2,
-                                   chunk_episodes=11)
+    lockstep = engine.run_agents(mdp, params, keys, 30, engine.EngineOptions(strategy="lockstep"))
+    sequential = engine.run_agents(mdp, params, keys, 30,
+                                   engine.EngineOptions(strategy="sequential", threads=2,
+                                                        chunk_episodes=11))
     np.testing.assert_array_equal(lockstep.returns, sequential.returns)
     np.testing.assert_array_equal(lockstep.lengths, sequential.lengths)
     for a, b in zip(jax.tree.leaves(lockstep.final_state), jax.tree.leaves(sequential.final_state),

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vdbejax.engine import programs, run_agents
+from vdbejax.engine import EngineOptions, programs, run_agents
 from vdbejax.envs.table_cleaning import core as table_core
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods import explorers, learners, selection
@@ -25,7 +25,8 @@ SETTINGS = [Setting("qlearning", "egreedy", 0.1), Setting("sarsa", "vdbe", 1.0)]
 
 def _run(mdp=None, settings=SETTINGS, **options):
     params, keys = grid_agents(settings, 2)
-    return run_agents(mdp or make_mdp(), params, keys, 5, chunk_episodes=5, **options).returns
+    return run_agents(mdp or make_mdp(), params, keys, 5,
+                      EngineOptions(chunk_episodes=5, **options)).returns
 
 
 @pytest.fixture(params=["sequential", "lockstep"])
@@ -66,9 +67,9 @@ def test_runs_of_a_few_more_or_fewer_episodes_share_their_programs(monkeypatch, 
     # program, with the episodes of each run as it alone gives them.
     monkeypatch.setattr(programs, "_TABLE", type(programs._TABLE)())
     params, keys = grid_agents(SETTINGS, 2)
-    five = run_agents(make_mdp(), params, keys, 5, strategy=strategy)
+    five = run_agents(make_mdp(), params, keys, 5, EngineOptions(strategy=strategy))
     compiled = dict(programs._TABLE)
-    seven = run_agents(make_mdp(), params, keys, 7, strategy=strategy)
+    seven = run_agents(make_mdp(), params, keys, 7, EngineOptions(strategy=strategy))
     assert programs._TABLE.keys() == compiled.keys()
     assert seven.returns.shape == (4, 7) and five.returns.shape == (4, 5)
     assert seven.returns[:, :5].tobytes() == five.returns.tobytes()

@@ -117,19 +117,20 @@ def test_noisy_rewards_give_the_same_bits_in_both_strategies(outcomes):
                            probability=np.full((S, A, outcomes), 1 / outcomes),
                            max_steps=12, reward_noise=noise, reward_std=0.7)
     params, keys = _agents(2)
-    lockstep = engine.run_agents(mdp, params, keys, 25, strategy="lockstep")
-    sequential = engine.run_agents(mdp, params, keys, 25, strategy="sequential", threads=2,
-                                   chunk_episodes=7)
+    lockstep = engine.run_agents(mdp, params, keys, 25, engine.EngineOptions(strategy="lockstep"))
+    sequential = engine.run_agents(mdp, params, keys, 25,
+                                   engine.EngineOptions(strategy="sequential", threads=2,
+                                                        chunk_episodes=7))
     _same(sequential, lockstep)
     alone = engine.run_agents(mdp, jax.tree.map(lambda x: x[3:4], params), keys[3:4], 25,
-                              strategy="lockstep", chunk_episodes=9)
+                              engine.EngineOptions(strategy="lockstep", chunk_episodes=9))
     np.testing.assert_array_equal(alone.returns[0], lockstep.returns[3])
     # The noise is drawn: returns are not all sums of the means.
     plain = engine.run_agents(make_tabular_mdp(next_state, reward, terminal, np.full(S, 1 / S),
                                                probability=np.full((S, A, outcomes),
                                                                    1 / outcomes),
                                                max_steps=12),
-                              params, keys, 25, strategy="lockstep")
+                              params, keys, 25, engine.EngineOptions(strategy="lockstep"))
     assert not np.array_equal(plain.returns, lockstep.returns)
 
 
@@ -137,7 +138,7 @@ def test_a_gaussian_one_pull_task_returns_its_mean_and_variance_on_average():
     mdp = make_tabular_mdp(**one_state(next_state=[[0]], reward=[[2.0]], terminal=[[True]],
                                        reward_noise="gaussian", reward_std=3.0))
     params, keys = _agents(4)
-    run = engine.run_agents(mdp, params, keys, 1000, chunk_episodes=1000)
+    run = engine.run_agents(mdp, params, keys, 1000, engine.EngineOptions(chunk_episodes=1000))
     returns = np.asarray(run.returns, np.float64)  # 12,000 pulls: se 0.027 and 0.12
     assert returns.mean() == pytest.approx(2.0, abs=0.15)
     assert returns.var() == pytest.approx(9.0, rel=0.08)

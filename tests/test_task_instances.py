@@ -49,7 +49,7 @@ def test_every_agent_gets_the_bits_of_its_instance_alone(family):
     params, keys = grid()
     mdps = [family(100 + i) for i in range(len(keys))]
     instances = stack_instances(mdps)
-    runs = [engine.run_agents(instances, params, keys, EPISODES, **options)
+    runs = [engine.run_agents(instances, params, keys, EPISODES, engine.EngineOptions(**options))
             for options in ({"strategy": "sequential"},
                             {"strategy": "sequential", "chunk_episodes": 5},
                             {"strategy": "lockstep"},
@@ -62,11 +62,12 @@ def test_every_agent_gets_the_bits_of_its_instance_alone(family):
     for agent in (0, 4, len(keys) - 1):
         for strategy in ("sequential", "lockstep"):
             alone = engine.run_agents(mdps[agent], one(params, agent), keys[agent:agent + 1],
-                                      EPISODES, strategy=strategy)
+                                      EPISODES, engine.EngineOptions(strategy=strategy))
             assert np.array_equal(alone.returns[0], runs[0].returns[agent])
             assert np.array_equal(alone.lengths[0], runs[0].lengths[agent])
     # the instances differ, and so do the agents' results on them
-    shared = engine.run_agents(mdps[0], params, keys, EPISODES, strategy="sequential")
+    shared = engine.run_agents(mdps[0], params, keys, EPISODES,
+                               engine.EngineOptions(strategy="sequential"))
     assert not np.array_equal(shared.returns, runs[0].returns)
     assert np.array_equal(shared.returns[0], runs[0].returns[0])
 
@@ -77,9 +78,9 @@ def test_an_agent_with_its_instance_is_itself_in_a_batch_of_mixed_instances():
     mixed = [bandit_instance(200 + i) for i in range(len(keys))]
     mixed[5] = mine
     batch = engine.run_agents(stack_instances(mixed), params, keys, EPISODES,
-                              strategy="lockstep", max_batch=4, min_batch=1)
+                              engine.EngineOptions(strategy="lockstep", max_batch=4, min_batch=1))
     alone = engine.run_agents(stack_instances([mine]), one(params, 5), keys[5:6], EPISODES,
-                              strategy="sequential")
+                              engine.EngineOptions(strategy="sequential"))
     assert np.array_equal(alone.returns[0], batch.returns[5])
 
 
@@ -89,7 +90,8 @@ def test_the_optimal_actions_are_counted_against_each_instance():
     masks = np.stack([np.asarray(m.reward)[:, :, 0] == np.asarray(m.reward)[:, :, 0].max()
                       for m in mdps])
     records = [engine.run_agents(stack_instances(mdps), params, keys, EPISODES,
-                                 optimal_action=masks, strategy=strategy).optimal
+                                 engine.EngineOptions(strategy=strategy),
+                                 optimal_action=masks).optimal
                for strategy in ("sequential", "lockstep")]
     assert np.array_equal(records[0], records[1]) and records[0].sum() > 0
     agent = 7
@@ -200,7 +202,8 @@ def test_a_learner_is_told_the_facts_of_every_instance_whatever_the_batch():
                                    for i in range(4))
     whole = engine.run_agents(instances, params, keys, 8)
     part = engine.run_agents(instances.take([2, 3]), engine.broadcast_agents(
-        stack_agents([make_agent(ucbvi)]), 2), keys[2:], 8, strategy="lockstep")
+        stack_agents([make_agent(ucbvi)]), 2), keys[2:], 8,
+        engine.EngineOptions(strategy="lockstep"))
     assert np.array_equal(part.returns, whole.returns[2:])
 
 

@@ -14,7 +14,8 @@ Read it one module at a time:
 * :mod:`~vdbejax.engine.sequential` — native step loops of four agents side by side, one
   program for every kind (:mod:`~vdbejax.engine.kinds`), work items on threads
   (:mod:`~vdbejax.engine.work_items`; the default on a CPU);
-* :mod:`~vdbejax.engine.driver` — :func:`run_agents`, the Python loop over chunks;
+* :mod:`~vdbejax.engine.driver` — :func:`run_agents`, the Python loop over chunks, run
+  as its :class:`EngineOptions` say, calling its :class:`ChunkHooks` between chunks;
 * :mod:`~vdbejax.engine.instances` — a task instance per agent, riding with its
   hyperparameters.
 
@@ -27,6 +28,8 @@ recorded.
 """
 from vdbejax.engine.driver import (
     STRATEGIES,
+    ChunkHooks,
+    EngineOptions,
     RunResult,
     available_cpus,
     check_params,
@@ -52,6 +55,8 @@ __all__ = [
     "MAX_SAFE_BATCH",
     "STRATEGIES",
     "AgentState",
+    "ChunkHooks",
+    "EngineOptions",
     "ProgressCallback",
     "RunResult",
     "agent_keys",

@@ -36,6 +36,9 @@ from vdbejax.validation import check_choice, check_int
 
 Array = jax.Array
 
+#: Engine strategies of :func:`run_agents`.
+STRATEGIES = ("sequential", "lockstep")
+
 
 @dataclasses.dataclass
 class RunResult:
@@ -48,7 +51,7 @@ class RunResult:
       iterations: lockstep iterations executed; for the sequential strategy, the agents'
         own iterations (steps, plus one per episode start after a truncation).
       final_state: the agents' states after the last episode (numpy leaves; ``None``
-        with ``keep_final_state=False``).
+        with :attr:`EngineOptions.keep_final_state` ``False``).
       lane_iterations: Σ over executed loop iterations of the batch width (the
         agent-iterations paid for, idle lanes included; lower with compaction).
       strategy: the strategy that ran (``"sequential"`` or ``"lockstep"``; the last one
@@ -67,48 +70,26 @@ class RunResult:
     optimal: np.ndarray | None = None
 
 
-def run_agents(
-    mdp: TabularMDP | TaskInstances,
-    params: AgentParams,
-    keys: Any,
-    num_episodes: int,
-    *,
-    chunk_episodes: int = 100,
-    progress: ProgressCallback | None = None,
-    on_chunk: Callable[..., None] | None = None,
-    initial: tuple[Any, ...] | None = None,
-    compact: bool = True,
-    block_iterations: int = 256,
-    unroll: int = DEFAULT_UNROLL,
-    min_batch: int = 8,
-    max_batch: int | None = None,
-    strategy: str = "auto",
-    threads: int | None = None,
-    keep_final_state: bool = True,
-    programs: Programs | None = None,
-    chunk_states: bool = True,
-    fixed_blocks: bool | None = None,
-    chunk_seconds: float | None = None,
-    optimal_action: Any | None = None,
-    mix_kinds: bool | None = None,
-) -> RunResult:
-    """Train a batch of agents for ``num_episodes`` episodes each.
+@dataclasses.dataclass(frozen=True)
+class EngineOptions:
+    """How :func:`run_agents` runs its agents. None of it changes a result, only the speed
+    (as long as ``max_batch`` ≤ :data:`~vdbejax.engine.lockstep.MAX_SAFE_BATCH`; on a CPU,
+    the default) and what the result keeps (``keep_final_state``). ``None`` leaves a choice
+    to the backend (:mod:`~vdbejax.engine.rules`). A bad value fails here, in one line.
 
-    Args:
-      mdp: the task, or a :class:`~vdbejax.envs.instances.TaskInstances` (one instance per
-        agent, in agent order: each agent's results are those of the agent alone on its
-        instance, in any batch, under either strategy).
-      params: batched hyperparameters, leading axis = agents.
-      keys: uint32 ``[agents, 2]`` PRNG keys.
-      num_episodes: episodes per agent.
+    Attributes:
+      strategy: ``"sequential"`` (native step loops of a few agents side by side; agents are
+        spread over ``threads`` threads; the fast choice on CPU), ``"lockstep"`` (all
+        agents of a batch advance together, one vectorised step per iteration, with
+        compaction and groups as below; for accelerators, sharded agents and large
+        batches), or ``"auto"`` (:func:`~vdbejax.engine.rules.auto_strategy`).
+      threads: worker threads on a CPU (default: the CPUs this process may use): the
+        sequential strategy's work items, or the lockstep strategy's groups, run on them.
       chunk_episodes: episodes per jitted chunk (progress/checkpoint granularity; the
         results do not depend on it).
-      progress: called as ``progress(done_agent_episodes, total, elapsed_seconds)``.
-      on_chunk: called after each chunk with ``(episodes_done, agents, returns, lengths)``
-        (numpy arrays covering episodes ``[0, episodes_done)``), and ``optimal`` after
-        them with ``optimal_action``; used for checkpoints.
-      initial: resume from ``(episodes_done, agents, returns, lengths)`` (and
-        ``optimal`` after them with ``optimal_action``).
+      chunk_seconds: size chunks by time: about this many seconds each, every multiple
+        of ``chunk_episodes`` still a chunk end (:mod:`~vdbejax.engine.chunks`; a stop
+        waits for the chunk that runs). None: chunks of ``chunk_episodes``.
       compact: between blocks of ``block_iterations`` lockstep iterations, gather the
         still-active agents into a smaller power-of-two batch (at least ``min_batch``
         lanes) once at most half the lanes are active, so finished agents stop costing
@@ -120,39 +101,94 @@ def run_agents(
         default :func:`~vdbejax.engine.rules.default_max_batch`:
         :data:`~vdbejax.engine.lockstep.MAX_SAFE_BATCH` on a CPU, every agent of a group
         on an accelerator).
-
-      strategy: ``"sequential"`` (native step loops of a few agents side by side; agents are
-        spread over ``threads`` threads; the fast choice on CPU), ``"lockstep"`` (all
-        agents of a batch advance together, one vectorised step per iteration, with
-        compaction and groups as above; for accelerators, sharded agents and large
-        batches), or ``"auto"`` (:func:`~vdbejax.engine.rules.auto_strategy`).
-      threads: worker threads on a CPU (default: the CPUs this process may use): the
-        sequential strategy's work items, or the lockstep strategy's groups, run on them.
-      keep_final_state: ``False`` leaves :attr:`RunResult.final_state` ``None``, which
-        spares gathering every agent's tables on the host at the end (large tasks).
-      programs: the compiled programs to share with other calls of one study
-        (:class:`~vdbejax.engine.programs.Programs`; default: this call's own; either
-        way a program traced before in this process for the same plug-in code is reused).
-      chunk_states: ``False`` hands ``on_chunk`` ``None`` for the agents (no copy of
-        every agent's tables after each chunk, when only the episodes are wanted).
       fixed_blocks: the lockstep strategy's blocks are exactly ``block_iterations``
         iterations, loops of known trip count (default: on accelerators, where a loop
         condition that depends on the data costs a round trip to the host per
         iteration; on a CPU the condition is free and a block stops when its lanes do).
-      chunk_seconds: size chunks by time: about this many seconds each, every multiple
-        of ``chunk_episodes`` still a chunk end (:mod:`~vdbejax.engine.chunks`; a stop
-        waits for the chunk that runs). None: chunks of ``chunk_episodes``.
+      mix_kinds: the lockstep strategy runs agents of several kinds in one batch, each
+        lane its own kind (:func:`~vdbejax.engine.rules.mixes_kinds`: default on
+        accelerators), instead of kind after kind.
+      keep_final_state: ``False`` leaves :attr:`RunResult.final_state` ``None``, which
+        spares gathering every agent's tables on the host at the end (large tasks).
+      programs: the compiled programs to share with other calls of one study
+        (:class:`~vdbejax.engine.programs.Programs`; default: the call's own; either
+        way a program traced before in this process for the same plug-in code is reused).
+    """
+
+    strategy: str = "auto"
+    threads: int | None = None
+    chunk_episodes: int = 100
+    chunk_seconds: float | None = None
+    compact: bool = True
+    block_iterations: int = 256
+    unroll: int = DEFAULT_UNROLL
+    min_batch: int = 8
+    max_batch: int | None = None
+    fixed_blocks: bool | None = None
+    mix_kinds: bool | None = None
+    keep_final_state: bool = True
+    programs: Programs | None = None
+
+    def __post_init__(self) -> None:
+        check_int("chunk_episodes", self.chunk_episodes, 1)
+        check_int("block_iterations", self.block_iterations, 1)
+        check_int("unroll", self.unroll, 1)
+        check_int("min_batch", self.min_batch, 1)
+        if self.max_batch is not None:
+            check_int("max_batch", self.max_batch, 1)
+        check_choice("strategy", self.strategy, (*STRATEGIES, "auto"))
+        if self.threads is not None:
+            check_int("threads", self.threads, 1)
+
+
+@dataclasses.dataclass(frozen=True)
+class ChunkHooks:
+    """What :func:`run_agents` calls between its chunks.
+
+    Attributes:
+      progress: called as ``progress(done_agent_episodes, total, elapsed_seconds)`` at the
+        start and after each chunk.
+      on_chunk: called after each chunk with ``(episodes_done, agents, returns, lengths)``
+        (numpy arrays covering episodes ``[0, episodes_done)``), and ``optimal`` after
+        them with ``optimal_action``; used for checkpoints.
+      chunk_states: ``False`` hands ``on_chunk`` ``None`` for the agents (no copy of
+        every agent's tables after each chunk, when only the episodes are wanted).
+    """
+
+    progress: ProgressCallback | None = None
+    on_chunk: Callable[..., None] | None = None
+    chunk_states: bool = True
+
+
+def run_agents(
+    mdp: TabularMDP | TaskInstances,
+    params: AgentParams,
+    keys: Any,
+    num_episodes: int,
+    options: EngineOptions = EngineOptions(),
+    hooks: ChunkHooks = ChunkHooks(),
+    *,
+    initial: tuple[Any, ...] | None = None,
+    optimal_action: Any | None = None,
+) -> RunResult:
+    """Train a batch of agents for ``num_episodes`` episodes each.
+
+    Args:
+      mdp: the task, or a :class:`~vdbejax.envs.instances.TaskInstances` (one instance per
+        agent, in agent order: each agent's results are those of the agent alone on its
+        instance, in any batch, under either strategy).
+      params: batched hyperparameters, leading axis = agents.
+      keys: uint32 ``[agents, 2]`` PRNG keys.
+      num_episodes: episodes per agent.
+      options: how the agents run (:class:`EngineOptions`: strategy, threads, chunks,
+        batches; none changes a result).
+      hooks: what is called between chunks (:class:`ChunkHooks`: progress, checkpoints).
+      initial: resume from ``(episodes_done, agents, returns, lengths)`` (and
+        ``optimal`` after them with ``optimal_action``).
       optimal_action: bool ``[S, A]`` (``[agents, S, A]`` with instances), the actions
         that count as optimal: each episode's steps taking one are counted
         (:attr:`RunResult.optimal`). ``None`` (default):
         no count, the same programs and results as without it.
-      mix_kinds: the lockstep strategy runs agents of several kinds in one batch, each
-        lane its own kind (:func:`~vdbejax.engine.rules.mixes_kinds`: default on
-        accelerators), instead of kind after kind.
-
-    None of ``compact`` … ``threads``, ``fixed_blocks`` nor ``mix_kinds`` change the
-    results, only the speed, as long as ``max_batch`` ≤
-    :data:`~vdbejax.engine.lockstep.MAX_SAFE_BATCH` (see there; on a CPU, the default).
 
     Every kind's learner is first set for the task (:func:`~vdbejax.engine.state.for_task`:
     the facts of ``mdp`` a method's convention depends on).
@@ -161,13 +197,6 @@ def run_agents(
       :class:`RunResult`.
     """
     check_int("num_episodes", num_episodes, 1)
-    check_int("chunk_episodes", chunk_episodes, 1)
-    check_int("block_iterations", block_iterations, 1)
-    check_int("unroll", unroll, 1)
-    check_int("min_batch", min_batch, 1)
-    if max_batch is not None:
-        check_int("max_batch", max_batch, 1)
-    check_choice("strategy", strategy, (*STRATEGIES, "auto"))
     check_params(params, mdp.num_actions)
     if isinstance(mdp, TaskInstances):  # each agent's instance rides with its params
         instances = with_instance_masks(mdp, optimal_action)
@@ -176,20 +205,18 @@ def run_agents(
     else:
         params = for_task(params, mdp)
         mdp = with_optimal_action(mdp, optimal_action)
-    if threads is None:
-        threads = available_cpus()
-    check_int("threads", threads, 1)
+    threads = available_cpus() if options.threads is None else options.threads
     num_agents = int(np.shape(keys)[0])
+    strategy = options.strategy
     if strategy == "auto":
         strategy, _ = auto_strategy(num_agents, sharded=_is_sharded(params, keys))
     keys = jnp.asarray(keys, jnp.uint32)
-    chunk = min(chunk_episodes, num_episodes)
+    chunk = min(options.chunk_episodes, num_episodes)
     buffer = chunk_buffer_length(chunk)
     returns = np.zeros((num_agents, num_episodes), np.float32)
     lengths = np.zeros((num_agents, num_episodes), np.int32)
     optimal = None if optimal_action is None else np.zeros_like(lengths)
-    if programs is None:
-        programs = Programs()
+    programs = Programs() if options.programs is None else options.programs
     agents: AgentState | None
     if initial is None:
         done = 0
@@ -203,6 +230,7 @@ def run_agents(
         agents = jax.tree.map(jnp.asarray, agents)
     iterations = lane_iterations = 0
     started = time.perf_counter()
+    progress, on_chunk = hooks.progress, hooks.on_chunk
     if progress:
         progress(done * num_agents, num_episodes * num_agents, 0.0)
     # The sequential strategy keeps the agents' state in its work items; ``agents`` is
@@ -217,7 +245,7 @@ def run_agents(
         assert agents is not None  # created above unless the sequential strategy holds them
         return agents
 
-    bounds = ChunkSchedule(done, num_episodes, chunk, chunk_seconds)
+    bounds = ChunkSchedule(done, num_episodes, chunk, options.chunk_seconds)
     if sequential is not None and bounds.exists(0) and not sequential.prepare(buffer):
         # not compiled natively: lockstep is faster
         strategy, agents, sequential = "lockstep", sequential.agents(), None
@@ -225,25 +253,16 @@ def run_agents(
     def lockstep_chunks() -> Generator[list[Any], None, None]:
         nonlocal agents
         assert agents is not None  # lockstep: the agents' state is here
-        backend = jax.default_backend()
-        on_cpu = backend == "cpu"
-        options = LockstepOptions(
-            compact=compact, block_iterations=block_iterations, unroll=unroll,
-            min_batch=min_batch,
-            max_batch=(default_max_batch(agents, params, buffer, backend) if max_batch is None
-                       else max_batch),
-            threads=threads if on_cpu else 1,
-            fixed_blocks=not on_cpu if fixed_blocks is None else fixed_blocks,
-            mix_kinds=mixes_kinds(backend) if mix_kinds is None else mix_kinds)
+        lockstep = _lockstep_options(options, threads, agents, params, buffer)
         for first, end in bounds:
             agents, *outputs = run_chunk_lockstep(
-                mdp, params, agents, first, end, buffer, options, programs)
+                mdp, params, agents, first, end, buffer, lockstep, programs)
             yield outputs
 
     # The sequential strategy runs the next chunk while this loop stores one; a checkpoint
     # then gets the copies each work item takes at the chunk's end, unless the agents are
     # large (a second copy of every table): those wait at each chunk's end instead.
-    states = on_chunk is not None and chunk_states
+    states = on_chunk is not None and hooks.chunk_states
     wait = states and created_in_items(mdp, params)
     chunks = (lockstep_chunks() if sequential is None else
               sequential.run_chunks(bounds, buffer, ahead=0 if wait else 1,
@@ -271,7 +290,7 @@ def run_agents(
             bounds.handled(c)
     finally:  # the workers stop (and none is left running) whatever happens here
         chunks.close()
-    if keep_final_state:
+    if options.keep_final_state:
         final = jax.tree.map(np.asarray, current_agents())
         nonfinite = np.asarray(final.nonfinite)
     else:  # the flags alone: no tables gathered
@@ -283,6 +302,22 @@ def run_agents(
             nonfinite = sequential.nonfinite_flags()
     return RunResult(returns, lengths, nonfinite, iterations, final, lane_iterations, strategy,
                      optimal)
+
+
+def _lockstep_options(options: EngineOptions, threads: int, agents: AgentState,
+                      params: AgentParams, buffer: int) -> LockstepOptions:
+    """``options`` as the lockstep strategy runs them on this backend: each choice left to
+    the backend made (:mod:`~vdbejax.engine.rules`), one thread on an accelerator."""
+    backend = jax.default_backend()
+    on_cpu = backend == "cpu"
+    return LockstepOptions(
+        compact=options.compact, block_iterations=options.block_iterations,
+        unroll=options.unroll, min_batch=options.min_batch,
+        max_batch=(default_max_batch(agents, params, buffer, backend)
+                   if options.max_batch is None else options.max_batch),
+        threads=threads if on_cpu else 1,
+        fixed_blocks=not on_cpu if options.fixed_blocks is None else options.fixed_blocks,
+        mix_kinds=mixes_kinds(backend) if options.mix_kinds is None else options.mix_kinds)
 
 
 def with_optimal_action(mdp: TabularMDP, optimal_action: Any | None) -> TabularMDP:
@@ -307,10 +342,6 @@ def chunk_buffer_length(chunk_episodes: int) -> int:
     of 5, 6 or 8 episodes (or chunks of 90 and 100) share one program instead of
     compiling one each; episodes past the chunk's end stay unwritten."""
     return max(8, next_power_of_two(int(chunk_episodes)))
-
-
-#: Engine strategies of :func:`run_agents`.
-STRATEGIES = ("sequential", "lockstep")
 
 
 def available_cpus() -> int:

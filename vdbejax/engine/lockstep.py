@@ -292,8 +292,9 @@ def _kind_groups(params: AgentParams, kinds: np.ndarray, mix_kinds: bool
 @dataclasses.dataclass(frozen=True)
 class LockstepOptions:
     """How :func:`run_chunk_lockstep` runs a chunk (none changes a result, given
-    ``max_batch`` ≤ :data:`MAX_SAFE_BATCH`; as in :func:`~vdbejax.engine.run_agents`,
-    which resolves them for the backend).
+    ``max_batch`` ≤ :data:`MAX_SAFE_BATCH`): the lockstep part of a call's
+    :class:`~vdbejax.engine.EngineOptions`, each choice it leaves to the backend made
+    (by :func:`~vdbejax.engine.run_agents`).
 
     Attributes:
       compact: a group is a stream of a kind's agents through a batch of ``max_batch``

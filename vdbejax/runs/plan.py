@@ -28,7 +28,15 @@ from typing import Any
 import jax
 import numpy as np
 
-from vdbejax.engine import AgentState, RunResult, auto_strategy, mixes_kinds, run_agents
+from vdbejax.engine import (
+    AgentState,
+    ChunkHooks,
+    EngineOptions,
+    RunResult,
+    auto_strategy,
+    mixes_kinds,
+    run_agents,
+)
 from vdbejax.engine.distributed import (
     agent_mesh,
     local_devices,
@@ -110,22 +118,21 @@ class RunPlan:
                    optimal_action: np.ndarray | None = None) -> RunResult:
         """One engine call on a batch (sharded over :attr:`local` when there are several):
         :func:`~vdbejax.engine.run_agents` to ``num_episodes`` episodes."""
-        options: dict[str, Any] = dict(chunk_episodes=self.chunk_episodes, strategy=self.strategy,
-                                       compact=self.compact, threads=self.threads,
-                                       mix_kinds=self.mix_kinds,
-                                       on_chunk=on_chunk, chunk_states=chunk_states,
-                                       chunk_seconds=self.chunk_seconds,
-                                       keep_final_state=keep_final_state, programs=programs,
-                                       optimal_action=optimal_action)
+        options = EngineOptions(chunk_episodes=self.chunk_episodes, strategy=self.strategy,
+                                compact=self.compact, threads=self.threads,
+                                mix_kinds=self.mix_kinds, chunk_seconds=self.chunk_seconds,
+                                keep_final_state=keep_final_state, programs=programs)
+        hooks = ChunkHooks(on_chunk=on_chunk, chunk_states=chunk_states)
         if not self.sharded:
-            return run_agents(mdp, params, keys, num_episodes, initial=initial, **options)
+            return run_agents(mdp, params, keys, num_episodes, options, hooks, initial=initial,
+                              optimal_action=optimal_action)
         mesh = agent_mesh(self.local)
         (params, keys), count = pad_agents((params, np.asarray(keys, np.uint32)),
                                            len(self.local))
         if isinstance(mdp, TaskInstances):  # the padding agents' instances: the last one's
             mdp = mdp.take(pad_agents(np.arange(count), len(self.local))[0])
             if optimal_action is not None:
-                options["optimal_action"] = pad_agents(optimal_action, len(self.local))[0]
+                optimal_action = pad_agents(optimal_action, len(self.local))[0]
         params, keys = shard_agents((params, keys), mesh)
         if initial is not None:
             done, agents, *episodes = initial  # returns, lengths (and optimal-action counts)
@@ -138,8 +145,9 @@ class RunPlan:
                 real(done, None if agents is None else unpad_agents(agents, count),
                      *(array[:count] for array in episodes))
 
-            options["on_chunk"] = unpadded
-        result = run_agents(mdp, params, keys, num_episodes, initial=initial, **options)
+            hooks = dataclasses.replace(hooks, on_chunk=unpadded)
+        result = run_agents(mdp, params, keys, num_episodes, options, hooks, initial=initial,
+                            optimal_action=optimal_action)
         final = result.final_state
         return dataclasses.replace(
             result, returns=result.returns[:count], lengths=result.lengths[:count],

@@ -8,7 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from vdbejax.engine import AgentState, agent_keys, broadcast_agents, run_agents
+from vdbejax.engine import (
+    AgentState,
+    ChunkHooks,
+    EngineOptions,
+    agent_keys,
+    broadcast_agents,
+    run_agents,
+)
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents, table_layout
 
@@ -64,7 +71,7 @@ def table_snapshots(
         snapshots.append(np.array(agents.q if table == "q" else agents.tables[table]))
 
     run = run_agents(mdp, params, agent_keys(seed, num_seeds), num_episodes,
-                     chunk_episodes=every, on_chunk=record)
+                     EngineOptions(chunk_episodes=every), ChunkHooks(on_chunk=record))
     return np.asarray(episodes), np.stack(snapshots), run.returns
 
 
