@@ -10,9 +10,13 @@ import pytest
 from vdbejax import cli
 from vdbejax.results import io
 from vdbejax.studies import folder as studies_folder
+from vdbejax.runs import RunOptions
 from vdbejax.studies import sweeps
+from vdbejax.studies.sweeps import Sweep
 
-SWEEP = dict(learners=["qlearning"], explorers=["egreedy"], seeds=2, episodes=12, progress=False)
+QUIET = RunOptions(progress=False)
+SWEEP = dict(sweep=Sweep(learners=["qlearning"], explorers=["egreedy"]), seeds=2, episodes=12,
+             run=QUIET)
 
 
 def one_error_line(capsys) -> str:
@@ -51,15 +55,16 @@ def test_a_finished_folder_is_not_replaced_without_overwrite(finished, trainings
         sweeps.run_sweep(finished, **{**SWEEP, "seeds": 3})
     assert not trainings
     assert (finished / io.RETURNS_FILE).read_bytes() == before
-    sweeps.run_sweep(finished, **{**SWEEP, "seeds": 3}, overwrite=True)
+    sweeps.run_sweep(finished, **{**SWEEP, "seeds": 3, "run": QUIET.replace(overwrite=True)})
     assert trainings and io.load_json(finished / io.META_FILE)["num_seeds"] == 3
 
 
 def test_resume_continues_only_the_same_run(finished, trainings):
-    reused = sweeps.run_sweep(finished, **SWEEP, resume=True)  # a no-op on a finished run
+    reused = sweeps.run_sweep(finished, **{**SWEEP, "run": QUIET.replace(resume=True)})  # a no-op on a finished run
     assert not trainings and reused.num_seeds == 2
     with pytest.raises(ValueError, match=r"finished result of a different run.*--overwrite"):
-        sweeps.run_sweep(finished, **{**SWEEP, "episodes": 13}, resume=True)
+        sweeps.run_sweep(finished, **{**SWEEP, "episodes": 13,
+                                      "run": QUIET.replace(resume=True)})
     assert not trainings
 
 
@@ -109,9 +114,10 @@ def test_sweeps_grids_and_options_take_numpy_scalars(tmp_path):
     from vdbejax.methods import Setting
 
     plain = sweeps.run_sweep(tmp_path / "plain", **SWEEP, seed=1)
-    numpy = sweeps.run_sweep(tmp_path / "numpy", learners=["qlearning"], explorers=["egreedy"],
-                             seeds=np.int64(2), episodes=np.int32(12), seed=np.uint32(1),
-                             axes={"alpha": [np.float64(0.1), np.float32(0.5)]}, progress=False)
+    numpy = sweeps.run_sweep(tmp_path / "numpy", sweeps.Sweep(
+        learners=["qlearning"], explorers=["egreedy"],
+        axes={"alpha": [np.float64(0.1), np.float32(0.5)]}), seeds=np.int64(2),
+        episodes=np.int32(12), seed=np.uint32(1), run=QUIET)
     assert np.array_equal(plain.returns, numpy.returns[:1])
     assert io.load_json(tmp_path / "numpy" / io.META_FILE)["fingerprint"]
     run = vdbejax.RunOptions(chunk_episodes=np.int64(4), devices=np.int64(1),
@@ -255,7 +261,8 @@ def test_curves_that_coincide_still_show_every_colour():
 def test_sensitivity_plots_the_swept_alpha_when_the_explorers_parameter_is_fixed(tmp_path):
     from vdbejax.results.plotting import sensitivity
 
-    sweeps.run_sweep(tmp_path, **{**SWEEP, "axes": {"alpha": [0.1, 0.3, 0.8]}}, figures=False)
+    sweeps.run_sweep(tmp_path, **{**SWEEP, "sweep": Sweep(learners=["qlearning"],
+                     explorers=["egreedy"], axes={"alpha": [0.1, 0.3, 0.8]})}, figures=False)
     figure = sensitivity(io.read_csv(tmp_path / sweeps.SUMMARY_FILE))
     assert figure.axes[1].get_xlabel().startswith("α")
     drawn = [line for line in figure.axes[0].get_lines() if len(line.get_xdata()) == 3]
@@ -320,7 +327,8 @@ def test_compare_puts_two_folders_settings_side_by_side(finished, tmp_path, caps
     import csv
 
     other = tmp_path / "other"
-    sweeps.run_sweep(other, **{**SWEEP, "explorers": ["egreedy", "vdbe"]}, seed=1)
+    sweeps.run_sweep(other, **{**SWEEP, "sweep": Sweep(learners=["qlearning"],
+                                                       explorers=["egreedy", "vdbe"])}, seed=1)
     table = tmp_path / "compare.csv"
     assert cli.main(["compare", str(finished), str(other), "--csv", str(table)]) == 0
     text = capsys.readouterr().out

@@ -9,6 +9,7 @@ from vdbejax.cli.common import (
     add_run_flags,
     refuse_sizes_with_quick,
     run_flags,
+    run_options,
     size_values,
     write_long_csv,
 )
@@ -102,8 +103,8 @@ def _table(text: str, flag: str) -> dict[str, object]:
 
 
 def run_command(args: argparse.Namespace) -> None:
-    from vdbejax.studies.sweep_file import read_sweep_file
-    from vdbejax.studies.sweeps import run_sweep
+    from vdbejax.studies.sweep_file import SPEC_KEYS, read_sweep_file
+    from vdbejax.studies.sweeps import Sweep, run_sweep
 
     spec = read_sweep_file(args.config) if args.config else {}
     for key in ("task", "seeds", "replicates", "episodes", "seed", "max_steps",
@@ -133,8 +134,11 @@ def run_command(args: argparse.Namespace) -> None:
         if key not in spec and not spec["settings"]:
             raise ValueError(f"{key} is missing: give --{key} or a sweep file with {key} = [...]"
                              " (or explicit settings: --setting, settings = [...])")
-    result = run_sweep(args.out, progress=not args.quiet, figures=not args.no_figures,
-                       **run_flags(args), **spec)
+    mechanics = {key: spec.pop(key) for key in ("chunk_episodes", "evaluate_every",
+                                                "record_optimal") if key in spec}
+    sweep = Sweep(**{key: spec.pop(key) for key in SPEC_KEYS if key in spec})
+    result = run_sweep(args.out, sweep, figures=not args.no_figures,
+                       run=run_options(args, progress=not args.quiet, **mechanics), **spec)
     from vdbejax.results.summary import read_summary
     from vdbejax.studies.sweeps import SUMMARY_FILE
 
