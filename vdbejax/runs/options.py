@@ -22,6 +22,8 @@ from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, p
 
 #: Engine strategies a run may ask for (``"auto"``: the plan decides, :mod:`vdbejax.runs.plan`).
 STRATEGIES = ("auto", "sequential", "lockstep")
+#: The fields that change only the speed of a run, which every study takes.
+SPEED_FIELDS = ("memory_budget_bytes", "devices", "strategy", "threads", "mix_kinds")
 
 
 @dataclasses.dataclass(frozen=True)
