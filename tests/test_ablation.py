@@ -6,6 +6,7 @@ import pytest
 
 from vdbejax import cli
 from vdbejax.paper import ablation
+from vdbejax.runs import RunOptions
 
 VARIANTS = "spec,invalid_fail"
 
@@ -52,7 +53,7 @@ def test_reuse_saved_results(ablated):
     out, raw, _ = ablated
     before = json.loads((raw / "spec" / "meta.json").read_text())
     results = ablation.ablate(out, results_dir=raw, variants=ablation.select_variants("spec"),
-                              seeds=2, episodes=12, progress=False)
+                              seeds=2, episodes=12, run=RunOptions(progress=False))
     after = json.loads((raw / "spec" / "meta.json").read_text())
     assert after["elapsed_seconds"] == before["elapsed_seconds"]  # reused, not retrained
     assert [r.how for r in results] == ["reused"]  # and said so in the status line
@@ -153,7 +154,7 @@ def test_factorial_mode_and_sections_in_the_document(tmp_path):
     # REPRODUCTION.md's sections: a variants × claims table per other mode, with "Most".
     results = ablation.ablate(tmp_path / "doc", results_dir=tmp_path / "raw",
                               variants=ablation.select_variants("spec"), seeds=2, episodes=12,
-                              progress=False)
+                              run=RunOptions(progress=False))
     section = ("Factorial", "intro text", "factorial", [
         ablation.run_variant(v, tmp_path / "factorial" / v.name, seeds=2, episodes=12,
                              replicates=5, figures=False)  # the command's: reused

@@ -81,8 +81,8 @@ def test_reproduce_after_a_run_is_refused(finished, trainings):
     import vdbejax
 
     with pytest.raises(ValueError, match="holds a finished result"):
-        vdbejax.reproduce(finished, seeds=1, episodes=2, replicates=1, progress=False,
-                          figures=False)
+        vdbejax.reproduce(finished, seeds=1, episodes=2, replicates=1, figures=False,
+                          run=QUIET)
     assert not trainings
 
 
@@ -95,8 +95,8 @@ def test_reproduce_takes_numpy_scalars_and_labels_its_sizes_and_reading(tmp_path
     out = tmp_path / "paper"
     rep = vdbejax.reproduce(out, seeds=np.int64(2), episodes=np.int64(3), seed=np.int64(2),
                             replicates=np.int64(2), alpha=np.float64(0.1),
-                            q_init=np.float32(0.0), chunk_episodes=np.int64(2),
-                            progress=np.bool_(True), figures=np.bool_(False))
+                            q_init=np.float32(0.0), figures=np.bool_(False),
+                            run=RunOptions(chunk_episodes=np.int64(2), progress=np.bool_(True)))
     meta = io.load_json(out / io.META_FILE)
     assert (meta["replicates"], meta["agents_per_replicate"], meta["num_episodes"]) == (2, 2, 3)
     assert rep.result.returns.shape == (46, 4, 3)

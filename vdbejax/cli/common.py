@@ -41,11 +41,6 @@ def run_options(args: argparse.Namespace, **fields: Any) -> Any:
                       memory_budget_bytes=args.memory_budget, **fields)
 
 
-def run_flags(args: argparse.Namespace) -> dict[str, Any]:
-    return {"resume": args.resume, "overwrite": args.overwrite, "devices": args.devices,
-            "memory_budget_bytes": args.memory_budget}
-
-
 def write_long_csv(folder: str, out: str) -> list[Path]:
     """``--long-csv``: the returns table of the runs in ``folder`` as ``returns_long.csv``
     in ``out`` (:func:`vdbejax.results.export.export_results`, replacing an earlier one)."""

@@ -30,6 +30,7 @@ from vdbejax.results.replicates import (
 from vdbejax.results.stats import CurveStatistics
 from vdbejax.results.summary import SummaryRow
 from vdbejax.runs import RunOptions, prepare_grid
+from vdbejax.runs.options import SPEED_FIELDS, study_run
 from vdbejax.studies import CHECKPOINT_FILE as CHECKPOINT_FILE
 from vdbejax.studies import sweeps, train_in_folder
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, check_writable_dir
@@ -136,6 +137,10 @@ def reading_settings(reading: str, details: dict | None = None) -> list[Setting]
             for s in paper_settings()]
 
 
+#: The run options :func:`reproduce` takes.
+REPRODUCE_RUN_FIELDS = ("chunk_episodes", "progress", "resume", "overwrite", *SPEED_FIELDS)
+
+
 def reproduce(
     out_dir: str | os.PathLike,
     *,
@@ -150,13 +155,8 @@ def reproduce(
     tie_break: str | None = None,
     q_init: float = 0.0,
     alpha: float = PAPER_ALPHA,
-    chunk_episodes: int | None = None,
-    resume: bool = False,
-    overwrite: bool = False,
-    progress: bool = True,
-    memory_budget_bytes: int | str | None = None,
-    devices: int | None = None,
     figures: bool = True,
+    run: RunOptions | None = None,
 ) -> Reproduction:
     """Run the paper's 46 settings × ``replicates`` × ``seeds`` agents × ``episodes`` and
     write all outputs.
@@ -191,19 +191,19 @@ def reproduce(
         the authors).
       q_init: initial Q value (the spec's option).
       alpha: learning rate α of every agent (default: the paper's).
-      chunk_episodes: episodes per jitted chunk (checkpoint granularity; None: the plan's,
-        :func:`~vdbejax.runs.plan.default_chunk_episodes`: 100 for the paper grid).
-      resume: continue an interrupted run from ``out_dir/checkpoint.npz``
-        (bit-identically), or load ``out_dir``'s finished result of this same run.
-      overwrite: replace a finished result (or an interrupted run's checkpoint) that
-        ``out_dir`` holds; without it that is refused (:func:`~vdbejax.studies.train_in_folder`).
-      progress: a progress bar and a closing status line on stderr.
-      memory_budget_bytes: per-device memory budget, passed to
-        :func:`~vdbejax.experiment.run_grid`; changes only the speed, never the results.
-      devices: devices to shard over, passed to :func:`~vdbejax.experiment.run_grid`;
-        changes only the speed, never the results.
       figures: draw ``fig3.png`` and ``sensitivity.png`` (``False``: the numbers only;
         ``vdbejax plot`` draws them later from the saved results).
+      run: how it runs (:class:`~vdbejax.runs.RunOptions`, default
+        ``RunOptions(progress=True)``), the fields of :data:`REPRODUCE_RUN_FIELDS`:
+        ``chunk_episodes``: episodes per jitted chunk (checkpoint granularity; None: the
+        plan's, :func:`~vdbejax.runs.plan.default_chunk_episodes`: 100 for the paper
+        grid); ``progress``: a progress bar and a closing status line on stderr;
+        ``resume`` continues an interrupted run from ``out_dir/checkpoint.npz``
+        (bit-identically), or loads ``out_dir``'s finished result of this same run;
+        ``overwrite`` replaces a finished result (or an interrupted run's checkpoint) that
+        ``out_dir`` holds (without it that is refused,
+        :func:`~vdbejax.studies.train_in_folder`); the others change only the speed,
+        never the results.
 
     Returns:
       :class:`Reproduction`: the grid, summary rows, scored claims, the task's best
@@ -213,6 +213,7 @@ def reproduce(
       ValueError: an invalid option (message names it and what is allowed), or an
         output folder that cannot be written.
     """
+    run = study_run(run, "reproduce", REPRODUCE_RUN_FIELDS)
     check_choice("reading", reading, READINGS)
     if reading == "authors":
         if invalid_action != "noop":
@@ -233,10 +234,7 @@ def reproduce(
     seeds = check_int("seeds", seeds, 1, INT32_MAX)
     episodes = check_int("episodes", episodes, 1, INT32_MAX)
     replicates = check_replicates(replicates, seeds)
-    progress = check_bool("progress", progress)
     figures = check_bool("figures", figures)
-    run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
-                     overwrite=overwrite, memory_budget_bytes=memory_budget_bytes, devices=devices)
     prepared = prepare_grid(mdp, settings, num_seeds=seeds * replicates, num_episodes=episodes,
                             seed=seed, options=options, run=run)
     best = best_return(mdp)
@@ -267,7 +265,7 @@ def reproduce(
         bands=figures and replicates == 1)
     elapsed = time.perf_counter() - started
     out = Path(out_dir)
-    if progress:
+    if run.progress:
         agents = (f"{replicates} replicates × {seeds} agents" if replicates > 1
                   else f"{seeds} agents")
         print(f"{reading} reading: {len(result.settings)} settings × {agents} × {episodes}"
