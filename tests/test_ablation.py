@@ -5,6 +5,7 @@ import json
 import pytest
 
 from vdbejax import cli
+from vdbejax.methods.agents import AgentOptions
 from vdbejax.paper import ablation
 from vdbejax.runs import RunOptions
 
@@ -66,9 +67,9 @@ def test_reuse_saved_results(ablated):
 
 def test_variants_cover_each_open_detail():
     names = {v.name for v in ablation.VARIANTS}
-    assert ablation.VARIANTS[0].options() == {"max_steps": 100, "invalid_action": "noop",
-                                              "tie_break": "random", "q_init": 0.0, "alpha": 0.8,
-                                              "reading": "textbook", "details": {}}
+    assert ablation.VARIANTS[0].options() == {
+        "max_steps": 100, "invalid_action": "noop", "reading": "textbook", "details": {},
+        "options": AgentOptions(tie_break="random", q_init=0.0, alpha=0.8)}
     assert {v.invalid_action for v in ablation.VARIANTS} == {"noop", "fail"}
     assert {v.tie_break for v in ablation.VARIANTS} == {"random", "first"}
     assert len({v.max_steps for v in ablation.VARIANTS}) >= 3

@@ -8,9 +8,10 @@ from pathlib import Path
 import pytest
 
 from vdbejax import cli
+from vdbejax.methods.agents import AgentOptions
 from vdbejax.results import io
-from vdbejax.studies import folder as studies_folder
 from vdbejax.runs import RunOptions
+from vdbejax.studies import folder as studies_folder
 from vdbejax.studies import sweeps
 from vdbejax.studies.sweeps import Sweep
 
@@ -94,8 +95,8 @@ def test_reproduce_takes_numpy_scalars_and_labels_its_sizes_and_reading(tmp_path
 
     out = tmp_path / "paper"
     rep = vdbejax.reproduce(out, seeds=np.int64(2), episodes=np.int64(3), seed=np.int64(2),
-                            replicates=np.int64(2), alpha=np.float64(0.1),
-                            q_init=np.float32(0.0), figures=np.bool_(False),
+                            replicates=np.int64(2), figures=np.bool_(False),
+                            options=AgentOptions(alpha=np.float64(0.1), q_init=np.float32(0.0)),
                             run=RunOptions(chunk_episodes=np.int64(2), progress=np.bool_(True)))
     meta = io.load_json(out / io.META_FILE)
     assert (meta["replicates"], meta["agents_per_replicate"], meta["num_episodes"]) == (2, 2, 3)

@@ -43,15 +43,16 @@ def add_reproduce(sub: argparse._SubParsersAction) -> None:
 
 
 def reproduce_command(args: argparse.Namespace) -> None:
-    from vdbejax.paper.reproduce import reproduce
+    from vdbejax.paper.reproduce import reading_options, reproduce
 
     if args.own_process:
         freeze_imports()
     rep = reproduce(
         args.out, reading=args.reading, seeds=args.seeds, episodes=args.episodes, seed=args.seed,
         replicates=args.replicates, max_steps=args.max_steps,
-        invalid_action=args.invalid_action, tie_break=args.tie_break,
-        q_init=args.q_init, figures=not args.no_figures,
+        invalid_action=args.invalid_action,
+        options=reading_options(args.reading, args.tie_break, q_init=args.q_init),
+        figures=not args.no_figures,
         run=run_options(args, chunk_episodes=args.chunk_episodes, progress=not args.quiet),
     )
     for claim in rep.claims:

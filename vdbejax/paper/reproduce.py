@@ -9,12 +9,12 @@ import sys
 import time
 import zipfile
 from pathlib import Path
+from typing import Any
 
 from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, owners, paper_settings
-from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.paper.claims import ClaimResult, evaluate_claims
 from vdbejax.paper.report import cap_message, render_report
 from vdbejax.results import io
@@ -137,6 +137,16 @@ def reading_settings(reading: str, details: dict | None = None) -> list[Setting]
             for s in paper_settings()]
 
 
+def reading_options(reading: str, tie_break: str | None = None,
+                    **values: Any) -> AgentOptions:
+    """The agent options of ``reading``: greedy ties broken at random for the textbook
+    reading, to the first index for the authors' (unless ``tie_break`` is given);
+    ``values``: other fields of :class:`~vdbejax.methods.AgentOptions`."""
+    if tie_break is None:
+        tie_break = "first" if reading == "authors" else "random"
+    return AgentOptions(tie_break=tie_break, **values)
+
+
 #: The run options :func:`reproduce` takes.
 REPRODUCE_RUN_FIELDS = ("chunk_episodes", "progress", "resume", "overwrite", *SPEED_FIELDS)
 
@@ -152,9 +162,7 @@ def reproduce(
     replicates: int = 5,
     max_steps: int | None = None,
     invalid_action: str = "noop",
-    tie_break: str | None = None,
-    q_init: float = 0.0,
-    alpha: float = PAPER_ALPHA,
+    options: AgentOptions | None = None,
     figures: bool = True,
     run: RunOptions | None = None,
 ) -> Reproduction:
@@ -187,10 +195,10 @@ def reproduce(
       max_steps: episode truncation length (textbook default 100; authors: the task's
         safety cap, 10,000).
       invalid_action: ``"noop"`` or ``"fail"`` (the textbook reading's option).
-      tie_break: ``"random"`` or ``"first"`` (default: random for the textbook, first for
-        the authors).
-      q_init: initial Q value (the spec's option).
-      alpha: learning rate α of every agent (default: the paper's).
+      options: the values shared by every agent (:class:`~vdbejax.methods.AgentOptions`:
+        ``tie_break`` ``"random"`` or ``"first"``, ``q_init`` the initial Q value (the
+        spec's option), ``alpha`` the learning rate, default the paper's, …); default the
+        reading's, :func:`reading_options`.
       figures: draw ``fig3.png`` and ``sensitivity.png`` (``False``: the numbers only;
         ``vdbejax plot`` draws them later from the saved results).
       run: how it runs (:class:`~vdbejax.runs.RunOptions`, default
@@ -225,9 +233,10 @@ def reproduce(
         mdp = make_mdp(max_steps=100 if max_steps is None else max_steps,
                        invalid_action=invalid_action)
         capped = False
-    if tie_break is None:
-        tie_break = "first" if reading == "authors" else "random"
-    options = AgentOptions(alpha=alpha, q_init=q_init, tie_break=tie_break)
+    if options is None:
+        options = reading_options(reading)
+    elif not isinstance(options, AgentOptions):
+        raise ValueError(f"options={options!r} is invalid: must be an AgentOptions")
     settings = reading_settings(reading, details)
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
     # Plain ints from here on (a NumPy integer is welcome, and meta.json is JSON).
