@@ -5,8 +5,10 @@ import json
 import pytest
 
 from vdbejax import cli
+from vdbejax.methods.agents import AgentOptions
 from vdbejax.paper import ablation, ablation_document, ablation_variants
 from vdbejax.paper.reproduce import AUTHORS_DETAILS
+from vdbejax.runs import RunOptions
 
 VARIANTS = "spec,invalid_fail"
 
@@ -53,7 +55,7 @@ def test_reuse_saved_results(ablated):
     out, raw, _ = ablated
     before = json.loads((raw / "spec" / "meta.json").read_text())
     results = ablation.ablate(out, results_dir=raw, variants=ablation_variants.select_variants("spec"),
-                              seeds=2, episodes=12, progress=False)
+                              seeds=2, episodes=12, run=RunOptions(progress=False))
     after = json.loads((raw / "spec" / "meta.json").read_text())
     assert after["elapsed_seconds"] == before["elapsed_seconds"]  # reused, not retrained
     assert [r.how for r in results] == ["reused"]  # and said so in the status line
@@ -66,9 +68,9 @@ def test_reuse_saved_results(ablated):
 
 def test_variants_cover_each_open_detail():
     names = {v.name for v in ablation_variants.VARIANTS}
-    assert ablation_variants.VARIANTS[0].options() == {"max_steps": 100, "invalid_action": "noop",
-                                              "tie_break": "random", "q_init": 0.0, "alpha": 0.8,
-                                              "reading": "textbook", "details": {}}
+    assert ablation_variants.VARIANTS[0].options() == {
+        "max_steps": 100, "invalid_action": "noop", "reading": "textbook", "details": {},
+        "options": AgentOptions(tie_break="random", q_init=0.0, alpha=0.8)}
     assert {v.invalid_action for v in ablation_variants.VARIANTS} == {"noop", "fail"}
     assert {v.tie_break for v in ablation_variants.VARIANTS} == {"random", "first"}
     assert len({v.max_steps for v in ablation_variants.VARIANTS}) >= 3
@@ -154,7 +156,7 @@ def test_factorial_mode_and_sections_in_the_document(tmp_path):
     # ablation_scorecard.md's sections: a variants × claims table per other mode, with "Most".
     results = ablation.ablate(tmp_path / "doc", results_dir=tmp_path / "raw",
                               variants=ablation_variants.select_variants("spec"), seeds=2, episodes=12,
-                              progress=False)
+                              run=RunOptions(progress=False))
     section = ("Factorial", "intro text", "factorial", [
         ablation.run_variant(v, tmp_path / "factorial" / v.name, seeds=2, episodes=12,
                              replicates=5, figures=False)  # the command's: reused

@@ -6,7 +6,7 @@ from vdbejax.engine import agent_keys, run_agents
 from vdbejax.envs import make_tabular_mdp
 from vdbejax.envs.cruz2018 import make_authors_mdp
 from vdbejax.methods import AgentOptions, Setting, make_agent, stack_agents
-from vdbejax.runs import run_grid
+from vdbejax.runs import RunOptions, run_grid
 
 
 def one_step_mdp(first_reward: float):
@@ -105,7 +105,8 @@ def test_reproduce_under_the_authors_reading(tmp_path):
     import vdbejax
     from vdbejax.paper.reproduce import AUTHORS_DETAILS, is_paper_grid, reading_settings, replot
 
-    rep = vdbejax.reproduce(tmp_path, reading="authors", seeds=2, episodes=20, progress=False)
+    rep = vdbejax.reproduce(tmp_path, reading="authors", seeds=2, episodes=20,
+                            run=RunOptions(progress=False))
     grid = rep.result
     assert grid.meta["reading"] == "authors" and grid.meta["mdp"] == "cruz2018"
     assert grid.meta["options"]["tie_break"] == "first" and grid.meta["max_steps"] == 10_000

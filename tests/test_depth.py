@@ -13,6 +13,7 @@ from vdbejax import cli
 from vdbejax.envs.solvers import best_return
 from vdbejax.results.regret import normalised_returns
 from vdbejax.results.solving import episodes_to_converge
+from vdbejax.runs import RunOptions
 from vdbejax.studies import depth
 from vdbejax.studies.bench import SOLVED
 from vdbejax.studies.bench_methods import select_methods
@@ -55,7 +56,8 @@ def test_growth_slopes_recover_a_polynomial_and_an_exponential() -> None:
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, depth.DepthResult]:
     out = tmp_path_factory.mktemp("depth")
-    return out, depth.run_depth(out, quick=True, progress=False, evaluate_every=100)
+    return out, depth.run_depth(out, quick=True,
+                                run=RunOptions(progress=False, evaluate_every=100))
 
 
 def test_quick_study_writes_its_report(quick: tuple[Path, depth.DepthResult]) -> None:
@@ -92,8 +94,8 @@ def test_solved_is_the_benchmarks_criterion(quick: tuple[Path, depth.DepthResult
 
 def test_resume_reuses_whole_task_folders(quick: tuple[Path, depth.DepthResult]) -> None:
     out, result = quick
-    again = depth.run_depth(out, quick=True, progress=False, resume=True,
-                            evaluate_every=100)  # the same run
+    again = depth.run_depth(out, quick=True, run=RunOptions(  # the same run
+        progress=False, resume=True, evaluate_every=100))
     for name, run in result.runs.items():
         np.testing.assert_array_equal(again.runs[name].returns, run.returns)
     assert [r["median_text"] for r in again.rows] == [r["median_text"] for r in result.rows]

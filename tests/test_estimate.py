@@ -152,8 +152,8 @@ def test_a_sweep_of_a_million_settings_is_refused_before_any_is_made(tmp_path, m
     import time
     import tracemalloc
 
-    from vdbejax.runs import batching
-    from vdbejax.studies.sweeps import run_sweep
+    from vdbejax.runs import RunOptions, batching
+    from vdbejax.studies.sweeps import Sweep, run_sweep
 
     monkeypatch.setattr(batching, "_host_available_bytes", lambda: 8 * 2**30)
     axes = {"alpha": [0.001 * (i + 1) for i in range(1000)], "sigma": list(range(1, 1001))}
@@ -161,8 +161,8 @@ def test_a_sweep_of_a_million_settings_is_refused_before_any_is_made(tmp_path, m
     tracemalloc.start()
     try:
         with pytest.raises(ValueError) as refused:
-            run_sweep(tmp_path / "big", learners=["qlearning"], explorers=["vdbe"], axes=axes,
-                      seeds=1, episodes=1000, progress=False)
+            run_sweep(tmp_path / "big", Sweep(learners=["qlearning"], explorers=["vdbe"],
+                                              axes=axes), seeds=1, episodes=1000, run=RunOptions(progress=False))
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()

@@ -13,16 +13,17 @@ from vdbejax import cli
 from vdbejax.results.export import export_results
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.summary import read_summary
-from vdbejax.studies.sweeps import run_sweep
+from vdbejax.runs import RunOptions
+from vdbejax.studies.sweeps import Sweep, run_sweep
 
 
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory):
     """A run with two replicates and policy evaluations: every table and scope."""
     out = tmp_path_factory.mktemp("export") / "run"
-    run_sweep(out, learners=["qlearning"], explorers=["egreedy", "vdbe"],
-              axes={"alpha": [0.2, 0.6]}, seeds=2, replicates=2, episodes=8,
-              evaluate_every=4, progress=False, figures=False)
+    run_sweep(out, Sweep(learners=["qlearning"], explorers=["egreedy", "vdbe"],
+                         axes={"alpha": [0.2, 0.6]}), seeds=2, replicates=2, episodes=8,
+              figures=False, run=RunOptions(evaluate_every=4, progress=False))
     return out
 
 

@@ -16,7 +16,8 @@ from vdbejax import cli
 from vdbejax.results import io
 from vdbejax.results.grid_result import GridResult
 from vdbejax.runs import checkpoint as checkpoints
-from vdbejax.studies.sweeps import run_sweep
+from vdbejax.runs import RunOptions
+from vdbejax.studies.sweeps import Sweep, run_sweep
 
 RUN = ["--learners", "qlearning", "--explorers", "egreedy,vdbe", "--seeds", "2", "--episodes",
        "40", "--chunk-episodes", "10", "--quiet", "--no-figures"]
@@ -164,8 +165,8 @@ def test_a_full_disk_is_one_line_and_leaves_no_folder_and_no_lock(tmp_path, monk
     kept = tmp_path / "kept"  # a folder the user made stays, without a lock file
     kept.mkdir()
     with pytest.raises(ValueError, match="cannot be locked for writing: No space left"):
-        run_sweep(kept, learners=["qlearning"], explorers=["egreedy"], seeds=1, episodes=5,
-                  progress=False, figures=False)
+        run_sweep(kept, Sweep(learners=["qlearning"], explorers=["egreedy"]), seeds=1,
+                  episodes=5, figures=False, run=RunOptions(progress=False))
     assert list(kept.iterdir()) == []
 
 

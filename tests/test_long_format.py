@@ -9,15 +9,16 @@ import pytest
 from vdbejax import cli
 from vdbejax.methods import Setting
 from vdbejax.results.grid_result import GridResult
-from vdbejax.studies.sweeps import run_sweep
+from vdbejax.runs import RunOptions
+from vdbejax.studies.sweeps import Sweep, run_sweep
 
 
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory):
     out = tmp_path_factory.mktemp("long")
-    run_sweep(out, learners=["qlearning", "sarsa"], explorers=["egreedy"],
-              axes={"epsilon": [0.05, 0.2]}, shared={"alpha": 0.5}, seeds=3, episodes=7,
-              progress=False, figures=False)
+    run_sweep(out, Sweep(learners=["qlearning", "sarsa"], explorers=["egreedy"],
+                         axes={"epsilon": [0.05, 0.2]}, shared={"alpha": 0.5}), seeds=3,
+              episodes=7, figures=False, run=RunOptions(progress=False))
     return out
 
 

@@ -8,11 +8,16 @@ from pathlib import Path
 import pytest
 
 from vdbejax import cli
+from vdbejax.methods.agents import AgentOptions
 from vdbejax.results import io
+from vdbejax.runs import RunOptions
 from vdbejax.studies import folder as studies_folder
 from vdbejax.studies import sweeps
+from vdbejax.studies.sweeps import Sweep
 
-SWEEP = dict(learners=["qlearning"], explorers=["egreedy"], seeds=2, episodes=12, progress=False)
+QUIET = RunOptions(progress=False)
+SWEEP = dict(sweep=Sweep(learners=["qlearning"], explorers=["egreedy"]), seeds=2, episodes=12,
+             run=QUIET)
 
 
 def one_error_line(capsys) -> str:
@@ -51,15 +56,16 @@ def test_a_finished_folder_is_not_replaced_without_overwrite(finished, trainings
         sweeps.run_sweep(finished, **{**SWEEP, "seeds": 3})
     assert not trainings
     assert (finished / io.RETURNS_FILE).read_bytes() == before
-    sweeps.run_sweep(finished, **{**SWEEP, "seeds": 3}, overwrite=True)
+    sweeps.run_sweep(finished, **{**SWEEP, "seeds": 3, "run": QUIET.replace(overwrite=True)})
     assert trainings and io.load_json(finished / io.META_FILE)["num_seeds"] == 3
 
 
 def test_resume_continues_only_the_same_run(finished, trainings):
-    reused = sweeps.run_sweep(finished, **SWEEP, resume=True)  # a no-op on a finished run
+    reused = sweeps.run_sweep(finished, **{**SWEEP, "run": QUIET.replace(resume=True)})  # a no-op on a finished run
     assert not trainings and reused.num_seeds == 2
     with pytest.raises(ValueError, match=r"finished result of a different run.*--overwrite"):
-        sweeps.run_sweep(finished, **{**SWEEP, "episodes": 13}, resume=True)
+        sweeps.run_sweep(finished, **{**SWEEP, "episodes": 13,
+                                      "run": QUIET.replace(resume=True)})
     assert not trainings
 
 
@@ -76,8 +82,8 @@ def test_reproduce_after_a_run_is_refused(finished, trainings):
     import vdbejax
 
     with pytest.raises(ValueError, match="holds a finished result"):
-        vdbejax.reproduce(finished, seeds=1, episodes=2, replicates=1, progress=False,
-                          figures=False)
+        vdbejax.reproduce(finished, seeds=1, episodes=2, replicates=1, figures=False,
+                          run=QUIET)
     assert not trainings
 
 
@@ -89,9 +95,9 @@ def test_reproduce_takes_numpy_scalars_and_labels_its_sizes_and_reading(tmp_path
 
     out = tmp_path / "paper"
     rep = vdbejax.reproduce(out, seeds=np.int64(2), episodes=np.int64(3), seed=np.int64(2),
-                            replicates=np.int64(2), alpha=np.float64(0.1),
-                            q_init=np.float32(0.0), chunk_episodes=np.int64(2),
-                            progress=np.bool_(True), figures=np.bool_(False))
+                            replicates=np.int64(2), figures=np.bool_(False),
+                            options=AgentOptions(alpha=np.float64(0.1), q_init=np.float32(0.0)),
+                            run=RunOptions(chunk_episodes=np.int64(2), progress=np.bool_(True)))
     meta = io.load_json(out / io.META_FILE)
     assert (meta["replicates"], meta["agents_per_replicate"], meta["num_episodes"]) == (2, 2, 3)
     assert rep.result.returns.shape == (46, 4, 3)
@@ -109,9 +115,10 @@ def test_sweeps_grids_and_options_take_numpy_scalars(tmp_path):
     from vdbejax.methods import Setting
 
     plain = sweeps.run_sweep(tmp_path / "plain", **SWEEP, seed=1)
-    numpy = sweeps.run_sweep(tmp_path / "numpy", learners=["qlearning"], explorers=["egreedy"],
-                             seeds=np.int64(2), episodes=np.int32(12), seed=np.uint32(1),
-                             axes={"alpha": [np.float64(0.1), np.float32(0.5)]}, progress=False)
+    numpy = sweeps.run_sweep(tmp_path / "numpy", sweeps.Sweep(
+        learners=["qlearning"], explorers=["egreedy"],
+        axes={"alpha": [np.float64(0.1), np.float32(0.5)]}), seeds=np.int64(2),
+        episodes=np.int32(12), seed=np.uint32(1), run=QUIET)
     assert np.array_equal(plain.returns, numpy.returns[:1])
     assert io.load_json(tmp_path / "numpy" / io.META_FILE)["fingerprint"]
     run = vdbejax.RunOptions(chunk_episodes=np.int64(4), devices=np.int64(1),
@@ -255,7 +262,8 @@ def test_curves_that_coincide_still_show_every_colour():
 def test_sensitivity_plots_the_swept_alpha_when_the_explorers_parameter_is_fixed(tmp_path):
     from vdbejax.results.plotting import sensitivity
 
-    sweeps.run_sweep(tmp_path, **{**SWEEP, "axes": {"alpha": [0.1, 0.3, 0.8]}}, figures=False)
+    sweeps.run_sweep(tmp_path, **{**SWEEP, "sweep": Sweep(learners=["qlearning"],
+                     explorers=["egreedy"], axes={"alpha": [0.1, 0.3, 0.8]})}, figures=False)
     figure = sensitivity(io.read_csv(tmp_path / sweeps.SUMMARY_FILE))
     assert figure.axes[1].get_xlabel().startswith("α")
     drawn = [line for line in figure.axes[0].get_lines() if len(line.get_xdata()) == 3]
@@ -361,7 +369,8 @@ def test_compare_puts_two_folders_settings_side_by_side(finished, tmp_path, caps
     import csv
 
     other = tmp_path / "other"
-    sweeps.run_sweep(other, **{**SWEEP, "explorers": ["egreedy", "vdbe"]}, seed=1)
+    sweeps.run_sweep(other, **{**SWEEP, "sweep": Sweep(learners=["qlearning"],
+                                                       explorers=["egreedy", "vdbe"])}, seed=1)
     table = tmp_path / "compare.csv"
     assert cli.main(["compare", str(finished), str(other), "--csv", str(table)]) == 0
     text = capsys.readouterr().out

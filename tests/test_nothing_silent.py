@@ -12,7 +12,7 @@ from vdbejax.methods import Explorer, Learner, LearnerUpdate, Setting, explorer,
 from vdbejax.methods.agents import AgentOptions
 from vdbejax.paper.reproduce import reproduce
 from vdbejax.results.folder_lock import MARKER_FILE, FolderLock, mark
-from vdbejax.runs import run_grid
+from vdbejax.runs import RunOptions, run_grid
 from vdbejax.studies import scaling
 from vdbejax.validation import check_int
 
@@ -58,7 +58,7 @@ def test_scale_locks_its_folder_and_a_half_written_study_is_refused(tmp_path):
     out = tmp_path / "scale"
     out.mkdir()
     with FolderLock(out), pytest.raises(ValueError, match="is being written by another"):
-        scaling.run_scaling(out, quick=True, progress=False)
+        scaling.run_scaling(out, quick=True, run=RunOptions(progress=False))
     (out / "scaling.csv").write_text("size\n")
     (out / "meta.json").write_text("{}")
     mark(out, "results")
@@ -105,7 +105,7 @@ def test_a_float_count_is_not_cut_to_an_integer(value):
 
 def test_an_unknown_detail_is_refused_before_the_folder_exists(tmp_path):
     with pytest.raises(ValueError, match="details has 'nosuch': no learner or explorer"):
-        reproduce(tmp_path / "never", details={"nosuch": 1}, progress=False)
+        reproduce(tmp_path / "never", details={"nosuch": 1}, run=RunOptions(progress=False))
     assert not (tmp_path / "never").exists()
 
 

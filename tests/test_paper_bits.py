@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import vdbejax
+from vdbejax.runs import RunOptions
 
 #: reading -> (returns, lengths): the first 12 hex digits of each sha256.
 PINNED = {"textbook": ("e5dc72897ea1", "7a335184bbe8"),
@@ -25,7 +26,8 @@ def _digest(values: np.ndarray) -> str:
                     reason="the pinned digests are the CPU backend's")
 @pytest.mark.parametrize("reading", sorted(PINNED))
 def test_the_paper_grid_keeps_its_bits(tmp_path, reading):
-    vdbejax.reproduce(tmp_path, reading=reading, replicates=1, figures=False, progress=False)
+    vdbejax.reproduce(tmp_path, reading=reading, replicates=1, figures=False,
+                      run=RunOptions(progress=False))
     with np.load(tmp_path / "returns.npz") as data:
         assert data["returns"].shape == (46, 20, 1000)
         digests = _digest(data["returns"][:, :20]), _digest(data["lengths"][:, :20])

@@ -10,6 +10,7 @@ import pytest
 
 import vdbejax
 from vdbejax.methods.agents import PAPER_PARAMETERS, paper_settings
+from vdbejax.runs import RunOptions
 
 SEEDS, EPISODES = 2, 30
 REPLICATES = 5  # reproduce's default
@@ -123,7 +124,8 @@ def test_report_md(cli_out):
 
 def test_python_api_matches_cli(cli_out, tmp_path):
     out, _ = cli_out
-    rep = vdbejax.reproduce(tmp_path, seeds=SEEDS, episodes=EPISODES, progress=False)
+    rep = vdbejax.reproduce(tmp_path, seeds=SEEDS, episodes=EPISODES,
+                            run=RunOptions(progress=False))
     with np.load(out / "returns.npz") as data:
         np.testing.assert_array_equal(rep.result.returns, data["returns"])
     assert len(rep.claims) == 6 and rep.best_return == pytest.approx(0.86)
@@ -185,7 +187,7 @@ def test_a_new_root_seed_reports_each_verdicts_stability(tmp_path, root):
     # Another root seed: every claim states how many replicates agree, and each verdict or
     # check that differs between replicates is named under "Flips between replicates".
     rep = vdbejax.reproduce(tmp_path, seeds=SEEDS, episodes=EPISODES, seed=root, replicates=3,
-                            progress=False, figures=False)
+                            figures=False, run=RunOptions(progress=False))
     report = (tmp_path / "report.md").read_text()
     assert f"root seed {root}" in report and "(3 of 3 when all do)" in report
     for claim in rep.claims:

@@ -24,9 +24,13 @@ from vdbejax.results.folder_lock import FolderLock
 from vdbejax.results.grid_result import GridResult
 from vdbejax.runs.checkpoint import CHECKSUM_KEY, contents_digest, log_path
 from vdbejax.studies import folder as studies_folder
+from vdbejax.runs import RunOptions
 from vdbejax.studies import sweeps
+from vdbejax.studies.sweeps import Sweep
 
-SWEEP = dict(learners=["qlearning"], explorers=["egreedy"], seeds=2, episodes=12, progress=False)
+QUIET = RunOptions(progress=False)
+SWEEP = dict(sweep=Sweep(learners=["qlearning"], explorers=["egreedy"]), seeds=2, episodes=12,
+             run=QUIET)
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +82,7 @@ def test_a_run_stopped_while_saving_leaves_a_marker_that_loading_refuses(tmp_pat
 
     monkeypatch.setattr(GridResult, "write_files", killed)
     with pytest.raises(KeyboardInterrupt):
-        sweeps.run_sweep(tmp_path, **SWEEP, overwrite=True)  # replaced (point 5)
+        sweeps.run_sweep(tmp_path, **{**SWEEP, "run": QUIET.replace(overwrite=True)})  # replaced (point 5)
     assert folder_lock.marked_stage(tmp_path) == "results"
     with pytest.raises(ValueError, match="half-written"):
         GridResult.load(tmp_path)

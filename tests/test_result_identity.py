@@ -17,10 +17,12 @@ from vdbejax import cli
 from vdbejax.results import io
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.manifest import MANIFEST_FILE, file_digest, read_manifest
+from vdbejax.runs import RunOptions
 from vdbejax.studies import sweeps
+from vdbejax.studies.sweeps import Sweep
 
-SWEEP = dict(learners=["qlearning"], explorers=["egreedy", "softmax"], seeds=3, episodes=30,
-             progress=False)
+SWEEP = dict(sweep=Sweep(learners=["qlearning"], explorers=["egreedy", "softmax"]), seeds=3,
+             episodes=30, run=RunOptions(progress=False))
 
 
 @pytest.fixture(scope="module")

@@ -255,6 +255,34 @@ def test_bad_run_flags_fail_in_one_line_before_training(tmp_path, capsys, comman
     assert not (out / "returns.npz").exists() and not (out / "checkpoint.npz").exists()
 
 
+@pytest.mark.parametrize("module,function,field", [
+    ("vdbejax.studies.sweeps", "run_sweep", "checkpoint"),
+    ("vdbejax.studies.scaling", "run_scaling", "evaluate_every"),
+    ("vdbejax.studies.bench", "run_bench", "chunk_episodes"),
+    ("vdbejax.studies.depth", "run_depth", "stop"),
+    ("vdbejax.paper.reproduce", "reproduce", "record_optimal"),
+    ("vdbejax.paper.ablation", "ablate", "evaluate_every"),
+    ("vdbejax.studies.scaling_adaptive", "run_until_solved", "stop"),
+])
+def test_a_study_refuses_a_run_option_it_does_not_take(tmp_path, module, function, field):
+    # Every study takes its run mechanics as one RunOptions; a field it would ignore (the
+    # folder's checkpoint, a stop or a chunk it sets itself, …) fails in one line, first.
+    import importlib
+
+    from vdbejax.studies.sweeps import Sweep
+
+    value = {"checkpoint": tmp_path / "c.npz", "evaluate_every": 10, "chunk_episodes": 10,
+             "stop": UntilSolved(), "record_optimal": True}[field]
+    out = tmp_path / "out"
+    first = {"run_sweep": (out, Sweep(learners=["qlearning"], explorers=["egreedy"])),
+             "run_until_solved": (make_mdp(), [])}.get(function, (out,))
+    size = {"run_until_solved": {"num_seeds": 1, "max_episodes": 1}}.get(function, {})
+    study = getattr(importlib.import_module(module), function)
+    with pytest.raises(ValueError, match=rf"^run\.{field}=.* {function} does not take it"):
+        study(*first, **size, run=RunOptions(**{field: value}))
+    assert not out.exists()
+
+
 def test_the_plan_sizes_chunks_by_agent_episodes_and_results_do_not_change():
     from small_grid import SETTINGS, run_small
 

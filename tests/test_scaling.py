@@ -19,7 +19,7 @@ from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import Setting
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.solving import convergence_threshold, episodes_to_converge
-from vdbejax.runs import run_grid
+from vdbejax.runs import RunOptions, UntilSolved, run_grid
 from vdbejax.studies import scaling, scaling_adaptive, scaling_report, scaling_study
 
 REPO = Path(__file__).resolve().parents[1]
@@ -47,8 +47,8 @@ def fixed(task):
 @pytest.fixture(scope="module")
 def adaptive(task):
     return scaling.run_until_solved(task[0], SETTINGS, num_seeds=SEEDS, max_episodes=EPISODES,
-                                    seed=SEED, chunk_episodes=CHUNK, best=task[1],
-                                    baseline=task[2])
+                                    seed=SEED, best=task[1], baseline=task[2],
+                                    run=RunOptions(chunk_episodes=CHUNK))
 
 
 def test_adaptive_stopping_equals_the_fixed_budget_up_to_each_stop(adaptive, fixed, task):
@@ -73,8 +73,8 @@ def test_adaptive_stopping_equals_the_fixed_budget_up_to_each_stop(adaptive, fix
 
 def test_stop_episodes_depend_on_the_chunk_but_solve_episodes_do_not(adaptive, task):
     other = scaling.run_until_solved(task[0], SETTINGS[:2], num_seeds=SEEDS,
-                                     max_episodes=EPISODES, seed=SEED, chunk_episodes=25,
-                                     best=task[1], baseline=task[2])
+                                     max_episodes=EPISODES, seed=SEED, best=task[1],
+                                     baseline=task[2], run=RunOptions(chunk_episodes=25))
     np.testing.assert_array_equal(other.solve.episodes, adaptive.solve.episodes[:2])
     assert other.stopped == "solved" and (other.episodes_run % 25 == 0).all()
     common = np.minimum(other.episodes_run, adaptive.episodes_run[:2])
@@ -86,8 +86,8 @@ def test_stop_episodes_depend_on_the_chunk_but_solve_episodes_do_not(adaptive, t
 
 def test_a_seconds_budget_censors_every_remaining_agent_at_one_episode(task):
     run = scaling.run_until_solved(task[0], SETTINGS[3:], num_seeds=2, max_episodes=10_000,
-                                   max_seconds=1e-6, chunk_episodes=CHUNK, best=task[1],
-                                   baseline=task[2])
+                                   max_seconds=1e-6, best=task[1], baseline=task[2],
+                                   run=RunOptions(chunk_episodes=CHUNK))
     assert run.stopped == "seconds" and run.chunks == 1
     assert (run.episodes_run == CHUNK).all() and not run.solve.solved.any()
 
@@ -99,7 +99,7 @@ def test_a_seconds_budget_censors_every_remaining_agent_at_one_episode(task):
     ({"best": -1.5}, "best=-1.5 and baseline=-1.047"),
     ({"baseline": None}, "give both"),
     ({"fraction": 2.0}, "fraction=2.0 is invalid"),
-    ({"chunk_episodes": 0}, "chunk_episodes=0 is invalid"),
+    ({"run": RunOptions(stop=UntilSolved(fraction=0.5))}, "run.stop=.* run_until_solved"),
 ])
 def test_run_until_solved_bad_inputs(task, kwargs, match):
     options = dict(num_seeds=2, max_episodes=10, best=task[1], baseline=task[2])

@@ -295,12 +295,13 @@ def test_a_signal_the_parent_ignores_stays_ignored(tmp_path):
 _PYTHON_SESSION_RUN = """
 import signal, sys
 signal.signal(signal.SIGINT, signal.default_int_handler)  # an interactive session's Ctrl-C
-from vdbejax.studies.sweeps import run_sweep
+from vdbejax.runs import RunOptions
+from vdbejax.studies.sweeps import Sweep, run_sweep
 
 # UCBVI plans at every episode: 2 agents x 200,000 episodes take minutes, and the chunks
 # of 10,000 episodes the plan once ran (agent-episodes alone) took half a minute each.
-run_sweep(sys.argv[1], learners=["ucbvi"], explorers=["greedy"], seeds=2, episodes=200_000,
-          progress=False, figures=False)
+run_sweep(sys.argv[1], Sweep(learners=["ucbvi"], explorers=["greedy"]), seeds=2,
+          episodes=200_000, figures=False, run=RunOptions(progress=False))
 """
 
 

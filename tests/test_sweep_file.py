@@ -15,13 +15,14 @@ from vdbejax import cli
 from vdbejax.envs import TabularMDP
 from vdbejax.methods import Setting, sweep
 from vdbejax.results.grid_result import GridResult
+from vdbejax.runs import RunOptions
 from vdbejax.studies.sweep_file import (
     read_sweep_file,
     sweep_from_meta,
     sweep_settings,
     write_sweep_file,
 )
-from vdbejax.studies.sweeps import run_sweep
+from vdbejax.studies.sweeps import Sweep, run_sweep
 from vdbejax.studies.task_names import make_task
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -170,8 +171,10 @@ def test_paths_in_a_sweep_file_are_relative_to_its_folder(tmp_path, monkeypatch)
     spec = read_sweep_file(Path("..") / "study" / "sweep.toml")
     assert spec["task"] == f"{study.resolve() / 'user_tasks.py'}:five"
     assert spec["plugins"] == [str(study.resolve() / "custom_explorer.py")]
-    result = run_sweep(tmp_path / "out", seeds=2, episodes=5, progress=False, figures=False,
-                       **spec)
+    sweep = Sweep(plugins=spec.pop("plugins"), learners=spec.pop("learners"),
+                  explorers=spec.pop("explorers"))
+    result = run_sweep(tmp_path / "out", sweep, seeds=2, episodes=5, figures=False,
+                       run=RunOptions(progress=False), **spec)
     assert result.settings[0].explorer == "visit_epsilon" and result.returns.shape[:2] == (1, 2)
 
 

@@ -32,9 +32,13 @@ def add_evaluate_flag(p: argparse.ArgumentParser, where: str) -> None:
                         f" policy ({where}); the returns are the same")
 
 
-def run_flags(args: argparse.Namespace) -> dict[str, Any]:
-    return {"resume": args.resume, "overwrite": args.overwrite, "devices": args.devices,
-            "memory_budget_bytes": args.memory_budget}
+def run_options(args: argparse.Namespace, **fields: Any) -> Any:
+    """The :class:`~vdbejax.runs.RunOptions` of the run flags (``add_run_flags``) and
+    ``fields``."""
+    from vdbejax.runs.options import RunOptions  # here: building the parser imports no JAX
+
+    return RunOptions(resume=args.resume, overwrite=args.overwrite, devices=args.devices,
+                      memory_budget_bytes=args.memory_budget, **fields)
 
 
 def write_long_csv(folder: str, out: str) -> list[Path]:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from vdbejax.cli.common import add_run_flags, freeze_imports, run_flags, write_long_csv
+from vdbejax.cli.common import add_run_flags, freeze_imports, run_options, write_long_csv
 from vdbejax.validation import parse_cli_number
 
 
@@ -43,16 +43,17 @@ def add_reproduce(sub: argparse._SubParsersAction) -> None:
 
 
 def reproduce_command(args: argparse.Namespace) -> None:
-    from vdbejax.paper.reproduce import reproduce
+    from vdbejax.paper.reproduce import reading_options, reproduce
 
     if args.own_process:
         freeze_imports()
     rep = reproduce(
         args.out, reading=args.reading, seeds=args.seeds, episodes=args.episodes, seed=args.seed,
         replicates=args.replicates, max_steps=args.max_steps,
-        invalid_action=args.invalid_action, tie_break=args.tie_break,
-        q_init=args.q_init, chunk_episodes=args.chunk_episodes, progress=not args.quiet,
-        figures=not args.no_figures, **run_flags(args),
+        invalid_action=args.invalid_action,
+        options=reading_options(args.reading, args.tie_break, q_init=args.q_init),
+        figures=not args.no_figures,
+        run=run_options(args, chunk_episodes=args.chunk_episodes, progress=not args.quiet),
     )
     for claim in rep.claims:
         print(f"claim {claim.number}: {claim.verdict}")
@@ -130,7 +131,7 @@ def ablate_command(args: argparse.Namespace) -> None:
                      sections=args.sections,
                      seeds=args.seeds, episodes=args.episodes, seed=args.seed,
                      replicates=args.replicates, notes=args.notes,
-                     reuse=not args.rerun, progress=not args.quiet, **run_flags(args))
+                     reuse=not args.rerun, run=run_options(args, progress=not args.quiet))
     for result in results:
         print(f"{result.variant.name}: "
               + ", ".join(f"{c.number} {c.verdict}" for c in result.claims))

@@ -8,7 +8,7 @@ from vdbejax.cli.common import (
     add_evaluate_flag,
     add_run_flags,
     refuse_sizes_with_quick,
-    run_flags,
+    run_options,
     size_values,
     write_long_csv,
 )
@@ -102,8 +102,8 @@ def _table(text: str, flag: str) -> dict[str, object]:
 
 
 def run_command(args: argparse.Namespace) -> None:
-    from vdbejax.studies.sweep_file import read_sweep_file
-    from vdbejax.studies.sweeps import run_sweep
+    from vdbejax.studies.sweep_file import SPEC_KEYS, read_sweep_file
+    from vdbejax.studies.sweeps import Sweep, run_sweep
 
     spec = read_sweep_file(args.config) if args.config else {}
     for key in ("task", "seeds", "replicates", "episodes", "seed", "max_steps",
@@ -133,8 +133,11 @@ def run_command(args: argparse.Namespace) -> None:
         if key not in spec and not spec["settings"]:
             raise ValueError(f"{key} is missing: give --{key} or a sweep file with {key} = [...]"
                              " (or explicit settings: --setting, settings = [...])")
-    result = run_sweep(args.out, progress=not args.quiet, figures=not args.no_figures,
-                       **run_flags(args), **spec)
+    mechanics = {key: spec.pop(key) for key in ("chunk_episodes", "evaluate_every",
+                                                "record_optimal") if key in spec}
+    sweep = Sweep(**{key: spec.pop(key) for key in SPEC_KEYS if key in spec})
+    result = run_sweep(args.out, sweep, figures=not args.no_figures,
+                       run=run_options(args, progress=not args.quiet, **mechanics), **spec)
     from vdbejax.results.summary import read_summary
     from vdbejax.studies.sweeps import SUMMARY_FILE
 
@@ -248,11 +251,10 @@ def scale_command(args: argparse.Namespace) -> None:
         args.out, sizes=args.sizes, seeds=args.seeds, episodes=args.episodes,
         episodes_per_state=None if args.episodes_per_state == 0 else args.episodes_per_state,
         seconds=args.seconds,
-        seed=args.seed, fraction=args.fraction, window=args.window,
-        chunk_episodes=args.chunk_episodes, max_steps=args.max_steps,
-        drop_unsolved=args.drop_unsolved, quick=args.quick, progress=not args.quiet,
-        figure=not args.no_figure, save_runs=not args.no_runs, command=command,
-        learners=learners, methods=methods, **run_flags(args))
+        seed=args.seed, fraction=args.fraction, window=args.window, max_steps=args.max_steps,
+        drop_unsolved=args.drop_unsolved, quick=args.quick, figure=not args.no_figure,
+        save_runs=not args.no_runs, command=command, learners=learners, methods=methods,
+        run=run_options(args, progress=not args.quiet, chunk_episodes=args.chunk_episodes))
     for row in result.rows:
         print(f"{row['size']} {row['method']}: {row['median_text']}"
               f" ({row['solved']}/{row['agents']} solved)")
@@ -317,9 +319,9 @@ def bench_command(args: argparse.Namespace) -> None:
     if args.cost_limit is not None:
         values["cost_limit"] = args.cost_limit
     result = bench.run_bench(args.out, seed=args.seed, tune=not args.no_tune, quick=args.quick,
-                             progress=not args.quiet, figures=not args.no_figures,
-                             command=command, evaluate_every=args.evaluate_every,
-                             group=args.group, **values, **run_flags(args))
+                             figures=not args.no_figures, command=command, group=args.group,
+                             **values, run=run_options(args, progress=not args.quiet,
+                                                       evaluate_every=args.evaluate_every))
     for row in result.aggregate:
         print(f"{row['title']}: IQM score {row['iqm']:.3f} [{row['iqm_low']:.3f},"
               f" {row['iqm_high']:.3f}], mean rank {row['mean_rank']:.1f}")
@@ -370,9 +372,9 @@ def depth_command(args: argparse.Namespace) -> None:
         f" --seed {args.seed}") + (
         f" --evaluate-every {args.evaluate_every}" if args.evaluate_every else "")
     result = depth.run_depth(args.out, seed=args.seed, quick=args.quick,
-                             progress=not args.quiet, figure=not args.no_figures,
-                             command=command, evaluate_every=args.evaluate_every, **values,
-                             **run_flags(args))
+                             figure=not args.no_figures, command=command, **values,
+                             run=run_options(args, progress=not args.quiet,
+                                             evaluate_every=args.evaluate_every))
     for row in result.slopes:
         print(f"{row['family']} {row['title']}: solved up to N = {row['largest_solved']},"
               f" exponent {interval_text(row, 'exponent')}")

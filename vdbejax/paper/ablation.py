@@ -42,6 +42,7 @@ from vdbejax.paper.reproduce import FIGURE_FILE, SENSITIVITY_FILE, reproduce
 from vdbejax.results import io
 from vdbejax.results.replicates import REPLICATE_FILES, check_replicates
 from vdbejax.runs import RunOptions
+from vdbejax.runs.options import SPEED_FIELDS, study_run
 from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int, check_writable_dir
 
 
@@ -64,8 +65,8 @@ def _matches(meta: dict[str, Any], variant: Variant, seeds: int, episodes: int, 
 
 def run_variant(
     variant: Variant, results_dir: str | os.PathLike, *, seeds: int = 20, episodes: int = 1000,
-    seed: int = 0, replicates: int = 1, reuse: bool = True, progress: bool = False,
-    run: RunOptions | None = None, figures: bool = True,
+    seed: int = 0, replicates: int = 1, reuse: bool = True, run: RunOptions | None = None,
+    figures: bool = True,
 ) -> VariantResult:
     """Run (or reuse) the full grid of one variant and score the claims.
 
@@ -77,9 +78,9 @@ def run_variant(
       reuse: load a saved result of the same variant and size instead of rerunning (a
         folder a killed run left half-written is continued from its checkpoint instead);
         ``False`` retrains and replaces what the folder holds.
-      progress: progress bar on stderr.
-      run: ``resume``, ``overwrite``, ``devices`` and ``memory_budget_bytes`` for the variant's run
-        (:class:`~vdbejax.runs.RunOptions`; its other fields are the variant's own).
+      run: how the variant's run runs (:class:`~vdbejax.runs.RunOptions`, the fields
+        :func:`~vdbejax.paper.reproduce.reproduce` takes; default ``RunOptions()``: no
+        progress bar).
       figures: draw the variant's figures (``False``: numbers and report only, and no
         figure of an earlier run is left in ``results_dir``; ``vdbejax plot --results
         FOLDER`` draws them).
@@ -99,9 +100,7 @@ def run_variant(
         # fingerprint check retrains a result of other code and which annotates it afresh.
         run = run.replace(resume=True)
     rep = reproduce(folder, seeds=seeds, episodes=episodes, seed=seed, replicates=replicates,
-                    progress=progress, resume=run.resume, devices=run.devices,
-                    overwrite=run.overwrite or not reuse,
-                    memory_budget_bytes=run.memory_budget_bytes, figures=figures,
+                    figures=figures, run=run.replace(overwrite=run.overwrite or not reuse),
                     **variant.options())
     meta = rep.result.meta
     how = ("reused" if isinstance(saved, dict) and saved.get("elapsed_seconds") is not None
@@ -116,6 +115,10 @@ DOCUMENT_ASSETS = (FIGURE_FILE, SENSITIVITY_FILE, "report.md", "summary.csv")
 REPORT_ASSETS = ("report.md", "summary.csv")
 
 
+#: The run options :func:`ablate` takes.
+ABLATE_RUN_FIELDS = ("progress", "resume", "overwrite", *SPEED_FIELDS)
+
+
 def ablate(
     out_dir: str | os.PathLike,
     *,
@@ -127,13 +130,9 @@ def ablate(
     replicates: int = 5,
     notes: str | os.PathLike | None = None,
     reuse: bool = True,
-    progress: bool = True,
     mode: str = "options",
     sections: bool = False,
-    resume: bool = False,
-    devices: int | None = None,
-    memory_budget_bytes: int | str | None = None,
-    overwrite: bool = False,
+    run: RunOptions | None = None,
 ) -> list[VariantResult]:
     """Run every variant, score the claims, write ``ablation_scorecard.md`` (mode ``options``),
     ``ATTRIBUTION.md`` (mode ``attribution``) or ``FACTORIAL.md`` (mode ``factorial``)
@@ -151,7 +150,6 @@ def ablate(
         least 4 of 5 replicates agree, else *unstable*).
       notes: a hand-written markdown file appended as the discussion.
       reuse: reuse saved results of the same variant and size.
-      progress: one status line per variant on stderr.
       mode: ``"options"`` (the two readings and the spec's open details),
         ``"attribution"`` (the authors' details one at a time, :data:`ATTRIBUTION_VARIANTS`)
         or ``"factorial"`` (:data:`FACTORIAL_VARIANTS`): the document's name and figure
@@ -160,11 +158,13 @@ def ablate(
         add their claims tables to the document, so that ``ablation_scorecard.md`` shows which
         detail of which reading decides each claim (results in ``results_dir``'s
         ``attribution/`` and ``factorial/`` subfolders, reports beside the document).
-      resume: an interrupted variant continues from its checkpoint.
-      overwrite: a variant's folder holding a finished result of another size or code is
-        retrained and replaced (without it that is refused in one line).
-      devices, memory_budget_bytes: devices to shard over and per-device memory budget
-        of every variant's run (speed only).
+      run: how every variant's run runs (:class:`~vdbejax.runs.RunOptions`, default
+        ``RunOptions(progress=True)``), the fields of :data:`ABLATE_RUN_FIELDS`:
+        ``progress``: one status line per variant on stderr (no progress bar);
+        ``resume``: an interrupted variant continues from its checkpoint; ``overwrite``: a
+        variant's folder holding a finished result of another size or code is retrained
+        and replaced (without it that is refused in one line); the others change only the
+        speed.
 
     Returns:
       the scored variants.
@@ -173,6 +173,7 @@ def ablate(
       ValueError: no variants, duplicate names, or a notes file that is missing, unreadable
         or not UTF-8 text (all before anything trains).
     """
+    run = study_run(run, "ablate", ABLATE_RUN_FIELDS)
     variants = list(variants)
     if not variants:
         raise ValueError("variants is empty: need at least one variant")
@@ -182,8 +183,7 @@ def ablate(
     if mode not in MODES:
         raise ValueError(f"mode={mode!r} is invalid: must be one of {', '.join(MODES)}")
     document, figures_dir = MODES[mode]
-    knobs = RunOptions(resume=resume, overwrite=overwrite, devices=devices,
-                       memory_budget_bytes=memory_budget_bytes)
+    knobs = run.replace(progress=False)  # the variants' runs: a status line each, no bar
     # The run's size is checked before any folder is made (a refusal leaves nothing behind).
     check_int("seeds", seeds, 1, INT32_MAX)
     check_replicates(replicates, seeds)
@@ -198,8 +198,8 @@ def ablate(
             and not Path(p).exists()]
     with _removed_if_refused(made):
         return _ablate(out_dir, figures_dir, results_dir, document, variants, seeds, episodes,
-                       seed, replicates, notes, notes_text, reuse, progress, mode, sections,
-                       knobs)
+                       seed, replicates, notes, notes_text, reuse, bool(run.progress), mode,
+                       sections, knobs)
 
 
 def read_notes(notes: str | os.PathLike | None) -> str | None:

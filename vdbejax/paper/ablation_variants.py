@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from vdbejax.envs.cruz2018 import STEP_CAP
+from vdbejax.methods.agents import AgentOptions
 from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.paper.claims import ClaimResult
 from vdbejax.paper.reproduce import AUTHORS_DETAILS
@@ -40,7 +41,8 @@ class Variant:
     def options(self) -> dict[str, Any]:
         """Keyword arguments of :func:`~vdbejax.paper.reproduce.reproduce`."""
         return {"max_steps": self.max_steps, "invalid_action": self.invalid_action,
-                "tie_break": self.tie_break, "q_init": self.q_init, "alpha": self.alpha,
+                "options": AgentOptions(alpha=self.alpha, q_init=self.q_init,
+                                        tie_break=self.tie_break),
                 "reading": self.reading, "details": dict(self.details)}
 
 

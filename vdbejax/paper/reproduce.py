@@ -9,12 +9,12 @@ import sys
 import time
 import zipfile
 from pathlib import Path
+from typing import Any
 
 from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, owners, paper_settings
-from vdbejax.methods.learners import PAPER_ALPHA
 from vdbejax.paper.claims import ClaimResult, evaluate_claims
 from vdbejax.paper.report import cap_message, render_report
 from vdbejax.results import io
@@ -30,6 +30,7 @@ from vdbejax.results.replicates import (
 from vdbejax.results.stats import CurveStatistics
 from vdbejax.results.summary import SummaryRow
 from vdbejax.runs import RunOptions, prepare_grid
+from vdbejax.runs.options import SPEED_FIELDS, study_run
 from vdbejax.studies import CHECKPOINT_FILE as CHECKPOINT_FILE
 from vdbejax.studies import sweeps, train_in_folder
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, check_writable_dir
@@ -136,6 +137,20 @@ def reading_settings(reading: str, details: dict | None = None) -> list[Setting]
             for s in paper_settings()]
 
 
+def reading_options(reading: str, tie_break: str | None = None,
+                    **values: Any) -> AgentOptions:
+    """The agent options of ``reading``: greedy ties broken at random for the textbook
+    reading, to the first index for the authors' (unless ``tie_break`` is given);
+    ``values``: other fields of :class:`~vdbejax.methods.AgentOptions`."""
+    if tie_break is None:
+        tie_break = "first" if reading == "authors" else "random"
+    return AgentOptions(tie_break=tie_break, **values)
+
+
+#: The run options :func:`reproduce` takes.
+REPRODUCE_RUN_FIELDS = ("chunk_episodes", "progress", "resume", "overwrite", *SPEED_FIELDS)
+
+
 def reproduce(
     out_dir: str | os.PathLike,
     *,
@@ -147,16 +162,9 @@ def reproduce(
     replicates: int = 5,
     max_steps: int | None = None,
     invalid_action: str = "noop",
-    tie_break: str | None = None,
-    q_init: float = 0.0,
-    alpha: float = PAPER_ALPHA,
-    chunk_episodes: int | None = None,
-    resume: bool = False,
-    overwrite: bool = False,
-    progress: bool = True,
-    memory_budget_bytes: int | str | None = None,
-    devices: int | None = None,
+    options: AgentOptions | None = None,
     figures: bool = True,
+    run: RunOptions | None = None,
 ) -> Reproduction:
     """Run the paper's 46 settings × ``replicates`` × ``seeds`` agents × ``episodes`` and
     write all outputs.
@@ -187,23 +195,23 @@ def reproduce(
       max_steps: episode truncation length (textbook default 100; authors: the task's
         safety cap, 10,000).
       invalid_action: ``"noop"`` or ``"fail"`` (the textbook reading's option).
-      tie_break: ``"random"`` or ``"first"`` (default: random for the textbook, first for
-        the authors).
-      q_init: initial Q value (the spec's option).
-      alpha: learning rate α of every agent (default: the paper's).
-      chunk_episodes: episodes per jitted chunk (checkpoint granularity; None: the plan's,
-        :func:`~vdbejax.runs.plan.default_chunk_episodes`: 100 for the paper grid).
-      resume: continue an interrupted run from ``out_dir/checkpoint.npz``
-        (bit-identically), or load ``out_dir``'s finished result of this same run.
-      overwrite: replace a finished result (or an interrupted run's checkpoint) that
-        ``out_dir`` holds; without it that is refused (:func:`~vdbejax.studies.train_in_folder`).
-      progress: a progress bar and a closing status line on stderr.
-      memory_budget_bytes: per-device memory budget, passed to
-        :func:`~vdbejax.runs.grid.run_grid`; changes only the speed, never the results.
-      devices: devices to shard over, passed to :func:`~vdbejax.runs.grid.run_grid`;
-        changes only the speed, never the results.
+      options: the values shared by every agent (:class:`~vdbejax.methods.AgentOptions`:
+        ``tie_break`` ``"random"`` or ``"first"``, ``q_init`` the initial Q value (the
+        spec's option), ``alpha`` the learning rate, default the paper's, …); default the
+        reading's, :func:`reading_options`.
       figures: draw ``fig3.png`` and ``sensitivity.png`` (``False``: the numbers only;
         ``vdbejax plot`` draws them later from the saved results).
+      run: how it runs (:class:`~vdbejax.runs.RunOptions`, default
+        ``RunOptions(progress=True)``), the fields of :data:`REPRODUCE_RUN_FIELDS`:
+        ``chunk_episodes``: episodes per jitted chunk (checkpoint granularity; None: the
+        plan's, :func:`~vdbejax.runs.plan.default_chunk_episodes`: 100 for the paper
+        grid); ``progress``: a progress bar and a closing status line on stderr;
+        ``resume`` continues an interrupted run from ``out_dir/checkpoint.npz``
+        (bit-identically), or loads ``out_dir``'s finished result of this same run;
+        ``overwrite`` replaces a finished result (or an interrupted run's checkpoint) that
+        ``out_dir`` holds (without it that is refused,
+        :func:`~vdbejax.studies.train_in_folder`); the others change only the speed,
+        never the results.
 
     Returns:
       :class:`Reproduction`: the grid, summary rows, scored claims, the task's best
@@ -213,6 +221,7 @@ def reproduce(
       ValueError: an invalid option (message names it and what is allowed), or an
         output folder that cannot be written.
     """
+    run = study_run(run, "reproduce", REPRODUCE_RUN_FIELDS)
     check_choice("reading", reading, READINGS)
     if reading == "authors":
         if invalid_action != "noop":
@@ -224,19 +233,17 @@ def reproduce(
         mdp = make_mdp(max_steps=100 if max_steps is None else max_steps,
                        invalid_action=invalid_action)
         capped = False
-    if tie_break is None:
-        tie_break = "first" if reading == "authors" else "random"
-    options = AgentOptions(alpha=alpha, q_init=q_init, tie_break=tie_break)
+    if options is None:
+        options = reading_options(reading)
+    elif not isinstance(options, AgentOptions):
+        raise ValueError(f"options={options!r} is invalid: must be an AgentOptions")
     settings = reading_settings(reading, details)
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
     # Plain ints from here on (a NumPy integer is welcome, and meta.json is JSON).
     seeds = check_int("seeds", seeds, 1, INT32_MAX)
     episodes = check_int("episodes", episodes, 1, INT32_MAX)
     replicates = check_replicates(replicates, seeds)
-    progress = check_bool("progress", progress)
     figures = check_bool("figures", figures)
-    run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
-                     overwrite=overwrite, memory_budget_bytes=memory_budget_bytes, devices=devices)
     prepared = prepare_grid(mdp, settings, num_seeds=seeds * replicates, num_episodes=episodes,
                             seed=seed, options=options, run=run)
     best = best_return(mdp)
@@ -267,7 +274,7 @@ def reproduce(
         bands=figures and replicates == 1)
     elapsed = time.perf_counter() - started
     out = Path(out_dir)
-    if progress:
+    if run.progress:
         agents = (f"{replicates} replicates × {seeds} agents" if replicates > 1
                   else f"{seeds} agents")
         print(f"{reading} reading: {len(result.settings)} settings × {agents} × {episodes}"

@@ -155,23 +155,23 @@ def check_run_size(num_agents: int, num_episodes: int, checkpoint: Any = None,
     results = result_bytes(num_agents, num_episodes)
     needed = results + settings_bytes(num_settings) + task_bytes
     available = _host_available_bytes() if available_bytes is None else available_bytes
-    tasks = f", their task instances ≈ {_size(task_bytes)}" if task_bytes else ""
+    tasks = f", their task instances ≈ {size_text(task_bytes)}" if task_bytes else ""
     if needed > available and num_settings:
         per_setting = needed / num_settings  # the same agents and episodes per setting
         fit = int(available // per_setting)
         raise ValueError(
             f"the run is too large for this machine: {num_settings:,} settings"
-            f" ({num_agents:,} agents) × {num_episodes:,} episodes need ≈ {_size(needed)} of"
-            f" memory (the settings ≈ {_size(settings_bytes(num_settings))}, their results ≈"
-            f" {_size(results)}{tasks}), but {_size(available)} are free: at most {fit:,}"
+            f" ({num_agents:,} agents) × {num_episodes:,} episodes need ≈ {size_text(needed)} of"
+            f" memory (the settings ≈ {size_text(settings_bytes(num_settings))}, their results ≈"
+            f" {size_text(results)}{tasks}), but {size_text(available)} are free: at most {fit:,}"
             " settings of this size fit; use fewer settings, seeds or episodes, or split the"
             " run")
     if needed > available:
         what = "their results and task instances" if task_bytes else "their results"
         raise ValueError(
             f"num_seeds × num_episodes is too large: {num_agents:,} agents × {num_episodes:,}"
-            f" episodes need ≈ {_size(needed)} of memory for {what}, but"
-            f" {_size(available)} are free: use fewer seeds or episodes, or split the run")
+            f" episodes need ≈ {size_text(needed)} of memory for {what}, but"
+            f" {size_text(available)} are free: use fewer seeds or episodes, or split the run")
     if checkpoint is not None:
         folder = Path(checkpoint).parent
         log = log_bytes(num_agents, num_episodes)
@@ -182,11 +182,12 @@ def check_run_size(num_agents: int, num_episodes: int, checkpoint: Any = None,
         if free is not None and log > free:
             raise ValueError(
                 f"checkpoint={str(checkpoint)!r} is invalid: its episode log would need ≈"
-                f" {_size(log)} of disk, but {_size(free)} are free there")
+                f" {size_text(log)} of disk, but {size_text(free)} are free there")
     return needed
 
 
-def _size(num_bytes: float) -> str:
+def size_text(num_bytes: float) -> str:
+    """``num_bytes`` for a message: ``"512 B"``, ``"1.5 MiB"`` (binary units, up to PiB)."""
     for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
         if num_bytes < 1024 or unit == "PiB":
             return f"{num_bytes:,.1f} {unit}" if unit != "B" else f"{int(num_bytes)} B"

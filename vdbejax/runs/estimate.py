@@ -39,11 +39,11 @@ from vdbejax.envs.solvers import shortest_episode
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.results.bootstrap import NUM_RESAMPLES
 from vdbejax.runs.batching import (
-    _size,
     instances_host_bytes,
     log_bytes,
     result_bytes,
     settings_bytes,
+    size_text,
 )
 from vdbejax.runs.evaluation import evaluation_operations
 
@@ -132,11 +132,11 @@ class RunEstimate:
                       f" ({self.evaluations:,} evaluations of every agent,"
                       f" ≤ {count(self.evaluation_operations)} multiply-adds)"
                       if self.evaluations else "")
-        tasks = f", the task instances ≈ {_size(self.task_bytes)}" if self.task_bytes else ""
+        tasks = f", the task instances ≈ {size_text(self.task_bytes)}" if self.task_bytes else ""
         return (f"{self.agents:,} agents × {self.episodes:,} episodes: {_common(self)}"
-                f"{evaluation}, memory ≈ {_size(self.memory_bytes)} (the {self.settings:,}"
-                f" settings ≈ {_size(self.settings_bytes)}{tasks}), checkpoint ≈"
-                f" {_size(self.disk_bytes)} of disk")
+                f"{evaluation}, memory ≈ {size_text(self.memory_bytes)} (the {self.settings:,}"
+                f" settings ≈ {size_text(self.settings_bytes)}{tasks}), checkpoint ≈"
+                f" {size_text(self.disk_bytes)} of disk")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,8 +180,8 @@ class StudyEstimate:
         memory and checkpoint."""
         memory = max((part.memory_bytes for part in self.parts), default=0)
         disk = max((part.disk_bytes for part in self.parts), default=0)
-        return (f"{len(self.parts)} runs: {_common(self)}, memory ≈ {_size(memory)} and"
-                f" checkpoint ≈ {_size(disk)} of disk at the largest run")
+        return (f"{len(self.parts)} runs: {_common(self)}, memory ≈ {size_text(memory)} and"
+                f" checkpoint ≈ {size_text(disk)} of disk at the largest run")
 
 
 def _common(estimate: RunEstimate | StudyEstimate) -> str:
@@ -212,8 +212,8 @@ def announce_settings(settings: int, agents: int, episodes: int) -> None:
     sys.stderr.write(f"a sweep of {settings:,} settings ({agents:,} agents × {episodes:,}"
                      f" episodes): preparing them ≈"
                      f" {duration(settings * PREPARE_SECONDS_PER_SETTING)} before training,"
-                     f" memory ≈ {_size(memory)} (the settings ≈ {_size(settings_bytes(settings))})"
-                     "\n")
+                     f" memory ≈ {size_text(memory)} (the settings ≈"
+                     f" {size_text(settings_bytes(settings))})\n")
 
 
 def count(number: float) -> str:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,8 @@ from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, p
 
 #: Engine strategies a run may ask for (``"auto"``: the plan decides, :mod:`vdbejax.runs.plan`).
 STRATEGIES = ("auto", "sequential", "lockstep")
+#: The fields that change only the speed of a run, which every study takes.
+SPEED_FIELDS = ("memory_budget_bytes", "devices", "strategy", "threads", "mix_kinds")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,3 +124,25 @@ class RunOptions:
             raise ValueError(f"{unknown[0]} is not a run option: the options are"
                              f" {', '.join(f.name for f in dataclasses.fields(self))}")
         return dataclasses.replace(self, **changes)
+
+
+def study_run(run: RunOptions | None, caller: str, takes: Collection[str],
+              default: RunOptions | None = None) -> RunOptions:
+    """The run options of a study's entry point ``caller`` (``run_sweep``, …): ``run``, or
+    ``default`` (``RunOptions(progress=True)``) when None.
+
+    Raises:
+      ValueError: ``run`` is not a :class:`RunOptions`, or sets a field the study does not
+        take (one not in ``takes``, away from its default): it would be ignored.
+    """
+    if run is None:
+        return RunOptions(progress=True) if default is None else default
+    if not isinstance(run, RunOptions):
+        raise ValueError(f"run={run!r} is invalid: must be a RunOptions")
+    plain = RunOptions()
+    for field in dataclasses.fields(run):
+        value = getattr(run, field.name)
+        if field.name not in takes and value != getattr(plain, field.name):
+            raise ValueError(f"run.{field.name}={value!r} is invalid: {caller} does not take it"
+                             f" (it takes {', '.join(sorted(takes))})")
+    return run

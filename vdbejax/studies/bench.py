@@ -36,6 +36,7 @@ from vdbejax.results.solving import episodes_to_converge, summarize_solving
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task
+from vdbejax.runs.options import SPEED_FIELDS, study_run
 from vdbejax.studies.bench_methods import (
     COST_LIMIT,
     QUICK_METHODS,
@@ -154,6 +155,10 @@ def _mean_regret(result: GridResult, best: float) -> np.ndarray:
     return cumulative_regret(result.returns, best)[..., -1].mean(-1)
 
 
+#: The run options :func:`run_bench` takes (``record_optimal`` follows its group).
+BENCH_RUN_FIELDS = ("progress", "resume", "overwrite", "evaluate_every", *SPEED_FIELDS)
+
+
 def run_bench(
     out_dir: str | Path,
     *,
@@ -166,15 +171,10 @@ def run_bench(
     tune: bool = True,
     cost_limit: float = COST_LIMIT,
     quick: bool = False,
-    resume: bool = False,
-    overwrite: bool = False,
-    memory_budget_bytes: int | str | None = None,
-    devices: int | None = None,
-    progress: bool = True,
+    group: str = "suite",
     figures: bool = True,
     command: str | None = None,
-    evaluate_every: int | None = None,
-    group: str = "suite",
+    run: RunOptions | None = None,
 ) -> BenchResult:
     """Run every method on every task and write the ranking (module docstring).
 
@@ -193,19 +193,20 @@ def run_bench(
         cost on a task; it is left out of a task above it (``math.inf``: never).
       quick: the small benchmark of CI: :data:`QUICK_TASKS`, ``QUICK_METHODS``,
         ``QUICK_SEEDS``, ``QUICK_TUNE_SEEDS``, ``QUICK_EPISODES`` (override those arguments).
-      resume: continue an interrupted benchmark (whole task folders are reused).
-      overwrite: replace the finished results its folders hold (without it, a folder
-        holding one is refused in one line before it is trained again).
-      memory_budget_bytes, devices: as :class:`~vdbejax.runs.RunOptions` (speed only).
-      progress: status lines and the run's progress bar on stderr.
-      figures: write the figures.
-      command: the command line, recorded in ``meta.json`` and ``bench.md``.
-      evaluate_every: in the reported runs, every this many episodes the exact value of
-        each agent's greedy policy (:mod:`vdbejax.runs.evaluation`): its gap to the
-        optimum and the share of optimal greedy policies in the ranking.
       group: ``suite`` or ``bandits`` (:data:`~vdbejax.studies.bench_methods.GROUPS`: the
         default tasks and methods; ``bandits`` also records the fraction of optimal
         actions in the reported runs, % optimal action and reward per step in the ranking).
+      figures: write the figures.
+      command: the command line, recorded in ``meta.json`` and ``bench.md``.
+      run: how it runs (:class:`~vdbejax.runs.RunOptions`, default
+        ``RunOptions(progress=True)``), the fields of :data:`BENCH_RUN_FIELDS`:
+        ``progress``: status lines and the run's progress bar on stderr; ``resume``
+        continues an interrupted benchmark (whole task folders are reused); ``overwrite``
+        replaces the finished results its folders hold (without it, a folder holding one
+        is refused in one line before it is trained again); ``evaluate_every``: in the
+        reported runs, every this many episodes the exact value of each agent's greedy
+        policy (:mod:`vdbejax.runs.evaluation`): its gap to the optimum and the share of
+        optimal greedy policies in the ranking; the others change only the speed.
 
     Returns:
       the :class:`BenchResult` (also written to ``out_dir``).
@@ -213,8 +214,9 @@ def run_bench(
     Raises:
       ValueError: any invalid input, before training.
     """
-    for name, flag in (("tune", tune), ("quick", quick), ("resume", resume),
-                       ("progress", progress), ("figures", figures)):
+    run = study_run(run, "run_bench", BENCH_RUN_FIELDS)
+    progress, evaluate_every = run.progress, run.evaluate_every
+    for name, flag in (("tune", tune), ("quick", quick), ("figures", figures)):
         check_bool(name, flag)
     tasks, methods = group_defaults(group, tasks, methods)
     if quick:
@@ -228,8 +230,7 @@ def run_bench(
     seed = check_int("seed", seed, 0, UINT32_MAX - 1)
     cost_limit = check_in_range("cost_limit", cost_limit, 0.0, math.inf, low_open=True)
     chosen_methods = select_methods(methods)
-    knobs = RunOptions(resume=resume, overwrite=overwrite, memory_budget_bytes=memory_budget_bytes,
-                       devices=devices, progress=progress)
+    knobs = run.replace(evaluate_every=None)  # the tuning runs'
     bench_tasks = make_tasks(tasks)
     ran = {t.name: [m for m in chosen_methods if t.cost(m) <= cost_limit] for t in bench_tasks}
     left_out = [{"task": t.name, "method": m.name, "cost": t.cost(m), "limit": cost_limit}

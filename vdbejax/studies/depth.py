@@ -44,6 +44,7 @@ from vdbejax.results.solving import WINDOW, summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task
+from vdbejax.runs.options import SPEED_FIELDS, study_run
 from vdbejax.studies.bench import SOLVED, BenchTask
 from vdbejax.studies.bench_methods import BenchMethod, select_methods
 from vdbejax.studies.depth_report import (
@@ -132,6 +133,10 @@ def _families(families: Sequence[str] | str) -> list[str]:
     return names
 
 
+#: The run options :func:`run_depth` takes (it sets the chunks and the stop itself).
+DEPTH_RUN_FIELDS = ("progress", "resume", "overwrite", "evaluate_every", *SPEED_FIELDS)
+
+
 def run_depth(
     out_dir: str | Path,
     *,
@@ -142,14 +147,9 @@ def run_depth(
     episodes: int = EPISODES,
     seed: int = 0,
     quick: bool = False,
-    resume: bool = False,
-    overwrite: bool = False,
-    progress: bool = True,
     figure: bool = True,
     command: str | None = None,
-    memory_budget_bytes: int | str | None = None,
-    devices: int | None = None,
-    evaluate_every: int | None = None,
+    run: RunOptions | None = None,
 ) -> DepthResult:
     """Episodes to solve of every method on DeepSea and the chain of growing depth.
 
@@ -163,17 +163,18 @@ def run_depth(
       seed: root seed.
       quick: the ``QUICK_*`` sizes, seeds, episodes and methods (then none of them may be
         given; the CLI refuses them).
-      resume: continue an interrupted study (whole task folders reused, the interrupted
-        one continued from its checkpoint).
-      overwrite: replace the finished results its folders hold (without it, a folder
-        holding one is refused in one line before it is trained again).
-      progress: status lines and progress bars on stderr.
       figure: write ``depth.png``.
       command: the command line, recorded in ``depth.md`` and ``meta.json``.
-      memory_budget_bytes, devices: as :class:`~vdbejax.runs.RunOptions` (speed only).
-      evaluate_every: every this many episodes the exact value of each agent's greedy
-        policy (:mod:`vdbejax.runs.evaluation`): its gap to the optimum and the share of
-        optimal greedy policies per depth in ``depth.csv`` and ``depth.md``.
+      run: how it runs (:class:`~vdbejax.runs.RunOptions`, default
+        ``RunOptions(progress=True)``; the study sets the chunks and the stop), the fields
+        of :data:`DEPTH_RUN_FIELDS`: ``progress``: status lines and progress bars on
+        stderr; ``resume`` continues an interrupted study (whole task folders reused, the
+        interrupted one continued from its checkpoint); ``overwrite`` replaces the finished
+        results its folders hold (without it, a folder holding one is refused in one line
+        before it is trained again); ``evaluate_every``: every this many episodes the exact
+        value of each agent's greedy policy (:mod:`vdbejax.runs.evaluation`): its gap to
+        the optimum and the share of optimal greedy policies per depth in ``depth.csv`` and
+        ``depth.md``; the others change only the speed.
 
     Returns:
       the :class:`DepthResult` (also written to ``out_dir``).
@@ -184,8 +185,9 @@ def run_depth(
     from vdbejax.methods.agents import make_agent
     from vdbejax.runs.provenance import version_info
 
-    for name, flag in (("quick", quick), ("resume", resume), ("progress", progress),
-                       ("figure", figure)):
+    run = study_run(run, "run_depth", DEPTH_RUN_FIELDS)
+    progress, evaluate_every = run.progress, run.evaluate_every
+    for name, flag in (("quick", quick), ("figure", figure)):
         check_bool(name, flag)
     if quick:
         sizes, seeds, episodes, methods = QUICK_SIZES, QUICK_SEEDS, QUICK_EPISODES, QUICK_METHODS
@@ -217,9 +219,7 @@ def run_depth(
     check_output_paths(out, [CSV_FILE, SLOPES_FILE, MARKDOWN_FILE, META_FILE]
                        + ([FIGURE_FILE] if figure else [])
                        + ([POLICY_FIGURE_FILE] if figure and evaluate_every else []))
-    knobs = RunOptions(resume=resume, overwrite=overwrite, memory_budget_bytes=memory_budget_bytes,
-                       devices=devices, progress=progress, chunk_episodes=auto_chunk(episodes),
-                       evaluate_every=evaluate_every)
+    knobs = run.replace(chunk_episodes=auto_chunk(episodes))
     versions = version_info()  # the code that runs: read before training, not after
     started = time.perf_counter()
     with lock:
@@ -230,13 +230,13 @@ def run_depth(
                 sys.stderr.write(f"[{i + 1}/{len(tasks)}] {task.name} ({task.mdp.num_states}"
                                  f" states, best {task.best:g}): {len(chosen)} methods ×"
                                  f" {seeds} agents, up to {episodes} episodes\n")
-            run = train_until_solved(
+            trained = train_until_solved(
                 out / RUNS_FOLDER / task.folder, task.mdp, settings[task.name], seeds=seeds,
                 budget=episodes, stop=UntilSolved(best=task.best, baseline=task.baseline,
                                                   fraction=SOLVED),
                 seed=seed, options=knobs, task=task.name)
-            runs[task.name] = run
-            rows.extend(_task_rows(family, size, task, chosen, run))
+            runs[task.name] = trained
+            rows.extend(_task_rows(family, size, task, chosen, trained))
         slopes = growth_slopes(rows, chosen, chosen_families, seed=seed)
         meta = {"command": command, "elapsed_seconds": time.perf_counter() - started,
                 "options": {"families": chosen_families, "sizes": chosen_sizes, "seeds": seeds,

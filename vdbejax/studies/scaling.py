@@ -41,6 +41,7 @@ from vdbejax.results.solving import FRACTION, WINDOW, convergence_threshold, sum
 from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task
+from vdbejax.runs.options import SPEED_FIELDS, study_run
 from vdbejax.studies.scaling_adaptive import (
     AdaptiveRun,
     run_until_solved,
@@ -99,6 +100,10 @@ class ScalingResult:
     runs: dict[str, AdaptiveRun]
 
 
+#: The run options :func:`run_scaling` takes (it sets the stop itself).
+SCALING_RUN_FIELDS = ("chunk_episodes", "progress", "resume", "overwrite", *SPEED_FIELDS)
+
+
 def run_scaling(
     out_dir: str | Path,
     *,
@@ -112,18 +117,13 @@ def run_scaling(
     methods: Sequence[str] | None = None,
     fraction: float = FRACTION,
     window: int = WINDOW,
-    chunk_episodes: int | None = None,
     max_steps: int | None = None,
     drop_unsolved: bool = False,
     quick: bool = False,
-    progress: bool = True,
     figure: bool = True,
     save_runs: bool = True,
     command: str | None = None,
-    resume: bool = False,
-    overwrite: bool = False,
-    memory_budget_bytes: int | str | None = None,
-    devices: int | None = None,
+    run: RunOptions | None = None,
 ) -> ScalingResult:
     """Episodes to solve of every method on growing table-cleaning variants.
 
@@ -146,27 +146,26 @@ def run_scaling(
       methods: explorer names of :data:`METHODS` (default all).
       fraction, window: the solve criterion (:mod:`vdbejax.results.solving`): the moving
         average of the normalised returns reaching ``fraction``.
-      chunk_episodes: episodes between stop checks (default :func:`auto_chunk` of the
-        budget: a solved agent runs at most 1 % of the budget past its solve episode).
       max_steps: episode truncation (default 100, :func:`vdbejax.studies.sweeps.make_task`).
       drop_unsolved: skip settings on larger variants once none of their agents solved
         (off by default: SARSA + VDBE fails 3×1 and solves 4×1 within the same budget).
       quick: :data:`QUICK` sizes, seeds and episodes (overrides those arguments).
-      progress: a status line per variant on stderr.
       figure: write ``scaling.png``.
       save_runs: keep each variant's result folder ``runs/NxK/`` (its curves:
         ``returns.npz`` with every agent's returns, NaN past its stop, and
         ``episodes_run``; ``configs.csv``; ``meta.json``). ``False`` removes them once the
         study's files are written.
       command: the command line, recorded in ``scaling.md`` and ``meta.json``.
-      resume: continue an interrupted study: variants whose result folder is whole are
-        loaded, the interrupted one continues from its checkpoint
-        (``runs/NxK/checkpoint.npz``), the others run.
-      overwrite: replace the finished results its folders hold (without it, a folder
-        holding one is refused in one line before it is trained again).
-      memory_budget_bytes: per-device memory budget (sequential batches when the agents
-        do not fit); changes only the speed.
-      devices: devices to shard the agents over (default all); changes only the speed.
+      run: how it runs (:class:`~vdbejax.runs.RunOptions`, default
+        ``RunOptions(progress=True)``; the study sets the stop), the fields of
+        :data:`SCALING_RUN_FIELDS`: ``chunk_episodes``: episodes between stop checks
+        (default :func:`auto_chunk` of the budget: a solved agent runs at most 1 % of the
+        budget past its solve episode); ``progress``: a status line per variant on stderr;
+        ``resume`` continues an interrupted study: variants whose result folder is whole
+        are loaded, the interrupted one continues from its checkpoint
+        (``runs/NxK/checkpoint.npz``), the others run; ``overwrite`` replaces the finished
+        results its folders hold (without it, a folder holding one is refused in one line
+        before it is trained again); the others change only the speed.
 
     Returns:
       the :class:`ScalingResult` (also written to ``out_dir``).
@@ -183,7 +182,9 @@ def run_scaling(
     from vdbejax.runs.provenance import version_info
     from vdbejax.studies.sweeps import make_task
 
-    for name, flag in (("quick", quick), ("progress", progress), ("figure", figure),
+    knobs = study_run(run, "run_scaling", SCALING_RUN_FIELDS)
+    progress, chunk_episodes = knobs.progress, knobs.chunk_episodes
+    for name, flag in (("quick", quick), ("figure", figure),
                        ("drop_unsolved", drop_unsolved), ("save_runs", save_runs)):
         check_bool(name, flag)
     if quick:
@@ -203,8 +204,6 @@ def run_scaling(
     if window > episodes:  # every agent would be censored without a word
         raise ValueError(f"window={window} is invalid with episodes={episodes}: the moving"
                          " average needs that many episodes before any agent can solve")
-    if chunk_episodes is not None:
-        chunk_episodes = check_int("chunk_episodes", chunk_episodes, 1, INT32_MAX)
     if max_steps is not None:
         max_steps = check_int("max_steps", max_steps, 1, INT32_MAX)
     if isinstance(learners, str) or not learners:
@@ -213,8 +212,6 @@ def run_scaling(
     settings = study_settings(chosen, learners)
     for setting in settings:  # unknown learners: one line before anything runs
         make_agent(setting)
-    knobs = RunOptions(resume=resume, overwrite=overwrite, memory_budget_bytes=memory_budget_bytes,
-                       devices=devices)
     tasks = []
     for sections, goblets in parsed:  # every task built and solved before any folder or run
         size = f"{sections}x{goblets}"
@@ -267,21 +264,21 @@ def run_scaling(
             if progress:
                 sys.stderr.write(f"{size} ({mdp.num_states} states): {len(remaining)} settings ×"
                                  f" {seeds} agents, up to {budget} episodes\n")
-            run = train_until_solved(
+            trained = train_until_solved(
                 out / RUNS_FOLDER / size, mdp, remaining, seeds=seeds, budget=budget,
                 stop=UntilSolved(best=best, baseline=baseline, fraction=fraction,
                                  window=window, max_seconds=seconds),
-                seed=seed, options=knobs.replace(chunk_episodes=chunk, progress=progress),
+                seed=seed, options=knobs.replace(chunk_episodes=chunk),
                 task=f"variant:{size}")
-            runs[size] = run
+            runs[size] = trained
             if progress:
                 sys.stderr.write(
-                    f"{size} ({mdp.num_states} states): {int(run.solve.solved.sum())}/"
-                    f"{run.solve.solved.size} agents solved, {run.elapsed_seconds:.1f} s"
-                    f" ({run.steps_per_second / 1e6:.2f} M steps/s)\n")
-            reached = int(run.episodes_run.max())
-            for c, setting in enumerate(run.settings):
-                summary = summarize_solving(run.solve.episodes[c], run.solve.solved[c])
+                    f"{size} ({mdp.num_states} states): {int(trained.solve.solved.sum())}/"
+                    f"{trained.solve.solved.size} agents solved, {trained.elapsed_seconds:.1f} s"
+                    f" ({trained.steps_per_second / 1e6:.2f} M steps/s)\n")
+            reached = int(trained.episodes_run.max())
+            for c, setting in enumerate(trained.settings):
+                summary = summarize_solving(trained.solve.episodes[c], trained.solve.solved[c])
                 rows.append(dict(base, **_setting_columns(setting, order[setting]), status="run",
                                  agents=summary.agents, solved=summary.solved,
                                  fraction_solved=summary.fraction,
@@ -290,19 +287,19 @@ def run_scaling(
                                  median_episodes=summary.median, median_low=summary.median_low,
                                  median_high=summary.median_high, budget=summary.budget,
                                  median_text=summary.median_text(),
-                                 agent_episodes=int(run.episodes_run[c].sum()),
-                                 nonfinite_agents=int(run.nonfinite[c].sum())))
+                                 agent_episodes=int(trained.episodes_run[c].sum()),
+                                 nonfinite_agents=int(trained.nonfinite[c].sum())))
                 if drop_unsolved and summary.solved == 0:
                     dropped_on[setting] = f"on {size} in {summary.budget} episodes"
             remaining = [s for s in remaining if s not in dropped_on]
             variants.append(dict(
-                base, shortest_solution=shortest, settings_run=len(run.settings),
-                agents=int(run.episodes_run.size), budget_episodes=budget, chunk_episodes=chunk,
-                episodes_reached=reached, stopped=run.stopped,
-                agent_episodes=int(run.episodes_run.sum()),
-                fixed_budget_agent_episodes=int(run.episodes_run.size) * budget,
-                agent_steps=run.agent_steps, training_seconds=run.elapsed_seconds,
-                compile_seconds=run.compile_seconds, steps_per_second=run.steps_per_second))
+                base, shortest_solution=shortest, settings_run=len(trained.settings),
+                agents=int(trained.episodes_run.size), budget_episodes=budget, chunk_episodes=chunk,
+                episodes_reached=reached, stopped=trained.stopped,
+                agent_episodes=int(trained.episodes_run.sum()),
+                fixed_budget_agent_episodes=int(trained.episodes_run.size) * budget,
+                agent_steps=trained.agent_steps, training_seconds=trained.elapsed_seconds,
+                compile_seconds=trained.compile_seconds, steps_per_second=trained.steps_per_second))
         rank = {task[0]: i for i, task in enumerate(tasks)}
         rows.sort(key=lambda r: (rank[r["size"]], order[row_setting(r)]))
         options = {"sizes": [t[0] for t in tasks], "seeds": seeds, "episodes": episodes,

@@ -20,12 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax.engine.progress import ProgressCallback
 from vdbejax.methods.agents import AgentOptions, Setting
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.policy import policy_summary
 from vdbejax.results.solving import FRACTION, WINDOW, SolveTimes, episodes_to_converge
-from vdbejax.runs.options import RunOptions
+from vdbejax.runs.options import RunOptions, study_run
 
 
 @dataclasses.dataclass
@@ -79,6 +78,12 @@ class AdaptiveRun:
         return self.agent_steps / max(self.elapsed_seconds - self.compile_seconds, 1e-9)
 
 
+#: The run options :func:`run_until_solved` takes (its stop policy is built from its
+#: arguments).
+UNTIL_SOLVED_RUN_FIELDS = tuple(field.name for field in dataclasses.fields(RunOptions)
+                                if field.name != "stop")
+
+
 def run_until_solved(
     mdp: Any,
     settings: Sequence[Setting],
@@ -92,15 +97,12 @@ def run_until_solved(
     window: int = WINDOW,
     seed: int = 0,
     options: AgentOptions = AgentOptions(),
-    chunk_episodes: int = 100,
-    threads: int | None = None,
-    progress: bool | ProgressCallback = False,
     run: RunOptions | None = None,
 ) -> AdaptiveRun:
     """Train ``settings × num_seeds`` agents until each has solved ``mdp`` or the budget ends.
 
     :func:`~vdbejax.run_grid` with the stop policy :class:`~vdbejax.runs.UntilSolved`:
-    after each chunk of ``chunk_episodes`` episodes, an agent whose moving average has
+    after each chunk of ``run.chunk_episodes`` episodes, an agent whose moving average has
     reached a normalised score of ``fraction``
     (:func:`~vdbejax.results.solving.episodes_to_converge`) stops at the
     end of that chunk (its stop episode, :attr:`AdaptiveRun.episodes_run`). The run ends
@@ -124,12 +126,10 @@ def run_until_solved(
       fraction, window: the solve criterion (a normalised score, 0.9 by default).
       seed: root seed.
       options: values shared by every agent (α, γ, …).
-      chunk_episodes: episodes between stop checks (the results do not depend on it; the
-        stop episodes do).
-      threads: the engine's worker threads (default: the CPUs this process may use).
-      progress: True for a progress bar on stderr, or ``progress(done, total, elapsed)``.
-      run: further run options (checkpoint, resume, devices, memory budget); the
-        arguments above override its fields.
+      run: how it runs (:class:`~vdbejax.runs.RunOptions`: chunks, progress, threads,
+        checkpoint, resume, devices, memory budget; its stop is the one above).
+        ``run.chunk_episodes`` is the episodes between stop checks (default 100; the
+        results do not depend on it, the stop episodes do).
 
     Returns:
       the :class:`AdaptiveRun`.
@@ -141,11 +141,11 @@ def run_until_solved(
     from vdbejax.runs import UntilSolved, run_grid
     from vdbejax.validation import INT32_MAX, check_int
 
+    run = study_run(run, "run_until_solved", UNTIL_SOLVED_RUN_FIELDS, RunOptions())
     check_int("max_episodes", max_episodes, 1, INT32_MAX)  # named as the caller knows it
     stop = UntilSolved(best=best, baseline=baseline, fraction=fraction, window=window,
                        max_seconds=max_seconds)
-    run = (RunOptions() if run is None else run).replace(
-        stop=stop, chunk_episodes=chunk_episodes, threads=threads, progress=progress)
+    run = run.replace(stop=stop, chunk_episodes=run.chunk_episodes or 100)
     compiled_before = compile_seconds()
     result = run_grid(mdp, settings, num_seeds=num_seeds, num_episodes=max_episodes, seed=seed,
                       options=options, run=run)

@@ -11,6 +11,7 @@ same result folder as :func:`~vdbejax.reproduce` (minus the paper's claims repor
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -35,6 +36,7 @@ from vdbejax.results.summary import SUMMARY_FILE, write_summary
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import announce_settings
+from vdbejax.runs.options import study_run
 from vdbejax.studies import train_in_folder
 from vdbejax.studies.sweep_file import (  # noqa: F401 (the sweep file's names, here since 0.1)
     SWEEP_KEYS,
@@ -116,15 +118,40 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
     return summaries
 
 
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """What a sweep trains: the settings (:func:`~vdbejax.studies.sweep_file.sweep_settings`)
+    and the plug-ins that register their methods — the sweep file's keys of the same names.
+
+    Attributes:
+      learners: learner names of the product (none: ``settings`` only).
+      explorers: explorer names (built-in or registered by ``plugins``).
+      axes: ``{hyperparameter: values}`` (see :func:`~vdbejax.methods.grid_axes.sweep`).
+      shared: ``{hyperparameter: value}`` for every setting that has the field.
+      exclude: settings of the product to leave out, as tables of values they match.
+      settings: explicit settings, ``{"learner": …, "explorer": …, field: value}``.
+      plugins: files or modules to import first (:func:`load_plugins`).
+    """
+
+    learners: Sequence[str] = ()
+    explorers: Sequence[str] = ()
+    axes: Mapping[str, Sequence[Any]] | None = None
+    shared: Mapping[str, Any] | None = None
+    exclude: Sequence[Mapping[str, Any]] = ()
+    settings: Sequence[Mapping[str, Any]] = ()
+    plugins: Sequence[str] = ()
+
+
+#: The run options :func:`run_sweep` takes (a checkpoint is the folder's, the budget fixed).
+SWEEP_RUN_FIELDS = ("chunk_episodes", "progress", "resume", "overwrite", "memory_budget_bytes",
+                    "devices", "strategy", "threads", "mix_kinds", "evaluate_every",
+                    "record_optimal")
+
+
 def run_sweep(
     out_dir: str | os.PathLike,
+    sweep: Sweep,
     *,
-    learners: Sequence[str] = (),
-    explorers: Sequence[str] = (),
-    axes: Mapping[str, Sequence[Any]] | None = None,
-    shared: Mapping[str, Any] | None = None,
-    exclude: Sequence[Mapping[str, Any]] = (),
-    settings: Sequence[Mapping[str, Any]] = (),
     task: str = "table_cleaning",
     seeds: int = 20,
     episodes: int = 1000,
@@ -132,29 +159,15 @@ def run_sweep(
     replicates: int = 1,
     max_steps: int | None = None,
     invalid_action: str = "noop",
-    chunk_episodes: int | None = None,
-    plugins: Sequence[str] = (),
-    progress: bool = True,
-    figures: bool = True,
-    resume: bool = False,
-    overwrite: bool = False,
-    memory_budget_bytes: int | str | None = None,
-    devices: int | None = None,
-    evaluate_every: int | None = None,
-    record_optimal: bool = False,
     instances: str = "shared",
+    figures: bool = True,
+    run: RunOptions | None = None,
 ) -> GridResult:
     """Train a sweep on a task and write the result folder.
 
     Args:
       out_dir: output folder (created if needed).
-      learners: learner names of the product (none: ``settings`` only).
-      explorers: explorer names (built-in or registered by ``plugins``).
-      axes: ``{hyperparameter: values}`` (see :func:`~vdbejax.methods.grid_axes.sweep`).
-      shared: ``{hyperparameter: value}`` for every setting that has the field.
-      exclude: settings of the product to leave out, as tables of values they match
-        (:func:`~vdbejax.studies.sweep_file.sweep_settings`).
-      settings: explicit settings, ``{"learner": …, "explorer": …, field: value}``.
+      sweep: the settings to train (:class:`Sweep`).
       task: a task name (:func:`~vdbejax.studies.task_names.make_task`: the suite's,
         ``gym:<id>``, ``module:function`` or ``file.py:function``).
       seeds: agents per setting (per replicate).
@@ -165,32 +178,26 @@ def run_sweep(
         ``summary_pooled.csv`` and ``replicates.csv`` come beside them.
       max_steps: episode truncation length (default: the task's, :func:`make_task`).
       invalid_action: ``noop`` or ``fail``.
-      chunk_episodes: episodes per jitted chunk (None: the plan's,
-        :func:`~vdbejax.runs.plan.default_chunk_episodes`).
-      plugins: files or modules to import first (:func:`load_plugins`).
-      progress: a progress bar on stderr.
-      figures: write ``fig3.png`` and ``sensitivity.png``.
-      resume: continue an interrupted run from ``out_dir/checkpoint.npz`` (written after
-        every chunk, removed once the results are saved), or load ``out_dir``'s finished
-        result of this same run.
-      overwrite: replace a finished result (or an interrupted run's checkpoint) that
-        ``out_dir`` holds; without it that is refused.
-      memory_budget_bytes: per-device memory budget (sequential batches when the agents
-        do not fit); changes only the speed.
-      devices: devices to shard the agents over (default all); changes only the speed.
-      evaluate_every: every this many episodes, the exact value of each agent's greedy
-        policy (:mod:`vdbejax.runs.evaluation`): ``policy_values`` in ``returns.npz``, the
-        policy columns of ``summary.csv`` and ``policy_gap.png``; the returns are the same.
-      record_optimal: each episode's fraction of optimal actions
-        (:mod:`vdbejax.runs.optimal_actions`): ``optimal_actions`` in ``returns.npz``, the
-        ``optimal_actions`` and ``reward_per_step`` columns of ``summary.csv``; the returns
-        are the same.
       instances: ``"shared"`` (every agent on the one task), or ``"per-agent"``: a task
         family (:data:`~vdbejax.envs.suite.FAMILY_NAMES`: ``testbed:N``, ``garnet:SxAxB``,
         ``variant:NxK``, …) gives every agent its own instance, drawn from the root seed
         and its seed index (:mod:`vdbejax.runs.instances`). Either way a family's
         parameters are axes (``task.std``, ``task.instance``: the instance seed; those of
         ``variant:NxK`` only per agent).
+      figures: write ``fig3.png`` and ``sensitivity.png``.
+      run: how it runs (:class:`~vdbejax.runs.RunOptions`, default
+        ``RunOptions(progress=True)``: a progress bar on stderr), the fields of
+        :data:`SWEEP_RUN_FIELDS`: ``resume`` continues an interrupted run from
+        ``out_dir/checkpoint.npz`` (written after every chunk, removed once the results are
+        saved), or loads ``out_dir``'s finished result of this same run; ``overwrite``
+        replaces a finished result (or an interrupted run's checkpoint) that ``out_dir``
+        holds (without it that is refused); ``evaluate_every``: every this many episodes,
+        the exact value of each agent's greedy policy (:mod:`vdbejax.runs.evaluation`):
+        ``policy_values`` in ``returns.npz``, the policy columns of ``summary.csv`` and
+        ``policy_gap.png``; ``record_optimal``: each episode's fraction of optimal actions
+        (:mod:`vdbejax.runs.optimal_actions`): ``optimal_actions`` in ``returns.npz``, the
+        ``optimal_actions`` and ``reward_per_step`` columns of ``summary.csv``. The returns
+        are the same whatever they are.
 
     Returns:
       the :class:`~vdbejax.results.grid_result.GridResult` (also saved in ``out_dir``).
@@ -198,30 +205,31 @@ def run_sweep(
     Raises:
       ValueError: any invalid input, before training starts.
     """
-    load_plugins(list(plugins))
+    if not isinstance(sweep, Sweep):
+        raise ValueError(f"sweep={sweep!r} is invalid: must be a Sweep")
+    run = study_run(run, "run_sweep", SWEEP_RUN_FIELDS)
+    learners, explorers, axes = sweep.learners, sweep.explorers, sweep.axes
+    load_plugins(list(sweep.plugins))
     check_choice("instances", instances, ("shared", "per-agent"))
     mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
     seeds = check_int("seeds", seeds, 1, INT32_MAX)  # plain ints (NumPy ones welcome)
     episodes = check_int("episodes", episodes, 1, INT32_MAX)
     replicates = check_replicates(replicates, seeds)
-    progress = check_bool("progress", progress)
     # Counted from the axes before any setting is made: a sweep too large for the machine
     # is refused, and a large one announced, before its settings take the memory.
     planned = (sweep_size(learners, explorers, axes) if learners or explorers or axes else 0) \
-        + (len(settings) if isinstance(settings, Sequence) else 0)
+        + (len(sweep.settings) if isinstance(sweep.settings, Sequence) else 0)
     check_run_size(planned * seeds * replicates, episodes, num_settings=planned)
-    if progress:
+    if run.progress:
         announce_settings(planned, planned * seeds * replicates, episodes)
-    grid_settings = sweep_settings(learners, explorers, axes, shared, exclude, settings)
+    grid_settings = sweep_settings(learners, explorers, axes, sweep.shared, sweep.exclude,
+                                   sweep.settings)
     family = None  # a task family: an instance per agent, or task values (task.std, …)
     if instances == "per-agent" or any(s.task_values for s in grid_settings):
         family = make_suite_family(task, max_steps=max_steps, invalid_action=invalid_action,
                                    shared=instances != "per-agent")
     figures = check_bool("figures", figures)
-    run = RunOptions(chunk_episodes=chunk_episodes, progress=progress, resume=resume,
-                     overwrite=overwrite, memory_budget_bytes=memory_budget_bytes, devices=devices,
-                     evaluate_every=evaluate_every, record_optimal=record_optimal)
     prepared = prepare_grid(mdp if family is None else family, grid_settings,
                             num_seeds=seeds * replicates, num_episodes=episodes, seed=seed,
                             run=run)
@@ -229,13 +237,13 @@ def run_sweep(
     def annotate(result: GridResult) -> None:
         annotate_replicates(result.meta, replicates, seeds)
         # Files as absolute paths: the folder's sweep file (sweep_from_meta) runs anywhere.
-        files = absolute_files({"task": task, "plugins": list(plugins)})
+        files = absolute_files({"task": task, "plugins": list(sweep.plugins)})
         result.meta.update(invalid_action=invalid_action, task=files["task"],
                            sweep={"learners": list(learners), "explorers": list(explorers),
                                   "axes": {k: list(v) for k, v in (axes or {}).items()},
-                                  "shared": dict(shared or {}),
-                                  "exclude": [dict(rule) for rule in exclude],
-                                  "settings": [dict(entry) for entry in settings],
+                                  "shared": dict(sweep.shared or {}),
+                                  "exclude": [dict(rule) for rule in sweep.exclude],
+                                  "settings": [dict(entry) for entry in sweep.settings],
                                   "plugins": files["plugins"]})
 
     # The reference line is the run's own best return (a family's: its instances' mean),
