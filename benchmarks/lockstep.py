@@ -69,9 +69,9 @@ def block_program_hlo(settings: list[Any], lanes: int, chunk_length: int = 64) -
     import jax.numpy as jnp
 
     from vdbejax.engine import lockstep
+    from vdbejax.engine.agent_state import for_task, init_agents
     from vdbejax.engine.kinds import KindSwitch
     from vdbejax.engine.programs import Programs
-    from vdbejax.engine.state import for_task, init_agents
     from vdbejax.engine.step import ChunkBounds, ChunkBuffers, LoopLimits
     from vdbejax.envs.table_cleaning import make_mdp
     from vdbejax.runs import grid_agents

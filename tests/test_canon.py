@@ -388,7 +388,7 @@ def test_plugin_check_refuses_what_the_engine_cannot_honour(attributes, message)
 
 
 def test_model_tables_are_counted_and_reserved():
-    from vdbejax.engine.state import state_bytes, table_shape
+    from vdbejax.engine.agent_state import state_bytes, table_shape
     from vdbejax.methods.agents import make_agent, stack_agents, table_layout
 
     mdp = stochastic_chain()
@@ -554,7 +554,7 @@ def test_long_stage_tables_keep_the_step_loop_native():
 @pytest.mark.parametrize("moment", ["step", "episode", "every"])
 def test_planning_moments_are_kept(moment):
     from vdbejax.engine import run_agents
-    from vdbejax.engine.state import agent_keys, broadcast_agents
+    from vdbejax.engine.agent_state import agent_keys, broadcast_agents
     from vdbejax.methods.agents import make_agent, stack_agents
     from vdbejax.methods.contract import Table
 
@@ -777,7 +777,7 @@ def test_a_whole_table_learner_writes_its_stage_tables_back_to_its_own_rows():
     visits per (s, a, stage) adds up to its own steps (a block written at another agent's
     rows would not)."""
     from vdbejax.engine import EngineOptions, run_agents
-    from vdbejax.engine.state import agent_keys, broadcast_agents
+    from vdbejax.engine.agent_state import agent_keys, broadcast_agents
     from vdbejax.methods.agents import make_agent, stack_agents
     from vdbejax.methods.contract import Table
 

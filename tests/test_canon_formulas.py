@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from vdbejax.methods import model as model_lib
-from vdbejax.methods.learners import make_learner
 from vdbejax.methods.contract import Context, Transition
 from vdbejax.methods.dyna import simulated_update
+from vdbejax.methods.learners import make_learner
 from vdbejax.methods.model_based import optimistic_backup
 
 F = np.float32

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from vdbejax import RunOptions, run_grid
-from vdbejax.engine.state import task_facts
+from vdbejax.engine.agent_state import task_facts
 from vdbejax.envs.tabular import make_tabular_mdp
 from vdbejax.methods.agents import (
     AgentOptions,

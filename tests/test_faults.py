@@ -15,8 +15,8 @@ import pytest
 from vdbejax import cli
 from vdbejax.results import io
 from vdbejax.results.grid_result import GridResult
-from vdbejax.runs import checkpoint as checkpoints
 from vdbejax.runs import RunOptions
+from vdbejax.runs import checkpoint as checkpoints
 from vdbejax.studies.sweeps import Sweep, run_sweep
 
 RUN = ["--learners", "qlearning", "--explorers", "egreedy,vdbe", "--seeds", "2", "--episodes",

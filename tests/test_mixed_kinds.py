@@ -8,8 +8,8 @@ import pytest
 
 from vdbejax import engine
 from vdbejax.engine import kinds
-from vdbejax.envs.instances import stack_instances
 from vdbejax.envs.table_cleaning import make_mdp
+from vdbejax.envs.task_instances import stack_instances
 from vdbejax.methods.agents import AgentOptions, Setting, make_agent, stack_agents
 
 # The paper's kinds, kinds with tables of their own (VDBE's ε, UCB1's counts, Double

@@ -20,7 +20,7 @@ from vdbejax.results.optimal_actions import (
     step_curves,
 )
 from vdbejax.runs import RunOptions, prepare_grid, run_grid, run_prepared
-from vdbejax.runs.optimal_actions import optimal_action_mask
+from vdbejax.runs.optimal_record import optimal_action_mask
 
 SETTINGS = [Setting("sarsa", "vdbe", 0.001), Setting("qlearning", "egreedy", 0.1),
             Setting("qlearning", "vdbe_softmax", 1.0)]

@@ -8,7 +8,7 @@ import pytest
 from small_grid import interrupt_then_resume
 
 from vdbejax import cli
-from vdbejax.engine.state import init_agents
+from vdbejax.engine.agent_state import init_agents
 from vdbejax.envs.solvers import best_return, optimal_q_values
 from vdbejax.envs.tabular import make_tabular_mdp
 from vdbejax.methods.agents import Setting, make_agent, stack_agents

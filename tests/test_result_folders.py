@@ -22,9 +22,9 @@ from vdbejax import cli
 from vdbejax.results import folder_lock, io
 from vdbejax.results.folder_lock import FolderLock
 from vdbejax.results.grid_result import GridResult
+from vdbejax.runs import RunOptions
 from vdbejax.runs.checkpoint import CHECKSUM_KEY, contents_digest, log_path
 from vdbejax.studies import folder as studies_folder
-from vdbejax.runs import RunOptions
 from vdbejax.studies import sweeps
 from vdbejax.studies.sweeps import Sweep
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from vdbejax import engine
-from vdbejax.engine.state import draw_base, reward_uniform
+from vdbejax.engine.agent_state import draw_base, reward_uniform
 from vdbejax.envs import make_tabular_mdp, solvers
 from vdbejax.envs.reward_noise import BERNOULLI, GAUSSIAN, noisy_reward
 from vdbejax.methods.agents import Setting, make_agent, stack_agents

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from vdbejax import engine
-from vdbejax.envs.instances import stack_instances
 from vdbejax.envs.suite.bandits import arm_means, make_bandit
 from vdbejax.envs.tabular import make_tabular_mdp
+from vdbejax.envs.task_instances import stack_instances
 from vdbejax.methods.agents import Setting, make_agent, stack_agents
 
 SETTINGS = [Setting("qlearning", "egreedy", 0.1), Setting("sarsa", "vdbe", 0.001),
@@ -120,7 +120,7 @@ def test_bad_instances_are_one_line():
                           optimal_action=np.ones((1, 4), bool))
 
 
-# A run of a task family (vdbejax.runs.instances): an instance per agent from its seed.
+# A run of a task family (vdbejax.runs.task_family_run): an instance per agent from its seed.
 
 RUN_SETTINGS = [Setting("qlearning", "egreedy", 0.1), Setting("qlearning", "vdbe", 1.0)]
 
@@ -191,7 +191,7 @@ def run_options(**options):
 def test_a_learner_is_told_the_facts_of_every_instance_whatever_the_batch():
     # UCBVI under rlberry's convention takes its reward range from the task's facts: an
     # agent's bits must not depend on which instances share its batch.
-    from vdbejax.engine.state import task_facts
+    from vdbejax.engine.agent_state import task_facts
 
     ucbvi = Setting("ucbvi", "greedy", None, hyperparameters={"convention": "rlberry"})
     params = engine.broadcast_agents(stack_agents([make_agent(ucbvi)]), 4)

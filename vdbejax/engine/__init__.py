@@ -2,7 +2,7 @@
 
 Read it one module at a time:
 
-* :mod:`~vdbejax.engine.state` — what an agent carries (:class:`AgentState`), how it
+* :mod:`~vdbejax.engine.agent_state` — what an agent carries (:class:`AgentState`), how it
   starts, and its counter-based random stream;
 * :mod:`~vdbejax.engine.step` — the step rule (:func:`lockstep_iteration`): one
   iteration of a batch of agents of one kind, calling the plug-ins
@@ -14,9 +14,9 @@ Read it one module at a time:
 * :mod:`~vdbejax.engine.sequential` — native step loops of four agents side by side, one
   program for every kind (:mod:`~vdbejax.engine.kinds`), work items on threads
   (:mod:`~vdbejax.engine.work_items`; the default on a CPU);
-* :mod:`~vdbejax.engine.driver` — :func:`run_agents`, the Python loop over chunks, run
+* :mod:`~vdbejax.engine.chunk_loop` — :func:`run_agents`, the Python loop over chunks, run
   as its :class:`EngineOptions` say, calling its :class:`ChunkHooks` between chunks;
-* :mod:`~vdbejax.engine.instances` — a task instance per agent, riding with its
+* :mod:`~vdbejax.engine.agent_on_task` — a task instance per agent, riding with its
   hyperparameters.
 
 Both strategies run the same step function, so they compute the same thing, bit for bit
@@ -26,7 +26,15 @@ agent's key and hyperparameters: every iteration draws its uniforms from a hash 
 bounded by agents × (table size + chunk length): only per-episode return and length are
 recorded.
 """
-from vdbejax.engine.driver import (
+from vdbejax.engine.agent_state import (
+    AgentState,
+    agent_keys,
+    broadcast_agents,
+    init_agent,
+    init_agents,
+    uniforms,
+)
+from vdbejax.engine.chunk_loop import (
     STRATEGIES,
     ChunkHooks,
     EngineOptions,
@@ -40,14 +48,6 @@ from vdbejax.engine.lockstep import DEFAULT_UNROLL, MAX_SAFE_BATCH, run_chunk
 from vdbejax.engine.progress import ProgressCallback, text_progress
 from vdbejax.engine.rules import auto_strategy, default_max_batch, mixes_kinds
 from vdbejax.engine.sequential import native_step_loops
-from vdbejax.engine.state import (
-    AgentState,
-    agent_keys,
-    broadcast_agents,
-    init_agent,
-    init_agents,
-    uniforms,
-)
 from vdbejax.engine.step import lockstep_iteration, start_support
 
 __all__ = [

@@ -2,7 +2,7 @@
 hyperparameters.
 
 :func:`with_instances` puts each agent's row of a
-:class:`~vdbejax.envs.instances.TaskInstances` into every kind's batched hyperparameters
+:class:`~vdbejax.envs.task_instances.TaskInstances` into every kind's batched hyperparameters
 (:class:`AgentOnTask`), so every gather, slice, refill, compaction and packed lane of both
 strategies moves an agent's instance with it. The step rule then reads lane ``i``'s
 instance from row ``i`` of the lane's hyperparameters (:func:`lane_transition`,
@@ -21,9 +21,9 @@ from vdbejax._numerics import sample_categorical
 from vdbejax._pytree import pytree_dataclass
 from vdbejax.engine.kinds import KindSwitch
 from vdbejax.engine.lanes import take
-from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.reward_noise import noisy_reward
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.envs.task_instances import TaskInstances
 from vdbejax.methods.agents import Agent, AgentParams
 
 Array = jax.Array

@@ -11,8 +11,8 @@ import numpy as np
 from jax import lax
 
 from vdbejax._pytree import pytree_dataclass
-from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.envs.task_instances import TaskInstances
 from vdbejax.methods.agents import AgentParams, table_layout
 from vdbejax.methods.contract import TaskFacts
 from vdbejax.methods.model import capacity

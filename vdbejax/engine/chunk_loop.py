@@ -18,18 +18,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vdbejax.engine.agent_on_task import instance_template, with_instance_masks, with_instances
+from vdbejax.engine.agent_state import AgentState, for_task, init_agents
 from vdbejax.engine.chunks import ChunkSchedule
-from vdbejax.engine.instances import instance_template, with_instance_masks, with_instances
 from vdbejax.engine.lockstep import DEFAULT_UNROLL, LockstepOptions, run_chunk_lockstep
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.programs import compile_seconds as _compile_seconds
 from vdbejax.engine.progress import ProgressCallback
 from vdbejax.engine.rules import auto_strategy, default_max_batch, mixes_kinds
 from vdbejax.engine.sequential import SequentialRun
-from vdbejax.engine.state import AgentState, for_task, init_agents
 from vdbejax.engine.work_items import created_in_items, next_power_of_two
-from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.envs.task_instances import TaskInstances
 from vdbejax.methods.agents import AgentParams
 from vdbejax.methods.plugin_check import check_plugin
 from vdbejax.validation import check_choice, check_int
@@ -174,7 +174,7 @@ def run_agents(
     """Train a batch of agents for ``num_episodes`` episodes each.
 
     Args:
-      mdp: the task, or a :class:`~vdbejax.envs.instances.TaskInstances` (one instance per
+      mdp: the task, or a :class:`~vdbejax.envs.task_instances.TaskInstances` (one instance per
         agent, in agent order: each agent's results are those of the agent alone on its
         instance, in any batch, under either strategy).
       params: batched hyperparameters, leading axis = agents.
@@ -190,7 +190,7 @@ def run_agents(
         (:attr:`RunResult.optimal`). ``None`` (default):
         no count, the same programs and results as without it.
 
-    Every kind's learner is first set for the task (:func:`~vdbejax.engine.state.for_task`:
+    Every kind's learner is first set for the task (:func:`~vdbejax.engine.agent_state.for_task`:
     the facts of ``mdp`` a method's convention depends on).
 
     Returns:

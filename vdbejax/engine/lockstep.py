@@ -29,9 +29,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vdbejax.engine.agent_state import AgentState
 from vdbejax.engine.kinds import KindSwitch, can_switch, is_whole_kind, switch_block_size
 from vdbejax.engine.programs import Programs
-from vdbejax.engine.state import AgentState
 from vdbejax.engine.step import (
     ChunkBounds,
     ChunkBuffers,

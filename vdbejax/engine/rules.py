@@ -8,9 +8,9 @@ from __future__ import annotations
 import jax
 import numpy as np
 
+from vdbejax.engine.agent_state import AgentState
 from vdbejax.engine.lanes import lanes_within_index
 from vdbejax.engine.lockstep import MAX_SAFE_BATCH
-from vdbejax.engine.state import AgentState
 from vdbejax.methods.agents import AgentParams
 
 

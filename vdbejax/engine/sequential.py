@@ -31,12 +31,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from vdbejax import _pytree, _xla_flags
+from vdbejax.engine.agent_state import AgentState, init_agents
 from vdbejax.engine.chunks import ChunkSchedule
 from vdbejax.engine.kinds import KindSwitch, can_switch, switch_block_size
 from vdbejax.engine.lanes import UNROLLED_LANES_MAX, at_lane
 from vdbejax.engine.packing import pack, unpack
 from vdbejax.engine.programs import Call, Programs
-from vdbejax.engine.state import AgentState, init_agents
 from vdbejax.engine.step import (
     ChunkBounds,
     ChunkBuffers,

@@ -30,11 +30,11 @@ import numpy as np
 
 from vdbejax import _pytree
 from vdbejax._numerics import sample_categorical
-from vdbejax.engine.instances import lane_optimal, lane_rows, lane_start, lane_transition
+from vdbejax.engine.agent_on_task import lane_optimal, lane_rows, lane_start, lane_transition
+from vdbejax.engine.agent_state import AgentState, draw_base, reward_uniform, uniforms_from
 from vdbejax.engine.kind_step import StepOperands, kind_part, num_uniforms, uniform_parts
 from vdbejax.engine.kinds import KindSwitch, is_whole_kind, switch_part, table_forms, write_form
 from vdbejax.engine.lanes import is_unrolled, put_learned, put_where, take, take_row, write_lanes
-from vdbejax.engine.state import AgentState, draw_base, reward_uniform, uniforms_from
 from vdbejax.engine.whole import LearnedStep, after_learning, defers_selection, whole_blocks
 from vdbejax.envs.reward_noise import noisy_reward
 from vdbejax.envs.tabular import TabularMDP
@@ -434,7 +434,7 @@ def lockstep_iteration(
         fixes the shapes and the episode length).
       agent: batched hyperparameters of one kind (leading axis = agents), or a
         :class:`KindSwitch` of every kind's and the one that runs; rows that carry each
-        agent's own task instance (:class:`~vdbejax.engine.instances.AgentOnTask`) are
+        agent's own task instance (:class:`~vdbejax.engine.agent_on_task.AgentOnTask`) are
         stepped on it.
       agents: batched states, tables flattened as above.
       buffers: the chunk's flat ``[B·L]`` records (``L`` episodes per agent).
@@ -444,7 +444,7 @@ def lockstep_iteration(
       table_rows: the tables and buffers hold the rows of more agents than the batch,
         lane ``i`` being their agent ``table_rows[i]`` (the sequential strategy updates a
         work item's buffers in place this way).
-      base: each agent's :func:`~vdbejax.engine.state.draw_base` of its key and counter,
+      base: each agent's :func:`~vdbejax.engine.agent_state.draw_base` of its key and counter,
         if the caller carries it (:func:`run_loop`); else computed here.
 
     Returns:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vdbejax.engine.state import state_bytes
+from vdbejax.engine.agent_state import state_bytes
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import AgentParams, table_layout
 

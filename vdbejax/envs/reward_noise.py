@@ -8,7 +8,7 @@ An outcome's ``reward`` is its mean; its noise model is one of :data:`NOISE_MODE
 * ``bernoulli``: 1 with probability ``mean`` and 0 otherwise (the mean lies in [0, 1]).
 
 The draw is one uniform of the agent's own random stream per step (the engine's
-``reward_uniform``, :mod:`vdbejax.engine.state`), turned into a normal by the inverse
+``reward_uniform``, :mod:`vdbejax.engine.agent_state`), turned into a normal by the inverse
 normal CDF (``jax.scipy.special.ndtri``), so results still depend only on the agent's
 seed and hyperparameters. A task whose outcomes are all ``none`` stores no noise at all
 (``TabularMDP.reward_noise is None``): its programs draw nothing more and it keeps its

@@ -44,7 +44,7 @@ class TabularMDP:
         draw, the bits and fingerprint of a task without noise.
       optimal_action: bool ``[S, A]``, the actions a run counts as optimal when it records
         the fraction of optimal actions (set on the engine's copy of the task by
-        :func:`vdbejax.engine.driver.with_optimal_action`), or ``None``: no
+        :func:`vdbejax.engine.chunk_loop.with_optimal_action`), or ``None``: no
         record, no leaf (the task's program, bits and fingerprint as without it).
     """
 

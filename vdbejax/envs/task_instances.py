@@ -4,7 +4,7 @@ A task family with a generator (a bandit of random arm means, a random MDP) give
 agent of a run its own instance. The instances share their shape (states, actions,
 outcomes), their episode length and whether their rewards are noisy; their tables are
 stacked along a leading agent axis, and the engine moves each agent's row with the agent
-(:mod:`vdbejax.engine.instances`), so an agent meets its own instance in the same
+(:mod:`vdbejax.engine.agent_on_task`), so an agent meets its own instance in the same
 vectorised run, bit for bit as if it ran alone on it. The stacked tables stay on the host:
 an engine call sends a batch's rows to its devices (and a run's plan counts them,
 :mod:`vdbejax.runs.batching`).

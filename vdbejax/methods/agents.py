@@ -78,7 +78,7 @@ class Setting:
       hyperparameters: other values, ``{name: value}`` (a field of the learner or the
         explorer, e.g. ``alpha``, ``gamma``, ``q_init``, ``delta``, ``tau``; prefix with
         ``learner.`` / ``explorer.`` when both have it; ``task.`` names a parameter of a
-        task family, :class:`~vdbejax.envs.instances.TaskFamily`); kept as sorted pairs.
+        task family, :class:`~vdbejax.envs.task_instances.TaskFamily`); kept as sorted pairs.
     """
 
     learner: str

@@ -50,7 +50,7 @@ def task_scale(result: GridResult, best: Scale | None = None,
                baseline: Scale | None = None) -> tuple[Scale, Scale]:
     """The task's exact best return and the uniformly random policy's expected return:
     those given, else ``meta.json``'s ``best_return`` and ``random_return`` — or, for a
-    run that gave every agent its own task instance (:mod:`vdbejax.runs.instances`), each
+    run that gave every agent its own task instance (:mod:`vdbejax.runs.task_family_run`), each
     agent's own instance's, float64 ``[seeds, 1]`` (``instance_best_returns``,
     ``instance_random_returns``; ``[configs, seeds, 1]`` where the configs' task values
     differ, :func:`config_scale` picks a config's): each agent is scored against its

@@ -46,7 +46,7 @@ class GridResult:
         ``None``: a run without ``evaluate_every``.
       optimal_actions: float32 ``[configs, seeds, episodes]``, the fraction of each
         episode's steps whose action is optimal (NaN for an episode not run;
-        :mod:`vdbejax.runs.optimal_actions`). ``None``: a run without ``record_optimal``.
+        :mod:`vdbejax.runs.optimal_record`). ``None``: a run without ``record_optimal``.
     """
 
     settings: list[Setting]

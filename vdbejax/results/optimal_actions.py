@@ -1,7 +1,7 @@
 """How often the agents act optimally, and the reward they earn per step: Sutton &
 Barto's two measures of a bandit (2018, §2.3, Figure 2.2), for any task.
 
-A run with ``record_optimal`` (:mod:`vdbejax.runs.optimal_actions`) keeps, per episode,
+A run with ``record_optimal`` (:mod:`vdbejax.runs.optimal_record`) keeps, per episode,
 the fraction of its steps whose action is optimal (``GridResult.optimal_actions``). Per
 setting, over each agent's last ``last`` episodes:
 

@@ -2,7 +2,7 @@
 
 A run with ``replicates=R`` of ``n`` agents each trains ``R × n`` agents per setting in
 one grid; replicate ``r`` (0-based) is agents ``r·n … r·n + n − 1``. Every agent has its
-own random stream (``fold_in(PRNGKey(seed), agent)``, :func:`vdbejax.engine.state.agent_keys`)
+own random stream (``fold_in(PRNGKey(seed), agent)``, :func:`vdbejax.engine.agent_state.agent_keys`)
 and gives the same result alone or in any grid, so replicate 0 is, bit for bit, the run of
 ``n`` agents from the same root seed, and the replicates are as independent as R root seeds
 would be: no new random stream.

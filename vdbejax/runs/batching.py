@@ -18,10 +18,10 @@ from typing import Any
 import jax
 import numpy as np
 
-from vdbejax.engine.driver import chunk_buffer_length
-from vdbejax.engine.state import state_bytes
-from vdbejax.envs.instances import TaskInstances
+from vdbejax.engine.agent_state import state_bytes
+from vdbejax.engine.chunk_loop import chunk_buffer_length
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.envs.task_instances import TaskInstances
 
 #: Fraction of a device's free memory used when no budget is given.
 DEFAULT_MEMORY_FRACTION = 0.5
@@ -61,7 +61,7 @@ def mdp_bytes(mdp: TabularMDP | TaskInstances) -> int:
 
 def instance_bytes(instances: TaskInstances, record_optimal: bool = False) -> int:
     """Device memory of one agent's own task instance (an instance per agent,
-    :mod:`vdbejax.engine.instances`): its row of every table, its start support (int32
+    :mod:`vdbejax.engine.agent_on_task`): its row of every table, its start support (int32
     states and float32 weights, padded to the run's widest) and, where the run records
     them, its bool mask of optimal actions."""
     row = mdp_bytes(instances) // instances.num_agents

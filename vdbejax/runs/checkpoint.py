@@ -38,10 +38,10 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from vdbejax.engine import AgentState
-from vdbejax.engine.state import STATE_DTYPES, table_shape
+from vdbejax.engine.agent_state import STATE_DTYPES, table_shape
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.results import io
-from vdbejax.runs.state import RunState
+from vdbejax.runs.run_state import RunState
 
 #: Version of the checkpoint layout (a checkpoint of another version is refused).
 CHECKPOINT_VERSION = 6

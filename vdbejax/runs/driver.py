@@ -5,7 +5,7 @@ runs it through the engine (:meth:`RunPlan.run_engine`: sharded when the plan sa
 and after every chunk applies the run's stages, in this order:
 
 1. **record** the chunk's episodes (and, when a checkpoint needs them, the agents'
-   states) in the one :class:`~vdbejax.runs.state.RunState`, and after every
+   states) in the one :class:`~vdbejax.runs.run_state.RunState`, and after every
    ``evaluate_every``-th episode the value of each agent's greedy policy
    (:mod:`vdbejax.runs.evaluation`);
 2. **stop**: the stop policy retires agents (:mod:`vdbejax.runs.stop`; a fixed budget
@@ -28,12 +28,12 @@ from vdbejax.engine import AgentState
 from vdbejax.engine.distributed import take_agents
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.progress import ProgressCallback
-from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.envs.task_instances import TaskInstances
 from vdbejax.methods.agents import AgentParams
 from vdbejax.runs.evaluation import greedy_returns
 from vdbejax.runs.plan import RunPlan
-from vdbejax.runs.state import RunState
+from vdbejax.runs.run_state import RunState
 from vdbejax.runs.stop import StopPolicy
 
 
@@ -78,7 +78,7 @@ def drive(mdp: TabularMDP | TaskInstances, params: AgentParams, keys: np.ndarray
         into ``state.policy_values`` (the plan's chunks end on its multiples).
       optimal_action: bool ``[S, A]`` (``[agents, S, A]`` with instances, this process's
         rows): count each episode's optimal actions into
-        ``state.optimal`` (:mod:`vdbejax.runs.optimal_actions`).
+        ``state.optimal`` (:mod:`vdbejax.runs.optimal_record`).
 
     Returns:
       :class:`Drive`.

@@ -51,7 +51,7 @@ from vdbejax.methods.contract import Context, Learner, behaviour_values
 from vdbejax.methods.model import bellman_backup
 from vdbejax.methods.selection import greedy_probabilities
 from vdbejax.runs.options import RunOptions
-from vdbejax.runs.state import RunState
+from vdbejax.runs.run_state import RunState
 
 Array = jax.Array
 

@@ -27,9 +27,9 @@ import numpy as np
 from vdbejax.engine import agent_keys, broadcast_agents, check_params, text_progress
 from vdbejax.engine.distributed import gather_agents, process_checkpoint_path, take_agents
 from vdbejax.engine.programs import Programs
-from vdbejax.envs.instances import TaskFamily, TaskInstances
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.envs.task_instances import TaskFamily, TaskInstances
 from vdbejax.methods.agents import (
     AgentOptions,
     AgentParams,
@@ -46,19 +46,19 @@ from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.checkpoint import CheckpointWriter, load_checkpoint, remove_checkpoint, writing
 from vdbejax.runs.driver import drive
 from vdbejax.runs.evaluation import collect_evaluations, evaluations
-from vdbejax.runs.instances import (
+from vdbejax.runs.optimal_record import collect_optimal
+from vdbejax.runs.options import RunOptions
+from vdbejax.runs.plan import RunPlan, make_plan
+from vdbejax.runs.provenance import version_info
+from vdbejax.runs.run_state import RunState, nonfinite_message
+from vdbejax.runs.stop import StopPolicy
+from vdbejax.runs.task_family_run import (
     draw_instances,
     instance_meta,
     instance_mode,
     run_mask,
     run_task,
 )
-from vdbejax.runs.optimal_actions import collect_optimal
-from vdbejax.runs.options import RunOptions
-from vdbejax.runs.plan import RunPlan, make_plan
-from vdbejax.runs.provenance import version_info
-from vdbejax.runs.state import RunState, nonfinite_message
-from vdbejax.runs.stop import StopPolicy
 from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int, check_writable_dir, json_plain
 
 
@@ -92,8 +92,8 @@ class PreparedGrid:
       params, keys: every agent's hyperparameters and key.
       plan: devices, batches and engine strategy (:class:`~vdbejax.runs.plan.RunPlan`).
       description: what decides the results (the fingerprint's input, in ``meta.json``).
-      instances: each agent's task instance (a :class:`~vdbejax.envs.instances.TaskFamily`
-        run, :mod:`vdbejax.runs.instances`; ``mdp`` is then agent 0's), else ``None``.
+      instances: each agent's task instance (a :class:`~vdbejax.envs.task_instances.TaskFamily`
+        run, :mod:`vdbejax.runs.task_family_run`; ``mdp`` is then agent 0's), else ``None``.
     """
 
     mdp: TabularMDP
@@ -202,7 +202,7 @@ def prepare_grid(
         description["stop"] = stop.describe()
     if run.evaluate_every is not None:  # its checkpoints hold evaluations: not another's
         description["evaluate_every"] = run.evaluate_every
-    if task_values is not None:  # a task family's run (vdbejax.runs.instances)
+    if task_values is not None:  # a task family's run (vdbejax.runs.task_family_run)
         description.update(instances=instance_mode(task_values), task_parameters=task_values)
     if run.record_optimal:  # its checkpoints hold the counts of optimal actions
         description["record_optimal"] = True

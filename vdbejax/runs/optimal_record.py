@@ -21,7 +21,7 @@ import numpy as np
 from vdbejax.engine.distributed import gather_agents
 from vdbejax.envs.solvers import optimal_q_values
 from vdbejax.envs.tabular import TabularMDP
-from vdbejax.runs.state import RunState
+from vdbejax.runs.run_state import RunState
 
 #: Relative tolerance below the best ``Q*(s, ·)`` within which an action still counts as
 #: optimal (rounding of the float64 value iteration; ties are then all optimal).

@@ -58,7 +58,7 @@ class RunOptions:
         agent's greedy policy (:mod:`vdbejax.runs.evaluation`), kept beside the returns
         (``GridResult.policy_values``); None: no evaluation. It changes no return.
       record_optimal: record, per episode, the fraction of its steps whose action is
-        optimal (:mod:`vdbejax.runs.optimal_actions`; ``GridResult.optimal_actions``).
+        optimal (:mod:`vdbejax.runs.optimal_record`; ``GridResult.optimal_actions``).
         It changes no return.
     """
 

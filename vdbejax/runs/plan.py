@@ -47,8 +47,8 @@ from vdbejax.engine.distributed import (
     unpad_agents,
 )
 from vdbejax.engine.programs import Programs
-from vdbejax.envs.instances import TaskInstances
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.envs.task_instances import TaskInstances
 from vdbejax.methods.agents import AgentParams, table_layout
 from vdbejax.runs.batching import (
     agents_per_batch,

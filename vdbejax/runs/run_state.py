@@ -37,7 +37,7 @@ class RunState:
         evaluated yet, or past an agent's stop; :mod:`vdbejax.runs.evaluation`), or None
         for a run without evaluation.
       optimal: int32 ``[agents, episodes]``, each episode's steps whose action is optimal
-        (:mod:`vdbejax.runs.optimal_actions`), or None for a run that does not record them.
+        (:mod:`vdbejax.runs.optimal_record`), or None for a run that does not record them.
     """
 
     returns: np.ndarray

@@ -1,4 +1,4 @@
-"""A run on a task family (:class:`~vdbejax.envs.instances.TaskFamily`) in place of a
+"""A run on a task family (:class:`~vdbejax.envs.task_instances.TaskFamily`) in place of a
 task: every agent meets the instance its seed and its setting's task values draw.
 
 Agent (config ``c``, seed index ``i``) of root seed ``seed`` meets the family's instance
@@ -21,12 +21,12 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax.envs.instances import INSTANCE, TaskFamily, TaskInstances
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.envs.task_instances import INSTANCE, TaskFamily, TaskInstances
 from vdbejax.methods.agents import TASK_PREFIX, Setting
 from vdbejax.runs.batching import check_run_size, instances_host_bytes
-from vdbejax.runs.optimal_actions import optimal_action_mask
+from vdbejax.runs.optimal_record import optimal_action_mask
 from vdbejax.runs.options import RunOptions
 
 
@@ -51,7 +51,7 @@ def draw_instances(task: TabularMDP | TaskFamily, run: RunOptions, seed: int, nu
             name = TASK_PREFIX + next(iter(named.task_values))
             raise ValueError(f"hyperparameter {name!r} is invalid for task {task.name}: task"
                              " parameters need a task family with a generator (testbed:N,"
-                             " gaussian_bandit:N, …; vdbejax.envs.instances.TaskFamily)")
+                             " gaussian_bandit:N, …; vdbejax.envs.task_instances.TaskFamily)")
         return task, None, None
     values = [task.resolve(s.task_values) for s in settings]
     if run.evaluate_every is not None:
@@ -111,7 +111,7 @@ def run_mask(mdp: TabularMDP, instances: TaskInstances | None,
              values: Sequence[dict[str, Any]] | None, num_seeds: int,
              rows: np.ndarray) -> np.ndarray:
     """The optimal actions a run records against
-    (:func:`~vdbejax.runs.optimal_actions.optimal_action_mask`): bool ``[S, A]`` of the
+    (:func:`~vdbejax.runs.optimal_record.optimal_action_mask`): bool ``[S, A]`` of the
     shared task, or ``[rows, S, A]``, each agent's in its own instance (computed once per
     seed index and task values)."""
     if instances is None or values is None:

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax.engine.state import task_facts
+from vdbejax.engine.agent_state import task_facts
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import Setting, make_agent

@@ -27,7 +27,7 @@ aggregate covers the tasks it ran.
 sample-average learner of Sutton & Barto (2018, §2.4) with ε-greedy and with Thompson
 sampling, and the canon methods whose rule means something with one state — on
 :data:`BANDIT_TASKS`, and records each episode's fraction of optimal actions
-(:mod:`vdbejax.runs.optimal_actions`). Left out of ``bandits``: the methods whose
+(:mod:`vdbejax.runs.optimal_record`). Left out of ``bandits``: the methods whose
 mechanism needs states or steps to chain (Dyna-Q and Dyna-Q+ replay a model of one pair,
 the traces have one step to trace, Expected SARSA and Double Q-learning equal Q-learning
 on a one-step episode, Max-Boltzmann is ε-greedy with softmax, PSRL samples successors,

@@ -181,7 +181,7 @@ def run_sweep(
       instances: ``"shared"`` (every agent on the one task), or ``"per-agent"``: a task
         family (:data:`~vdbejax.envs.suite.FAMILY_NAMES`: ``testbed:N``, ``garnet:SxAxB``,
         ``variant:NxK``, …) gives every agent its own instance, drawn from the root seed
-        and its seed index (:mod:`vdbejax.runs.instances`). Either way a family's
+        and its seed index (:mod:`vdbejax.runs.task_family_run`). Either way a family's
         parameters are axes (``task.std``, ``task.instance``: the instance seed; those of
         ``variant:NxK`` only per agent).
       figures: write ``fig3.png`` and ``sensitivity.png``.
@@ -195,7 +195,7 @@ def run_sweep(
         the exact value of each agent's greedy policy (:mod:`vdbejax.runs.evaluation`):
         ``policy_values`` in ``returns.npz``, the policy columns of ``summary.csv`` and
         ``policy_gap.png``; ``record_optimal``: each episode's fraction of optimal actions
-        (:mod:`vdbejax.runs.optimal_actions`): ``optimal_actions`` in ``returns.npz``, the
+        (:mod:`vdbejax.runs.optimal_record`): ``optimal_actions`` in ``returns.npz``, the
         ``optimal_actions`` and ``reward_per_step`` columns of ``summary.csv``. The returns
         are the same whatever they are.
 

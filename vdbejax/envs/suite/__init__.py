@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import dataclasses
 
-from vdbejax.envs.instances import TaskFamily
 from vdbejax.envs.suite import (
     bandits,
     chain,
@@ -38,6 +37,7 @@ from vdbejax.envs.suite import (
     toy_text,
 )
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.envs.task_instances import TaskFamily
 
 
 @dataclasses.dataclass(frozen=True)
@@ -340,7 +340,7 @@ def make_suite_task(name: str, *, max_steps: int | None = None,
 
 def make_suite_family(name: str, *, max_steps: int | None = None, invalid_action: str = "noop",
                       shared: bool = False) -> TaskFamily:
-    """A task family of the suite by name (:class:`~vdbejax.envs.instances.TaskFamily`, one
+    """A task family of the suite by name (:class:`~vdbejax.envs.task_instances.TaskFamily`, one
     of :data:`FAMILY_NAMES`): an instance per agent (``--instances per-agent``; a family's
     parameters as sweep axes, ``task.std``, ``task.instance``), or with ``shared`` every
     agent the named task's one instance (whose parameters a sweep can still vary).

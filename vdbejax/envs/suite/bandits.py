@@ -10,14 +10,14 @@ fixed number of pulls), random rewards (:mod:`vdbejax.envs.reward_noise`).
 Each name is one instance: its arm means are drawn once from :data:`INSTANCE_SEED` and
 the family (the same task in every run). The book averages over 2,000 random testbeds:
 :func:`bandit_family` is the family with its generator, whose run gives every agent its
-own instance (:class:`~vdbejax.envs.instances.TaskFamily`; ``--instances per-agent``).
+own instance (:class:`~vdbejax.envs.task_instances.TaskFamily`; ``--instances per-agent``).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from vdbejax.envs.instances import TaskFamily
 from vdbejax.envs.tabular import TabularMDP, make_tabular_mdp
+from vdbejax.envs.task_instances import TaskFamily
 
 #: The bandit families: their noise model.
 FAMILIES = {"gaussian_bandit": "gaussian", "bernoulli_bandit": "bernoulli", "testbed": "gaussian"}
@@ -90,7 +90,7 @@ def bandit_family(family: str, arms: int, *, pulls: int = PULLS, name: str,
     instance of entropy ``(root seed, seed index)`` has the arm means :func:`arm_means`
     draws from it. The Gaussian families' reward standard deviation is their parameter
     ``std`` (default 1; a sweep axis ``task.std``); ``instance`` is the default instance
-    seed (:class:`~vdbejax.envs.instances.TaskFamily`; :data:`INSTANCE_SEED` gives every
+    seed (:class:`~vdbejax.envs.task_instances.TaskFamily`; :data:`INSTANCE_SEED` gives every
     agent the named task's instance)."""
     arm_means(family, arms)  # a bad family or number of arms: one line now
     noise = FAMILIES[family]

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from vdbejax.envs.instances import TaskFamily
 from vdbejax.envs.tabular import TabularMDP, make_tabular_mdp
+from vdbejax.envs.task_instances import TaskFamily
 from vdbejax.validation import INT32_MAX, check_int
 
 #: The episode length unless a run sets another (``max_steps``): no state is terminal.
@@ -75,7 +75,7 @@ def sizes_of(name: str, size: str) -> tuple[int, int, int] | None:
 def garnet_family(states: int, actions: int, branching: int = 2, *, max_steps: int = HORIZON,
                   name: str | None = None, instance: int | None = None) -> TaskFamily:
     """Garnet MDPs of these sizes as a generator of instances
-    (:class:`~vdbejax.envs.instances.TaskFamily`; pass it to ``run_grid`` in place of a
+    (:class:`~vdbejax.envs.task_instances.TaskFamily`; pass it to ``run_grid`` in place of a
     task: every agent meets the instance of its root seed and seed index). ``instance``
     is the default instance seed (:data:`INSTANCE_SEED`: every agent the suite's named
     task)."""

@@ -18,7 +18,7 @@ variant's own starts, every section dirty, are among them. Every start state is
 reachable from the variant's own start (move the goblets off a section, clean it, put
 them back, return the sponge), so the instance keeps the variant's reachable states
 (``state_codes``) and tables and only ``start_probability`` differs: instances stack
-(:func:`~vdbejax.envs.instances.stack_instances`). No instance is harder than the
+(:func:`~vdbejax.envs.task_instances.stack_instances`). No instance is harder than the
 variant: the variant's plan from the same goblets, less the cleaning of sections already
 clean, reaches the goal from a start state (a clean action changes only its section's
 bit), so within as many steps as from the variant's own start.
@@ -35,10 +35,10 @@ import itertools
 import jax.numpy as jnp
 import numpy as np
 
-from vdbejax.envs.instances import TaskFamily
 from vdbejax.envs.table_cleaning.core import FREE, mixed_radix_encode
 from vdbejax.envs.table_cleaning.generator import TableCleaningGenerator, make_variant_mdp
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.envs.task_instances import TaskFamily
 
 
 def start_codes(num_sections: int, num_goblets: int) -> np.ndarray:
@@ -59,7 +59,7 @@ def start_codes(num_sections: int, num_goblets: int) -> np.ndarray:
 def variant_family(num_sections: int, num_goblets: int, *, max_steps: int = 100,
                    invalid_action: str = "noop", name: str | None = None) -> TaskFamily:
     """The variant's instances (module docstring) as a generator
-    (:class:`~vdbejax.envs.instances.TaskFamily`, no parameters but ``task.instance``):
+    (:class:`~vdbejax.envs.task_instances.TaskFamily`, no parameters but ``task.instance``):
     instance ``entropy`` starts in start state ``i`` (of :func:`start_codes`, in code
     order) where ``i`` is NumPy's ``default_rng([*entropy, n, k]).integers(count)``.
 
