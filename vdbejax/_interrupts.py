@@ -20,7 +20,7 @@ are removed by the next writer, and ``--resume`` continues from the last checkpo
 """
 from __future__ import annotations
 
-import _weakrefset
+import _weakrefset  # CPython's; read only by the CPython-specific checks below
 import contextlib
 import gc
 import os
@@ -78,6 +78,15 @@ def deferring() -> bool:
     return _deferring[0] > 0
 
 
+# --- CPython-specific ----------------------------------------------------------------------
+# Where CPython drops an exception that a signal handler raises, or cannot take one: the
+# three checks below read interpreter frames (``f_code``, ``f_back``), ``gc.callbacks``, the
+# private module ``_weakrefset`` and importlib's frozen file names. These are details of
+# CPython (3.11–3.13), not of the language: they are all here, and another interpreter
+# needs its own versions of :func:`in_gc_callback`, :func:`in_dropping_callback` and
+# :func:`in_import`. Everything else in this module is plain Python.
+
+
 def in_gc_callback(frame: Any) -> bool:
     """Whether ``frame`` (a signal handler's) runs inside a garbage-collector callback."""
     codes = {getattr(callback, "__code__", None) for callback in gc.callbacks}
@@ -118,6 +127,9 @@ def in_import(frame: Any) -> bool:
             return True
         frame = frame.f_back
     return False
+
+
+# --- end of the CPython-specific part -----------------------------------------------------
 
 
 #: Releases of what this process holds (folder locks): run before a watchdog's exit.
