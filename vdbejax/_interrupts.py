@@ -82,7 +82,7 @@ def deferring() -> bool:
 # Where CPython drops an exception that a signal handler raises, or cannot take one: the
 # three checks below read interpreter frames (``f_code``, ``f_back``), ``gc.callbacks``, the
 # private module ``_weakrefset`` and importlib's frozen file names. These are details of
-# CPython (3.11–3.13), not of the language: they are all here, and another interpreter
+# CPython, not of the language: they are all here, and another interpreter
 # needs its own versions of :func:`in_gc_callback`, :func:`in_dropping_callback` and
 # :func:`in_import`. Everything else in this module is plain Python.
 
