@@ -63,8 +63,19 @@ def test_sensitivity(grid, tmp_path):
 
 
 def test_sensitivity_accepts_csv_strings(grid):
-    rows = [{k: str(v) for k, v in r.items()} for r in summarize(grid)]
-    plt.close(plotting.sensitivity(rows))
+    rows = summarize(grid)
+    as_read = [{k: str(v) for k, v in r.items()} for r in rows]
+    fig, want = plotting.sensitivity(as_read), plotting.sensitivity(rows)
+    # The same figure as from the rows themselves: columns, lines and their points.
+    assert [ax.get_title() for ax in fig.axes] == [ax.get_title() for ax in want.axes]
+    for got_ax, want_ax in zip(fig.axes, want.axes, strict=True):
+        got_lines, want_lines = got_ax.get_lines(), want_ax.get_lines()
+        assert len(got_lines) == len(want_lines) > 0
+        for got, line in zip(got_lines, want_lines, strict=True):
+            np.testing.assert_allclose(got.get_xdata(), line.get_xdata())
+            np.testing.assert_allclose(got.get_ydata(), line.get_ydata(), rtol=1e-6)
+    plt.close(fig)
+    plt.close(want)
 
 
 def test_epsilon_heatmap(tmp_path):

@@ -160,14 +160,23 @@ def test_a_stop_during_a_long_native_call_ends_the_process_within_its_grace(tmp_
 
 
 def test_a_watchdog_that_is_stopped_never_ends_the_process():
+    before = signal.set_wakeup_fd(-1)
+    signal.set_wakeup_fd(before)
     watchdog = _interrupts.Watchdog("never printed", grace=0.01)
+    watching = signal.set_wakeup_fd(before)  # the watchdog's pipe, while it watches
+    signal.set_wakeup_fd(watching)
     watchdog.stop()
-    previous = signal.signal(signal.SIGINT, lambda *_: None)
+    after = signal.set_wakeup_fd(before)
+    assert watching != before and after == before  # its pipe is let go
+    caught = []
+    previous = signal.signal(signal.SIGINT, lambda number, frame: caught.append(number))
     try:
         os.kill(os.getpid(), signal.SIGINT)  # after stop(): no wake-up, no exit
         time.sleep(0.2)
     finally:
         signal.signal(signal.SIGINT, previous)
+    assert caught == [signal.SIGINT]  # the signal reached the process's own handler
+    assert not watchdog._thread.is_alive()  # and the watchdog is gone: it cannot exit
 
 
 def test_a_stop_during_a_long_first_chunk_ends_the_run_in_about_a_second(tmp_path):
