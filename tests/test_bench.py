@@ -14,10 +14,12 @@ from vdbejax.methods.registry import EXPLORERS, LEARNERS
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.regret import cumulative_regret
 from vdbejax.runs import RunOptions
-from vdbejax.studies import bench
+from vdbejax.studies import StudyOutputs, bench
 from vdbejax.studies.bench_methods import METHODS, TaskScale, select_methods
 
 QUIET = RunOptions(progress=False)
+#: Each method at its middle candidate, PSRL left out where it costs over 3e4 products.
+UNTUNED_3E4 = bench.MethodChoice(tune=False, cost_limit=3e4)
 
 
 def test_every_method_follows_the_one_rule() -> None:
@@ -101,10 +103,14 @@ def test_tuning_runs_on_other_seeds_and_keeps_the_least_regret(
 def test_resume_reuses_whole_task_folders(quick: tuple[Path, bench.BenchResult]) -> None:
     out, result = quick
     # the same run: --resume takes it as it is
-    again = bench.run_bench(out, quick=True, figures=False, run=RunOptions(
-        progress=False, resume=True, evaluate_every=20))
+    again = bench.run_bench(out, quick=True,
+                            outputs=StudyOutputs(figures=False, save_runs=False),
+                            run=RunOptions(progress=False, resume=True, evaluate_every=20))
     assert [r["score"] for r in again.rows] == [r["score"] for r in result.rows]
     assert not (out / "aggregate.png").exists()  # no figure of the earlier run survives
+    # save_runs=False: the task folders go once the report is written
+    assert (out / "bench.md").is_file() and (out / "ranking.csv").is_file()
+    assert not [*(out / "tune").glob("*"), *(out / "runs").glob("*")]
 
 
 def test_bad_input_is_one_line_before_training(tmp_path: Path,
@@ -150,7 +156,7 @@ def test_a_cost_limit_of_1e7_would_leave_psrl_out_of_the_two_largest_tasks() -> 
 def test_a_method_over_the_cost_limit_is_left_out_and_said(tmp_path: Path) -> None:
     # PSRL costs 36·37·2·7 ≈ 1.9e4 on DeepSea 6 and 5·5·2·1001 ≈ 5.0e4 on the chain
     result = bench.run_bench(tmp_path / "b", tasks="deepsea:6,chain", methods="egreedy,psrl",
-                             seeds=2, episodes=10, tune=False, cost_limit=3e4, run=QUIET)
+                             seeds=2, episodes=10, choice=UNTUNED_3E4, run=QUIET)
     ran = {(r["task"], r["method"]) for r in result.rows}
     assert ran == {("deepsea:6", "egreedy"), ("deepsea:6", "psrl"), ("chain", "egreedy")}
     assert result.meta["left_out"] == [{"task": "chain", "method": "psrl", "cost": 50050.0,
@@ -164,10 +170,11 @@ def test_a_method_over_the_cost_limit_is_left_out_and_said(tmp_path: Path) -> No
     assert "| 1 of 2 |" in text
     with pytest.raises(ValueError, match="no method of methods runs"):
         bench.run_bench(tmp_path / "c", tasks="chain", methods="psrl", seeds=2, episodes=10,
-                        tune=False, cost_limit=3e4, run=QUIET)
+                        choice=UNTUNED_3E4, run=QUIET)
     assert not (tmp_path / "c").exists()
     with pytest.raises(ValueError, match="cost_limit="):
-        bench.run_bench(tmp_path / "d", quick=True, cost_limit=0, run=QUIET)
+        bench.run_bench(tmp_path / "d", quick=True, choice=bench.MethodChoice(cost_limit=0),
+                        run=QUIET)
 
 
 def test_the_bandits_group_ranks_its_methods_with_optimal_actions(tmp_path: Path) -> None:
@@ -185,8 +192,9 @@ def test_the_bandits_group_ranks_its_methods_with_optimal_actions(tmp_path: Path
     with pytest.raises(ValueError, match=r"^group='nope' is invalid: must be one of suite,"):
         bench.run_bench(tmp_path / "x", group="nope", run=QUIET)
     result = bench.run_bench(tmp_path / "b", group="bandits", tasks="bernoulli_bandit:3",
-                             methods="egreedy,thompson", seeds=3, episodes=30, tune=False,
-                             figures=False, run=QUIET)
+                             methods="egreedy,thompson", seeds=3, episodes=30,
+                             choice=bench.MethodChoice(tune=False),
+                             outputs=StudyOutputs(figures=False), run=QUIET)
     assert result.meta["options"]["group"] == "bandits"
     for row in result.rows:
         assert 0 <= row["optimal_actions_ci_low"] <= row["optimal_actions"] <= 1

@@ -14,7 +14,7 @@ from vdbejax.envs.solvers import best_return
 from vdbejax.results.regret import normalised_returns
 from vdbejax.results.solving import episodes_to_converge
 from vdbejax.runs import RunOptions
-from vdbejax.studies import depth
+from vdbejax.studies import StudyOutputs, depth
 from vdbejax.studies.bench import SOLVED
 from vdbejax.studies.bench_methods import select_methods
 
@@ -94,11 +94,14 @@ def test_solved_is_the_benchmarks_criterion(quick: tuple[Path, depth.DepthResult
 
 def test_resume_reuses_whole_task_folders(quick: tuple[Path, depth.DepthResult]) -> None:
     out, result = quick
-    again = depth.run_depth(out, quick=True, run=RunOptions(  # the same run
-        progress=False, resume=True, evaluate_every=100))
+    again = depth.run_depth(out, quick=True, outputs=StudyOutputs(save_runs=False),
+                            run=RunOptions(  # the same run
+                                progress=False, resume=True, evaluate_every=100))
     for name, run in result.runs.items():
         np.testing.assert_array_equal(again.runs[name].returns, run.returns)
     assert [r["median_text"] for r in again.rows] == [r["median_text"] for r in result.rows]
+    # save_runs=False: the task folders go once the study's files are written
+    assert (out / "depth.md").is_file() and not any((out / "runs").glob("*"))
 
 
 @pytest.mark.parametrize("args, message", [

@@ -130,7 +130,7 @@ def test_a_long_study_is_announced_whole_before_its_folder_is_made(
     methods = ["egreedy", "rmax"]
     with pytest.raises(Stop):  # 2 tasks × (tuning + reported run), 10^6 episodes each
         bench.run_bench(tmp_path / "b", tasks=["riverswim", "deepsea:6"], methods=methods,
-                        episodes=10**6, seeds=2, tune_seeds=1)
+                        episodes=10**6, seeds=2, choice=bench.MethodChoice(tune_seeds=1))
     err = capsys.readouterr().err
     assert err.startswith("a study: 4 runs: training ≥"), err
     parts = []

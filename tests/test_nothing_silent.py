@@ -58,7 +58,7 @@ def test_scale_locks_its_folder_and_a_half_written_study_is_refused(tmp_path):
     out = tmp_path / "scale"
     out.mkdir()
     with FolderLock(out), pytest.raises(ValueError, match="is being written by another"):
-        scaling.run_scaling(out, quick=True, run=RunOptions(progress=False))
+        scaling.run_scaling(out, size=scaling.QUICK, run=RunOptions(progress=False))
     (out / "scaling.csv").write_text("size\n")
     (out / "meta.json").write_text("{}")
     mark(out, "results")

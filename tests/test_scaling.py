@@ -175,6 +175,7 @@ def test_scale_cli_end_to_end(tmp_path, capsys):
     (["--episodes", "ten"], "episodes='ten' is invalid"),
     (["--seconds", "0"], "seconds=0 is invalid"),
     (["--fraction", "1.5"], "fraction=1.5 is invalid"),
+    (["--window", "0"], "window=0 is invalid"),
     (["--methods", "egreedy,telepathy"], "methods has 'telepathy'"),
     (["--learners", "qlearning,oracle"], "learner='oracle' is invalid"),
     (["--memory-budget", "lots"], "memory_budget_bytes='lots' is invalid"),
@@ -191,6 +192,22 @@ def test_scale_cli_bad_input_is_one_line_before_training(tmp_path, capsys, monke
     assert code == 2 and len(err) == 1 and err[0].startswith("error: "), err
     assert match in err[0]
     assert not (tmp_path / "bad" / "scaling.csv").exists()
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    ({"size": {"seeds": 3}}, "size={'seeds': 3} is invalid: must be a ScalingSize"),
+    ({"size": scaling.ScalingSize(seeds=0)}, "seeds=0 is invalid"),
+    ({"size": scaling.ScalingSize(sizes="2x1", episodes=10)},
+     "window=20 is invalid with episodes=10"),
+    ({"solve": UntilSolved(best=1.0, baseline=0.0)}, "solve.best=1.0 is invalid"),
+    ({"solve": 0.9}, "solve=0.9 is invalid: must be an UntilSolved"),
+    ({"outputs": "scaling.png"}, "outputs='scaling.png' is invalid: must be a StudyOutputs"),
+])
+def test_run_scaling_bad_inputs_fail_in_one_line_before_anything_is_written(
+        tmp_path, kwargs, match):
+    with pytest.raises(ValueError, match=match) as error:
+        scaling.run_scaling(tmp_path / "bad", run=RunOptions(progress=False), **kwargs)
+    assert "\n" not in str(error.value) and not (tmp_path / "bad").exists()
 
 
 def test_scale_resumes_an_interrupted_study(tmp_path, monkeypatch, capsys):

@@ -119,6 +119,14 @@ def check_bool(name: str, value: Any) -> bool:
     return bool(value)
 
 
+def check_instance(name: str, value: Any, kind: type) -> Any:
+    """Check ``value`` is a ``kind`` (one of the dataclasses an entry point takes)."""
+    if not isinstance(value, kind):
+        article = "an" if kind.__name__[0] in "AEIOU" else "a"
+        _fail(name, value, f"must be {article} {kind.__name__}")
+    return value
+
+
 def first_bad(label: str, arr: np.ndarray, bad: np.ndarray, allowed: str) -> None:
     """Raise for the first element of ``arr`` where ``bad`` holds, naming its position
     (``label[i, j, …] = value: allowed``)."""

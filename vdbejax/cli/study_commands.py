@@ -228,7 +228,10 @@ SCALE_SIZE_FLAGS = {"sizes": None, "seeds": 10, "episodes": 2000, "episodes_per_
 
 
 def scale_command(args: argparse.Namespace) -> None:
-    from vdbejax.studies.scaling import SIZES, run_scaling
+    from vdbejax.runs import UntilSolved
+    from vdbejax.studies.folder import StudyOutputs
+    from vdbejax.studies.scaling import QUICK, SIZES, ScalingSize, run_scaling
+    from vdbejax.validation import check_positive
 
     refuse_sizes_with_quick(args.quick, [n for n in SCALE_SIZE_FLAGS
                                          if getattr(args, n) is not None], "study")
@@ -247,13 +250,17 @@ def scale_command(args: argparse.Namespace) -> None:
                    ("chunk-episodes", args.chunk_episodes), ("max-steps", args.max_steps))
                    if value is not None)
                + (" --drop-unsolved" if args.drop_unsolved else ""))
+    if args.seconds is not None:  # named as its flag, before the stop is built
+        check_positive("seconds", args.seconds)
+    size = QUICK if args.quick else ScalingSize(
+        sizes=args.sizes, seeds=args.seeds, episodes=args.episodes,
+        episodes_per_state=None if args.episodes_per_state == 0 else args.episodes_per_state)
     result = run_scaling(
-        args.out, sizes=args.sizes, seeds=args.seeds, episodes=args.episodes,
-        episodes_per_state=None if args.episodes_per_state == 0 else args.episodes_per_state,
-        seconds=args.seconds,
-        seed=args.seed, fraction=args.fraction, window=args.window, max_steps=args.max_steps,
-        drop_unsolved=args.drop_unsolved, quick=args.quick, figure=not args.no_figure,
-        save_runs=not args.no_runs, command=command, learners=learners, methods=methods,
+        args.out, size=size, seed=args.seed, max_steps=args.max_steps,
+        solve=UntilSolved(fraction=args.fraction, window=args.window, max_seconds=args.seconds),
+        drop_unsolved=args.drop_unsolved, learners=learners, methods=methods,
+        outputs=StudyOutputs(figures=not args.no_figure, command=command,
+                             save_runs=not args.no_runs),
         run=run_options(args, progress=not args.quiet, chunk_episodes=args.chunk_episodes))
     for row in result.rows:
         print(f"{row['size']} {row['method']}: {row['median_text']}"
@@ -305,6 +312,7 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
 
 def bench_command(args: argparse.Namespace) -> None:
     from vdbejax.studies import bench
+    from vdbejax.studies.folder import StudyOutputs
 
     _, values = size_values(args, ["tasks", "methods", "seeds", "tune_seeds", "episodes"],
                             {"seeds": bench.SEEDS, "tune_seeds": bench.TUNE_SEEDS,
@@ -316,12 +324,14 @@ def bench_command(args: argparse.Namespace) -> None:
         f" --seed {args.seed}" + (" --no-tune" if args.no_tune else "")
         + (f" --cost-limit {args.cost_limit}" if args.cost_limit is not None else "")
         + (f" --evaluate-every {args.evaluate_every}" if args.evaluate_every else ""))
-    if args.cost_limit is not None:
-        values["cost_limit"] = args.cost_limit
-    result = bench.run_bench(args.out, seed=args.seed, tune=not args.no_tune, quick=args.quick,
-                             figures=not args.no_figures, command=command, group=args.group,
-                             **values, run=run_options(args, progress=not args.quiet,
-                                                       evaluate_every=args.evaluate_every))
+    choice = bench.MethodChoice(tune=not args.no_tune, tune_seeds=values.pop("tune_seeds"),
+                                **({} if args.cost_limit is None
+                                   else {"cost_limit": args.cost_limit}))
+    result = bench.run_bench(args.out, seed=args.seed, choice=choice, quick=args.quick,
+                             group=args.group, **values,
+                             outputs=StudyOutputs(figures=not args.no_figures, command=command),
+                             run=run_options(args, progress=not args.quiet,
+                                             evaluate_every=args.evaluate_every))
     for row in result.aggregate:
         print(f"{row['title']}: IQM score {row['iqm']:.3f} [{row['iqm_low']:.3f},"
               f" {row['iqm_high']:.3f}], mean rank {row['mean_rank']:.1f}")
@@ -361,6 +371,7 @@ def add_depth(sub: argparse._SubParsersAction) -> None:
 def depth_command(args: argparse.Namespace) -> None:
     from vdbejax.studies import depth
     from vdbejax.studies.depth_report import interval_text
+    from vdbejax.studies.folder import StudyOutputs
 
     sizes, values = size_values(
         args, ["families", "sizes", "methods", "seeds", "episodes"],
@@ -371,8 +382,8 @@ def depth_command(args: argparse.Namespace) -> None:
         f" --{k} {v}" for k, v in values.items() if sizes[k] is not None)) + (
         f" --seed {args.seed}") + (
         f" --evaluate-every {args.evaluate_every}" if args.evaluate_every else "")
-    result = depth.run_depth(args.out, seed=args.seed, quick=args.quick,
-                             figure=not args.no_figures, command=command, **values,
+    result = depth.run_depth(args.out, seed=args.seed, quick=args.quick, **values,
+                             outputs=StudyOutputs(figures=not args.no_figures, command=command),
                              run=run_options(args, progress=not args.quiet,
                                              evaluate_every=args.evaluate_every))
     for row in result.slopes:

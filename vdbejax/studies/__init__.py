@@ -2,14 +2,22 @@
 
 * :mod:`~vdbejax.studies.folder` — :func:`train_in_folder`: check the folder, lock it,
   run (checkpointed, resumable), save, write the outputs. ``vdbejax reproduce``,
-  ``vdbejax run``, ``vdbejax scale`` and ``vdbejax ablate`` all train through it.
+  ``vdbejax run``, ``vdbejax scale`` and ``vdbejax ablate`` all train through it;
+  :class:`StudyOutputs`: what ``vdbejax scale``, ``bench`` and ``depth`` write besides
+  their tables.
 """
-from vdbejax.studies.folder import CHECKPOINT_FILE, checkpoint_files, train_in_folder
+from vdbejax.studies.folder import (
+    CHECKPOINT_FILE,
+    StudyOutputs,
+    checkpoint_files,
+    train_in_folder,
+)
 
 #: The public names; the modules among them are imported when first named
 #: (``from vdbejax.studies import sweeps``).
 __all__ = [
     "CHECKPOINT_FILE",
+    "StudyOutputs",
     "bench",
     "checkpoint_files",
     "depth",

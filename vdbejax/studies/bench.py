@@ -46,12 +46,13 @@ from vdbejax.studies.bench_methods import (
     select_methods,
 )
 from vdbejax.studies.bench_report import bench_meta, output_files, write_report
-from vdbejax.studies.folder import train_in_folder
+from vdbejax.studies.folder import StudyOutputs, train_in_folder
 from vdbejax.validation import (
     INT32_MAX,
     UINT32_MAX,
     check_bool,
     check_in_range,
+    check_instance,
     check_int,
 )
 
@@ -97,6 +98,24 @@ class BenchTask:
         mask = np.asarray(self.mdp.probability) > 0
         return TaskScale(r_max=float(reward[mask].max()) or 1.0,
                          horizon=int(self.mdp.max_steps))
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodChoice:
+    """How each task's methods are chosen: which run there, at which candidate.
+
+    Attributes:
+      tune: tune each method's knob on separate seeds (root seed ``seed + 1``) and keep
+        the candidate of least mean cumulative regret; ``False`` runs each method's middle
+        candidate (its published default) and reports a tuning budget of 0.
+      tune_seeds: agents per candidate in the tuning run.
+      cost_limit: the most products per agent-episode a ``dense_model`` method (PSRL) may
+        cost on a task; it is left out of a task above it (``math.inf``: never).
+    """
+
+    tune: bool = True
+    tune_seeds: int = TUNE_SEEDS
+    cost_limit: float = COST_LIMIT
 
 
 @dataclasses.dataclass
@@ -165,15 +184,12 @@ def run_bench(
     tasks: Sequence[str] | str | None = None,
     methods: Sequence[str] | str | None = None,
     seeds: int = SEEDS,
-    tune_seeds: int = TUNE_SEEDS,
     episodes: int = EPISODES,
     seed: int = 0,
-    tune: bool = True,
-    cost_limit: float = COST_LIMIT,
+    choice: MethodChoice = MethodChoice(),
     quick: bool = False,
     group: str = "suite",
-    figures: bool = True,
-    command: str | None = None,
+    outputs: StudyOutputs = StudyOutputs(),
     run: RunOptions | None = None,
 ) -> BenchResult:
     """Run every method on every task and write the ranking (module docstring).
@@ -184,20 +200,20 @@ def run_bench(
       methods: names of :data:`~vdbejax.studies.bench_methods.METHODS` (default: the
         group's).
       seeds: agents per method and task in the reported run.
-      tune_seeds: agents per candidate in the tuning run.
       episodes: episodes per agent (both runs).
       seed: the reported run's root seed (tuning uses ``seed + 1``).
-      tune: tune each method's knob; ``False`` runs each method's middle candidate (its
-        published default) and reports a tuning budget of 0.
-      cost_limit: the most products per agent-episode a ``dense_model`` method (PSRL) may
-        cost on a task; it is left out of a task above it (``math.inf``: never).
+      choice: how each task's methods are chosen (:class:`MethodChoice`: ``tune``,
+        ``tune_seeds``, ``cost_limit``).
       quick: the small benchmark of CI: :data:`QUICK_TASKS`, ``QUICK_METHODS``,
-        ``QUICK_SEEDS``, ``QUICK_TUNE_SEEDS``, ``QUICK_EPISODES`` (override those arguments).
+        ``QUICK_SEEDS``, ``QUICK_TUNE_SEEDS``, ``QUICK_EPISODES`` (override those arguments
+        and ``choice.tune_seeds``).
       group: ``suite`` or ``bandits`` (:data:`~vdbejax.studies.bench_methods.GROUPS`: the
         default tasks and methods; ``bandits`` also records the fraction of optimal
         actions in the reported runs, % optimal action and reward per step in the ranking).
-      figures: write the figures.
-      command: the command line, recorded in ``meta.json`` and ``bench.md``.
+      outputs: what it writes besides its tables (:class:`~vdbejax.studies.StudyOutputs`):
+        ``figures``; ``command``: the command line, recorded in ``meta.json`` and
+        ``bench.md``; ``save_runs``: keep each task's result folders ``tune/<task>/`` and
+        ``runs/<task>/``.
       run: how it runs (:class:`~vdbejax.runs.RunOptions`, default
         ``RunOptions(progress=True)``), the fields of :data:`BENCH_RUN_FIELDS`:
         ``progress``: status lines and the run's progress bar on stderr; ``resume``
@@ -216,7 +232,10 @@ def run_bench(
     """
     run = study_run(run, "run_bench", BENCH_RUN_FIELDS)
     progress, evaluate_every = run.progress, run.evaluate_every
-    for name, flag in (("tune", tune), ("quick", quick), ("figures", figures)):
+    check_instance("choice", choice, MethodChoice)
+    check_instance("outputs", outputs, StudyOutputs)
+    tune, tune_seeds, cost_limit = choice.tune, choice.tune_seeds, choice.cost_limit
+    for name, flag in (("tune", tune), ("quick", quick)):
         check_bool(name, flag)
     tasks, methods = group_defaults(group, tasks, methods)
     if quick:
@@ -261,7 +280,7 @@ def run_bench(
                                        statistics=False))
         announce(StudyEstimate(tuple(parts)), "study")
     out, lock = output_folder(out_dir)
-    check_output_paths(out, output_files([t.name for t in bench_tasks], figures,
+    check_output_paths(out, output_files([t.name for t in bench_tasks], outputs.figures,
                                          evaluated=evaluate_every is not None))
     from vdbejax.runs.provenance import version_info
 
@@ -302,7 +321,7 @@ def run_bench(
                   for t in bench_tasks}
         rows = [row for task in bench_tasks
                 for row in task_rows(task, ran[task.name], runs[task.name], scores[task.name])]
-        meta = bench_meta(command, bench_tasks, chosen_methods, chosen, budget, timing,
+        meta = bench_meta(outputs.command, bench_tasks, chosen_methods, chosen, budget, timing,
                           time.perf_counter() - started, versions, seeds=seeds,
                           tune_seeds=tune_seeds, episodes=episodes, seed=seed, tune=tune,
                           quick=quick, cost_limit=cost_limit, evaluate_every=evaluate_every,
@@ -311,8 +330,10 @@ def run_bench(
         mark(out, "results")  # a folder killed while its report is replaced is recognised
         aggregate = write_report(out, bench_tasks, chosen_methods, runs, scores, rows, meta,
                                  ran={t: [m.name for m in ms] for t, ms in ran.items()},
-                                 figures=figures)
+                                 figures=outputs.figures)
         unmark(out)
+        outputs.discard_runs([out / folder / task.folder for task in bench_tasks
+                              for folder in (TUNE_FOLDER, RUNS_FOLDER)])
     return BenchResult(rows, aggregate, meta, runs)
 
 
@@ -383,5 +404,5 @@ def task_rows(task: BenchTask, methods: list[BenchMethod], result: GridResult,
 
 
 __all__ = ["EPISODES", "QUICK_EPISODES", "QUICK_SEEDS", "QUICK_TASKS", "QUICK_TUNE_SEEDS",
-           "SEEDS", "TUNE_SEEDS", "BenchResult", "BenchTask", "make_tasks", "run_bench",
-           "task_rows"]
+           "SEEDS", "TUNE_SEEDS", "BenchResult", "BenchTask", "MethodChoice", "make_tasks",
+           "run_bench", "task_rows"]

@@ -53,9 +53,10 @@ from vdbejax.studies.depth_report import (
     POLICY_FIGURE_FILE,
     write_reports,
 )
+from vdbejax.studies.folder import StudyOutputs
 from vdbejax.studies.scaling_adaptive import AdaptiveRun, train_until_solved
 from vdbejax.studies.scaling_study import auto_chunk
-from vdbejax.validation import INT32_MAX, UINT32_MAX, check_bool, check_int
+from vdbejax.validation import INT32_MAX, UINT32_MAX, check_bool, check_instance, check_int
 
 FAMILIES = ("deepsea", "chain")
 SIZES = (4, 8, 16, 32)
@@ -147,8 +148,7 @@ def run_depth(
     episodes: int = EPISODES,
     seed: int = 0,
     quick: bool = False,
-    figure: bool = True,
-    command: str | None = None,
+    outputs: StudyOutputs = StudyOutputs(),
     run: RunOptions | None = None,
 ) -> DepthResult:
     """Episodes to solve of every method on DeepSea and the chain of growing depth.
@@ -163,8 +163,10 @@ def run_depth(
       seed: root seed.
       quick: the ``QUICK_*`` sizes, seeds, episodes and methods (then none of them may be
         given; the CLI refuses them).
-      figure: write ``depth.png``.
-      command: the command line, recorded in ``depth.md`` and ``meta.json``.
+      outputs: what it writes besides its tables (:class:`~vdbejax.studies.StudyOutputs`):
+        ``figures``: ``depth.png`` (and ``depth_policy_gap.png`` with ``evaluate_every``);
+        ``command``: the command line, recorded in ``depth.md`` and ``meta.json``;
+        ``save_runs``: keep each task's result folder ``runs/<task>/``.
       run: how it runs (:class:`~vdbejax.runs.RunOptions`, default
         ``RunOptions(progress=True)``; the study sets the chunks and the stop), the fields
         of :data:`DEPTH_RUN_FIELDS`: ``progress``: status lines and progress bars on
@@ -187,8 +189,9 @@ def run_depth(
 
     run = study_run(run, "run_depth", DEPTH_RUN_FIELDS)
     progress, evaluate_every = run.progress, run.evaluate_every
-    for name, flag in (("quick", quick), ("figure", figure)):
-        check_bool(name, flag)
+    check_instance("outputs", outputs, StudyOutputs)
+    check_bool("quick", quick)
+    figure = outputs.figures
     if quick:
         sizes, seeds, episodes, methods = QUICK_SIZES, QUICK_SEEDS, QUICK_EPISODES, QUICK_METHODS
     chosen_families, chosen_sizes = _families(families), _sizes(sizes)
@@ -238,7 +241,7 @@ def run_depth(
             runs[task.name] = trained
             rows.extend(_task_rows(family, size, task, chosen, trained))
         slopes = growth_slopes(rows, chosen, chosen_families, seed=seed)
-        meta = {"command": command, "elapsed_seconds": time.perf_counter() - started,
+        meta = {"command": outputs.command, "elapsed_seconds": time.perf_counter() - started,
                 "options": {"families": chosen_families, "sizes": chosen_sizes, "seeds": seeds,
                             "episodes": episodes, "seed": seed, "quick": quick,
                             "solved": SOLVED, "window": WINDOW, "resamples": RESAMPLES,
@@ -257,6 +260,7 @@ def run_depth(
         io.save_json(out / META_FILE, meta)
         write_reports(out, rows, slopes, meta, figure=figure)
         unmark(out)
+        outputs.discard_runs([out / RUNS_FOLDER / task.folder for _, _, task in tasks])
     return DepthResult(rows, slopes, meta, runs)
 
 

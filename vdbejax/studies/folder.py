@@ -17,10 +17,15 @@ created), then:
 5. removes the outputs an earlier run left (figures, exported tables), saves
    ``returns.npz``, ``configs.csv``, ``meta.json`` (marked while written,
    :mod:`vdbejax.results.folder_lock`), removes the checkpoint, and writes the outputs.
+
+A study that trains several such folders under its own (``vdbejax scale``, ``bench``,
+``depth``) takes what it writes besides its tables as one :class:`StudyOutputs`.
 """
 from __future__ import annotations
 
+import dataclasses
 import os
+import shutil
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -39,9 +44,42 @@ from vdbejax.results.grid_result import GridResult
 from vdbejax.runs.checkpoint import log_path, remove_checkpoint
 from vdbejax.runs.estimate import announce, estimate_prepared
 from vdbejax.runs.grid import PreparedGrid, run_prepared
+from vdbejax.validation import check_bool
 
 T = TypeVar("T")
 CHECKPOINT_FILE = "checkpoint.npz"
+
+
+@dataclasses.dataclass(frozen=True)
+class StudyOutputs:
+    """What a study (``vdbejax scale``, ``bench``, ``depth``) writes besides its tables.
+
+    Attributes:
+      figures: write the study's figures.
+      command: the command line, recorded in the study's report and ``meta.json``.
+      save_runs: keep the result folder of each task the study trained (its curves,
+        ``returns.npz``, ``configs.csv``, ``meta.json``); ``False`` removes them once the
+        study's files are written (a later ``resume`` then trains them again).
+
+    Raises:
+      ValueError: ``figures`` or ``save_runs`` is not a bool, ``command`` not a string.
+    """
+
+    figures: bool = True
+    command: str | None = None
+    save_runs: bool = True
+
+    def __post_init__(self) -> None:
+        check_bool("figures", self.figures)
+        check_bool("save_runs", self.save_runs)
+        if self.command is not None and not isinstance(self.command, str):
+            raise ValueError(f"command={self.command!r} is invalid: must be a string or None")
+
+    def discard_runs(self, folders: Sequence[Path]) -> None:
+        """Remove the study's task folders ``folders`` unless :attr:`save_runs`."""
+        if not self.save_runs:
+            for folder in folders:
+                shutil.rmtree(folder, ignore_errors=True)
 
 
 def checkpoint_files() -> list[str]:

@@ -14,8 +14,8 @@ This module is the study's runner. Its other parts live apart, and every name of
 below is importable from here too:
 
 * :mod:`vdbejax.studies.scaling_study` — the study's definition: :class:`Method`, :data:`METHODS`,
-  :data:`LEARNERS`, :data:`SIZES`, :data:`QUICK`, the budgets (:func:`variant_budget`,
-  :func:`auto_chunk`) and :func:`best_parameters`.
+  :data:`LEARNERS`, :data:`SIZES`, the study's size :class:`ScalingSize` and :data:`QUICK`,
+  the budgets (:func:`variant_budget`, :func:`auto_chunk`) and :func:`best_parameters`.
 * :mod:`vdbejax.studies.scaling_adaptive` — :func:`run_until_solved` and :class:`AdaptiveRun`.
 * :mod:`vdbejax.studies.scaling_report` — the result folder's files and columns, ``scaling.md``
   (:func:`scaling_markdown`), ``scaling.png`` (:func:`scaling_figure`),
@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -37,11 +36,12 @@ from typing import Any
 from vdbejax.methods.agents import Setting, make_agent, parameter_name
 from vdbejax.results import io
 from vdbejax.results.folder_lock import mark, output_folder, unmark
-from vdbejax.results.solving import FRACTION, WINDOW, convergence_threshold, summarize_solving
+from vdbejax.results.solving import convergence_threshold, summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task
 from vdbejax.runs.options import SPEED_FIELDS, study_run
+from vdbejax.studies.folder import StudyOutputs
 from vdbejax.studies.scaling_adaptive import (
     AdaptiveRun,
     run_until_solved,
@@ -64,14 +64,15 @@ from vdbejax.studies.scaling_report import FIGURE_FILE as FIGURE_FILE
 from vdbejax.studies.scaling_report import MARKDOWN_FILE as MARKDOWN_FILE
 from vdbejax.studies.scaling_report import VARIANT_COLUMNS as VARIANT_COLUMNS
 from vdbejax.studies.scaling_report import param_text as param_text
+from vdbejax.studies.scaling_study import EPISODES as EPISODES
+from vdbejax.studies.scaling_study import EPISODES_PER_STATE as EPISODES_PER_STATE
 from vdbejax.studies.scaling_study import (
-    EPISODES,
-    EPISODES_PER_STATE,
     LEARNERS,
     METHODS,
     QUICK,
     SIZES,
     Method,
+    ScalingSize,
     auto_chunk,
     best_parameters,
     parse_sizes,
@@ -80,13 +81,14 @@ from vdbejax.studies.scaling_study import (
     variant_budget,
 )
 from vdbejax.studies.scaling_study import PAPER_METHODS as PAPER_METHODS
+from vdbejax.studies.scaling_study import SEEDS as SEEDS
 from vdbejax.validation import (
     INT32_MAX,
     UINT32_MAX,
     check_bool,
     check_in_range,
+    check_instance,
     check_int,
-    check_positive,
 )
 
 
@@ -107,22 +109,14 @@ SCALING_RUN_FIELDS = ("chunk_episodes", "progress", "resume", "overwrite", *SPEE
 def run_scaling(
     out_dir: str | Path,
     *,
-    sizes: str | Sequence[str] = SIZES,
-    seeds: int = 10,
-    episodes: int = EPISODES,
-    episodes_per_state: float | None = EPISODES_PER_STATE,
-    seconds: float | None = None,
+    size: ScalingSize = ScalingSize(),
+    solve: UntilSolved = UntilSolved(),
     seed: int = 0,
     learners: Sequence[str] = LEARNERS,
     methods: Sequence[str] | None = None,
-    fraction: float = FRACTION,
-    window: int = WINDOW,
     max_steps: int | None = None,
     drop_unsolved: bool = False,
-    quick: bool = False,
-    figure: bool = True,
-    save_runs: bool = True,
-    command: str | None = None,
+    outputs: StudyOutputs = StudyOutputs(),
     run: RunOptions | None = None,
 ) -> ScalingResult:
     """Episodes to solve of every method on growing table-cleaning variants.
@@ -135,27 +129,25 @@ def run_scaling(
 
     Args:
       out_dir: output folder (created).
-      sizes: variants ``NxK`` (``"2x1,4x2"`` or a list).
-      seeds: agents per setting.
-      episodes: episode budget per agent and variant; with ``episodes_per_state`` the
-        smallest one (:func:`variant_budget`).
-      episodes_per_state: budget per reachable state (None: ``episodes`` everywhere).
-      seconds: wall-clock budget per variant (None: none).
+      size: the variants, agents per setting and episode budgets (:class:`ScalingSize`;
+        :data:`QUICK` is ``--quick``'s).
+      solve: the solve criterion (:class:`~vdbejax.runs.UntilSolved` without ``best`` and
+        ``baseline``, which the study computes per variant): the ``window``-episode moving
+        average of the normalised returns reaching ``fraction``
+        (:mod:`vdbejax.results.solving`); ``max_seconds``: a wall-clock budget per variant
+        (None: none).
       seed: root seed.
       learners: learner names.
       methods: explorer names of :data:`METHODS` (default all).
-      fraction, window: the solve criterion (:mod:`vdbejax.results.solving`): the moving
-        average of the normalised returns reaching ``fraction``.
       max_steps: episode truncation (default 100, :func:`vdbejax.studies.sweeps.make_task`).
       drop_unsolved: skip settings on larger variants once none of their agents solved
         (off by default: SARSA + VDBE fails 3×1 and solves 4×1 within the same budget).
-      quick: :data:`QUICK` sizes, seeds and episodes (overrides those arguments).
-      figure: write ``scaling.png``.
-      save_runs: keep each variant's result folder ``runs/NxK/`` (its curves:
+      outputs: what it writes besides ``scaling.csv``, ``scaling.md`` and ``meta.json``
+        (:class:`~vdbejax.studies.StudyOutputs`): ``figures``: ``scaling.png``;
+        ``command``: the command line, recorded in ``scaling.md`` and ``meta.json``;
+        ``save_runs``: keep each variant's result folder ``runs/NxK/`` (its curves:
         ``returns.npz`` with every agent's returns, NaN past its stop, and
-        ``episodes_run``; ``configs.csv``; ``meta.json``). ``False`` removes them once the
-        study's files are written.
-      command: the command line, recorded in ``scaling.md`` and ``meta.json``.
+        ``episodes_run``; ``configs.csv``; ``meta.json``).
       run: how it runs (:class:`~vdbejax.runs.RunOptions`, default
         ``RunOptions(progress=True)``; the study sets the stop), the fields of
         :data:`SCALING_RUN_FIELDS`: ``chunk_episodes``: episodes between stop checks
@@ -184,26 +176,24 @@ def run_scaling(
 
     knobs = study_run(run, "run_scaling", SCALING_RUN_FIELDS)
     progress, chunk_episodes = knobs.progress, knobs.chunk_episodes
-    for name, flag in (("quick", quick), ("figure", figure),
-                       ("drop_unsolved", drop_unsolved), ("save_runs", save_runs)):
-        check_bool(name, flag)
-    if quick:
-        sizes, seeds, episodes, episodes_per_state = (
-            QUICK[k] for k in ("sizes", "seeds", "episodes", "episodes_per_state"))
-    parsed = parse_sizes(sizes)
-    seeds = check_int("seeds", seeds, 1, INT32_MAX)
-    episodes = check_int("episodes", episodes, 1, INT32_MAX)
+    for name, value, kind in (("size", size, ScalingSize), ("solve", solve, UntilSolved),
+                              ("outputs", outputs, StudyOutputs)):
+        check_instance(name, value, kind)
+    if solve.best is not None:
+        raise ValueError(f"solve.best={solve.best!r} is invalid: run_scaling computes each"
+                         " variant's best and random returns (leave best and baseline out)")
+    check_bool("drop_unsolved", drop_unsolved)
+    parsed = parse_sizes(size.sizes)
+    seeds = check_int("seeds", size.seeds, 1, INT32_MAX)
+    episodes = check_int("episodes", size.episodes, 1, INT32_MAX)
+    episodes_per_state = size.episodes_per_state
     if episodes_per_state is not None:
         episodes_per_state = check_in_range("episodes_per_state", episodes_per_state, 0.0,
                                             1e6, low_open=True)
-    if seconds is not None:
-        seconds = check_positive("seconds", seconds)
     seed = check_int("seed", seed, 0, UINT32_MAX)
-    fraction = check_in_range("fraction", fraction, 0.0, 1.0, low_open=True)
-    window = check_int("window", window, 1)
-    if window > episodes:  # every agent would be censored without a word
-        raise ValueError(f"window={window} is invalid with episodes={episodes}: the moving"
-                         " average needs that many episodes before any agent can solve")
+    if solve.window > episodes:  # every agent would be censored without a word
+        raise ValueError(f"window={solve.window} is invalid with episodes={episodes}: the"
+                         " moving average needs that many episodes before any agent can solve")
     if max_steps is not None:
         max_steps = check_int("max_steps", max_steps, 1, INT32_MAX)
     if isinstance(learners, str) or not learners:
@@ -214,21 +204,20 @@ def run_scaling(
         make_agent(setting)
     tasks = []
     for sections, goblets in parsed:  # every task built and solved before any folder or run
-        size = f"{sections}x{goblets}"
-        mdp = make_task(f"variant:{size}", max_steps=max_steps)
+        variant = f"{sections}x{goblets}"
+        mdp = make_task(f"variant:{variant}", max_steps=max_steps)
         best, baseline = best_return(mdp), uniform_random_return(mdp)
         UntilSolved(best=best, baseline=baseline)  # one line before training: best > baseline
         shortest = int(steps_to_goal(mdp)[start_states(mdp)].max())
-        tasks.append((size, mdp, best, baseline, shortest))
+        tasks.append((variant, mdp, best, baseline, shortest))
     tasks.sort(key=lambda task: task[1].num_states)
     # The largest variant's results must fit: refused here, before the folder is made.
     check_run_size(len(settings) * seeds, max(variant_budget(
         task[1].num_states, episodes, episodes_per_state) for task in tasks))
     if progress:  # settings none solves drop out: only the smallest variant runs them all
-        stop = UntilSolved(fraction=fraction, window=window, max_seconds=seconds)
         announce(StudyEstimate(tuple(
             estimate_task(task[1], len(settings), seeds, budget, statistics=False,
-                          fewest_episodes=stop.fewest_episodes(budget) if i == 0 else 0)
+                          fewest_episodes=solve.fewest_episodes(budget) if i == 0 else 0)
             for i, task in enumerate(tasks)
             for budget in [variant_budget(task[1].num_states, episodes, episodes_per_state)])),
             "study")
@@ -243,12 +232,13 @@ def run_scaling(
         order = {s: i for i, s in enumerate(settings)}
         dropped_on: dict[Setting, str] = {}
         started = time.perf_counter()
-        for size, mdp, best, baseline, shortest in tasks:
+        for variant, mdp, best, baseline, shortest in tasks:
             budget = variant_budget(mdp.num_states, episodes, episodes_per_state)
             chunk = auto_chunk(budget) if chunk_episodes is None else chunk_episodes
-            base = {"size": size, "states": int(mdp.num_states), "actions": int(mdp.num_actions),
+            base = {"size": variant, "states": int(mdp.num_states), "actions": int(mdp.num_actions),
                     "best_return": float(best), "random_return": float(baseline),
-                    "threshold": convergence_threshold(float(best), float(baseline), fraction)}
+                    "threshold": convergence_threshold(float(best), float(baseline),
+                                                      solve.fraction)}
             for setting in settings:
                 if setting in dropped_on:
                     rows.append(dict(base, **_setting_columns(setting, order[setting]), status=(
@@ -262,18 +252,17 @@ def run_scaling(
                                      steps_per_second=math.nan))
                 continue
             if progress:
-                sys.stderr.write(f"{size} ({mdp.num_states} states): {len(remaining)} settings ×"
+                sys.stderr.write(f"{variant} ({mdp.num_states} states): {len(remaining)} settings ×"
                                  f" {seeds} agents, up to {budget} episodes\n")
             trained = train_until_solved(
-                out / RUNS_FOLDER / size, mdp, remaining, seeds=seeds, budget=budget,
-                stop=UntilSolved(best=best, baseline=baseline, fraction=fraction,
-                                 window=window, max_seconds=seconds),
+                out / RUNS_FOLDER / variant, mdp, remaining, seeds=seeds, budget=budget,
+                stop=dataclasses.replace(solve, best=best, baseline=baseline),
                 seed=seed, options=knobs.replace(chunk_episodes=chunk),
-                task=f"variant:{size}")
-            runs[size] = trained
+                task=f"variant:{variant}")
+            runs[variant] = trained
             if progress:
                 sys.stderr.write(
-                    f"{size} ({mdp.num_states} states): {int(trained.solve.solved.sum())}/"
+                    f"{variant} ({mdp.num_states} states): {int(trained.solve.solved.sum())}/"
                     f"{trained.solve.solved.size} agents solved, {trained.elapsed_seconds:.1f} s"
                     f" ({trained.steps_per_second / 1e6:.2f} M steps/s)\n")
             reached = int(trained.episodes_run.max())
@@ -290,7 +279,7 @@ def run_scaling(
                                  agent_episodes=int(trained.episodes_run[c].sum()),
                                  nonfinite_agents=int(trained.nonfinite[c].sum())))
                 if drop_unsolved and summary.solved == 0:
-                    dropped_on[setting] = f"on {size} in {summary.budget} episodes"
+                    dropped_on[setting] = f"on {variant} in {summary.budget} episodes"
             remaining = [s for s in remaining if s not in dropped_on]
             variants.append(dict(
                 base, shortest_solution=shortest, settings_run=len(trained.settings),
@@ -303,12 +292,13 @@ def run_scaling(
         rank = {task[0]: i for i, task in enumerate(tasks)}
         rows.sort(key=lambda r: (rank[r["size"]], order[row_setting(r)]))
         options = {"sizes": [t[0] for t in tasks], "seeds": seeds, "episodes": episodes,
-                   "episodes_per_state": episodes_per_state, "seconds": seconds, "seed": seed,
-                   "learners": list(learners),
-                   "methods": [dataclasses.asdict(m) for m in chosen], "fraction": fraction,
-                   "window": window, "chunk_episodes": chunk_episodes, "max_steps": max_steps,
-                   "drop_unsolved": drop_unsolved, "quick": quick}
-        meta = {"command": command, "options": options,
+                   "episodes_per_state": episodes_per_state, "seconds": solve.max_seconds,
+                   "seed": seed, "learners": list(learners),
+                   "methods": [dataclasses.asdict(m) for m in chosen],
+                   "fraction": solve.fraction, "window": solve.window,
+                   "chunk_episodes": chunk_episodes, "max_steps": max_steps,
+                   "drop_unsolved": drop_unsolved, "quick": size == QUICK}
+        meta = {"command": outputs.command, "options": options,
                 "elapsed_seconds": time.perf_counter() - started,
                 "settings": [[s.learner, s.explorer, s.param, dict(s.hyperparameters)]
                              for s in settings],
@@ -322,11 +312,9 @@ def run_scaling(
         mark(out, "results")
         io.write_csv(out / CSV_FILE, rows, ROW_COLUMNS)
         io.save_json(out / META_FILE, meta)
-        write_reports(out, rows, variants, meta, figure=figure)
+        write_reports(out, rows, variants, meta, figure=outputs.figures)
         unmark(out)
-        if not save_runs:
-            for size in runs:
-                shutil.rmtree(out / RUNS_FOLDER / size, ignore_errors=True)
+        outputs.discard_runs([out / RUNS_FOLDER / variant for variant in runs])
         return ScalingResult(rows, variants, meta, runs)
 
 
@@ -346,10 +334,12 @@ def _empty_row() -> dict[str, Any]:
 __all__ = [
     "LEARNERS",
     "METHODS",
+    "QUICK",
     "SIZES",
     "AdaptiveRun",
     "Method",
     "ScalingResult",
+    "ScalingSize",
     "auto_chunk",
     "best_parameters",
     "growth_exponents",

@@ -2,9 +2,10 @@
 
 :data:`METHODS` (each a :class:`Method`: an explorer at one parameter value, with where the
 value comes from), :data:`LEARNERS`, the family of variants :data:`SIZES` (``NxK``:
-:func:`parse_sizes`), the ``--quick`` options :data:`QUICK` and the episode budget per
-variant (:func:`variant_budget`, :func:`auto_chunk`). :func:`~vdbejax.studies.scaling.run_scaling`
-runs it (:mod:`vdbejax.studies.scaling`); every name here is also importable from there.
+:func:`parse_sizes`), the study's size (:class:`ScalingSize`; ``--quick``'s is
+:data:`QUICK`) and the episode budget per variant (:func:`variant_budget`,
+:func:`auto_chunk`). :func:`~vdbejax.studies.scaling.run_scaling` runs it
+(:mod:`vdbejax.studies.scaling`); every name here is also importable from there.
 """
 from __future__ import annotations
 
@@ -65,12 +66,33 @@ PAPER_METHODS = ("egreedy", "softmax", "vdbe", "vdbe_softmax")
 LEARNERS = ("qlearning", "sarsa")
 #: The full-size family of variants (N sections × K goblets), in order of size.
 SIZES = ("2x1", "3x1", "4x1", "4x2", "5x2", "6x2", "6x3")
-#: ``--quick``: two small variants, few agents and episodes (seconds).
-QUICK: dict[str, Any] = {"sizes": ("2x1", "3x1"), "seeds": 3, "episodes": 1000,
-                         "episodes_per_state": None}
 #: Default budget: ``max(EPISODES, EPISODES_PER_STATE × reachable states)`` per variant.
 EPISODES = 2000
 EPISODES_PER_STATE = 3.0
+#: Agents per setting by default.
+SEEDS = 10
+
+
+@dataclasses.dataclass(frozen=True)
+class ScalingSize:
+    """The study's size: which variants, how many agents, how many episodes each.
+
+    Attributes:
+      sizes: variants ``NxK`` (``"2x1,4x2"`` or a sequence; :func:`parse_sizes`).
+      seeds: agents per setting.
+      episodes: episode budget per agent and variant; with ``episodes_per_state`` the
+        smallest one (:func:`variant_budget`).
+      episodes_per_state: budget per reachable state (None: ``episodes`` everywhere).
+    """
+
+    sizes: str | Sequence[str] = SIZES
+    seeds: int = SEEDS
+    episodes: int = EPISODES
+    episodes_per_state: float | None = EPISODES_PER_STATE
+
+
+#: ``--quick``: two small variants, few agents and episodes (seconds).
+QUICK = ScalingSize(sizes=("2x1", "3x1"), seeds=3, episodes=1000, episodes_per_state=None)
 
 
 def best_parameters(rows: Sequence[SummaryRow | Mapping[str, Any]]) -> dict[str, float]:
@@ -168,8 +190,10 @@ __all__ = [
     "METHODS",
     "PAPER_METHODS",
     "QUICK",
+    "SEEDS",
     "SIZES",
     "Method",
+    "ScalingSize",
     "auto_chunk",
     "best_parameters",
     "parse_sizes",
