@@ -3,9 +3,10 @@ bands), the parameter-sensitivity plot, and ε(s) heatmaps.
 
 Every function returns the matplotlib figure and, given ``path``, saves it as PNG. The
 figures serve any grid: titles wrap to the figure's width, legends sit outside the data
-(right of each panel), curves get one of :data:`COLORS` (Okabe–Ito, colour-blind safe) and,
-past seven in a panel, a line style of :data:`LINE_STYLES` as well (21 distinct curves),
-and a legend shows only the values that vary within its panel.
+(right of each panel; the sensitivity plot's one legend below its panels), curves get one
+of :data:`COLORS` (Okabe–Ito, colour-blind safe) and, past seven in a panel, a line style
+of :data:`LINE_STYLES` as well (21 distinct curves), and a legend shows only the values
+that vary within its panel.
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ import matplotlib
 if "ipykernel" not in sys.modules:  # headless by default; keep a notebook's inline backend
     matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+import matplotlib.ticker
 import numpy as np
 
 from vdbejax.methods.agents import parameter_name
@@ -265,9 +267,10 @@ def sensitivity(
     """Final return and convergence episode against each explorer's parameter.
 
     One column per explorer (x: its own parameter, or, where that takes one value, the
-    hyperparameter swept beside it, e.g. α; a log axis for positive values), one row per
-    metric, one line per learner with its 95% bootstrap interval as error bars. A flat line near the
-    best return means "robust to parametrization".
+    hyperparameter swept beside it, e.g. α; a log axis for positive values, labelled at
+    the swept values), one row per metric, one line per learner with its 95% bootstrap
+    interval as error bars; one legend below the panels, which all have the same width. A
+    flat line near the best return means "robust to parametrization".
 
     Args:
       rows: summary rows (:func:`vdbejax.results.analysis.summarize`, or mappings of their columns
@@ -288,6 +291,7 @@ def sensitivity(
     columns = max(len(explorers), 1)
     fig, axes = plt.subplots(len(SENSITIVITY_METRICS), columns, squeeze=False,
                              figsize=(5.4 * columns, 6.4), sharey="row", layout="constrained")
+    styles: dict[str, dict[str, Any]] = {}  # a line's style by its label, in every column
     if not explorers:
         axes[0, 0].text(0.5, 0.5, "no swept parameter in these settings", ha="center")
     for col, explorer in enumerate(explorers):
@@ -298,7 +302,7 @@ def sensitivity(
         column_lines = list(dict.fromkeys((r.learner, _line_key(r, axis)) for r in mine))
         for row, (key, label, metric) in enumerate(SENSITIVITY_METRICS):
             ax = axes[row, col]
-            for k, (learner, extra) in enumerate(column_lines):
+            for learner, extra in column_lines:
                 points = sorted((r for r in mine
                                  if r.learner == learner and _line_key(r, axis) == extra),
                                 key=lambda r: _x_value(r, axis))
@@ -320,7 +324,9 @@ def sensitivity(
                 # The values beside the learner show only those that vary in the column.
                 shown = _extra_values(extra, varying)
                 name = learner_title(learner) + (f" {shown}" if shown else "")
-                style = curve_style(k) if varying else {"color": color, "ls": "-"}
+                style = styles.setdefault(name, {"color": color, "ls": "-"}
+                                          if color is not None and not varying
+                                          else curve_style(len(styles)))
                 drawn = ax.errorbar(x, np.where(censored, np.nan, y), yerr=yerr, marker=marker,
                                     ms=4, capsize=3, lw=1.2, label=name, **style)
                 if censored.any():
@@ -329,7 +335,7 @@ def sensitivity(
                             color=drawn.lines[0].get_color(), transform=ax.get_xaxis_transform(),
                             label=f"{name}: {CENSORED_LABEL}")
             if all(_x_value(r, axis) > 0 for r in mine):
-                ax.set_xscale("log")
+                _log_axis(ax, [_x_value(r, axis) for r in mine])
             if key == "final_return" and best_return is not None:
                 ax.axhline(best_return, label=f"best {best_return:.2f}", **BEST_STYLE)
             if row == 0:
@@ -341,13 +347,52 @@ def sensitivity(
             if col == 0:
                 ax.set_ylabel(label)
             ax.grid(alpha=0.3, which="both")
-            if row == 0:  # one legend per column: the rows show the same lines
-                _legend_outside(ax)
-            else:  # except for the censored marks, which only this row has
-                _legend_outside(ax, containing=CENSORED_LABEL)
+    _legend_below(fig)
     fig.suptitle(_wrap(title or "Sensitivity to the exploration parameter (95% bootstrap CI"
                        " over agents)", 5.4 * columns, 12))
     return _finish(fig, path)
+
+
+#: Tick labels of a log axis at most (:func:`_log_axis`).
+LOG_TICKS = 6
+
+
+def _log_axis(ax: plt.Axes, values: Sequence[float]) -> None:
+    """A log x axis labelled at the swept values (``0.01``, ``20``: as written), at most
+    :data:`LOG_TICKS` of them, each at least a sixth of the values' span from the one
+    before: the labels never run into each other (matplotlib's own label minor ticks,
+    ``2×10`` … ``6×10``, when the values span less than a decade). Minor ticks stay
+    unlabelled, for the grid."""
+    ax.set_xscale("log")
+    points = np.unique(np.asarray(values, np.float64))
+    logs = np.log10(points)
+    gap = (logs[-1] - logs[0]) / LOG_TICKS
+    kept = [0]
+    for i in range(1, len(points)):
+        if logs[i] - logs[kept[-1]] >= gap:
+            kept.append(i)
+    if len(kept) > 1 and kept[-1] != len(points) - 1 and logs[-1] - logs[kept[-1]] >= gap / 2:
+        kept[-1] = len(points) - 1  # the largest value labelled, not its neighbour
+    ax.xaxis.set_major_locator(matplotlib.ticker.FixedLocator(points[kept].tolist()))
+    ax.xaxis.set_major_formatter(matplotlib.ticker.FixedFormatter(
+        [_fmt(float(p)) for p in points[kept]]))
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+
+
+def _legend_below(fig: plt.Figure) -> None:
+    """One legend of the figure's lines below its panels (a line has the same style in
+    every panel), in as many columns as fit the figure's width: panels keep equal widths
+    whatever the labels' length."""
+    entries: dict[str, Any] = {}
+    for ax in fig.axes:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            entries.setdefault(label, handle)
+    if not entries:
+        return
+    longest = max(len(label) for label in entries)
+    fit = int(fig.get_size_inches()[0] // (0.06 * longest + 0.6))
+    fig.legend(list(entries.values()), list(entries), loc="outside lower center", fontsize=7,
+               ncols=max(1, min(fit, len(entries), 4)), frameon=False)
 
 
 def epsilon_heatmap(
