@@ -322,8 +322,9 @@ def saved_references(result: GridResult) -> float:
 def replot(
     results_dir: str | os.PathLike, out_dir: str | os.PathLike | None = None, bands: bool = True
 ) -> list[Path]:
-    """Redraw Figure 3, the sensitivity plot and the summary from saved results, and the
-    claims report for the paper's grid (:func:`is_paper_grid`; other grids get none).
+    """Redraw Figure 3, the sensitivity plot and the summary from saved results (and
+    ``optimal_actions.png`` for a run that recorded optimal actions), and the claims
+    report for the paper's grid (:func:`is_paper_grid`; other grids get none).
 
     Nothing is retrained: only ``returns.npz``, ``configs.csv`` and ``meta.json`` are read.
 
@@ -346,8 +347,10 @@ def replot(
         raise ValueError(f"cannot read results in {str(results_dir)!r}: {error}") from None
     out = check_writable_dir("out", results_dir if out_dir is None else out_dir)
     check_output_paths(out, [FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE, REPORT_FILE,
-                             *REPLICATE_FILES])
+                             sweeps.OPTIMAL_FIGURE_FILE, *REPLICATE_FILES])
     written = [out / name for name in (FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE)]
+    if result.optimal_actions is not None:
+        written.append(out / sweeps.OPTIMAL_FIGURE_FILE)
     if replicate_count(result) > 1:
         written += [out / name for name in REPLICATE_FILES]
     paper = is_paper_grid(result)

@@ -1,5 +1,6 @@
 """Figures: the paper's Figure 3 (one panel per learner × explorer, optional bootstrap
-bands), the parameter-sensitivity plot, and ε(s) heatmaps.
+bands), the parameter-sensitivity plot, the % optimal action beside the average reward
+(Sutton & Barto's Figure 2.2), and ε(s) heatmaps.
 
 Every function returns the matplotlib figure and, given ``path``, saves it as PNG. The
 figures serve any grid: titles wrap to the figure's width, legends sit outside the data
@@ -29,6 +30,7 @@ from vdbejax.methods.agents import parameter_name
 from vdbejax.methods.registry import EXPLORERS, explorer_title, learner_title
 from vdbejax.results.curves import WINDOW, convolve_full
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.optimal_actions import step_curves
 from vdbejax.results.stats import CurveStatistics, curve_statistics
 from vdbejax.results.summary import SummaryRow, summary_rows
 from vdbejax.validation import check_choice
@@ -393,6 +395,50 @@ def _legend_below(fig: plt.Figure) -> None:
     fit = int(fig.get_size_inches()[0] // (0.06 * longest + 0.6))
     fig.legend(list(entries.values()), list(entries), loc="outside lower center", fontsize=7,
                ncols=max(1, min(fit, len(entries), 4)), frameon=False)
+
+
+def optimal_actions_figure(result: GridResult, path: str | os.PathLike | None = None
+                           ) -> plt.Figure:
+    """Sutton & Barto's Figure 2.2 (2018, §2.3) for any grid run with ``record_optimal``:
+    the average reward (left) and the % optimal action (right) against the pulls — or,
+    where an episode is more than one pull or step, against the episodes (the reward per
+    step and the % of an episode's actions that are optimal) — one curve per setting,
+    each the mean over its agents
+    (:func:`~vdbejax.results.optimal_actions.step_curves`), one legend below both panels.
+
+    Args:
+      result: a grid with a record of optimal actions (``GridResult.optimal_actions``).
+      path: save the figure there (PNG) if given.
+
+    Returns:
+      the matplotlib figure.
+
+    Raises:
+      ValueError: the grid has no record of optimal actions.
+    """
+    curves = [step_curves(result, c) for c in range(len(result.settings))]
+    varying = _varying(result.settings)
+    pulls = int(result.meta.get("max_steps", 0)) == 1  # one pull (step) an episode
+    x = np.arange(1, result.num_episodes + 1)
+    fig, (reward, optimal) = plt.subplots(1, 2, figsize=(11.0, 4.4), layout="constrained")
+    for c, (fraction, per_step) in enumerate(curves):
+        setting = result.settings[c]
+        label = f"{learner_title(setting.learner)}, {explorer_title(setting.explorer)}"
+        if setting.values:
+            label += f" {curve_label(setting, varying)}"
+        style = dict(curve_style(c), lw=1.0)
+        reward.plot(x, per_step, label=label, **style)
+        optimal.plot(x, 100.0 * fraction, label=label, **style)
+    reward.set_ylabel("average reward" + ("" if pulls else " per step"))
+    optimal.set_ylabel("% optimal action")
+    optimal.set_ylim(0.0, 100.0)
+    for ax in (reward, optimal):
+        ax.set_xlabel("pulls" if pulls else "episode")
+        ax.grid(alpha=0.3)
+    _legend_below(fig)
+    fig.suptitle(_wrap(f"{result.meta.get('mdp', 'task')}: mean over {result.num_seeds}"
+                       f" agents per setting", 11.0, 12))
+    return _finish(fig, path)
 
 
 def epsilon_heatmap(
