@@ -16,7 +16,7 @@ from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, owners, paper_settings
 from vdbejax.paper.claims import ClaimResult, evaluate_claims
-from vdbejax.paper.report import cap_message, render_report
+from vdbejax.paper.report import cap_message, one_value_settings, render_report
 from vdbejax.results import io
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, describe_os_error, unmark
 from vdbejax.results.grid_result import GridResult
@@ -89,7 +89,8 @@ def write_outputs(
     several = replicate_count(result) > 1
     claims = evaluate_claims(summaries.pooled, best,
                              replicates=summaries.replicates if several else None)
-    io.atomic_write_text(out / REPORT_FILE, render_report(claims, result.meta, best))
+    io.atomic_write_text(out / REPORT_FILE, render_report(claims, result.meta, best,
+                                                          one_value_settings(result, best)))
     return summaries.replicates[0], claims
 
 
