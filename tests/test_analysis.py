@@ -34,6 +34,27 @@ def test_truncated_fraction():
     lengths = np.array([[100, 15, 100, 20], [15, 15, 15, 15]])
     np.testing.assert_allclose(analysis.truncated_fraction(lengths, 100, last=2), [0.5, 0.0])
     assert np.isnan(analysis.truncated_fraction(lengths, None)).all()
+    # a task whose last allowed step always ends the episode on its own: nothing was cut
+    np.testing.assert_allclose(analysis.truncated_fraction(lengths, 100, 2, "never"), [0, 0])
+    with pytest.raises(ValueError, match="cuts='sometime' is invalid"):
+        analysis.truncated_episodes(lengths, 100, "sometime")
+
+
+def test_step_limit_cuts_follows_the_states_an_episode_can_be_in_at_its_last_step():
+    from vdbejax.envs.solvers import step_limit_cuts
+    from vdbejax.envs.suite import make_suite_task
+    from vdbejax.envs.suite.bandits import bandit_family
+    from vdbejax.envs.table_cleaning import make_mdp
+
+    assert step_limit_cuts(make_suite_task("testbed:10")) == "never"  # one pull, terminal
+    assert step_limit_cuts(make_suite_task("testbed:10", max_steps=5)) == "always"
+    assert step_limit_cuts(make_suite_task("deepsea:6")) == "never"  # ends at depth 6
+    assert step_limit_cuts(make_suite_task("deepsea:6", max_steps=4)) == "always"
+    assert step_limit_cuts(make_suite_task("riverswim")) == "always"  # no terminal state
+    assert step_limit_cuts(make_mdp()) == "sometimes"  # the paper's task: either
+    assert step_limit_cuts(make_mdp(), max_steps=10**9) == "sometimes"  # layers repeat
+    family = bandit_family("testbed", 4, name="testbed:4").instances(0, 3)  # per agent
+    assert step_limit_cuts(family.tables) == "never"
 
 
 def test_markdown_table():

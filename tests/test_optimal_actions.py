@@ -154,6 +154,39 @@ def test_the_cli_flag_writes_the_columns(tmp_path, capsys):
     assert "optimal_actions" in np.load(out / "returns.npz").files
 
 
+def test_the_cli_draws_the_books_two_panels_and_plot_redraws_them(tmp_path, capsys):
+    import matplotlib.pyplot as plt
+
+    from vdbejax.results.grid_result import GridResult
+    from vdbejax.results.optimal_actions import step_curves
+    from vdbejax.results.plotting import optimal_actions_figure
+
+    out = tmp_path / "run"
+    code = cli.main(["run", "--task", "testbed:4", "--learners", "sample_average",
+                     "--explorers", "egreedy", "--axis", "epsilon=0,0.1", "--seeds", "3",
+                     "--episodes", "30", "--record-optimal", "--quiet", "--out", str(out)])
+    assert code in (0, None)
+    assert (out / "optimal_actions.png").stat().st_size > 0
+    result = GridResult.load(out)
+    fig = optimal_actions_figure(result)
+    reward, optimal = fig.axes
+    assert (reward.get_ylabel(), optimal.get_ylabel()) == ("average reward", "% optimal action")
+    assert reward.get_xlabel() == optimal.get_xlabel() == "pulls"  # one pull an episode
+    fraction, per_step = step_curves(result, 1)
+    np.testing.assert_allclose(optimal.get_lines()[1].get_ydata(), 100 * fraction)
+    np.testing.assert_allclose(reward.get_lines()[1].get_ydata(), per_step)
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == [
+        "Sample average, ε-greedy ε=0", "Sample average, ε-greedy ε=0.1"]
+    plt.close(fig)
+    (out / "optimal_actions.png").unlink()
+    assert cli.main(["plot", "--results", str(out)]) in (0, None)
+    assert (out / "optimal_actions.png").stat().st_size > 0
+    # a run without the record has no such figure, and says what to do
+    result.optimal_actions = None
+    with pytest.raises(ValueError, match="record_optimal=True"):
+        optimal_actions_figure(result)
+
+
 def test_a_replicate_keeps_its_agents_record():
     from vdbejax.results.replicates import replicate
 

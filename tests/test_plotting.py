@@ -57,7 +57,7 @@ def test_sensitivity(grid, tmp_path):
     assert low > -2 and high < 1.5
     assert axes[1, 0].get_ylim()[1] <= grid.num_episodes * 1.2
     # Each learner's line carries error bars (one line per learner).
-    labels = {t.get_text() for t in axes[0, 0].get_legend().get_texts()}
+    labels = {t.get_text() for t in fig.legends[0].get_texts()}  # one legend, below
     assert {"Q-learning", "SARSA"} <= labels
     plt.close(fig)
 
@@ -155,6 +155,7 @@ def _assert_laid_out(fig):
     assert drawn.x0 >= -0.01 and drawn.y0 >= -0.01, drawn
     assert drawn.x1 <= width + 0.01 and drawn.y1 <= height + 0.01, (drawn, width, height)
     legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+    legends += fig.legends
     assert legends
     for legend in legends:
         box = legend.get_window_extent(renderer)
@@ -194,6 +195,35 @@ def test_curves_of_a_panel_are_told_apart_and_labelled_by_what_varies():
     plt.close(fig)
     # The sensitivity plot's legend: readable values, only those that vary (not γ, no JSON).
     fig = plotting.sensitivity(summarize(nine))
-    texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    texts = [t.get_text() for t in fig.legends[0].get_texts()
+             if plotting.CENSORED_LABEL not in t.get_text()]  # the lines, less their marks
     assert texts == ["Q-learning α=0.1", "Q-learning α=0.3", "Q-learning α=0.8"], texts
+    plt.close(fig)
+
+
+@pytest.mark.parametrize("values", [[20.0, 30.0, 40.0, 60.0],  # less than a decade
+                                    [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0],
+                                    [0.0001, 0.0003, 0.001, 0.01, 0.1, 1.0, 10.0, 100.0]])
+def test_sensitivity_log_ticks_never_overlap_and_panels_share_one_width(values):
+    from vdbejax.methods import sweep
+
+    settings = (sweep(["qlearning", "sarsa"], ["softmax", "vdbe"],
+                      {"tau": values, "sigma": values})
+                + sweep(["qlearning"], ["egreedy"],  # a column with longer labels
+                        {"epsilon": [v / 200 for v in values], "alpha": [0.1, 0.35]}))
+    fig = plotting.sensitivity(summarize(_grid_of(settings)), best_return=BEST)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    for ax in fig.axes:
+        assert ax.get_xscale() == "log"
+        labels = [t for t in ax.get_xticklabels(which="both") if t.get_visible()
+                  and t.get_text() and ax.get_xlim()[0] <= t.get_position()[0]
+                  <= ax.get_xlim()[1]]
+        assert len(labels) >= 2 and "×" not in "".join(t.get_text() for t in labels)
+        boxes = sorted((t.get_window_extent(renderer) for t in labels), key=lambda b: b.x0)
+        for left, right in zip(boxes, boxes[1:]):
+            assert left.x1 < right.x0, [t.get_text() for t in labels]
+    widths = {round(ax.get_position().width, 6) for ax in fig.axes}
+    assert len(widths) == 1, widths  # the legends' text squeezes no panel
+    assert widths.pop() * 3 > 0.75  # the panels fill the figure's width
     plt.close(fig)

@@ -205,3 +205,27 @@ def test_a_new_root_seed_reports_each_verdicts_stability(tmp_path, root):
             assert f"{check.description} — holds in {check.replicates_passed} of 3" in report
             if check.flips:
                 assert f": {check.description}\n" in report
+
+
+def test_the_report_names_settings_whose_agents_all_end_at_one_value_and_why():
+    from vdbejax.methods import Setting
+    from vdbejax.paper.report import TRAP_DOCS, one_value_settings, render_report
+    from vdbejax.results.grid_result import GridResult
+
+    settings = [Setting("sarsa", "vdbe", 1.0), Setting("sarsa", "vdbe", 10.0),
+                Setting("qlearning", "egreedy", 0.1), Setting("sarsa", "egreedy", 0.1)]
+    returns = np.full((4, 3, 120), -0.01 * 100, np.float32)  # looping until the limit
+    lengths = np.full(returns.shape, 100, np.int32)
+    returns[2], lengths[2] = 0.86, 15  # every agent at the best return: it learned
+    returns[3] = np.linspace(-1, 0.5, 3, dtype=np.float32)[:, None]  # a spread
+    lengths[3] = 40
+    meta = {"mdp": "table_cleaning", "max_steps": 100, "step_limit_cuts": "sometimes"}
+    result = GridResult(settings, returns, lengths, np.zeros((4, 3), bool), meta)
+    [stuck] = one_value_settings(result, best_return=0.86)
+    assert (stuck.learner, stuck.explorer, stuck.params) == ("sarsa", "vdbe", (1.0, 10.0))
+    assert stuck.final_return == float(np.float32(-1.0)) and stuck.truncated == 1.0
+    report = render_report([], meta, 0.86, [stuck])
+    assert ("- SARSA with VDBE (sigma = 1, 10): every agent ends at exactly -1.000; 100% of"
+            " their last episodes cut at the step limit of 100.") in report
+    assert TRAP_DOCS in report and "The SARSA trap" in report
+    assert "all end at one value" not in render_report([], meta, 0.86)

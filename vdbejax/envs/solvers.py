@@ -362,3 +362,68 @@ def shortest_episode(mdp: TabularMDP) -> int:
         seen[frontier] = True
     return max_steps
 
+
+
+#: :func:`step_limit_cuts`'s answers: an episode that reaches ``max_steps`` was cut by the
+#: limit always (the step there can never end it), never (that step always ends it), or
+#: sometimes (both can happen: its length does not tell).
+LIMIT_CUTS = ("always", "never", "sometimes")
+#: Steps :func:`step_limit_cuts` follows the states an episode can be in before it falls
+#: back to every state (their layers repeat long before on any task of this package).
+_LIMIT_LAYERS = 100_000
+
+
+def step_limit_cuts(mdp: TabularMDP, max_steps: int | None = None) -> str:
+    """Whether an episode that runs ``max_steps`` steps was cut by the step limit: one of
+    :data:`LIMIT_CUTS`.
+
+    The states an episode can be in when it takes its ``max_steps``-th step are followed
+    exactly from the start states (every action possible, every outcome of positive
+    probability that does not end the episode): ``"always"`` when no outcome of those
+    states ends the episode (a task without terminal states; a deep chain that no
+    episode can finish in time), ``"never"`` when every one does (a one-pull bandit; a
+    DeepSea of depth ``max_steps``, whose every episode ends there on its own),
+    ``"sometimes"`` otherwise.
+
+    Args:
+      mdp: the task; for a run of per-agent instances, their tables with a leading agent
+        axis (:class:`~vdbejax.envs.task_instances.TaskInstances`' ``tables``): the
+        answer of all of them together.
+      max_steps: the step limit (default: the task's).
+
+    Returns:
+      ``"always"``, ``"never"`` or ``"sometimes"``.
+    """
+    next_state = np.asarray(mdp.next_state)
+    probability = np.asarray(mdp.probability) > 0
+    terminal = np.asarray(mdp.terminal)
+    start = np.asarray(mdp.start_probability) > 0
+    if next_state.ndim == 4:  # instances: their disjoint union, one task
+        agents, states = next_state.shape[:2]
+        next_state = next_state + (np.arange(agents) * states)[:, None, None, None]
+        next_state, probability, terminal = (array.reshape(-1, *array.shape[2:])
+                                             for array in (next_state, probability, terminal))
+        start = start.reshape(-1)
+    limit = int(np.asarray(mdp.max_steps).reshape(-1)[0]) if max_steps is None else max_steps
+    live = probability & ~terminal
+    layer, seen = start, {start.tobytes(): 0}
+    for step in range(1, limit):  # the states before the step `step + 1`
+        if step > _LIMIT_LAYERS:  # fall back to every state (an answer that holds)
+            layer = np.ones_like(start)
+            break
+        following = np.zeros_like(layer)
+        following[next_state[layer][live[layer]]] = True
+        layer = following
+        first = seen.setdefault(layer.tobytes(), step)
+        if first != step:  # the layers repeat with period step - first from here on
+            period = step - first
+            remaining = (limit - 1 - step) % period
+            for _ in range(remaining):
+                following = np.zeros_like(layer)
+                following[next_state[layer][live[layer]]] = True
+                layer = following
+            break
+    ends = terminal[layer][probability[layer]]
+    if not ends.any():
+        return "always"
+    return "never" if ends.all() else "sometimes"

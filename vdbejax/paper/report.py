@@ -1,18 +1,94 @@
 """``report.md``: the scored claims (:mod:`vdbejax.paper.claims`) as a document.
 
-One run's report lists each claim's verdict and checks. A run with replicates
+One run's report lists each claim's verdict and checks, and names the settings whose
+agents all end at one value (with where the docs explain it). A run with replicates
 (:mod:`vdbejax.results.replicates`) also states the headline rule, gives each claim's
 pooled verdict and how many replicates agree with it, each check's "k of R replicates",
 and names every check and claim whose outcome flips between replicates.
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
+from vdbejax.methods.registry import explorer_title, learner_title
 from vdbejax.paper.claims import ABOUT, NEAR, STABLE, TIE, Check, ClaimResult, mark, stable_count
+from vdbejax.results.analysis import truncated_fraction
+from vdbejax.results.curves import LAST, final_return
+from vdbejax.results.grid_result import GridResult
 from vdbejax.results.markdown import table_lines
 from vdbejax.results.solving import CONVERGENCE_TEXT
+
+#: Where the docs explain a setting whose agents all end at one value (``report.md``
+#: names it; notebook 04 shows it).
+TRAP_DOCS = "docs/reproduce.md, section \"The SARSA trap\" (notebooks/04_the_sarsa_trap.ipynb)"
+
+
+@dataclasses.dataclass(frozen=True)
+class OneValue:
+    """The settings of one learner and explorer whose agents all end at one final return.
+
+    Attributes:
+      learner, explorer: plug-in names.
+      parameter: the name of the explorer's swept parameter.
+      params: the settings' parameters, in config order.
+      final_return: the one final return (mean of the last episodes) of all their agents.
+      truncated: the fraction of those last episodes the step limit cut (NaN: unknown).
+    """
+
+    learner: str
+    explorer: str
+    parameter: str
+    params: tuple[float | None, ...]
+    final_return: float
+    truncated: float
+
+
+def one_value_settings(result: GridResult, best_return: float, last: int = LAST
+                       ) -> list[OneValue]:
+    """The settings (of more than one agent) whose every agent ends at the same final
+    return, bit for bit, and not near the best one (farther than the claims' ``NEAR``),
+    grouped by learner, explorer and that value: no spread to estimate, agents caught at
+    one fixed point short of the goal (the SARSA trap of the textbook reading). Agents that
+    all end at the best return learned the task; they are not listed."""
+    finals = final_return(result.returns, min(last, result.num_episodes))
+    cuts = truncated_fraction(result.lengths, result.meta.get("max_steps"), last,
+                              result.meta.get("step_limit_cuts", "sometimes"))
+    groups: dict[tuple[str, str, float], list[int]] = {}
+    for c, setting in enumerate(result.settings):
+        values = finals[c]
+        if (values.size > 1 and np.isfinite(values).all() and (values == values[0]).all()
+                and abs(values[0] - best_return) > NEAR):
+            groups.setdefault((setting.learner, setting.explorer, float(values[0])),
+                              []).append(c)
+    return [OneValue(learner, explorer, result.settings[configs[0]].parameter,
+                     tuple(result.settings[c].param for c in configs), value,
+                     float(cuts[configs].mean()))
+            for (learner, explorer, value), configs in groups.items()]
+
+
+def _one_value_lines(settings: Sequence[OneValue], meta: dict[str, Any]) -> list[str]:
+    """The paragraph on settings whose agents all end at one value (none: no paragraph)."""
+    if not settings:
+        return []
+    items = []
+    for s in settings:
+        params = ", ".join("default" if p is None else f"{p:g}" for p in s.params)
+        cut = ("" if np.isnan(s.truncated) else
+               f"; {s.truncated:.0%} of their last episodes cut at the step limit of"
+               f" {meta.get('max_steps', '?')}")
+        items.append(f"- {learner_title(s.learner)} with {explorer_title(s.explorer)}"
+                     f" ({s.parameter} = {params}): every agent ends at exactly"
+                     f" {s.final_return:.3f}{cut}.")
+    return ["**Settings whose agents all end at one value.** Every agent of these settings"
+            " ends at the same final return, away from the best: no spread between agents is"
+            " no sign of a stable learner here, the agents are caught at one fixed point and"
+            " repeat the same episode (why, for SARSA with VDBE under the textbook reading:"
+            f" {TRAP_DOCS}). Their verdicts and counts below stand as measured.", "",
+            *items, ""]
 
 
 def cap_message(meta: dict[str, Any]) -> str:
@@ -124,7 +200,8 @@ def _summary_table(claims: Sequence[ClaimResult], replicates: int) -> list[str]:
                        rows)
 
 
-def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_return: float) -> str:
+def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_return: float,
+                  one_value: Sequence[OneValue] = ()) -> str:
     """``report.md``: each claim with the paper's and our numbers, checks and verdict.
 
     Args:
@@ -132,6 +209,8 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
       meta: the run's metadata (task, run size, seed, options; missing keys print ``?``;
         ``replicates`` and ``agents_per_replicate`` for a run with replicates).
       best_return: the task's best possible return.
+      one_value: the settings whose agents all end at one value
+        (:func:`one_value_settings`): a paragraph names them and where the docs explain it.
 
     Returns:
       markdown text.
@@ -179,6 +258,7 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
         lines += (["**Flips between replicates.**", "", *flips, ""] if flips else
                   ["**Flips between replicates.** None: every check holds in all replicates"
                    " that decide it or in none.", ""])
+    lines += _one_value_lines(one_value, meta)
     lines += _undecided(claims, agents)
     lines += _summary_table(claims, replicates)
     for c in claims:

@@ -16,7 +16,7 @@ from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, owners, paper_settings
 from vdbejax.paper.claims import ClaimResult, evaluate_claims
-from vdbejax.paper.report import cap_message, render_report
+from vdbejax.paper.report import cap_message, one_value_settings, render_report
 from vdbejax.results import io
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, describe_os_error, unmark
 from vdbejax.results.grid_result import GridResult
@@ -89,7 +89,8 @@ def write_outputs(
     several = replicate_count(result) > 1
     claims = evaluate_claims(summaries.pooled, best,
                              replicates=summaries.replicates if several else None)
-    io.atomic_write_text(out / REPORT_FILE, render_report(claims, result.meta, best))
+    io.atomic_write_text(out / REPORT_FILE, render_report(claims, result.meta, best,
+                                                          one_value_settings(result, best)))
     return summaries.replicates[0], claims
 
 
@@ -322,8 +323,9 @@ def saved_references(result: GridResult) -> float:
 def replot(
     results_dir: str | os.PathLike, out_dir: str | os.PathLike | None = None, bands: bool = True
 ) -> list[Path]:
-    """Redraw Figure 3, the sensitivity plot and the summary from saved results, and the
-    claims report for the paper's grid (:func:`is_paper_grid`; other grids get none).
+    """Redraw Figure 3, the sensitivity plot and the summary from saved results (and
+    ``optimal_actions.png`` for a run that recorded optimal actions), and the claims
+    report for the paper's grid (:func:`is_paper_grid`; other grids get none).
 
     Nothing is retrained: only ``returns.npz``, ``configs.csv`` and ``meta.json`` are read.
 
@@ -346,8 +348,10 @@ def replot(
         raise ValueError(f"cannot read results in {str(results_dir)!r}: {error}") from None
     out = check_writable_dir("out", results_dir if out_dir is None else out_dir)
     check_output_paths(out, [FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE, REPORT_FILE,
-                             *REPLICATE_FILES])
+                             sweeps.OPTIMAL_FIGURE_FILE, *REPLICATE_FILES])
     written = [out / name for name in (FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE)]
+    if result.optimal_actions is not None:
+        written.append(out / sweeps.OPTIMAL_FIGURE_FILE)
     if replicate_count(result) > 1:
         written += [out / name for name in REPLICATE_FILES]
     paper = is_paper_grid(result)

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from vdbejax.envs.solvers import LIMIT_CUTS
 from vdbejax.results.bootstrap import probability_of_improvement_ci
 from vdbejax.results.curves import LAST, WINDOW, final_return
 from vdbejax.results.grid_result import GridResult
@@ -24,10 +25,34 @@ from vdbejax.results.regret import Scale, as_scale
 from vdbejax.results.solving import episodes_to_converge, summarize_solving
 from vdbejax.results.stats import CurveStatistics, curve_statistics
 from vdbejax.results.summary import SUMMARY_COLUMNS, SummaryRow
+from vdbejax.validation import check_choice
 
 
-def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = LAST) -> np.ndarray:
-    """Fraction of the last ``last`` episodes that ran into ``max_steps`` (per leading index).
+def truncated_episodes(lengths: np.ndarray, max_steps: int, cuts: str = "sometimes"
+                       ) -> np.ndarray:
+    """bool, the shape of ``lengths``: the episodes the step limit cut.
+
+    An episode that ran ``max_steps`` steps was cut unless its last step ended it on its
+    own; ``cuts`` is the task's :func:`~vdbejax.envs.solvers.step_limit_cuts` (a run's
+    ``meta["step_limit_cuts"]``): ``"never"`` counts none (a one-pull bandit, whose every
+    episode ends with its pull), ``"always"`` and ``"sometimes"`` every episode of
+    ``max_steps`` steps (for ``"sometimes"``, an upper bound: an episode that ended on its
+    own exactly at the limit is counted as well).
+
+    Raises:
+      ValueError: ``cuts`` is not one of :data:`~vdbejax.envs.solvers.LIMIT_CUTS`.
+    """
+    check_choice("cuts", cuts, LIMIT_CUTS)
+    lengths = np.asarray(lengths)
+    if cuts == "never":
+        return np.zeros(lengths.shape, bool)
+    return lengths >= max_steps
+
+
+def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = LAST,
+                       cuts: str = "sometimes") -> np.ndarray:
+    """Fraction of the last ``last`` episodes the step limit cut (per leading index:
+    :func:`truncated_episodes`).
 
     An agent stuck in a loop (e.g. SARSA + VDBE with all actions valued ≈ −0.1) shows up
     as a fraction near 1. ``max_steps=None`` (unknown) gives NaN.
@@ -36,6 +61,8 @@ def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = L
       lengths: ``[..., episodes]`` episode lengths.
       max_steps: the truncation length, or ``None`` if unknown.
       last: number of final episodes considered.
+      cuts: the task's :func:`~vdbejax.envs.solvers.step_limit_cuts` (``meta.json``'s
+        ``step_limit_cuts``; results without it: ``"sometimes"``).
 
     Returns:
       float64 ``[...]`` fractions in [0, 1] (NaN when ``max_steps`` is None).
@@ -43,7 +70,7 @@ def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = L
     lengths = np.asarray(lengths)[..., -last:]
     if max_steps is None:
         return np.full(lengths.shape[:-1], np.nan)
-    return (lengths >= max_steps).mean((-1,))
+    return truncated_episodes(lengths, max_steps, cuts).mean((-1,))
 
 
 def task_scale(result: GridResult, best: Scale | None = None,
@@ -120,6 +147,7 @@ def summarize(
                          f"last={last} and the grid's {len(result.settings)} settings")
     best, baseline = task_scale(result, best, baseline)
     max_steps = result.meta.get("max_steps")
+    cuts = result.meta.get("step_limit_cuts", "sometimes")
     policy = (policy_summary(result) if result.policy_values is not None
               else [{}] * len(result.settings))
     optimal = (optimal_action_summary(result, last) if result.optimal_actions is not None
@@ -131,7 +159,7 @@ def summarize(
         convergence = summarize_solving(episodes, solved)
         episodes_cut = agents_cut = None
         if result.meta.get("step_cap"):  # a task without step limit: cuts at its cap
-            cut = result.lengths[c] >= max_steps
+            cut = truncated_episodes(result.lengths[c], int(result.meta["max_steps"]), cuts)
             episodes_cut, agents_cut = int(cut.sum()), int(cut.any(-1).sum())
         rows.append(SummaryRow(
             config=c,
@@ -149,9 +177,9 @@ def summarize(
             agents_converged=convergence.solved,
             convergence_budget=(convergence.budget if convergence.solved < convergence.agents
                                 else result.num_episodes),
-            # Fraction over all seeds of the last episodes cut off at max_steps.
+            # Fraction over all seeds of the last episodes the step limit cut.
             truncated_fraction=float(
-                truncated_fraction(result.lengths[c], max_steps, last).mean()),
+                truncated_fraction(result.lengths[c], max_steps, last, cuts).mean()),
             mean_length=float(result.lengths[c].mean()),
             nonfinite_agents=int(result.nonfinite[c].sum()),
             episodes_cut=episodes_cut,

@@ -1,11 +1,13 @@
 """Figures: the paper's Figure 3 (one panel per learner × explorer, optional bootstrap
-bands), the parameter-sensitivity plot, and ε(s) heatmaps.
+bands), the parameter-sensitivity plot, the % optimal action beside the average reward
+(Sutton & Barto's Figure 2.2), and ε(s) heatmaps.
 
 Every function returns the matplotlib figure and, given ``path``, saves it as PNG. The
 figures serve any grid: titles wrap to the figure's width, legends sit outside the data
-(right of each panel), curves get one of :data:`COLORS` (Okabe–Ito, colour-blind safe) and,
-past seven in a panel, a line style of :data:`LINE_STYLES` as well (21 distinct curves),
-and a legend shows only the values that vary within its panel.
+(right of each panel; the sensitivity plot's one legend below its panels), curves get one
+of :data:`COLORS` (Okabe–Ito, colour-blind safe) and, past seven in a panel, a line style
+of :data:`LINE_STYLES` as well (21 distinct curves), and a legend shows only the values
+that vary within its panel.
 """
 from __future__ import annotations
 
@@ -21,12 +23,14 @@ import matplotlib
 if "ipykernel" not in sys.modules:  # headless by default; keep a notebook's inline backend
     matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+import matplotlib.ticker
 import numpy as np
 
 from vdbejax.methods.agents import parameter_name
 from vdbejax.methods.registry import EXPLORERS, explorer_title, learner_title
 from vdbejax.results.curves import WINDOW, convolve_full
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.optimal_actions import step_curves
 from vdbejax.results.stats import CurveStatistics, curve_statistics
 from vdbejax.results.summary import SummaryRow, summary_rows
 from vdbejax.validation import check_choice
@@ -265,9 +269,10 @@ def sensitivity(
     """Final return and convergence episode against each explorer's parameter.
 
     One column per explorer (x: its own parameter, or, where that takes one value, the
-    hyperparameter swept beside it, e.g. α; a log axis for positive values), one row per
-    metric, one line per learner with its 95% bootstrap interval as error bars. A flat line near the
-    best return means "robust to parametrization".
+    hyperparameter swept beside it, e.g. α; a log axis for positive values, labelled at
+    the swept values), one row per metric, one line per learner with its 95% bootstrap
+    interval as error bars; one legend below the panels, which all have the same width. A
+    flat line near the best return means "robust to parametrization".
 
     Args:
       rows: summary rows (:func:`vdbejax.results.analysis.summarize`, or mappings of their columns
@@ -288,6 +293,7 @@ def sensitivity(
     columns = max(len(explorers), 1)
     fig, axes = plt.subplots(len(SENSITIVITY_METRICS), columns, squeeze=False,
                              figsize=(5.4 * columns, 6.4), sharey="row", layout="constrained")
+    styles: dict[str, dict[str, Any]] = {}  # a line's style by its label, in every column
     if not explorers:
         axes[0, 0].text(0.5, 0.5, "no swept parameter in these settings", ha="center")
     for col, explorer in enumerate(explorers):
@@ -298,7 +304,7 @@ def sensitivity(
         column_lines = list(dict.fromkeys((r.learner, _line_key(r, axis)) for r in mine))
         for row, (key, label, metric) in enumerate(SENSITIVITY_METRICS):
             ax = axes[row, col]
-            for k, (learner, extra) in enumerate(column_lines):
+            for learner, extra in column_lines:
                 points = sorted((r for r in mine
                                  if r.learner == learner and _line_key(r, axis) == extra),
                                 key=lambda r: _x_value(r, axis))
@@ -320,7 +326,9 @@ def sensitivity(
                 # The values beside the learner show only those that vary in the column.
                 shown = _extra_values(extra, varying)
                 name = learner_title(learner) + (f" {shown}" if shown else "")
-                style = curve_style(k) if varying else {"color": color, "ls": "-"}
+                style = styles.setdefault(name, {"color": color, "ls": "-"}
+                                          if color is not None and not varying
+                                          else curve_style(len(styles)))
                 drawn = ax.errorbar(x, np.where(censored, np.nan, y), yerr=yerr, marker=marker,
                                     ms=4, capsize=3, lw=1.2, label=name, **style)
                 if censored.any():
@@ -329,7 +337,7 @@ def sensitivity(
                             color=drawn.lines[0].get_color(), transform=ax.get_xaxis_transform(),
                             label=f"{name}: {CENSORED_LABEL}")
             if all(_x_value(r, axis) > 0 for r in mine):
-                ax.set_xscale("log")
+                _log_axis(ax, [_x_value(r, axis) for r in mine])
             if key == "final_return" and best_return is not None:
                 ax.axhline(best_return, label=f"best {best_return:.2f}", **BEST_STYLE)
             if row == 0:
@@ -341,12 +349,95 @@ def sensitivity(
             if col == 0:
                 ax.set_ylabel(label)
             ax.grid(alpha=0.3, which="both")
-            if row == 0:  # one legend per column: the rows show the same lines
-                _legend_outside(ax)
-            else:  # except for the censored marks, which only this row has
-                _legend_outside(ax, containing=CENSORED_LABEL)
+    _legend_below(fig)
     fig.suptitle(_wrap(title or "Sensitivity to the exploration parameter (95% bootstrap CI"
                        " over agents)", 5.4 * columns, 12))
+    return _finish(fig, path)
+
+
+#: Tick labels of a log axis at most (:func:`_log_axis`).
+LOG_TICKS = 6
+
+
+def _log_axis(ax: plt.Axes, values: Sequence[float]) -> None:
+    """A log x axis labelled at the swept values (``0.01``, ``20``: as written), at most
+    :data:`LOG_TICKS` of them, each at least a sixth of the values' span from the one
+    before: the labels never run into each other (matplotlib's own label minor ticks,
+    ``2×10`` … ``6×10``, when the values span less than a decade). Minor ticks stay
+    unlabelled, for the grid."""
+    ax.set_xscale("log")
+    points = np.unique(np.asarray(values, np.float64))
+    logs = np.log10(points)
+    gap = (logs[-1] - logs[0]) / LOG_TICKS
+    kept = [0]
+    for i in range(1, len(points)):
+        if logs[i] - logs[kept[-1]] >= gap:
+            kept.append(i)
+    if len(kept) > 1 and kept[-1] != len(points) - 1 and logs[-1] - logs[kept[-1]] >= gap / 2:
+        kept[-1] = len(points) - 1  # the largest value labelled, not its neighbour
+    ax.xaxis.set_major_locator(matplotlib.ticker.FixedLocator(points[kept].tolist()))
+    ax.xaxis.set_major_formatter(matplotlib.ticker.FixedFormatter(
+        [_fmt(float(p)) for p in points[kept]]))
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+
+
+def _legend_below(fig: plt.Figure) -> None:
+    """One legend of the figure's lines below its panels (a line has the same style in
+    every panel), in as many columns as fit the figure's width: panels keep equal widths
+    whatever the labels' length."""
+    entries: dict[str, Any] = {}
+    for ax in fig.axes:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            entries.setdefault(label, handle)
+    if not entries:
+        return
+    longest = max(len(label) for label in entries)
+    fit = int(fig.get_size_inches()[0] // (0.06 * longest + 0.6))
+    fig.legend(list(entries.values()), list(entries), loc="outside lower center", fontsize=7,
+               ncols=max(1, min(fit, len(entries), 4)), frameon=False)
+
+
+def optimal_actions_figure(result: GridResult, path: str | os.PathLike | None = None
+                           ) -> plt.Figure:
+    """Sutton & Barto's Figure 2.2 (2018, §2.3) for any grid run with ``record_optimal``:
+    the average reward (left) and the % optimal action (right) against the pulls — or,
+    where an episode is more than one pull or step, against the episodes (the reward per
+    step and the % of an episode's actions that are optimal) — one curve per setting,
+    each the mean over its agents
+    (:func:`~vdbejax.results.optimal_actions.step_curves`), one legend below both panels.
+
+    Args:
+      result: a grid with a record of optimal actions (``GridResult.optimal_actions``).
+      path: save the figure there (PNG) if given.
+
+    Returns:
+      the matplotlib figure.
+
+    Raises:
+      ValueError: the grid has no record of optimal actions.
+    """
+    curves = [step_curves(result, c) for c in range(len(result.settings))]
+    varying = _varying(result.settings)
+    pulls = int(result.meta.get("max_steps", 0)) == 1  # one pull (step) an episode
+    x = np.arange(1, result.num_episodes + 1)
+    fig, (reward, optimal) = plt.subplots(1, 2, figsize=(11.0, 4.4), layout="constrained")
+    for c, (fraction, per_step) in enumerate(curves):
+        setting = result.settings[c]
+        label = f"{learner_title(setting.learner)}, {explorer_title(setting.explorer)}"
+        if setting.values:
+            label += f" {curve_label(setting, varying)}"
+        style = dict(curve_style(c), lw=1.0)
+        reward.plot(x, per_step, label=label, **style)
+        optimal.plot(x, 100.0 * fraction, label=label, **style)
+    reward.set_ylabel("average reward" + ("" if pulls else " per step"))
+    optimal.set_ylabel("% optimal action")
+    optimal.set_ylim(0.0, 100.0)
+    for ax in (reward, optimal):
+        ax.set_xlabel("pulls" if pulls else "episode")
+        ax.grid(alpha=0.3)
+    _legend_below(fig)
+    fig.suptitle(_wrap(f"{result.meta.get('mdp', 'task')}: mean over {result.num_seeds}"
+                       f" agents per setting", 11.0, 12))
     return _finish(fig, path)
 
 

@@ -74,8 +74,9 @@ class SummaryRow(Mapping[str, Any]):
         of the agents never converge; :func:`episode_text`).
       agents_converged: the agents that converged.
       convergence_budget: the episodes a censored agent ran ("> budget").
-      truncated_fraction: fraction of the last episodes cut off at ``max_steps`` (NaN
-        when it is unknown).
+      truncated_fraction: fraction of the last episodes the step limit cut
+        (:func:`vdbejax.results.analysis.truncated_episodes`: an episode that ended on its
+        own at its last allowed step is not one; NaN when ``max_steps`` is unknown).
       mean_length: mean episode length.
       nonfinite_agents: agents whose returns are not all finite.
       episodes_cut, agents_cut: episodes (and agents with any) cut at a task's safety cap.

@@ -27,7 +27,7 @@ import numpy as np
 from vdbejax.engine import agent_keys, broadcast_agents, check_params, text_progress
 from vdbejax.engine.distributed import gather_agents, process_checkpoint_path, take_agents
 from vdbejax.engine.programs import Programs
-from vdbejax.envs.solvers import best_return, uniform_random_return
+from vdbejax.envs.solvers import best_return, step_limit_cuts, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.envs.task_instances import TaskFamily, TaskInstances
 from vdbejax.methods.agents import (
@@ -40,6 +40,7 @@ from vdbejax.methods.agents import (
     stack_agents,
     table_layout,
 )
+from vdbejax.results.analysis import truncated_episodes
 from vdbejax.results.folder_lock import describe_os_error, remove_stale_temporaries
 from vdbejax.results.grid_result import GridResult
 from vdbejax.runs.batching import check_run_size
@@ -348,9 +349,13 @@ def _collect(prepared: PreparedGrid, state: RunState, fingerprint: str, resumed_
     meta.pop("mdp_tables")
     ran = lengths[lengths > 0]
     meta["longest_episode"] = int(ran.max()) if ran.size else 0
-    cut = lengths >= mdp.max_steps  # on a task without a step limit: the safety cap
+    # Episodes the step limit cut (on a task without a step limit: its safety cap); an
+    # episode whose last allowed step ended it on its own is not one.
+    limit_cuts = step_limit_cuts(mdp if prepared.instances is None else prepared.instances.tables)
+    cut = truncated_episodes(lengths, int(mdp.max_steps), limit_cuts)
     # best and random returns: the references of the summary's convergence episode
-    meta.update(truncated_episodes=int(cut.sum()), agents_truncated=int(cut.any(axis=2).sum()),
+    meta.update(step_limit_cuts=limit_cuts, truncated_episodes=int(cut.sum()),
+                agents_truncated=int(cut.any(axis=2).sum()),
                 truncated_episodes_by_config=cut.sum(axis=(1, 2)).tolist(),
                 hyperparameters=[agent_hyperparameters(make_agent(s, options)) for s in settings],
                 parameter_names={s.explorer: s.parameter for s in settings},

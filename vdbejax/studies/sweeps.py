@@ -54,18 +54,21 @@ FIGURE_FILE = "fig3.png"
 SENSITIVITY_FILE = "sensitivity.png"
 #: The learned policies' gap to the optimum (a run with ``evaluate_every``).
 POLICY_FIGURE_FILE = "policy_gap.png"
+#: The average reward and the % optimal action (a run with ``record_optimal``).
+OPTIMAL_FIGURE_FILE = "optimal_actions.png"
 
 
 #: Files a run writes into its folder (checked before training: none may be a folder).
 RUN_FILES = [io.RETURNS_FILE, io.CONFIGS_FILE, io.META_FILE, SUMMARY_FILE, FIGURE_FILE,
-             SENSITIVITY_FILE, POLICY_FIGURE_FILE, *REPLICATE_FILES]
+             SENSITIVITY_FILE, POLICY_FIGURE_FILE, OPTIMAL_FIGURE_FILE, *REPLICATE_FILES]
 
 
 def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | None,
                   bands: bool = True, figures: bool = True,
                   statistics: CurveStatistics | None = None) -> ReplicateSummaries:
     """Write ``summary.csv`` and (unless ``figures=False``) ``fig3.png`` and
-    ``sensitivity.png`` (and ``policy_gap.png`` with policy evaluations) for a grid of
+    ``sensitivity.png`` (and ``policy_gap.png`` with policy evaluations,
+    ``optimal_actions.png`` with a record of optimal actions) for a grid of
     any kinds; with replicates, these are replicate 0's
     and ``summary_pooled.csv`` and ``replicates.csv`` come beside them
     (:mod:`vdbejax.results.replicates`).
@@ -109,6 +112,10 @@ def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | 
             from vdbejax.results.policy import policy_gap_figure
 
             io.save_figure(policy_gap_figure(first), out / POLICY_FIGURE_FILE)
+        if result.optimal_actions is not None:
+            from vdbejax.results.plotting import optimal_actions_figure
+
+            io.save_figure(optimal_actions_figure(first), out / OPTIMAL_FIGURE_FILE)
     if count == 1:
         for name in REPLICATE_FILES:  # an earlier run's with replicates would go stale
             (out / name).unlink(missing_ok=True)
