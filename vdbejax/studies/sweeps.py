@@ -210,6 +210,12 @@ def run_sweep(
     run = study_run(run, "run_sweep", SWEEP_RUN_FIELDS)
     learners, explorers, axes = sweep.learners, sweep.explorers, sweep.axes
     load_plugins(list(sweep.plugins))
+    if bool(learners) != bool(explorers):  # a product needs both: say which to give
+        given, missing = ("learners", "explorers") if learners else ("explorers", "learners")
+        names = list(learners or explorers)
+        raise ValueError(f"{missing} is missing: {given}={names!r} make a product with"
+                         f" {missing} (give --{missing} or {missing} = [...]); for explicit"
+                         f" settings only (--setting), leave out {given}")
     check_choice("instances", instances, ("shared", "per-agent"))
     mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
