@@ -52,7 +52,8 @@ def add_run(sub: argparse._SubParsersAction) -> None:
                    help="episodes per agent (default 1000)")
     p.add_argument("--seed", type=number, default=None, help="root random seed (default 0)")
     p.add_argument("--max-steps", type=number, default=None,
-                   help="episode truncation (default 100)")
+                   help="episode truncation (default: the task's own horizon, the max_steps"
+                        " of vdbejax list tasks; 100 for table_cleaning and variant:NxK)")
     p.add_argument("--invalid-action", default=None, help="noop (default) or fail")
     p.add_argument("--chunk-episodes", type=number, default=None,
                    help="episodes per jitted chunk (default: at least 100 and 20,000"
@@ -211,7 +212,7 @@ def add_scale(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--chunk-episodes", type=number, default=None,
                    help="episodes between stop checks (default max(100, budget/100))")
     p.add_argument("--max-steps", type=number, default=None,
-                   help="episode truncation (default 100)")
+                   help="episode truncation (default 100, the variants' own horizon)")
     p.add_argument("--drop-unsolved", action="store_true",
                    help="skip a setting on larger variants once none of its agents solved one")
     p.add_argument("--quick", action="store_true", help="2x1 and 3x1, 3 seeds, 1000 episodes")
