@@ -13,6 +13,7 @@ __all__ = [
     "bench",
     "checkpoint_files",
     "depth",
+    "learner_defaults",
     "scaling",
     "snapshots",
     "sweep_file",
