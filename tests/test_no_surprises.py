@@ -382,3 +382,24 @@ def test_compare_puts_two_folders_settings_side_by_side(finished, tmp_path, caps
     assert float(rows[0]["a_final"]) == pytest.approx(float(a["final_return"]), abs=1e-6)
     assert cli.main(["compare", str(finished), str(tmp_path / "nothing")]) == 2
     assert "has no summary.csv" in one_error_line(capsys)
+
+
+def test_compare_refuses_folders_of_different_tasks_unless_asked(finished, tmp_path, capsys):
+    from vdbejax.results.compare import compare_folders
+
+    chain = tmp_path / "chain"
+    sweeps.run_sweep(chain, **SWEEP, task="chain")
+    assert cli.main(["compare", str(finished), str(chain)]) == 2
+    line = one_error_line(capsys)
+    assert f"ran task 'table_cleaning' and b={str(chain)!r} task 'chain'" in line
+    assert "--different-tasks" in line
+    assert cli.main(["compare", str(finished), str(chain), "--different-tasks"]) == 0
+    assert "| qlearning/egreedy/0.1 | " in capsys.readouterr().out
+    family = tmp_path / "family"
+    sweeps.run_sweep(family, **SWEEP, task="testbed:3", instances="per-agent")
+    shared = tmp_path / "shared"
+    sweeps.run_sweep(shared, **SWEEP, task="testbed:3")
+    with pytest.raises(ValueError, match=r"task 'testbed:3 \(per-agent instances\)'"):
+        compare_folders(shared, family)
+    assert len(compare_folders(shared, family, different_tasks=True)) == 1
+    assert len(compare_folders(family, family)) == 1

@@ -398,3 +398,62 @@ def test_a_plug_in_calling_back_into_python_is_refused_before_training():
     with pytest.raises(ValueError, match="select\\(\\) calls back into Python"):
         run_grid(make_mdp(), [Setting("qlearning", "nothing_silent_callback")], num_seeds=2,
                  num_episodes=2)
+
+
+def _help_defaults(command: str) -> list[tuple[str, str, object, str]]:
+    """``(dest, the default the help prints, the parser's default, help)`` of a command's
+    options whose help says ``(default V…``."""
+    import argparse
+    import re
+
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    rows = []
+    for action in sub.choices[command]._actions:
+        found = re.search(r"\(default (?!:)([^\s;:)]+)", action.help or "")
+        if found:
+            rows.append((action.dest, found.group(1).rstrip(","), action.default,
+                         action.help))
+    return rows
+
+
+def _number(text: str) -> float | None:
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+@pytest.mark.parametrize("command", ["run", "scale"])
+def test_every_default_the_help_prints_is_the_one_used(command):
+    import inspect
+
+    from vdbejax.cli.study_commands import SCALE_SIZE_FLAGS
+    from vdbejax.envs.suite import task_info
+    from vdbejax.studies.scaling import run_scaling
+    from vdbejax.studies.sweeps import run_sweep
+    from vdbejax.studies.task_names import make_task
+
+    function = {"run": run_sweep, "scale": run_scaling}[command]
+    used = {name: p.default for name, p in inspect.signature(function).parameters.items()}
+    # What a None default means: scale's variants' own horizon.
+    own = {"scale": {"max_steps": int(make_task("variant:2x1").max_steps)}, "run": {}}[command]
+    if command == "scale":
+        used.update({k: v for k, v in SCALE_SIZE_FLAGS.items() if v is not None})
+    rows = _help_defaults(command)
+    assert {"seeds", "episodes", "seed"} <= {dest for dest, *_ in rows}
+    for dest, printed, parser_default, text in rows:
+        value = parser_default if parser_default is not None else used.get(dest)
+        if value is None:
+            value = own.get(dest)
+        if _number(printed) is not None:
+            assert value is not None and float(value) == _number(printed), (dest, text)
+        elif isinstance(value, str):
+            assert printed == value, (dest, text)
+    if command == "run":  # the task's own horizon, whatever it is
+        text = next(a.help for a in cli.build_parser()._actions[-1].choices["run"]._actions
+                    if a.dest == "max_steps")
+        assert "the task's own horizon" in text and "100 for table_cleaning" in text
+        assert int(make_task("table_cleaning").max_steps) == 100
+        assert used["max_steps"] is None
+        assert int(make_task("riverswim").max_steps) == task_info("riverswim").horizon != 100

@@ -493,3 +493,31 @@ def _current_umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def test_a_folder_of_other_files_is_refused_unless_overwrite(tmp_path, capsys, monkeypatch):
+    from vdbejax.studies import depth, scaling
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("my own file")
+    args = ["run", "--out", str(mine), "--learners", "qlearning", "--explorers", "egreedy",
+            "--seeds", "2", "--episodes", "4", "--quiet", "--no-figures"]
+    assert cli.main(args) == 2
+    line = one_error_line(capsys)
+    assert f"out={str(mine)!r} is not a vdbejax result folder and holds files (thesis.tex)" \
+        in line and "--overwrite" in line
+    assert sorted(p.name for p in mine.iterdir()) == ["thesis.tex"]  # nothing created
+    for study, kwargs in ((scaling.run_scaling, {"quick": True}),
+                          (depth.run_depth, {"quick": True})):
+        with pytest.raises(ValueError, match="is not a vdbejax result folder"):
+            study(mine, run=QUIET, **kwargs)
+    assert sorted(p.name for p in mine.iterdir()) == ["thesis.tex"]
+    # an empty folder, a folder of a run and --overwrite are written into
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert cli.main([*args[:2], str(empty), *args[3:]]) == 0
+    assert cli.main([*args, "--overwrite"]) == 0
+    assert (mine / io.META_FILE).is_file() and (mine / "thesis.tex").read_text() == "my own file"
+    assert cli.main([*args, "--overwrite"]) == 0  # now a vdbejax folder: --overwrite as ever
+    assert cli.main([*args, "--resume"]) == 0

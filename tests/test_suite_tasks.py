@@ -454,3 +454,65 @@ def test_invalid_action_only_for_the_table_cleaning_tasks():
                     r"invalid_action='fail' is invalid with name='cruz2018'")
     _one_line_error(lambda: make_suite_task("sixarms", max_steps=0), r"max_steps=0 is invalid")
     assert set(NAMES) >= set(DEFAULT_SUITE) - {"deepsea:10", "variant:3x1"}
+
+
+# ------------------------------------------------------------------ learner defaults by task
+def test_a_suite_task_gets_the_benchmarks_rule_and_the_paper_tasks_keep_the_papers(
+        tmp_path, capsys):
+    from vdbejax import cli
+    from vdbejax.methods.agents import AgentOptions, Setting
+    from vdbejax.results import io
+    from vdbejax.runs import RunOptions, prepare_grid
+    from vdbejax.studies.catalog import catalog
+    from vdbejax.studies.sweep_file import read_sweep_file, sweep_from_meta
+    from vdbejax.studies.sweeps import Sweep, run_sweep
+
+    quiet = RunOptions(progress=False)
+    sweep = Sweep(learners=["qlearning", "ucbvi"], explorers=["egreedy"])
+    result = run_sweep(tmp_path / "river", sweep, task="riverswim", seeds=2, episodes=3,
+                       figures=False, run=quiet)
+    horizon = int(make_suite_task("riverswim").max_steps)
+    assert result.meta["learner_defaults"] == {
+        "rule": "benchmark", "alpha": 0.1, "gamma": 1 - 1 / horizon,
+        "finite_horizon": {"gamma": 1.0, "horizon": horizon}}
+    q, ucbvi = result.meta["hyperparameters"]
+    assert (q["learner.alpha"], q["learner.gamma"]) == (0.1, 1 - 1 / horizon)
+    assert (ucbvi["learner.gamma"], ucbvi["learner.horizon"]) == (1.0, horizon)
+    # a setting's own values take precedence
+    own = run_sweep(tmp_path / "own", Sweep(learners=["qlearning"], explorers=["egreedy"],
+                                            shared={"alpha": 0.5, "gamma": 0.8}),
+                    task="riverswim", seeds=2, episodes=3, figures=False, run=quiet)
+    assert (own.meta["hyperparameters"][0]["learner.alpha"],
+            own.meta["hyperparameters"][0]["learner.gamma"]) == (0.5, 0.8)
+    # the paper's tasks: the paper's values and the fingerprint of every earlier run
+    for task in ("table_cleaning", "cruz2018", "variant:2x1"):
+        paper = run_sweep(tmp_path / task.replace(":", "_"), Sweep(
+            learners=["qlearning"], explorers=["egreedy"]), task=task, seeds=2, episodes=3,
+            figures=False, run=quiet)
+        assert paper.meta["learner_defaults"]["rule"] == "paper"
+        assert (paper.meta["hyperparameters"][0]["learner.alpha"],
+                paper.meta["hyperparameters"][0]["learner.gamma"]) == (0.8, 0.9)
+        before = prepare_grid(make_suite_task(task), [Setting("qlearning", "egreedy", 0.1)],
+                              num_seeds=2, num_episodes=3, options=AgentOptions())
+        assert paper.meta["fingerprint"] == before.fingerprint
+    # a rerun of a finished folder keeps its rule; a folder from before the rule: the paper's
+    assert read_sweep_file(tmp_path / "river")["learner_defaults"] == "benchmark"
+    old = io.load_json(tmp_path / "river" / io.META_FILE)
+    del old["sweep"]["learner_defaults"]
+    assert sweep_from_meta(old)["learner_defaults"] == "paper"
+    # the command line: the first line and the closing lines say the values
+    args = ["run", "--out", str(tmp_path / "cli"), "--task", "chain", "--learners",
+            "qlearning", "--explorers", "egreedy", "--seeds", "2", "--episodes", "2",
+            "--no-figures"]
+    assert cli.main(args) == 0
+    captured = capsys.readouterr()
+    assert captured.err.startswith("learner defaults: alpha=0.1, gamma=0.999 = 1 − 1/H")
+    assert "learner defaults (benchmark): alpha=0.1, gamma=0.999" in captured.out
+    assert cli.main([*args[:2], str(tmp_path / "cli2"), *args[3:], "--learner-defaults",
+                     "paper", "--quiet"]) == 0
+    assert "learner defaults (paper): alpha=0.8, gamma=0.9" in capsys.readouterr().out
+    # vdbejax list tasks
+    tasks = {entry["name"]: entry for entry in catalog(["tasks"])["tasks"]}
+    assert tasks["riverswim"]["learner_defaults"].startswith(
+        f"alpha=0.1, gamma={1 - 1 / horizon:g} = 1 − 1/H")
+    assert tasks["table_cleaning"]["learner_defaults"].endswith("the paper's values")

@@ -12,6 +12,7 @@ import pytest
 from small_grid import SETTINGS, run_small
 
 from vdbejax import cli, make_tabular_mdp
+from vdbejax.envs.suite import make_suite_task
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, make_agent
 from vdbejax.methods.explorers import make_explorer
@@ -90,6 +91,39 @@ def test_unknown_names():
     with pytest.raises(ValueError) as error:
         make_agent(SETTINGS[0], AgentOptions(tie_break="last"))
     assert_one_line(error, "tie_break='last'", "random", "first")
+
+
+@pytest.mark.parametrize("call, nearest", [
+    (lambda: make_agent(Setting("qlearning", "vdbe_sofmax", 0.1)), "vdbe_softmax"),
+    (lambda: make_agent(Setting("qlearnin", "egreedy", 0.1)), "qlearning"),
+    (lambda: make_suite_task("riverswm"), "riverswim"),
+    (lambda: make_suite_task("chian:8"), "chain:8"),
+])
+def test_a_typo_gets_the_nearest_names(call, nearest):
+    with pytest.raises(ValueError) as error:
+        call()
+    assert_one_line(error, "must be one of", f"(did you mean {nearest}")
+    # a name near nothing gets the list alone
+    with pytest.raises(ValueError) as error:
+        make_agent(Setting("qlearning", "zzzz", 0.1))
+    assert "did you mean" not in str(error.value)
+
+
+def test_cli_typo_and_learners_without_explorers_say_what_to_change(tmp_path, capsys):
+    out = tmp_path / "out"
+    run = ["run", "--out", str(out), "--task", "chain", "--seeds", "1", "--episodes", "2",
+           "--quiet"]
+    assert cli.main(run + ["--learners", "qlearning", "--explorers", "vdbe_sofmax"]) == 2
+    assert "did you mean vdbe_softmax" in capsys.readouterr().err
+    assert cli.main(run + ["--task", "riverswm", "--learners", "qlearning", "--explorers",
+                           "egreedy"]) == 2
+    assert "task='riverswm' is invalid" in capsys.readouterr().err
+    assert cli.main(run + ["--learners", "qlearning",
+                           "--setting", "learner=qlearning,explorer=egreedy,epsilon=0.1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: explorers is missing: learners=['qlearning']") and \
+        "give --explorers" in err and "leave out learners" in err and len(err.splitlines()) == 1
+    assert not out.exists()
 
 
 RUN_GRID_CASES = [

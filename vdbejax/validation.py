@@ -6,6 +6,7 @@ is allowed, so the CLI can print it and exit 2.
 from __future__ import annotations
 
 import contextlib
+import difflib
 import itertools
 import math
 import operator
@@ -35,11 +36,22 @@ def _is_number(value: Any) -> bool:
     return not isinstance(value, (bool, np.bool_, str, bytes))
 
 
+def nearest_names(value: Any, allowed: Iterable[str]) -> str:
+    """`` (did you mean a or b?)``: the names of ``allowed`` nearest to a mistyped
+    ``value`` (:func:`difflib.get_close_matches`, at most three), or ``""`` if none is
+    near (or ``value`` is not a string)."""
+    if not isinstance(value, str):
+        return ""
+    close = difflib.get_close_matches(value, list(allowed), n=3, cutoff=0.6)
+    return f" (did you mean {' or '.join(close)}?)" if close else ""
+
+
 def check_choice(name: str, value: Any, allowed: Iterable[str]) -> str:
-    """Check ``value`` is one of the names ``allowed``."""
+    """Check ``value`` is one of the names ``allowed`` (a typo gets the nearest names)."""
     allowed = tuple(allowed)
     if value not in allowed:
-        _fail(name, value, "must be one of " + ", ".join(allowed))
+        _fail(name, value, "must be one of " + ", ".join(allowed)
+              + nearest_names(value, allowed))
     return value
 
 

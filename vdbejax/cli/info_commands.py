@@ -32,13 +32,16 @@ def add_compare(sub: argparse._SubParsersAction) -> None:
     p.add_argument("a", metavar="A", help="a result folder")
     p.add_argument("b", metavar="B", help="another result folder")
     p.add_argument("--csv", default=None, help="also write the comparison as CSV to this file")
+    p.add_argument("--different-tasks", action="store_true",
+                   help="compare folders of different tasks (or instance families); without"
+                        " it that is refused")
 
 
 def compare_command(args: argparse.Namespace) -> None:
     from vdbejax.results import io
     from vdbejax.results.compare import compare_folders, render_comparison
 
-    table = compare_folders(args.a, args.b)
+    table = compare_folders(args.a, args.b, different_tasks=args.different_tasks)
     print(render_comparison(table, args.a, args.b), end="")
     if args.csv:
         try:

@@ -52,7 +52,8 @@ def add_run(sub: argparse._SubParsersAction) -> None:
                    help="episodes per agent (default 1000)")
     p.add_argument("--seed", type=number, default=None, help="root random seed (default 0)")
     p.add_argument("--max-steps", type=number, default=None,
-                   help="episode truncation (default 100)")
+                   help="episode truncation (default: the task's own horizon, the max_steps"
+                        " of vdbejax list tasks; 100 for table_cleaning and variant:NxK)")
     p.add_argument("--invalid-action", default=None, help="noop (default) or fail")
     p.add_argument("--chunk-episodes", type=number, default=None,
                    help="episodes per jitted chunk (default: at least 100 and 20,000"
@@ -63,6 +64,12 @@ def add_run(sub: argparse._SubParsersAction) -> None:
                    help="record each episode's fraction of steps whose action is optimal"
                         " (optimal_actions in returns.npz; the optimal_actions and"
                         " reward_per_step columns of summary.csv); the returns are the same")
+    p.add_argument("--learner-defaults", default=None, choices=("benchmark", "paper"),
+                   help="the values of the settings that give none of their own: benchmark"
+                        " (alpha 0.1, gamma 1 - 1/H, the finite-horizon learners gamma 1 and"
+                        " horizon H) or paper (alpha 0.8, gamma 0.9) (default: paper on"
+                        " table_cleaning, cruz2018 and variant:NxK, benchmark on any other"
+                        " task; docs/suite.md)")
     p.add_argument("--instances", default=None, choices=("shared", "per-agent"),
                    help="per-agent: a task family (testbed:N, gaussian_bandit:N,"
                         " bernoulli_bandit:N, garnet:SxAxB, variant:NxK: a random start)"
@@ -114,6 +121,8 @@ def run_command(args: argparse.Namespace) -> None:
     for key in ("learners", "explorers"):
         if getattr(args, key) is not None:
             spec[key] = [name for name in getattr(args, key).split(",") if name]
+    if args.learner_defaults is not None:
+        spec["learner_defaults"] = args.learner_defaults
     axes = dict(spec.get("axes", {}))
     axes.update({name: [_value(v) for v in values.split(",")]
                  for name, values in _pairs(args.axis, "--axis")})
@@ -146,6 +155,10 @@ def run_command(args: argparse.Namespace) -> None:
     for row, setting in zip(rows, result.settings, strict=True):
         print(f"{setting.label}: final return {row.final_return:.3f}"
               f" [{row.final_ci_low:.3f}, {row.final_ci_high:.3f}]")
+    defaults = result.meta.get("learner_defaults", {})
+    print(f"learner defaults ({defaults.get('rule')}): alpha={defaults.get('alpha')},"
+          f" gamma={defaults.get('gamma')}, finite-horizon learners:"
+          f" {defaults.get('finite_horizon')}; a setting's own values above")
     print(f"training {result.meta['elapsed_seconds']:.1f} s → {args.out}")
     if args.long_csv:
         print(*write_long_csv(args.out, args.out), sep="\n")
@@ -211,7 +224,7 @@ def add_scale(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--chunk-episodes", type=number, default=None,
                    help="episodes between stop checks (default max(100, budget/100))")
     p.add_argument("--max-steps", type=number, default=None,
-                   help="episode truncation (default 100)")
+                   help="episode truncation (default 100, the variants' own horizon)")
     p.add_argument("--drop-unsolved", action="store_true",
                    help="skip a setting on larger variants once none of its agents solved one")
     p.add_argument("--quick", action="store_true", help="2x1 and 3x1, 3 seeds, 1000 episodes")

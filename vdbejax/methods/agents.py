@@ -23,6 +23,7 @@ from vdbejax.methods.learners import PAPER_ALPHA, PAPER_GAMMA, PAPER_LEARNERS, l
 from vdbejax.methods.model import MODEL_PREFIX, MODEL_TABLES
 from vdbejax.methods.registry import EXPLORERS, build, field_names, hyperparameters, static_names
 from vdbejax.methods.selection import VDBE_DELTA, VDBE_SOFTMAX_TAU
+from vdbejax.validation import check_int
 
 #: The paper's swept values (spec, "Exploration").
 PAPER_PARAMETERS: dict[str, tuple[float, ...]] = {
@@ -138,12 +139,20 @@ def _format(value: Any) -> str:
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
+def horizon_discount(horizon: int) -> float:
+    """The discount of a discounted learner on episodes of ``horizon`` steps, ``1 − 1/H``
+    (an effective horizon equal to the episode's)."""
+    return 1.0 - 1.0 / horizon
+
+
 @dataclasses.dataclass(frozen=True)
 class AgentOptions:
     """Values shared by every agent of a run where its learner or explorer has the field
     (spec defaults); a setting's own values take precedence. ``gamma`` ``None`` (the
     default): each learner's own default γ (the paper's learners: 0.9; the finite-horizon
-    UCBVI, PSRL and UCB-H: 1)."""
+    UCBVI, PSRL and UCB-H: 1). ``horizon`` (default ``None``: each learner's own): the
+    task's horizon H, the finite-horizon learners' ``horizon``, and with ``gamma`` ``None``
+    the discounted learners' γ = 1 − 1/H (:func:`horizon_discount`)."""
 
     alpha: float = PAPER_ALPHA
     gamma: float | None = None
@@ -151,6 +160,7 @@ class AgentOptions:
     tie_break: str = "random"
     delta: float = VDBE_DELTA
     vdbe_softmax_tau: float = VDBE_SOFTMAX_TAU
+    horizon: int | None = None
 
 
 @pytree_dataclass
@@ -224,6 +234,12 @@ def make_agent(setting: Setting, options: AgentOptions = AgentOptions()) -> Agen
             field = cls.option_aliases.get(name, name)
             if field in field_names(cls):
                 values[role][field] = value
+    learner_fields = field_names(classes["learner"])
+    if options.horizon is not None:
+        check_int("horizon", options.horizon, 1)
+    if options.gamma is None and options.horizon is not None and "gamma" in learner_fields \
+            and "horizon" not in learner_fields:  # a discounted learner: γ = 1 − 1/H
+        values["learner"]["gamma"] = horizon_discount(options.horizon)
     if setting.param is not None:
         if explorer_cls.parameter is None:
             raise ValueError(f"param={setting.param!r} is invalid: explorer {setting.explorer!r}"
@@ -250,7 +266,9 @@ def recorded_options(options: AgentOptions, settings: Sequence[Setting]) -> dict
     the runs are the same runs, so their earlier results and checkpoints are found again.
     """
     described = dataclasses.asdict(options)
-    if options.gamma is None:
+    if options.horizon is None:  # the record of the runs before the option, as it was
+        del described["horizon"]
+    if options.gamma is None and options.horizon is None:
         before = dataclasses.replace(options, gamma=PAPER_GAMMA)
         if all(float(make_agent(s, options).learner.gamma)
                == float(make_agent(s, before).learner.gamma) for s in settings):
@@ -354,6 +372,7 @@ __all__ = [
     "Setting",
     "Table",
     "agent_hyperparameters",
+    "horizon_discount",
     "make_agent",
     "owners",
     "paper_settings",

@@ -5,6 +5,8 @@ A folder's summary is its pooled one (``summary_pooled.csv``) where it has repli
 else ``summary.csv`` (written by every run with statistics; ``vdbejax plot --results``
 writes it for a folder without). Settings are matched by learner, explorer, parameter and
 other hyperparameters; one that only one folder has is shown with a blank other side.
+Folders of different tasks (or instance families) are refused unless asked for
+(``different_tasks=True``, ``--different-tasks``).
 """
 from __future__ import annotations
 
@@ -13,9 +15,11 @@ import os
 from pathlib import Path
 from typing import Any
 
+from vdbejax.results import io
 from vdbejax.results.markdown import table_lines
 from vdbejax.results.replicates import POOLED_SUMMARY_FILE
 from vdbejax.results.summary import SUMMARY_FILE, SummaryRow, episode_text, read_summary
+from vdbejax.validation import check_bool
 
 
 def folder_summary(folder: str | os.PathLike, name: str) -> list[SummaryRow]:
@@ -42,8 +46,32 @@ def setting_text(row: SummaryRow) -> str:
     return f"{row.learner}/{row.explorer}/{param}{extra}"
 
 
-def compare_folders(a: str | os.PathLike, b: str | os.PathLike) -> list[dict[str, Any]]:
+def folder_task(folder: str | os.PathLike) -> str | None:
+    """The task a result folder's run trained on, as its ``meta.json`` names it (``mdp``;
+    ``"testbed:10 (per-agent instances)"`` for a task family's run; the paper's task for
+    ``reproduce``'s folders of either reading, which are compared as two readings of it),
+    or None without a readable ``meta.json``."""
+    try:
+        meta = io.load_json(Path(folder) / io.META_FILE)
+    except (OSError, ValueError):
+        return None
+    if not isinstance(meta, dict) or "mdp" not in meta:
+        return None
+    if "reading" in meta:
+        return "the paper's table cleaning"
+    mode = meta.get("instances", "shared")
+    return str(meta["mdp"]) + ("" if mode == "shared" else f" ({mode} instances)")
+
+
+def compare_folders(a: str | os.PathLike, b: str | os.PathLike, *,
+                    different_tasks: bool = False) -> list[dict[str, Any]]:
     """The settings of folders ``a`` and ``b`` side by side, ``a``'s order first.
+
+    Args:
+      a, b: result folders.
+      different_tasks: compare folders of different tasks (or instance families, their
+        ``meta.json``'s ``mdp`` and ``instances``); without it that is refused, their
+        returns are on different scales.
 
     Returns:
       one dict per setting: ``setting``; ``a_final``, ``a_low``, ``a_high``,
@@ -51,9 +79,16 @@ def compare_folders(a: str | os.PathLike, b: str | os.PathLike) -> list[dict[str
       ``difference`` (b − a) and ``overlap`` (the two intervals overlap; None without both).
 
     Raises:
-      ValueError: a folder without a readable summary.
+      ValueError: a folder without a readable summary; folders of different tasks without
+        ``different_tasks``.
     """
     sides = {"a": folder_summary(a, "a"), "b": folder_summary(b, "b")}
+    tasks = folder_task(a), folder_task(b)
+    if not check_bool("different_tasks", different_tasks) and None not in tasks \
+            and tasks[0] != tasks[1]:
+        raise ValueError(f"a={str(a)!r} ran task {tasks[0]!r} and b={str(b)!r} task"
+                         f" {tasks[1]!r}: their returns are not on one scale; pass"
+                         " --different-tasks (different_tasks=True) to compare them anyway")
     keyed = {side: {(r.learner, r.explorer, r.param, r.hyperparameters): r for r in rows}
              for side, rows in sides.items()}
     keys = list(dict.fromkeys([*keyed["a"], *keyed["b"]]))

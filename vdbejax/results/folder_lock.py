@@ -31,6 +31,7 @@ from types import ModuleType
 from typing import Any, TypeVar
 
 from vdbejax import _interrupts as interrupts
+from vdbejax.results import io
 from vdbejax.validation import check_writable_dir
 
 fcntl: ModuleType | None
@@ -47,13 +48,45 @@ T = TypeVar("T")
 _TEMPORARY = re.compile(r"^\..+\.(\d+)\.[^.]+\.tmp$")
 
 
-def output_folder(path: Any, name: str = "out") -> tuple[Path, FolderLock]:
+def output_folder(path: Any, name: str = "out", *, own: Sequence[str] = (),
+                  overwrite: bool = False) -> tuple[Path, FolderLock]:
     """A command's output folder, made writable (``check_writable_dir``), and its lock
     (not yet taken), which removes the folder again if this call made it and the lock
-    cannot be taken (a full disk)."""
+    cannot be taken (a full disk).
+
+    An existing folder that holds entries must be a vdbejax folder: one of its entries is
+    named in ``own`` (what the command writes there) or is a run's ``meta.json``, lock,
+    marker or atomic-write temporary; a folder of other files is refused in one line
+    (nothing created) unless ``overwrite``, so that a run's outputs never mix with a
+    user's files without a word.
+    """
     made = isinstance(path, (str, os.PathLike)) and not os.path.lexists(path)
+    if not made and not overwrite and isinstance(path, (str, os.PathLike)) \
+            and os.path.isdir(path):
+        check_own_folder(Path(path), own, name)
     out = check_writable_dir(name, path)
     return out, FolderLock(out, name, created=made)
+
+
+def check_own_folder(folder: Path, own: Sequence[str], name: str = "out") -> None:
+    """Refuse a folder that holds entries of which none is a vdbejax output (``own``, a
+    run's ``meta.json``, lock or marker): :func:`output_folder`.
+
+    Raises:
+      ValueError: such a folder, in one line naming a few of its entries.
+    """
+    try:
+        entries = sorted(entry.name for entry in os.scandir(folder))
+    except OSError:
+        return  # an unreadable folder: check_writable_dir says what is wrong with it
+    recognised = {*own, io.META_FILE, LOCK_FILE, MARKER_FILE}
+    if not entries or any(e in recognised or _TEMPORARY.match(e) for e in entries):
+        return  # empty, or a vdbejax folder (a killed writer's temporaries too)
+    shown = ", ".join(entries[:3]) + (f" and {len(entries) - 3} more" if len(entries) > 3
+                                      else "")
+    raise ValueError(f"{name}={str(folder)!r} is not a vdbejax result folder and holds files"
+                     f" ({shown}): choose a new or empty folder, or pass --overwrite"
+                     " (overwrite=True) to write into it anyway")
 
 
 class FolderLock:

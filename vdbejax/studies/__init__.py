@@ -21,6 +21,7 @@ __all__ = [
     "bench",
     "checkpoint_files",
     "depth",
+    "learner_defaults",
     "scaling",
     "snapshots",
     "sweep_file",

@@ -279,9 +279,11 @@ def run_bench(
             parts.append(estimate_task(task.mdp, len(ran[task.name]), seeds, episodes,
                                        statistics=False))
         announce(StudyEstimate(tuple(parts)), "study")
-    out, lock = output_folder(out_dir)
-    check_output_paths(out, output_files([t.name for t in bench_tasks], outputs.figures,
-                                         evaluated=evaluate_every is not None))
+    files = output_files([t.name for t in bench_tasks], outputs.figures,
+                         evaluated=evaluate_every is not None)
+    out, lock = output_folder(out_dir, own=[*files, TUNE_FOLDER, RUNS_FOLDER],
+                              overwrite=run.overwrite)
+    check_output_paths(out, files)
     from vdbejax.runs.provenance import version_info
 
     versions = version_info()  # the code that runs: read before training, not after

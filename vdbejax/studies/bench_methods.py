@@ -40,7 +40,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from vdbejax.methods.agents import Setting, parameter_name
+from vdbejax.methods.agents import Setting, horizon_discount, parameter_name
 
 #: The step size of every TD learner.
 ALPHA = 0.1
@@ -61,7 +61,7 @@ class TaskScale:
     @property
     def gamma(self) -> float:
         """The discount of the discounted learners, ``1 − 1/H``."""
-        return 1.0 - 1.0 / self.horizon
+        return horizon_discount(self.horizon)
 
     def value(self, unit: str) -> float:
         """The size of a unit: ``"1"``, ``"r_max"`` or ``"r_max_h"`` (``r_max · H``)."""

@@ -1,11 +1,14 @@
 """What there is to run: every registered learner and explorer with its hyperparameters and
-their defaults, and every task name with its sizes and horizon (``vdbejax list``), the task
-families with a generator of instances marked (``instances``: ``per-agent``)."""
+their defaults, and every task name with its sizes, horizon and learner defaults
+(:mod:`vdbejax.studies.learner_defaults`; ``vdbejax list``), the task families with a
+generator of instances marked (``instances``: ``per-agent``)."""
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
 from typing import Any
+
+from vdbejax.studies.learner_defaults import learner_defaults
 
 #: The kinds of entries :func:`catalog` lists.
 KINDS = ("learners", "explorers", "tasks")
@@ -56,16 +59,20 @@ def _task_entries() -> list[dict[str, Any]]:
             info = task_info(form)
         if family in ("table_cleaning", "variant"):
             parameters["invalid_action"] = "noop"
+        defaults = learner_defaults(form, info.horizon).text()
         entries.append({"name": form, "title": info.title, "parameters": {
-            **parameters, "max_steps": info.horizon}, "source": info.source,
+            **parameters, "max_steps": info.horizon}, "learner_defaults": defaults,
+            "source": info.source,
             **({"extra": info.extra} if info.extra else {}),
             **({"instances": "per-agent"} if family in FAMILY_NAMES else {})})
+    rule = "the benchmark's rule with H = max_steps (alpha=0.1, gamma=1 − 1/H)"
     entries.append({"name": "gym:<id>", "title": "a gymnasium toy-text environment",
-                    "parameters": {"max_steps": "its time limit"}, "source": "gymnasium",
-                    "extra": "gym"})
+                    "parameters": {"max_steps": "its time limit"}, "learner_defaults": rule,
+                    "source": "gymnasium", "extra": "gym"})
     entries.append({"name": "module:function, file.py:function",
                     "title": "your own task: a function of no arguments returning a TabularMDP",
-                    "parameters": {"max_steps": "the MDP's own"}, "source": "yours"})
+                    "parameters": {"max_steps": "the MDP's own"}, "learner_defaults": rule,
+                    "source": "yours"})
     return entries
 
 
@@ -102,6 +109,8 @@ def render_catalog(entries: dict[str, list[dict[str, Any]]]) -> str:
                 " [--instances per-agent]" if item.get("instances") else ""))
             if values:
                 lines.append(f"      {values}")
+            if item.get("learner_defaults"):
+                lines.append(f"      learner defaults: {item['learner_defaults']}")
         lines.append("")
     if "explorers" in entries:
         lines.append("* the parameter a setting's param sets (Setting(learner, explorer, param))")

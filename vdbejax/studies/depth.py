@@ -218,10 +218,10 @@ def run_depth(
         announce(StudyEstimate(tuple(
             estimate_task(task.mdp, len(chosen), seeds, episodes, statistics=False,
                           fewest_episodes=fewest) for _, _, task in tasks)), "study")
-    out, lock = output_folder(out_dir)
-    check_output_paths(out, [CSV_FILE, SLOPES_FILE, MARKDOWN_FILE, META_FILE]
-                       + ([FIGURE_FILE] if figure else [])
-                       + ([POLICY_FIGURE_FILE] if figure and evaluate_every else []))
+    files = [CSV_FILE, SLOPES_FILE, MARKDOWN_FILE, META_FILE, *([FIGURE_FILE] if figure else []),
+             *([POLICY_FIGURE_FILE] if figure and evaluate_every else [])]
+    out, lock = output_folder(out_dir, own=[*files, RUNS_FOLDER], overwrite=run.overwrite)
+    check_output_paths(out, files)
     knobs = run.replace(chunk_episodes=auto_chunk(episodes))
     versions = version_info()  # the code that runs: read before training, not after
     started = time.perf_counter()

@@ -4,7 +4,8 @@
 (:func:`~vdbejax.runs.prepare_grid`: a bad input has failed in one line, and nothing was
 created), then:
 
-1. checks the folder (created if needed, writable, no output path that is a folder), and
+1. checks the folder (created if needed, writable, no output path that is a folder; an
+   existing folder of other files than a run's is refused without ``overwrite``), and
    announces a long run with its estimate (:mod:`vdbejax.runs.estimate`);
 2. locks it (:class:`~vdbejax.results.folder_lock.FolderLock`) until its last file is written;
 3. refuses, in one line, to replace what the folder already holds unless ``overwrite``:
@@ -175,8 +176,10 @@ def train_in_folder(
         an operating-system error while writing
         (the computed results are kept, :func:`~vdbejax.results.folder_lock.save_run`).
     """
-    out, lock = output_folder(out_dir, name)
-    check_output_paths(out, [*io.RESULT_FILES, *files, *checkpoint_files()], name)
+    own = [*io.RESULT_FILES, *files, *checkpoint_files()]
+    out, lock = output_folder(out_dir, name, own=[*own, *EXPORT_FILES],
+                              overwrite=prepared.run.overwrite)
+    check_output_paths(out, own, name)
     if prepared.run.progress:
         announce(estimate_prepared(prepared, statistics=statistics), "run")
     with lock:  # held until the last file is written

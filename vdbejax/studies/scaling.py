@@ -221,7 +221,8 @@ def run_scaling(
             for i, task in enumerate(tasks)
             for budget in [variant_budget(task[1].num_states, episodes, episodes_per_state)])),
             "study")
-    out, lock = output_folder(out_dir)
+    out, lock = output_folder(out_dir, own=[CSV_FILE, MARKDOWN_FILE, FIGURE_FILE, META_FILE,
+                                            RUNS_FOLDER], overwrite=knobs.overwrite)
     with lock:  # the study's folder, held to its last file
 
         versions = version_info()  # the code that runs: read before training, not after

@@ -22,6 +22,10 @@ Every key, with its default (``docs/sweeps.md`` is the user's page;
                                            # (default: false; returns unchanged)
     instances = "per-agent"                # a family task (testbed:10, …): every agent its
                                            # own instance (default: "shared", one task)
+    learner_defaults = "paper"             # the values no setting gives: "paper" (α 0.8,
+                                           # γ 0.9) or "benchmark" (α 0.1, γ 1 − 1/H);
+                                           # default: the paper's on its tasks, else the
+                                           # benchmark's (docs/suite.md)
 
     [axes]                                 # every axis applies where a field has its name
     alpha = [0.1, 0.3, 0.8]
@@ -62,9 +66,11 @@ from vdbejax.studies.task_names import is_user_task
 #: Keys a sweep file may hold.
 SWEEP_KEYS = ("task", "learners", "explorers", "axes", "shared", "exclude", "settings",
               "seeds", "episodes", "seed", "max_steps", "invalid_action", "chunk_episodes",
-              "plugins", "replicates", "evaluate_every", "record_optimal", "instances")
+              "plugins", "replicates", "evaluate_every", "record_optimal", "instances",
+              "learner_defaults")
 #: The keys of a run's ``meta.json`` ``sweep`` record (the rest come from the run's meta).
-SPEC_KEYS = ("learners", "explorers", "axes", "shared", "exclude", "settings", "plugins")
+SPEC_KEYS = ("learners", "explorers", "axes", "shared", "exclude", "settings", "plugins",
+             "learner_defaults")
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -201,6 +207,7 @@ _KEY_TYPES: dict[str, tuple[Any, str]] = {
     "invalid_action": (lambda v: isinstance(v, str), "noop or fail"),
     "record_optimal": (lambda v: isinstance(v, bool), "true or false"),
     "instances": (lambda v: v in ("shared", "per-agent"), "shared or per-agent"),
+    "learner_defaults": (lambda v: v in ("benchmark", "paper"), "benchmark or paper"),
     **{key: (lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer")
        for key in ("seeds", "episodes", "seed", "max_steps", "chunk_episodes", "replicates",
                    "evaluate_every")},
@@ -288,6 +295,8 @@ def sweep_from_meta(meta: Mapping[str, Any]) -> dict[str, Any]:
                          " can be rerun from their folder")
     spec: dict[str, Any] = {"task": meta["task"]}
     spec.update({key: record[key] for key in SPEC_KEYS if record.get(key)})
+    # A run from before the rule ran with the paper's values: a rerun keeps them.
+    spec["learner_defaults"] = record.get("learner_defaults") or "paper"
     replicates = int(meta.get("replicates", 1))
     spec.update(seeds=int(meta["num_seeds"]) // replicates, replicates=replicates,
                 episodes=int(meta["num_episodes"]), seed=int(meta["seed"]),

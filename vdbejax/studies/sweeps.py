@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,7 @@ from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import announce_settings
 from vdbejax.runs.options import study_run
 from vdbejax.studies import train_in_folder
+from vdbejax.studies.learner_defaults import learner_defaults
 from vdbejax.studies.sweep_file import (  # noqa: F401 (the sweep file's names, here since 0.1)
     SWEEP_KEYS,
     absolute_files,
@@ -138,6 +140,9 @@ class Sweep:
       exclude: settings of the product to leave out, as tables of values they match.
       settings: explicit settings, ``{"learner": …, "explorer": …, field: value}``.
       plugins: files or modules to import first (:func:`load_plugins`).
+      learner_defaults: the values of the settings that give none of their own,
+        ``"benchmark"`` or ``"paper"`` (:mod:`vdbejax.studies.learner_defaults`; ``None``:
+        the paper's on the paper's tasks, the benchmark's rule on any other).
     """
 
     learners: Sequence[str] = ()
@@ -147,6 +152,7 @@ class Sweep:
     exclude: Sequence[Mapping[str, Any]] = ()
     settings: Sequence[Mapping[str, Any]] = ()
     plugins: Sequence[str] = ()
+    learner_defaults: str | None = None
 
 
 #: The run options :func:`run_sweep` takes (a checkpoint is the folder's, the budget fixed).
@@ -217,6 +223,12 @@ def run_sweep(
     run = study_run(run, "run_sweep", SWEEP_RUN_FIELDS)
     learners, explorers, axes = sweep.learners, sweep.explorers, sweep.axes
     load_plugins(list(sweep.plugins))
+    if bool(learners) != bool(explorers):  # a product needs both: say which to give
+        given, missing = ("learners", "explorers") if learners else ("explorers", "learners")
+        names = list(learners or explorers)
+        raise ValueError(f"{missing} is missing: {given}={names!r} make a product with"
+                         f" {missing} (give --{missing} or {missing} = [...]); for explicit"
+                         f" settings only (--setting), leave out {given}")
     check_choice("instances", instances, ("shared", "per-agent"))
     mdp = make_task(task, max_steps=max_steps, invalid_action=invalid_action)
     # Named as the caller knows them; prepare_grid checks the rest, creating nothing.
@@ -237,21 +249,27 @@ def run_sweep(
         family = make_suite_family(task, max_steps=max_steps, invalid_action=invalid_action,
                                    shared=instances != "per-agent")
     figures = check_bool("figures", figures)
+    defaults = learner_defaults(task, int(mdp.max_steps), sweep.learner_defaults)
+    if run.progress:  # the first line: the values no setting gave, and their rule
+        sys.stderr.write(f"learner defaults: {defaults.text()}; a setting's own values take"
+                         " precedence\n")
     prepared = prepare_grid(mdp if family is None else family, grid_settings,
                             num_seeds=seeds * replicates, num_episodes=episodes, seed=seed,
-                            run=run)
+                            options=defaults.options, run=run)
 
     def annotate(result: GridResult) -> None:
         annotate_replicates(result.meta, replicates, seeds)
         # Files as absolute paths: the folder's sweep file (sweep_from_meta) runs anywhere.
         files = absolute_files({"task": task, "plugins": list(sweep.plugins)})
         result.meta.update(invalid_action=invalid_action, task=files["task"],
+                           learner_defaults=defaults.describe(),
                            sweep={"learners": list(learners), "explorers": list(explorers),
                                   "axes": {k: list(v) for k, v in (axes or {}).items()},
                                   "shared": dict(sweep.shared or {}),
                                   "exclude": [dict(rule) for rule in sweep.exclude],
                                   "settings": [dict(entry) for entry in sweep.settings],
-                                  "plugins": files["plugins"]})
+                                  "plugins": files["plugins"],
+                                  "learner_defaults": defaults.rule})
 
     # The reference line is the run's own best return (a family's: its instances' mean),
     # solved once by the run, not again here.

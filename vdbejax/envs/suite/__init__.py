@@ -38,6 +38,7 @@ from vdbejax.envs.suite import (
 )
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.envs.task_instances import TaskFamily
+from vdbejax.validation import nearest_names
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,8 +122,12 @@ FAMILY_NAMES = (*bandits.FAMILIES, "garnet", "variant")
 
 
 def _invalid(name: object) -> ValueError:
+    # A typo's nearest names, a sized name's with its size: chian:8 → chain:8.
+    size = name.partition(":")[2] if isinstance(name, str) else ""
+    forms = [form.replace(":N", f":{size}") for form in NAMES if form.endswith(":N")] \
+        if size else NAMES
     return ValueError(f"name={name!r} is invalid: must be one of {', '.join(NAMES)}"
-                      " (N, K, S, A, B: integers)")
+                      f" (N, K, S, A, B: integers){nearest_names(name, forms)}")
 
 
 def parse_name(name: object) -> tuple[str, tuple[int, ...]]:
