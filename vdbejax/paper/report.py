@@ -10,9 +10,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from vdbejax.paper.claims import ABOUT, NEAR, STABLE, TIE, Check, ClaimResult, mark, stable_count
+from vdbejax.paper.claims import ABOUT, NEAR, TIE
 from vdbejax.results.markdown import table_lines
 from vdbejax.results.solving import CONVERGENCE_TEXT
+from vdbejax.results.verdicts import STABLE, Check, ClaimResult, mark, stable_count
 
 
 def cap_message(meta: dict[str, Any]) -> str:

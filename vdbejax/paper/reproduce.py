@@ -15,7 +15,7 @@ from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, owners, paper_settings
-from vdbejax.paper.claims import ClaimResult, evaluate_claims
+from vdbejax.paper.claims import evaluate_claims
 from vdbejax.paper.report import cap_message, render_report
 from vdbejax.results import io
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, describe_os_error, unmark
@@ -29,6 +29,7 @@ from vdbejax.results.replicates import (
 )
 from vdbejax.results.stats import CurveStatistics
 from vdbejax.results.summary import SummaryRow
+from vdbejax.results.verdicts import ClaimResult
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.runs.options import SPEED_FIELDS, study_run
 from vdbejax.studies import CHECKPOINT_FILE as CHECKPOINT_FILE

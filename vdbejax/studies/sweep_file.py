@@ -55,7 +55,7 @@ from typing import Any
 
 from vdbejax.methods.agents import Setting, owners
 from vdbejax.methods.explorers import explorer_class
-from vdbejax.methods.grid_axes import setting_of, sweep
+from vdbejax.methods.grid_axes import setting_matches, setting_of, sweep
 from vdbejax.methods.learners import learner_class
 from vdbejax.studies.task_names import is_user_task
 
@@ -65,25 +65,6 @@ SWEEP_KEYS = ("task", "learners", "explorers", "axes", "shared", "exclude", "set
               "plugins", "replicates", "evaluate_every", "record_optimal", "instances")
 #: The keys of a run's ``meta.json`` ``sweep`` record (the rest come from the run's meta).
 SPEC_KEYS = ("learners", "explorers", "axes", "shared", "exclude", "settings", "plugins")
-
-
-def _same(a: Any, b: Any) -> bool:
-    numbers = (int, float)
-    if isinstance(a, numbers) and isinstance(b, numbers) and not isinstance(a, bool) \
-            and not isinstance(b, bool):
-        return float(a) == float(b)
-    return bool(a == b)
-
-
-def _matches(setting: Setting, rule: Mapping[str, Any]) -> bool:
-    values = setting.values
-    for key, value in rule.items():
-        if key in ("learner", "explorer"):
-            if getattr(setting, key) != value:
-                return False
-        elif key not in values or not _same(values[key], value):
-            return False
-    return True
 
 
 def _tables(entries: Any, key: str) -> list[dict[str, Any]]:
@@ -149,7 +130,7 @@ def sweep_settings(learners: Sequence[str] = (), explorers: Sequence[str] = (),
                 if any(owners(name, *pair) for pair in pairs)}
         product = sweep(learners, explorers, axes, mine)
     for i, rule in enumerate(_tables(exclude, "exclude")):
-        kept = [s for s in product if not _matches(s, rule)]
+        kept = [s for s in product if not setting_matches(s, rule)]
         if len(kept) == len(product):
             raise ValueError(f"exclude[{i}]={rule!r} is invalid: it matches no setting of the"
                              " product (keys: learner, explorer or an axis as named in axes)")
