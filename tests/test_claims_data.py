@@ -119,3 +119,75 @@ def test_bad_claims_are_one_line(check, message):
     with pytest.raises(ValueError, match=message) as error:
         check_claims(claims(check, sentence="s"), result.settings, ())
     assert "\n" not in str(error.value)
+
+
+STUDY = """
+task = "testbed:10"
+instances = "per-agent"
+learners = ["sample_average"]
+explorers = ["egreedy"]
+seeds = 30
+episodes = 40
+record_optimal = true
+[axes]
+epsilon = [0, 0.1]
+"""
+CLAIM = """
+[[claims]]
+claim = "both end below one optimal action per pull"
+[[claims.checks]]
+setting = {epsilon = 0.1}
+metric = "optimal_actions"
+below = 1.01
+[[claims.checks]]
+setting = "sample_average/egreedy/epsilon=0"
+metric = "optimal_actions"
+below = 1.01
+"""
+
+
+def test_a_study_scores_its_claims_where_its_results_are(tmp_path, capsys):
+    from vdbejax import cli
+    from vdbejax.results import io
+
+    config, out = tmp_path / "study.toml", tmp_path / "out"
+    config.write_text(STUDY + CLAIM)
+    assert cli.main(["run", "--config", str(config), "--out", str(out), "--quiet",
+                     "--no-figures"]) == 0
+    assert "claim 1: reproduced — both end below" in capsys.readouterr().out
+    report = (out / "claims.md").read_text()
+    assert "stated before training" in report and "## Claim 1: reproduced" in report
+    rows = io.read_csv(out / "claims.csv")
+    assert [(r["check"], r["agents"], r["outcome"]) for r in rows] == [
+        ("1", "all agents", "holds"), ("2", "all agents", "holds")]
+    meta = io.load_json(out / "meta.json")
+    assert meta["claims_digest"] and meta["sweep"]["claims"][0]["claim"].startswith("both")
+    # Claims written after the run: scored without training, and said so.
+    later = tmp_path / "later.toml"
+    later.write_text(CLAIM.replace("below = 1.01", "above = 2", 1))
+    (out / "claims.md").unlink()
+    assert cli.main(["plot", "--results", str(out), "--claims", str(later)]) == 0
+    report = (out / "claims.md").read_text()
+    assert "written after the run" in report and "## Claim 1: partly" in report
+    assert cli.main(["export", str(out), "--tables", "claims"]) == 0
+    assert "partly" in (out / "claims_long.csv").read_text()
+
+
+@pytest.mark.parametrize("claim, message", [
+    (CLAIM.replace("epsilon = 0.1", "epsilon = 0.3"), "claim 1 .*setting=.* names no setting"),
+    (CLAIM.replace('"optimal_actions"', '"speed"', 1), "metric='speed'"),
+    (CLAIM.replace("below = 1.01", "higher_than = {epsilon = 0.1}", 1),
+     "is the setting checked"),
+])
+def test_a_bad_claim_in_a_study_is_one_line_before_training(tmp_path, capsys, claim, message):
+    from vdbejax import cli
+
+    config, out = tmp_path / "study.toml", tmp_path / "out"
+    config.write_text(STUDY + claim)
+    assert cli.main(["run", "--config", str(config), "--out", str(out), "--quiet"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and __import__("re").search(message, lines[0]), lines
+    assert not out.exists()
+    config.write_text(STUDY.replace("record_optimal = true", "") + CLAIM)
+    assert cli.main(["run", "--config", str(config), "--out", str(out), "--quiet"]) == 2
+    assert "--record-optimal" in capsys.readouterr().err and not out.exists()
