@@ -168,3 +168,8 @@ def write_claims(out_dir: str | os.PathLike, scores: ClaimScores, meta: dict[str
     io.write_csv(out / CLAIMS_FILE, claims_rows(scores), CLAIMS_COLUMNS)
     io.atomic_write_text(out / CLAIMS_REPORT_FILE, render_claims(scores, meta, provenance))
     return [out / CLAIMS_REPORT_FILE, out / CLAIMS_FILE]
+
+
+__all__ = ["CLAIMS_COLUMNS", "CLAIMS_FILE", "CLAIMS_REPORT_FILE", "DECISION_RULE", "OUTCOME_WORDS",
+           "claims_rows", "flip_lines", "headline_rule", "render_claims", "replicate_outcomes",
+           "undecided_lines", "verdict_table", "write_claims"]

@@ -237,3 +237,8 @@ def count_replicates(pooled: list[ClaimResult], scored: Sequence[list[ClaimResul
             check.replicates = len(scored)
             check.replicates_passed = sum(o is True for o in outcomes)
             check.replicates_undecided = sum(o is None for o in outcomes)
+
+
+__all__ = ["STABLE", "Check", "ClaimResult", "Estimate", "Outcome", "all_of", "any_of", "at_most",
+           "claim_verdict", "convergence_estimate", "count_replicates", "estimate_text",
+           "final_estimate", "inside", "less", "mark", "negate", "point", "stable_count"]
