@@ -6,9 +6,10 @@ import dataclasses
 import pytest
 
 from vdbejax.methods.agents import paper_settings
-from vdbejax.paper.claims import ABOUT, NEAR, TIE, evaluate_claims, stable_count
+from vdbejax.paper.claims import ABOUT, NEAR, TIE, evaluate_claims
 from vdbejax.paper.report import render_report
 from vdbejax.results.summary import SummaryRow
+from vdbejax.results.verdicts import stable_count
 
 BEST = 0.86
 SIGMAS = (0.001, 0.01, 0.1, 1.0, 10.0, 100.0)  # the paper's VDBE σ

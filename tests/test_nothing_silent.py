@@ -255,7 +255,7 @@ def test_an_option_the_authors_task_ignores_is_refused(tmp_path, capsys):
 
 
 def test_a_printed_comparison_shows_the_intervals_that_decided_it():
-    from vdbejax.paper.claims import Estimate, estimate_text, less
+    from vdbejax.results.verdicts import Estimate, estimate_text, less
 
     sarsa, qlearning = Estimate(-1.0739, -1.078, -1.070), Estimate(-1.0651, -1.068, -1.062)
     assert less(sarsa, qlearning) is True  # apart: printed as two disjoint intervals

@@ -52,17 +52,18 @@ def compare_command(args: argparse.Namespace) -> None:
 
 def add_export(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "export", help="any result folder's returns, summaries and policy evaluations as long"
-                       " tables (CSV, or Parquet with pyarrow)",
-        description="Every run in FOLDER (and below it) as returns_long, summaries_long and"
-                    " evaluations_long tables: one row per setting × agent × episode, per"
-                    " setting, per setting × agent × evaluation (docs/analysis.md).")
+        "export", help="any result folder's returns, summaries, policy evaluations and claims"
+                       " as long tables (CSV, or Parquet with pyarrow)",
+        description="Every run in FOLDER (and below it) as returns_long, summaries_long,"
+                    " evaluations_long and claims_long tables: one row per setting × agent ×"
+                    " episode, per setting, per setting × agent × evaluation, per claim ×"
+                    " check (docs/analysis.md).")
     p.add_argument("folder", metavar="FOLDER",
                    help="a result folder: what run, reproduce, bench, depth, scale or ablate wrote")
     p.add_argument("--format", default="csv", help="csv (default) or parquet (needs pyarrow)")
     p.add_argument("--out", default=None, help="the folder to write into (default: FOLDER)")
     p.add_argument("--tables", default=None,
-                   help="comma-separated: returns, summaries, evaluations (default: all)")
+                   help="comma-separated: returns, summaries, evaluations, claims (default: all)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the tables an earlier export wrote there")
 

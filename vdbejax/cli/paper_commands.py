@@ -74,12 +74,15 @@ def add_plot(sub: argparse._SubParsersAction) -> None:
                         " run draw)")
     p.add_argument("--long-csv", action="store_true",
                    help="also write returns_long.csv: one row per agent-episode")
+    p.add_argument("--claims", default=None, metavar="FILE",
+                   help="score the claims of FILE (TOML or JSON: claims = [...], docs/claims.md)"
+                        " into claims.md and claims.csv (default: those the run stated)")
 
 
 def plot_command(args: argparse.Namespace) -> None:
     from vdbejax.paper.reproduce import replot
 
-    written = replot(args.results, args.out, bands=args.bands)
+    written = replot(args.results, args.out, bands=args.bands, claims=args.claims)
     if args.long_csv:
         written += write_long_csv(args.results, args.results if args.out is None else args.out)
     for path in written:

@@ -147,6 +147,8 @@ def run_command(args: argparse.Namespace) -> None:
     sweep = Sweep(**{key: spec.pop(key) for key in SPEC_KEYS if key in spec})
     result = run_sweep(args.out, sweep, figures=not args.no_figures,
                        run=run_options(args, progress=not args.quiet, **mechanics), **spec)
+    from vdbejax.results.claim_report import CLAIMS_FILE
+    from vdbejax.results.io import read_csv
     from vdbejax.results.summary import read_summary
     from vdbejax.studies.sweeps import SUMMARY_FILE
 
@@ -159,6 +161,12 @@ def run_command(args: argparse.Namespace) -> None:
     print(f"learner defaults ({defaults.get('rule')}): alpha={defaults.get('alpha')},"
           f" gamma={defaults.get('gamma')}, finite-horizon learners:"
           f" {defaults.get('finite_horizon')}; a setting's own values above")
+    claims_file = Path(args.out) / CLAIMS_FILE
+    if claims_file.is_file():  # claims.csv: the claims stated in the sweep, scored
+        headlines = {row["claim"]: (row["sentence"], row["headline"])
+                     for row in read_csv(claims_file)}
+        for number, (sentence, headline) in headlines.items():
+            print(f"claim {number}: {headline} — {sentence}")
     print(f"training {result.meta['elapsed_seconds']:.1f} s → {args.out}")
     if args.long_csv:
         print(*write_long_csv(args.out, args.out), sep="\n")

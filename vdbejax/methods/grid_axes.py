@@ -36,6 +36,28 @@ def setting_of(learner: str, explorer: str, values: Mapping[str, Any]) -> Settin
     return Setting(learner, explorer, param, values)
 
 
+def _same(a: Any, b: Any) -> bool:
+    numbers = (int, float)
+    if isinstance(a, numbers) and isinstance(b, numbers) and not isinstance(a, bool) \
+            and not isinstance(b, bool):
+        return float(a) == float(b)
+    return bool(a == b)
+
+
+def setting_matches(setting: Setting, rule: Mapping[str, Any]) -> bool:
+    """Whether every key of ``rule`` matches ``setting``: ``learner``, ``explorer``, or one
+    of its explicit values (:attr:`Setting.values`, the swept parameter by its name; numbers
+    compare as numbers) — how a sweep file's exclusions and claims select settings."""
+    values = setting.values
+    for key, value in rule.items():
+        if key in ("learner", "explorer"):
+            if getattr(setting, key) != value:
+                return False
+        elif key not in values or not _same(values[key], value):
+            return False
+    return True
+
+
 #: Most settings one grid holds (:func:`sweep`): each costs host memory before training
 #: (its agent, label and summary row: :data:`vdbejax.runs.batching.SETTING_BYTES`, checked
 #: against the machine's memory before any is made), and a grid's config index is int32
@@ -118,4 +140,4 @@ def sweep(learners: Sequence[str], explorers: Sequence[str],
     return settings
 
 
-__all__ = ["MAX_SETTINGS", "setting_of", "sweep", "sweep_size"]
+__all__ = ["MAX_SETTINGS", "setting_matches", "setting_of", "sweep", "sweep_size"]

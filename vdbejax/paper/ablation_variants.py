@@ -18,9 +18,9 @@ from typing import Any
 from vdbejax.envs.cruz2018 import STEP_CAP
 from vdbejax.methods.agents import AgentOptions
 from vdbejax.methods.learners import PAPER_ALPHA
-from vdbejax.paper.claims import ClaimResult
 from vdbejax.paper.reproduce import AUTHORS_DETAILS
 from vdbejax.results.summary import SummaryRow
+from vdbejax.results.verdicts import ClaimResult
 
 
 @dataclasses.dataclass(frozen=True)

@@ -15,12 +15,20 @@ from typing import Any
 import numpy as np
 
 from vdbejax.methods.registry import explorer_title, learner_title
-from vdbejax.paper.claims import ABOUT, NEAR, STABLE, TIE, Check, ClaimResult, mark, stable_count
+from vdbejax.paper.claims import ABOUT, NEAR, TIE
 from vdbejax.results.analysis import truncated_fraction
+from vdbejax.results.claim_report import (
+    DECISION_RULE,
+    flip_lines,
+    headline_rule,
+    replicate_outcomes,
+    undecided_lines,
+    verdict_table,
+)
 from vdbejax.results.curves import LAST, final_return
 from vdbejax.results.grid_result import GridResult
-from vdbejax.results.markdown import table_lines
 from vdbejax.results.solving import CONVERGENCE_TEXT
+from vdbejax.results.verdicts import ClaimResult, mark
 
 #: Where the docs explain a setting whose agents all end at one value (``report.md``
 #: names it; notebook 04 shows it).
@@ -120,86 +128,6 @@ def reading_line(meta: dict[str, Any]) -> str:
                " decides each claim is `vdbejax ablate --sections`" if other else "") + ".")
 
 
-def headline_rule(replicates: int) -> str:
-    """The rule that turns the pooled and the replicates' verdicts into the headline."""
-    need = stable_count(replicates)
-    return (f"a claim's headline verdict is its pooled verdict when at least {STABLE:.0%} of"
-            f" the replicates that decide the claim ({need} of {replicates} when all do) give"
-            " the same verdict, otherwise **unstable**; a replicate whose verdict is undecided"
-            " (too small to decide the claim) is left out of that count, and a claim the"
-            " pooled agents leave undecided is undecided")
-
-
-#: How checks are decided, as ``report.md`` states it.
-DECISION_RULE = (
-    "Each check is decided by the 95% bootstrap intervals, never by a difference smaller"
-    " than their width: [x] holds (the intervals lie on its side of the bound, or apart from"
-    " the other setting's in its direction), [ ] fails (they lie on the other side), [?]"
-    " undecided (they overlap: the run is too small to decide it). A claim is reproduced when"
-    " every check holds, not reproduced when every check fails, partly when some hold and"
-    " some fail, and undecided otherwise.")
-
-
-def _replicate_outcomes(check: Check) -> str:
-    """`` — holds in k of R replicates`` (and how many leave it undecided)."""
-    if check.replicates is None:
-        return ""
-    undecided = (f", undecided in {check.replicates_undecided}"
-                 if check.replicates_undecided else "")
-    return f" — holds in {check.replicates_passed} of {check.replicates} replicates{undecided}"
-
-
-def _undecided(claims: Sequence[ClaimResult], agents: str) -> list[str]:
-    """The paragraph on the checks the pooled agents leave undecided."""
-    count = sum(c.undecided_count for c in claims)
-    if not count:
-        return ["**Undecided.** None: the intervals decide every check.", ""]
-    where = ", ".join(f"claim {c.number} ({c.undecided_count})" for c in claims
-                      if c.undecided_count)
-    return [f"**Undecided.** {count} checks ({where}): their intervals overlap the bound or"
-            f" the other setting's, so this run ({agents} per setting) is too small to decide"
-            " them; more agents would narrow the intervals.", ""]
-
-
-def _flips(claims: Sequence[ClaimResult]) -> list[str]:
-    """One item per claim whose decided verdict or some decided check differs between
-    replicates (a replicate that leaves it undecided is no flip, but is named)."""
-    lines = []
-    for c in claims:
-        flipping = [(j, k) for j, k in enumerate(c.checks, 1) if k.flips]
-        verdicts = dict.fromkeys(v for v in c.replicate_verdicts if v != "undecided")
-        undecided = len(c.replicate_verdicts) - c.decided_replicates
-        if len(verdicts) <= 1 and not flipping:
-            continue
-        lines.append(f"- Claim {c.number}: " + (
-            "its verdict flips: " + ", ".join(f"{v} in {c.replicate_verdicts.count(v)}"
-                                              for v in verdicts) if len(verdicts) > 1 else
-            f"its verdict is {c.pooled_verdict} in every replicate that decides it")
-            + (f" (undecided in {undecided})" if undecided else "") + ".")
-        lines += [f"  - check {j} holds in {k.replicates_passed} of {k.replicates}"
-                  + (f" (undecided in {k.replicates_undecided})" if k.replicates_undecided
-                     else "") + f": {k.description}" for j, k in flipping]
-    return lines
-
-
-def _summary_table(claims: Sequence[ClaimResult], replicates: int) -> list[str]:
-    if not replicates:
-        return table_lines(["#", "verdict", "checks passed", "undecided"],
-                           ([str(c.number), f"**{c.verdict}**",
-                             f"{c.passed_count}/{len(c.checks)}", str(c.undecided_count)]
-                            for c in claims))
-    rows = []
-    for c in claims:
-        counts = ", ".join(f"{c.replicate_verdicts.count(v)} {v}"
-                           for v in dict.fromkeys(c.replicate_verdicts))
-        rows.append([str(c.number), f"**{c.verdict}**", c.pooled_verdict,
-                     f"{c.passed_count}/{len(c.checks)}", str(c.undecided_count),
-                     f"{c.agreeing} of {replicates}", counts])
-    return table_lines(["#", "headline", "pooled", "checks passed (pooled)",
-                        "undecided (pooled)", "replicates agreeing", "replicates' verdicts"],
-                       rows)
-
-
 def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_return: float,
                   one_value: Sequence[OneValue] = ()) -> str:
     """``report.md``: each claim with the paper's and our numbers, checks and verdict.
@@ -249,7 +177,7 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
         lines += [f"**Safety cap.** The task has no step limit: {cap_message(meta)}"
                   + (f". Per setting: {'; '.join(where)}." if where else "."), ""]
     if replicates:
-        flips = _flips(claims)
+        flips = flip_lines(claims)
         lines += [f"**Replicates.** Every claim is scored on the pooled agents and on each of"
                   f" the {replicates} replicates (agents {per}·r … {per}·r + {per} − 1 of each"
                   f" setting, r = 0 … {replicates - 1}; `summary.csv` and the figures are"
@@ -259,14 +187,14 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
                   ["**Flips between replicates.** None: every check holds in all replicates"
                    " that decide it or in none.", ""])
     lines += _one_value_lines(one_value, meta)
-    lines += _undecided(claims, agents)
-    lines += _summary_table(claims, replicates)
+    lines += undecided_lines(claims, agents)
+    lines += verdict_table(claims, replicates)
     for c in claims:
         title = c.verdict if not replicates else (
             f"{c.verdict} (pooled {c.pooled_verdict}; {c.agreeing} of {replicates} replicates"
             " agree)")
         lines += ["", f"## Claim {c.number}: {title}", "", f"> {c.claim}", "",
                   f"- Paper: {c.paper}", f"- Measured: {c.measured}", "- Checks:"]
-        lines += [f"  - {mark(k.passed)} {k.description}" + _replicate_outcomes(k)
+        lines += [f"  - {mark(k.passed)} {k.description}" + replicate_outcomes(k)
                   for k in c.checks]
     return "\n".join(lines) + "\n"

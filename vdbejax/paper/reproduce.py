@@ -15,9 +15,12 @@ from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, owners, paper_settings
-from vdbejax.paper.claims import ClaimResult, evaluate_claims
+from vdbejax.paper.claims import evaluate_claims
 from vdbejax.paper.report import cap_message, one_value_settings, render_report
 from vdbejax.results import io
+from vdbejax.results.claim_report import CLAIMS_FILE, CLAIMS_REPORT_FILE
+from vdbejax.results.claim_scoring import recorded_metrics
+from vdbejax.results.claim_spec import check_claims, parse_claims
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, describe_os_error, unmark
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.manifest import write_manifest
@@ -29,10 +32,12 @@ from vdbejax.results.replicates import (
 )
 from vdbejax.results.stats import CurveStatistics
 from vdbejax.results.summary import SummaryRow
+from vdbejax.results.verdicts import ClaimResult
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.runs.options import SPEED_FIELDS, study_run
 from vdbejax.studies import CHECKPOINT_FILE as CHECKPOINT_FILE
 from vdbejax.studies import sweeps, train_in_folder
+from vdbejax.studies.sweep_file import read_claims_file
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, check_writable_dir
 
 SUMMARY_FILE, FIGURE_FILE, SENSITIVITY_FILE = (sweeps.SUMMARY_FILE, sweeps.FIGURE_FILE,
@@ -321,7 +326,8 @@ def saved_references(result: GridResult) -> float:
 
 
 def replot(
-    results_dir: str | os.PathLike, out_dir: str | os.PathLike | None = None, bands: bool = True
+    results_dir: str | os.PathLike, out_dir: str | os.PathLike | None = None, bands: bool = True,
+    claims: str | os.PathLike | None = None,
 ) -> list[Path]:
     """Redraw Figure 3, the sensitivity plot and the summary from saved results (and
     ``optimal_actions.png`` for a run that recorded optimal actions), and the claims
@@ -335,6 +341,9 @@ def replot(
       out_dir: where to write (default: ``results_dir``).
       bands: 95% bootstrap bands on Figure 3 (the default, as ``reproduce`` and ``vdbejax
         run`` draw it: the same figure as the run wrote).
+      claims: a file of claims (:func:`~vdbejax.studies.sweep_file.read_claims_file`) to
+        score into ``claims.md`` and ``claims.csv`` (default: the claims the run stated
+        before training, if any: :func:`~vdbejax.studies.sweeps.write_study_claims`).
 
     Returns:
       the files written.
@@ -346,9 +355,13 @@ def replot(
         result = GridResult.load(results_dir)
     except (OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, csv.Error) as error:
         raise ValueError(f"cannot read results in {str(results_dir)!r}: {error}") from None
+    stated = None if claims is None else read_claims_file(claims)
+    if stated is not None:  # every reference checked before anything is written
+        check_claims(parse_claims(stated), result.settings, recorded_metrics(result))
     out = check_writable_dir("out", results_dir if out_dir is None else out_dir)
     check_output_paths(out, [FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE, REPORT_FILE,
-                             sweeps.OPTIMAL_FIGURE_FILE, *REPLICATE_FILES])
+                             sweeps.OPTIMAL_FIGURE_FILE, *REPLICATE_FILES, CLAIMS_REPORT_FILE,
+                             CLAIMS_FILE])
     written = [out / name for name in (FIGURE_FILE, SENSITIVITY_FILE, SUMMARY_FILE)]
     if result.optimal_actions is not None:
         written.append(out / sweeps.OPTIMAL_FIGURE_FILE)
@@ -364,6 +377,7 @@ def replot(
                 write_outputs(result, out, best, bands=bands)
             else:
                 sweeps.write_outputs(result, out, best, bands=bands)
+            written += sweeps.write_study_claims(result, out, stated)
         except OSError as error:
             raise ValueError(f"cannot write the outputs in {str(out)!r}:"
                              f" {describe_os_error(error)}") from None

@@ -11,6 +11,9 @@
 * :mod:`~vdbejax.results.solving` — episodes to solve (a censored measure);
 * :mod:`~vdbejax.results.summary`, :mod:`~vdbejax.results.analysis` — the summary table
   and comparisons of a grid;
+* :mod:`~vdbejax.results.verdicts`, :mod:`~vdbejax.results.claim_spec`,
+  :mod:`~vdbejax.results.claim_scoring`, :mod:`~vdbejax.results.claim_report` — claims
+  as data, decided by intervals, and their reports;
 * :mod:`~vdbejax.results.plotting` — figures.
 """
 
@@ -19,6 +22,9 @@
 __all__ = [
     "analysis",
     "bootstrap",
+    "claim_report",
+    "claim_scoring",
+    "claim_spec",
     "compare",
     "curves",
     "export",
@@ -31,4 +37,5 @@ __all__ = [
     "solving",
     "stats",
     "summary",
+    "verdicts",
 ]

@@ -16,9 +16,12 @@ and writes up to three tables, one row per observation:
   summarised here (:func:`~vdbejax.results.analysis.summarize`);
 * ``evaluations_long`` — per run × setting × agent × evaluation, for runs with
   ``evaluate_every`` (:mod:`vdbejax.results.policy`): the ``episode`` after which it was
-  taken, ``policy_value`` (``V^π``), ``policy_gap`` (``V* − V^π``) and ``optimal``.
+  taken, ``policy_value`` (``V^π``), ``policy_gap`` (``V* − V^π``) and ``optimal``;
+* ``claims_long`` — per run × claim × check × agents (all, or a replicate), for runs that
+  scored claims (``claims.csv``, :mod:`vdbejax.results.claim_report`): its columns.
 
-Every table starts with the columns that name the setting: ``run`` (the run's folder
+Every table but ``claims_long`` (``run`` and ``task``, then ``claims.csv``'s columns)
+starts with the columns that name the setting: ``run`` (the run's folder
 relative to the exported one, ``.`` for itself), ``task``, ``config``, ``setting`` (its
 label), ``learner``, ``explorer``, ``param`` and one column per hyperparameter whose value
 differs between the exported settings (blank where a setting has no such field; every
@@ -40,6 +43,7 @@ import numpy as np
 
 from vdbejax.results import io
 from vdbejax.results.analysis import summarize
+from vdbejax.results.claim_report import CLAIMS_COLUMNS, CLAIMS_FILE
 from vdbejax.results.grid_result import (
     Columns,
     GridResult,
@@ -55,7 +59,7 @@ from vdbejax.validation import check_choice
 
 #: The tables, each written as ``<name>.csv`` or ``<name>.parquet``.
 TABLE_FILES = {"returns": "returns_long", "summaries": "summaries_long",
-               "evaluations": "evaluations_long"}
+               "evaluations": "evaluations_long", "claims": "claims_long"}
 FORMATS = ("csv", "parquet")
 #: Every file an export may write into a folder.
 EXPORT_FILES = [f"{name}.{ext}" for name in TABLE_FILES.values() for ext in FORMATS]
@@ -96,6 +100,14 @@ def _summary_scopes(result: GridResult, folder: Path) -> list[tuple[str, list[di
                 {k: _number(v) for k, v in row.items() if k != "replicate"}
                 for row in rows if row.get("replicate") == str(r)]))
     return scopes
+
+
+def claims_columns(folder: Path) -> Columns | None:
+    """The claims table of one run: ``claims.csv``'s rows (``None`` without one)."""
+    if not (folder / CLAIMS_FILE).is_file():
+        return None
+    rows = io.read_csv(folder / CLAIMS_FILE)
+    return {name: _objects([_number(row[name]) for row in rows]) for name in CLAIMS_COLUMNS}
 
 
 def _number(text: str) -> Any:
@@ -175,8 +187,8 @@ def export_results(folder: str | os.PathLike, out: str | os.PathLike | None = No
       folder: the result folder (any command's).
       out: the folder the tables are written into (default: ``folder``).
       format: ``csv`` or ``parquet`` (needs ``pip install pyarrow``, the ``export`` extra).
-      tables: which of ``returns``, ``summaries``, ``evaluations`` (the last only where a
-        run evaluated its policies).
+      tables: which of ``returns``, ``summaries``, ``evaluations`` (only where a run
+        evaluated its policies), ``claims`` (only where a run scored claims).
       overwrite: replace tables an earlier export wrote there; without it that is refused.
 
     Returns:
@@ -213,6 +225,7 @@ def export_results(folder: str | os.PathLike, out: str | os.PathLike | None = No
         for run_folder, result in zip(folders, results, strict=True):
             columns = (returns_columns(result, names) if table == "returns"
                        else summary_columns(result, run_folder, names) if table == "summaries"
+                       else claims_columns(run_folder) if table == "claims"
                        else evaluation_columns(result, names))
             if columns is None:
                 continue

@@ -43,6 +43,10 @@ Every key, with its default (``docs/sweeps.md`` is the user's page;
     explorer = "egreedy"
     epsilon = 0.05
 
+    [[claims]]                             # what the study expects, scored after the run
+    claim = "ε = 0.05 ends above 0.5"      # (vdbejax.results.claim_spec: claims.md,
+    checks = [{setting = "qlearning/egreedy/epsilon=0.05", above = 0.5}]  # claims.csv)
+
 Paths in a sweep file (``plugins`` files, a ``file.py:function`` task) are relative to the
 sweep file's folder; paths given as command-line flags are relative to the working
 directory. :func:`sweep_from_meta` gives back the sweep file of a finished run (``vdbejax
@@ -59,7 +63,7 @@ from typing import Any
 
 from vdbejax.methods.agents import Setting, owners
 from vdbejax.methods.explorers import explorer_class
-from vdbejax.methods.grid_axes import setting_of, sweep
+from vdbejax.methods.grid_axes import setting_matches, setting_of, sweep
 from vdbejax.methods.learners import learner_class
 from vdbejax.studies.task_names import is_user_task
 
@@ -67,29 +71,10 @@ from vdbejax.studies.task_names import is_user_task
 SWEEP_KEYS = ("task", "learners", "explorers", "axes", "shared", "exclude", "settings",
               "seeds", "episodes", "seed", "max_steps", "invalid_action", "chunk_episodes",
               "plugins", "replicates", "evaluate_every", "record_optimal", "instances",
-              "learner_defaults")
+              "learner_defaults", "claims")
 #: The keys of a run's ``meta.json`` ``sweep`` record (the rest come from the run's meta).
 SPEC_KEYS = ("learners", "explorers", "axes", "shared", "exclude", "settings", "plugins",
-             "learner_defaults")
-
-
-def _same(a: Any, b: Any) -> bool:
-    numbers = (int, float)
-    if isinstance(a, numbers) and isinstance(b, numbers) and not isinstance(a, bool) \
-            and not isinstance(b, bool):
-        return float(a) == float(b)
-    return bool(a == b)
-
-
-def _matches(setting: Setting, rule: Mapping[str, Any]) -> bool:
-    values = setting.values
-    for key, value in rule.items():
-        if key in ("learner", "explorer"):
-            if getattr(setting, key) != value:
-                return False
-        elif key not in values or not _same(values[key], value):
-            return False
-    return True
+             "learner_defaults", "claims")
 
 
 def _tables(entries: Any, key: str) -> list[dict[str, Any]]:
@@ -155,7 +140,7 @@ def sweep_settings(learners: Sequence[str] = (), explorers: Sequence[str] = (),
                 if any(owners(name, *pair) for pair in pairs)}
         product = sweep(learners, explorers, axes, mine)
     for i, rule in enumerate(_tables(exclude, "exclude")):
-        kept = [s for s in product if not _matches(s, rule)]
+        kept = [s for s in product if not setting_matches(s, rule)]
         if len(kept) == len(product):
             raise ValueError(f"exclude[{i}]={rule!r} is invalid: it matches no setting of the"
                              " product (keys: learner, explorer or an axis as named in axes)")
@@ -208,6 +193,8 @@ _KEY_TYPES: dict[str, tuple[Any, str]] = {
     "record_optimal": (lambda v: isinstance(v, bool), "true or false"),
     "instances": (lambda v: v in ("shared", "per-agent"), "shared or per-agent"),
     "learner_defaults": (lambda v: v in ("benchmark", "paper"), "benchmark or paper"),
+    "claims": (lambda v: isinstance(v, list) and all(isinstance(x, dict) for x in v),
+               "a list of tables {claim = \"…\", checks = [...]} (docs/claims.md)"),
     **{key: (lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer")
        for key in ("seeds", "episodes", "seed", "max_steps", "chunk_episodes", "replicates",
                    "evaluate_every")},
@@ -309,6 +296,26 @@ def sweep_from_meta(meta: Mapping[str, Any]) -> dict[str, Any]:
     if meta.get("instances") == "per-agent":
         spec["instances"] = "per-agent"
     return spec
+
+
+def read_claims_file(path: str | os.PathLike) -> list[Any]:
+    """The ``claims`` of a TOML (``.toml``) or JSON file: a file of claims alone, or a
+    sweep file (``vdbejax plot --claims``).
+
+    Raises:
+      ValueError: unreadable, or without a list of claims.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+        data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
+    except (OSError, ValueError) as error:
+        raise ValueError(f"claims file {str(path)!r} is unreadable: {error}") from None
+    claims = data.get("claims") if isinstance(data, dict) else None
+    if not isinstance(claims, list) or not claims:
+        raise ValueError(f"claims={str(path)!r} is invalid: the file must hold claims = [...]"
+                         " ([[claims]] tables in TOML)")
+    return claims
 
 
 def write_sweep_file(spec: Mapping[str, Any], path: str | os.PathLike) -> Path:

@@ -21,6 +21,9 @@ from typing import Any
 from vdbejax.envs.suite import make_suite_family
 from vdbejax.methods.grid_axes import sweep_size
 from vdbejax.results import io
+from vdbejax.results.claim_report import CLAIMS_FILE, CLAIMS_REPORT_FILE, write_claims
+from vdbejax.results.claim_scoring import score_claims
+from vdbejax.results.claim_spec import check_claims, claims_digest, parse_claims
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.replicates import (
     REPLICATE_FILES,
@@ -33,7 +36,7 @@ from vdbejax.results.replicates import (
     write_replicates,
 )
 from vdbejax.results.stats import CurveStatistics
-from vdbejax.results.summary import SUMMARY_FILE, write_summary
+from vdbejax.results.summary import SUMMARY_FILE, SummaryRow, write_summary
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import announce_settings
@@ -62,7 +65,52 @@ OPTIMAL_FIGURE_FILE = "optimal_actions.png"
 
 #: Files a run writes into its folder (checked before training: none may be a folder).
 RUN_FILES = [io.RETURNS_FILE, io.CONFIGS_FILE, io.META_FILE, SUMMARY_FILE, FIGURE_FILE,
-             SENSITIVITY_FILE, POLICY_FIGURE_FILE, OPTIMAL_FIGURE_FILE, *REPLICATE_FILES]
+             SENSITIVITY_FILE, POLICY_FIGURE_FILE, OPTIMAL_FIGURE_FILE, *REPLICATE_FILES,
+             CLAIMS_REPORT_FILE, CLAIMS_FILE]
+
+
+def stated_claims(result: GridResult) -> list[Any]:
+    """The claims a run's sweep stated before training (``meta.json``; none: ``[]``)."""
+    record = result.meta.get("sweep")
+    return list(record.get("claims") or []) if isinstance(record, Mapping) else []
+
+
+def write_study_claims(result: GridResult, out_dir: str | os.PathLike,
+                       claims: Sequence[Any] | None = None,
+                       rows: list[SummaryRow] | None = None) -> list[Path]:
+    """Score a study's claims on its result and write ``claims.md`` and ``claims.csv``
+    (:mod:`vdbejax.results.claim_report`); a folder without claims gets neither (an
+    earlier run's are removed).
+
+    Args:
+      result: the result (all replicates).
+      out_dir: where to write.
+      claims: claims as data (:func:`~vdbejax.results.claim_spec.parse_claims`); default:
+        those the run stated before training (:func:`stated_claims`). The report says which:
+        claims whose digest is ``meta.json``'s ``claims_digest`` were stated before training.
+      rows: the pooled agents' summary rows, if already computed.
+
+    Returns:
+      the files written.
+
+    Raises:
+      ValueError: a claim that names what the result does not hold.
+    """
+    data = stated_claims(result) if claims is None else list(claims)
+    out = Path(out_dir)
+    if not data:
+        for name in (CLAIMS_REPORT_FILE, CLAIMS_FILE):
+            (out / name).unlink(missing_ok=True)
+        return []
+    scores = score_claims(result, parse_claims(data), rows)
+    digest, recorded = claims_digest(data), result.meta.get("claims_digest")
+    provenance = (f"These claims were stated before training: their digest ({digest[:12]}…)"
+                  " is meta.json's claims_digest." if digest == recorded else
+                  "These claims were written after the run: "
+                  + ("it stated none before training." if recorded is None else
+                     f"their digest ({digest[:12]}…) is not meta.json's claims_digest"
+                     f" ({str(recorded)[:12]}…), the claims stated before training."))
+    return write_claims(out, scores, result.meta, provenance)
 
 
 def write_outputs(result: GridResult, out_dir: str | os.PathLike, best: float | None,
@@ -143,6 +191,8 @@ class Sweep:
       learner_defaults: the values of the settings that give none of their own,
         ``"benchmark"`` or ``"paper"`` (:mod:`vdbejax.studies.learner_defaults`; ``None``:
         the paper's on the paper's tasks, the benchmark's rule on any other).
+      claims: what the study expects, as data (:mod:`vdbejax.results.claim_spec`): checked
+        against the settings before training, scored into ``claims.md`` and ``claims.csv``.
     """
 
     learners: Sequence[str] = ()
@@ -153,6 +203,7 @@ class Sweep:
     settings: Sequence[Mapping[str, Any]] = ()
     plugins: Sequence[str] = ()
     learner_defaults: str | None = None
+    claims: Sequence[Mapping[str, Any]] = ()
 
 
 #: The run options :func:`run_sweep` takes (a checkpoint is the folder's, the budget fixed).
@@ -248,6 +299,11 @@ def run_sweep(
     if instances == "per-agent" or any(s.task_values for s in grid_settings):
         family = make_suite_family(task, max_steps=max_steps, invalid_action=invalid_action,
                                    shared=instances != "per-agent")
+    claims = [dict(claim) for claim in sweep.claims]
+    if claims:  # every reference resolved and every metric recorded, before training
+        check_claims(parse_claims(claims), grid_settings,
+                     [name for name in ("record_optimal", "evaluate_every")
+                      if getattr(run, name)])
     figures = check_bool("figures", figures)
     defaults = learner_defaults(task, int(mdp.max_steps), sweep.learner_defaults)
     if run.progress:  # the first line: the values no setting gave, and their rule
@@ -269,13 +325,19 @@ def run_sweep(
                                   "exclude": [dict(rule) for rule in sweep.exclude],
                                   "settings": [dict(entry) for entry in sweep.settings],
                                   "plugins": files["plugins"],
-                                  "learner_defaults": defaults.rule})
+                                  "learner_defaults": defaults.rule, "claims": claims})
+        if claims:
+            result.meta["claims_digest"] = claims_digest(claims)
 
     # The reference line is the run's own best return (a family's: its instances' mean),
     # solved once by the run, not again here.
+    def outputs(result: GridResult, stats: CurveStatistics | None) -> ReplicateSummaries:
+        summaries = write_outputs(result, out_dir, result.meta["best_return"],
+                                  figures=figures, statistics=stats)
+        write_study_claims(result, out_dir, rows=summaries.pooled)
+        return summaries
+
     result, _ = train_in_folder(
-        out_dir, prepared,
-        lambda result, stats: write_outputs(result, out_dir, result.meta["best_return"],
-                                            figures=figures, statistics=stats),
+        out_dir, prepared, outputs,
         files=RUN_FILES, annotate=annotate, bands=figures and replicates == 1)
     return result

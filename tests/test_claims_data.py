@@ -1,0 +1,210 @@
+"""Claims as data (vdbejax.results.claim_spec, claim_scoring): the format, its one-line
+errors, and verdicts decided by intervals only — on results built by hand, so that every
+interval is known."""
+import numpy as np
+import pytest
+
+from vdbejax.methods import Setting
+from vdbejax.results.claim_scoring import score_claims
+from vdbejax.results.claim_spec import check_claims, parse_claims
+from vdbejax.results.grid_result import GridResult
+
+EPSILONS = (0.0, 0.01, 0.1)
+
+
+def grid(levels, seeds=40, episodes=120, spread=0.05, replicates=1, seed=0):
+    """Settings egreedy ε ∈ EPSILONS with constant returns around ``levels`` (± spread)."""
+    rng = np.random.default_rng(seed)
+    settings = [Setting("qlearning", "egreedy", e) for e in EPSILONS[:len(levels)]]
+    n = seeds * replicates
+    per_agent = np.asarray(levels)[:, None] + spread * rng.standard_normal((len(levels), n))
+    returns = np.repeat(per_agent[..., None], episodes, -1).astype(np.float32)
+    meta = {"best_return": 1.0, "random_return": 0.0, "num_seeds": n,
+            "num_episodes": episodes, "max_steps": 10}
+    if replicates > 1:
+        meta.update(replicates=replicates, agents_per_replicate=seeds)
+    shape = returns.shape
+    return GridResult(settings, returns, np.full(shape, 5, np.int32),
+                      np.zeros(shape[:2], bool), meta)
+
+
+def claims(*checks, sentence="a claim"):
+    return parse_claims([{"claim": sentence, "checks": list(checks)}])
+
+
+def verdicts(result, *checks):
+    scored = score_claims(result, claims(*checks)).claims[0]
+    return [c.passed for c in scored.checks], scored.verdict
+
+
+G0, G01, G1 = ("qlearning/egreedy/epsilon=0", "qlearning/egreedy/epsilon=0.01",
+               "qlearning/egreedy/epsilon=0.1")
+
+
+def test_numbers_settings_and_axes_decided_by_intervals():
+    result = grid([0.2, 0.5, 0.9])
+    passed, verdict = verdicts(
+        result,
+        {"setting": G1, "above": 0.8},
+        {"setting": G0, "below": 0.3},
+        {"setting": G01, "about": 0.5, "tolerance": 0.1},
+        {"setting": {"epsilon": 0.1}, "near_best": True, "near": 0.2},
+        {"setting": G1, "higher_than": G01},
+        {"setting": G0, "lower_than": {"learner": "qlearning", "epsilon": 0.01}},
+        {"setting": G1, "beats": G0, "probability_above": 0.9},
+        {"axis": "epsilon", "among": {"explorer": "egreedy"}, "best": [0.1]},
+        {"axis": "epsilon", "among": {"explorer": "egreedy"}, "rank": 2, "value": 0.01},
+        {"setting": G1, "metric": "final_iqm", "above": 0.8},
+        {"setting": G1, "metric": "normalised_score", "above": 0.8},
+        {"any": [{"setting": G0, "above": 0.8}, {"setting": G1, "above": 0.8}]},
+        {"not": {"setting": G0, "above": 0.8}})
+    assert passed == [True] * 13 and verdict == "reproduced"
+    passed, verdict = verdicts(result, {"setting": G1, "below": 0.8},
+                               {"setting": G0, "higher_than": G1},
+                               {"axis": "epsilon", "among": {"explorer": "egreedy"},
+                                "best": [0.0]})
+    assert passed == [False, False, False] and verdict == "not reproduced"
+    passed, verdict = verdicts(result, {"setting": G1, "above": 0.8},
+                               {"setting": G0, "above": 0.8})
+    assert verdict == "partly"
+
+
+def test_overlapping_intervals_never_decide_a_check():
+    # Two settings whose means differ (0.50 vs 0.52) by less than their intervals' width:
+    # "higher", "lower", "no later", P(A > B) and the best value are all undecided.
+    result = grid([0.50, 0.52], seeds=20, spread=0.2)
+    rows = score_claims(result, claims({"setting": G01, "above": 0})).claims[0]
+    assert rows.checks[0].passed is True
+    x = result.returns[:, :, -1].mean(1)
+    assert x[1] > x[0]  # a difference exists, inside the intervals
+    passed, verdict = verdicts(
+        result,
+        {"setting": G01, "higher_than": G0}, {"setting": G0, "lower_than": G01},
+        {"setting": G01, "beats": G0}, {"setting": G01, "metric": "final_iqm",
+                                        "higher_than": G0},
+        {"axis": "epsilon", "among": {"explorer": "egreedy"}, "best": [0.01]},
+        {"axis": "epsilon", "among": {"explorer": "egreedy"}, "rank": 1, "value": 0.01},
+        {"setting": G01, "about": 0.52, "tolerance": 0.01})
+    assert passed == [None] * 7 and verdict == "undecided"
+
+
+def test_replicates_count_and_headline():
+    result = grid([0.2, 0.5, 0.9], seeds=30, replicates=3)
+    scores = score_claims(result, claims({"setting": G1, "higher_than": G0}))
+    claim = scores.claims[0]
+    assert len(scores.replicates) == 3
+    assert claim.replicate_verdicts == ["reproduced"] * 3 and claim.verdict == "reproduced"
+    assert claim.checks[0].replicates_passed == 3
+
+
+@pytest.mark.parametrize("check, message", [
+    ({"setting": "qlearning/egreedy/epsilon=0.5", "above": 1},
+     r"claims\[0\]\.checks\[0\]: setting=qlearning/egreedy/epsilon=0.5 is invalid: it names"
+     " no setting"),
+    ({"setting": G1, "metric": "speed", "above": 1},
+     r"claims\[0\]\.checks\[0\]: metric='speed' is invalid: allowed are final_return"),
+    ({"setting": G1, "metric": "optimal_actions", "above": 0.5},
+     "metric='optimal_actions' is invalid: the run does not record it .*--record-optimal"),
+    ({"setting": G1, "higher_than": {"epsilon": 0.1}},
+     "higher_than=.* is invalid: it is the setting checked"),
+    ({"setting": G1, "about": 0.9, "tolerance": "ten"},
+     "tolerance='ten' is invalid: must be a finite number"),
+    ({"axis": "alpha", "among": {"explorer": "egreedy"}, "best": [0.1]},
+     "axis='alpha' is invalid: setting qlearning/egreedy/epsilon=0 has no value of it"),
+    ({"setting": G1}, r"needs exactly one comparison"),
+    ({"setting": G1, "above": 1, "colour": "red"}, "unknown key 'colour'"),
+])
+def test_bad_claims_are_one_line(check, message):
+    result = grid([0.2, 0.5, 0.9], seeds=4, episodes=3)
+    with pytest.raises(ValueError, match=message) as error:
+        check_claims(claims(check, sentence="s"), result.settings, ())
+    assert "\n" not in str(error.value)
+
+
+STUDY = """
+task = "testbed:10"
+instances = "per-agent"
+learners = ["sample_average"]
+explorers = ["egreedy"]
+seeds = 30
+episodes = 40
+record_optimal = true
+[axes]
+epsilon = [0, 0.1]
+"""
+CLAIM = """
+[[claims]]
+claim = "both end below one optimal action per pull"
+[[claims.checks]]
+setting = {epsilon = 0.1}
+metric = "optimal_actions"
+below = 1.01
+[[claims.checks]]
+setting = "sample_average/egreedy/epsilon=0"
+metric = "optimal_actions"
+below = 1.01
+"""
+
+
+def test_a_study_scores_its_claims_where_its_results_are(tmp_path, capsys):
+    from vdbejax import cli
+    from vdbejax.results import io
+
+    config, out = tmp_path / "study.toml", tmp_path / "out"
+    config.write_text(STUDY + CLAIM)
+    assert cli.main(["run", "--config", str(config), "--out", str(out), "--quiet",
+                     "--no-figures"]) == 0
+    assert "claim 1: reproduced — both end below" in capsys.readouterr().out
+    report = (out / "claims.md").read_text()
+    assert "stated before training" in report and "## Claim 1: reproduced" in report
+    rows = io.read_csv(out / "claims.csv")
+    assert [(r["check"], r["agents"], r["outcome"]) for r in rows] == [
+        ("1", "all agents", "holds"), ("2", "all agents", "holds")]
+    meta = io.load_json(out / "meta.json")
+    assert meta["claims_digest"] and meta["sweep"]["claims"][0]["claim"].startswith("both")
+    # Claims written after the run: scored without training, and said so.
+    later = tmp_path / "later.toml"
+    later.write_text(CLAIM.replace("below = 1.01", "above = 2", 1))
+    (out / "claims.md").unlink()
+    assert cli.main(["plot", "--results", str(out), "--claims", str(later)]) == 0
+    report = (out / "claims.md").read_text()
+    assert "written after the run" in report and "## Claim 1: partly" in report
+    assert cli.main(["export", str(out), "--tables", "claims"]) == 0
+    assert "partly" in (out / "claims_long.csv").read_text()
+
+
+@pytest.mark.parametrize("claim, message", [
+    (CLAIM.replace("epsilon = 0.1", "epsilon = 0.3"), "claim 1 .*setting=.* names no setting"),
+    (CLAIM.replace('"optimal_actions"', '"speed"', 1), "metric='speed'"),
+    (CLAIM.replace("below = 1.01", "higher_than = {epsilon = 0.1}", 1),
+     "is the setting checked"),
+])
+def test_a_bad_claim_in_a_study_is_one_line_before_training(tmp_path, capsys, claim, message):
+    from vdbejax import cli
+
+    config, out = tmp_path / "study.toml", tmp_path / "out"
+    config.write_text(STUDY + claim)
+    assert cli.main(["run", "--config", str(config), "--out", str(out), "--quiet"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and __import__("re").search(message, lines[0]), lines
+    assert not out.exists()
+    config.write_text(STUDY.replace("record_optimal = true", "") + CLAIM)
+    assert cli.main(["run", "--config", str(config), "--out", str(out), "--quiet"]) == 2
+    assert "--record-optimal" in capsys.readouterr().err and not out.exists()
+
+
+def test_the_testbed_example_states_the_books_claims(tmp_path, capsys):
+    """examples/testbed.toml, small: its claims are valid for its settings and scored (the
+    full 2,000 testbeds reproduce all four: docs/claims.md)."""
+    from pathlib import Path
+
+    from vdbejax import cli
+    from vdbejax.results import io
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "testbed.toml"
+    out = tmp_path / "testbed"
+    assert cli.main(["run", "--config", str(example), "--out", str(out), "--seeds", "40",
+                     "--episodes", "60", "--quiet", "--no-figures"]) == 0
+    rows = io.read_csv(out / "claims.csv")
+    assert sorted({r["claim"] for r in rows}) == ["1", "2", "3", "4"] and len(rows) == 9
+    assert "stated before training" in (out / "claims.md").read_text()

@@ -1,0 +1,402 @@
+"""Claims as data: what a study states it expects, read from its sweep file and checked
+against its settings before training.
+
+A study's ``claims`` (a sweep file's ``[[claims]]`` tables, or a file of claims alone) are
+each a sentence and its checks::
+
+    [[claims]]
+    claim = "ε = 0.1 finds the best arm more often than ε = 0.01"
+    stated = "ε = 0.1: about 80 % optimal by pull 1,000"   # optional: the source's figure
+    checks = [
+      {setting = "qlearning/egreedy/epsilon=0.1", metric = "optimal_actions", above = 0.7},
+      {setting = {explorer = "egreedy", epsilon = 0.1},
+       higher_than = {explorer = "egreedy", epsilon = 0.01}, metric = "reward_per_step"},
+    ]
+
+A check reads a :data:`METRICS` value of a setting with its 95% interval and compares it
+with exactly one of :data:`COMPARISONS`:
+
+- a number: ``above``, ``below``, ``about`` (± ``tolerance``, a fraction of the figure,
+  default :data:`ABOUT`), ``near_best = true`` (at least the task's best return less
+  ``near``, default :data:`NEAR`);
+- another setting: ``higher_than``, ``lower_than``, ``earlier_than`` and ``no_later_than``
+  (the latter two read ``convergence_episode`` unless a metric is given), or ``beats``
+  with ``probability_above`` (default 0.5): the probability of improvement
+  ``P(A > B)`` of the agents' final returns with its interval;
+- an axis: ``best = [values]`` (the settings of ``among`` whose ``axis`` has these values
+  lie above every other value's) or ``rank = k`` with ``value`` (that value's rank).
+
+Settings are named as the run names them (``"qlearning/egreedy/epsilon=0.1"``, the
+setting's label) or selected by a table of ``learner``, ``explorer`` and hyperparameter
+values. Checks combine: ``{all = [checks]}``, ``{any = [checks]}``, ``{not = check}``.
+:func:`parse_claims` reads them (the format); :func:`check_claims` checks them against a
+run's settings and records (every reference resolved, each metric recorded) before
+anything is trained; :mod:`vdbejax.results.claim_scoring` scores them.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from vdbejax.methods.agents import Setting
+from vdbejax.methods.grid_axes import setting_matches
+
+#: Metrics a check may read, and what each is.
+METRICS = {
+    "final_return": "mean final return over the agents",
+    "convergence_episode": "median convergence episode over the agents",
+    "final_iqm": "interquartile mean of the agents' final returns",
+    "normalised_score": "interquartile mean of the agents' normalised scores"
+                        " (0 = the random policy, 1 = the optimum from the first episode)",
+    "optimal_actions": "mean fraction of optimal actions in the last episodes",
+    "reward_per_step": "mean reward per step in the last episodes",
+    "policy_gap": "mean gap V* − V^π of the agents' greedy policies",
+}
+#: Metrics a run records only when asked, with what records them.
+RECORDED_BY = {"optimal_actions": "record_optimal", "reward_per_step": "record_optimal",
+               "policy_gap": "evaluate_every"}
+#: Metrics where lower is better (ranks and "best" read them the other way).
+LOWER_IS_BETTER = frozenset({"convergence_episode", "policy_gap"})
+#: A check's comparison keys: exactly one per check.
+COMPARISONS = ("above", "below", "about", "near_best", "higher_than", "lower_than",
+               "earlier_than", "no_later_than", "beats", "best", "rank", "all", "any", "not")
+#: The comparisons with another setting.
+VERSUS = ("higher_than", "lower_than", "earlier_than", "no_later_than", "beats")
+#: Default relative tolerance of ``about``.
+ABOUT = 0.25
+#: Default margin of ``near_best``.
+NEAR = 0.05
+#: Default level of ``beats``.
+LEVEL = 0.5
+#: Every key a check may hold.
+CHECK_KEYS = (*COMPARISONS, "setting", "metric", "tolerance", "near", "probability_above",
+              "axis", "among", "value")
+
+#: A setting as a claim names it: its label, or ``(key, value)`` pairs it must match.
+Selector = str | tuple[tuple[str, Any], ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class CheckSpec:
+    """One check of a claim, as stated (see the module's text for the keys).
+
+    Attributes:
+      kind: the comparison (one of :data:`COMPARISONS`).
+      where: the check's place in the file (``claims[0].checks[1]``), for messages.
+      metric: the metric read.
+      setting: the setting checked (number and setting comparisons).
+      other: the other setting (:data:`VERSUS`).
+      bound: the number compared with (``above``, ``below``, ``about``; the level of
+        ``beats``; the margin of ``near_best``).
+      tolerance: ``about``'s relative tolerance.
+      axis, among, values, rank: an axis comparison's axis, settings, best values (or
+        ``rank``'s one value) and rank.
+      parts: the checks an ``all``, ``any`` or ``not`` combines.
+    """
+
+    kind: str
+    where: str
+    metric: str = "final_return"
+    setting: Selector | None = None
+    other: Selector | None = None
+    bound: float = math.nan
+    tolerance: float = ABOUT
+    axis: str | None = None
+    among: Selector | None = None
+    values: tuple[Any, ...] = ()
+    rank: int = 0
+    parts: tuple[CheckSpec, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
+class ClaimSpec:
+    """A claim as stated: its sentence, the source's figure (optional) and its checks."""
+
+    claim: str
+    checks: tuple[CheckSpec, ...]
+    stated: str = ""
+
+
+def _number(value: Any, where: str, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not math.isfinite(value):
+        raise ValueError(f"{where}: {key}={value!r} is invalid: must be a finite number")
+    return float(value)
+
+
+def _selector(value: Any, where: str, key: str) -> Selector:
+    if isinstance(value, str) and value:
+        return value
+    if isinstance(value, Mapping) and value and all(isinstance(k, str) for k in value):
+        return tuple(sorted(value.items()))
+    raise ValueError(f"{where}: {key}={value!r} is invalid: must be a setting's name"
+                     " (learner/explorer/name=value) or a table {learner, explorer, name = value}")
+
+
+def _check(data: Any, where: str) -> CheckSpec:
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{where}={data!r} is invalid: must be a table {{setting, metric,"
+                         f" comparison}} (comparisons: {', '.join(COMPARISONS)})")
+    unknown = sorted(set(data) - set(CHECK_KEYS))
+    if unknown:
+        raise ValueError(f"{where}: unknown key {unknown[0]!r}: allowed are"
+                         f" {', '.join(CHECK_KEYS)}")
+    kinds = [key for key in COMPARISONS if key in data]
+    if len(kinds) != 1:
+        raise ValueError(f"{where} is invalid: needs exactly one comparison of"
+                         f" {', '.join(COMPARISONS)} (has {kinds or 'none'})")
+    kind = kinds[0]
+    if kind in ("all", "any", "not"):
+        parts = [data[kind]] if kind == "not" else data[kind]
+        if kind != "not" and (not isinstance(parts, list) or not parts):
+            raise ValueError(f"{where}: {kind}={parts!r} is invalid: must be a non-empty list"
+                             " of checks")
+        extra = sorted(set(data) - {kind})
+        if extra:
+            raise ValueError(f"{where}: {extra[0]!r} is invalid beside {kind!r}: give it in"
+                             " the combined checks")
+        return CheckSpec(kind, where, parts=tuple(
+            _check(part, f"{where}.{kind}" + ("" if kind == "not" else f"[{i}]"))
+            for i, part in enumerate(parts)))
+    default = "convergence_episode" if kind in ("earlier_than", "no_later_than") else \
+        "final_return"
+    metric = data.get("metric", default)
+    if metric not in METRICS:
+        raise ValueError(f"{where}: metric={metric!r} is invalid: allowed are"
+                         f" {', '.join(METRICS)}")
+    if kind == "beats" and metric != "final_return":
+        raise ValueError(f"{where}: metric={metric!r} is invalid with beats: P(A > B) reads"
+                         " the agents' final returns (metric = \"final_return\")")
+    fields: dict[str, Any] = {"metric": metric}
+    if kind in ("best", "rank"):
+        for key in ("axis", "among"):
+            if key not in data:
+                raise ValueError(f"{where}: {kind} needs {key} = …")
+        if not isinstance(data["axis"], str) or not data["axis"]:
+            raise ValueError(f"{where}: axis={data['axis']!r} is invalid: must be a"
+                             " hyperparameter's name")
+        fields.update(axis=data["axis"], among=_selector(data["among"], where, "among"))
+        if kind == "best":
+            values = data["best"]
+            if not isinstance(values, list) or not values:
+                raise ValueError(f"{where}: best={values!r} is invalid: must be a non-empty"
+                                 " list of the axis's values")
+            fields["values"] = tuple(values)
+        else:
+            rank = data["rank"]
+            if isinstance(rank, bool) or not isinstance(rank, int) or rank < 1:
+                raise ValueError(f"{where}: rank={rank!r} is invalid: must be a whole"
+                                 " number ≥ 1")
+            if "value" not in data:
+                raise ValueError(f"{where}: rank needs value = … (the axis's value ranked)")
+            fields.update(rank=rank, values=(data["value"],))
+    else:
+        if "setting" not in data:
+            raise ValueError(f"{where}: {kind} needs setting = … (the setting checked)")
+        fields["setting"] = _selector(data["setting"], where, "setting")
+    if kind in VERSUS:
+        fields["other"] = _selector(data[kind], where, kind)
+    if kind in ("above", "below", "about"):
+        fields["bound"] = _number(data[kind], where, kind)
+    if kind == "about":
+        fields["tolerance"] = _number(data.get("tolerance", ABOUT), where, "tolerance")
+        if fields["tolerance"] < 0:
+            raise ValueError(f"{where}: tolerance={data['tolerance']!r} is invalid: must be"
+                             " a number ≥ 0 (a fraction of the figure)")
+    if kind == "near_best":
+        if data[kind] is not True:
+            raise ValueError(f"{where}: near_best={data[kind]!r} is invalid: must be true")
+        fields["bound"] = _number(data.get("near", NEAR), where, "near")
+    if kind == "beats":
+        level = _number(data.get("probability_above", LEVEL), where, "probability_above")
+        if not 0 <= level < 1:
+            raise ValueError(f"{where}: probability_above={level!r} is invalid: must be in"
+                             " [0, 1)")
+        fields["bound"] = level
+    unused = [key for key, used in (("tolerance", kind == "about"), ("near", kind == "near_best"),
+                                    ("probability_above", kind == "beats"),
+                                    ("axis", kind in ("best", "rank")),
+                                    ("among", kind in ("best", "rank")),
+                                    ("value", kind == "rank"),
+                                    ("setting", kind not in ("best", "rank")))
+              if key in data and not used]
+    if unused:
+        raise ValueError(f"{where}: {unused[0]!r} is invalid with {kind}")
+    return CheckSpec(kind, where, **fields)
+
+
+def parse_claims(data: Any) -> tuple[ClaimSpec, ...]:
+    """A study's claims (a list of tables ``{claim, checks, stated}``) as :class:`ClaimSpec`.
+
+    Raises:
+      ValueError: one line naming the claim and the field that is malformed.
+    """
+    if not isinstance(data, list):
+        raise ValueError(f"claims={data!r} is invalid: must be a list of tables"
+                         " {claim = \"…\", checks = [...]}")
+    claims = []
+    for i, entry in enumerate(data):
+        where = f"claims[{i}]"
+        if not isinstance(entry, Mapping):
+            raise ValueError(f"{where}={entry!r} is invalid: must be a table {{claim, checks}}")
+        unknown = sorted(set(entry) - {"claim", "checks", "stated"})
+        if unknown:
+            raise ValueError(f"{where}: unknown key {unknown[0]!r}: allowed are claim,"
+                             " checks, stated")
+        sentence, stated = entry.get("claim"), entry.get("stated", "")
+        if not isinstance(sentence, str) or not sentence.strip():
+            raise ValueError(f"{where}: claim={sentence!r} is invalid: must be the claim's"
+                             " sentence")
+        if not isinstance(stated, str):
+            raise ValueError(f"{where}: stated={stated!r} is invalid: must be text")
+        checks = entry.get("checks")
+        if not isinstance(checks, list) or not checks:
+            raise ValueError(f"{where} ({sentence!r}): checks={checks!r} is invalid: must be a"
+                             " non-empty list of checks")
+        claims.append(ClaimSpec(sentence, tuple(
+            _check(check, f"{where}.checks[{j}]") for j, check in enumerate(checks)), stated))
+    return tuple(claims)
+
+
+def claims_digest(data: Any) -> str:
+    """The sha256 of a study's claims as data (canonical JSON): ``meta.json`` keeps it, so
+    that a report can say whether claims were stated before the run."""
+    text = json.dumps(data, sort_keys=True, ensure_ascii=False, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def selector_text(selector: Selector) -> str:
+    """A selector as the claims file gives it (a label, or ``{key = value, …}``)."""
+    if isinstance(selector, str):
+        return selector
+    return "{" + ", ".join(f"{k} = {v!r}" for k, v in selector) + "}"
+
+
+def select(selector: Selector, settings: Sequence[Setting]) -> list[int]:
+    """The indices of the settings a selector names."""
+    if isinstance(selector, str):
+        return [c for c, s in enumerate(settings) if s.label == selector]
+    rule = dict(selector)
+    return [c for c, s in enumerate(settings) if setting_matches(s, rule)]
+
+
+def select_one(selector: Selector, settings: Sequence[Setting], where: str, key: str) -> int:
+    """The one setting a selector names.
+
+    Raises:
+      ValueError: it names none or several.
+    """
+    found = select(selector, settings)
+    if len(found) != 1:
+        names = ", ".join(settings[c].label for c in found[:3])
+        raise ValueError(f"{where}: {key}={selector_text(selector)} is invalid: it names"
+                         + (f" {len(found)} settings ({names}, …); name one" if found else
+                            " no setting of the run (labels: "
+                            + ", ".join(s.label for s in settings[:4])
+                            + (", …" if len(settings) > 4 else "") + ")"))
+    return found[0]
+
+
+def axis_settings(check: CheckSpec, settings: Sequence[Setting]) -> dict[int, Any]:
+    """``{config: its value of the axis}`` of an axis check's settings.
+
+    Raises:
+      ValueError: ``among`` names fewer than two settings, one lacks the axis, or two
+        share a value.
+    """
+    assert check.among is not None and check.axis is not None
+    found = select(check.among, settings)
+    if len(found) < 2:
+        raise ValueError(f"{check.where}: among={selector_text(check.among)} is invalid: it"
+                         f" names {len(found)} setting(s); an axis needs two or more")
+    values: dict[int, Any] = {}
+    for c in found:
+        if check.axis not in settings[c].values:
+            raise ValueError(f"{check.where}: axis={check.axis!r} is invalid: setting"
+                             f" {settings[c].label} has no value of it")
+        value = settings[c].values[check.axis]
+        if any(setting_matches(settings[c], {check.axis: v}) for v in values.values()):
+            raise ValueError(f"{check.where}: among={selector_text(check.among)} is invalid:"
+                             f" two settings have {check.axis}={value!r}; narrow it to one"
+                             " per value")
+        values[c] = value
+    return values
+
+
+def axis_members(check: CheckSpec, settings: Sequence[Setting]) -> list[int]:
+    """The configs of an axis check's chosen values (``best``'s, or ``rank``'s one).
+
+    Raises:
+      ValueError: a value the axis's settings do not have.
+    """
+    assert check.axis is not None
+    values = axis_settings(check, settings)
+    chosen = []
+    for value in check.values:
+        match = [c for c in values if setting_matches(settings[c], {check.axis: value})]
+        if not match:
+            raise ValueError(f"{check.where}: {check.axis}={value!r} is invalid: the axis's"
+                             f" values are {sorted(values.values(), key=str)}")
+        chosen += match
+    if check.kind == "rank" and check.rank > len(values):
+        raise ValueError(f"{check.where}: rank={check.rank} is invalid: the axis has"
+                         f" {len(values)} values")
+    return chosen
+
+
+def leaves(check: CheckSpec) -> list[CheckSpec]:
+    """A check's comparisons (itself, or those it combines, however deep)."""
+    return [leaf for part in check.parts for leaf in leaves(part)] if check.parts else [check]
+
+
+def check_claims(claims: Sequence[ClaimSpec], settings: Sequence[Setting],
+                 recorded: Sequence[str] = ()) -> None:
+    """Check claims against a run before it trains: every setting they name exists (and
+    once), no setting is compared with itself, every axis and value exists, and every
+    metric is recorded.
+
+    Args:
+      claims: :func:`parse_claims`'s.
+      settings: the run's settings.
+      recorded: the optional records the run keeps (``record_optimal``,
+        ``evaluate_every``: :data:`RECORDED_BY`).
+
+    Raises:
+      ValueError: one line naming the claim, the field and what is allowed.
+    """
+    for i, claim in enumerate(claims):
+        try:
+            for check in claim.checks:
+                for leaf in leaves(check):
+                    _check_leaf(leaf, settings, recorded)
+        except ValueError as error:
+            raise ValueError(f"claim {i + 1} ({claim.claim!r}): {error}") from None
+
+
+def _check_leaf(leaf: CheckSpec, settings: Sequence[Setting], recorded: Sequence[str]) -> None:
+    needs = RECORDED_BY.get(leaf.metric)
+    if needs is not None and needs not in recorded:
+        flag = needs.replace("_", "-")
+        raise ValueError(f"{leaf.where}: metric={leaf.metric!r} is invalid: the run does not"
+                         f" record it (needs {needs} = … in the sweep file, --{flag})")
+    if leaf.kind in ("best", "rank"):
+        axis_members(leaf, settings)
+        return
+    assert leaf.setting is not None
+    mine = select_one(leaf.setting, settings, leaf.where, "setting")
+    if leaf.other is not None:
+        other = select_one(leaf.other, settings, leaf.where, leaf.kind)
+        if other == mine:
+            raise ValueError(f"{leaf.where}: {leaf.kind}={selector_text(leaf.other)} is"
+                             f" invalid: it is the setting checked ({settings[mine].label});"
+                             " compare two settings")
+
+
+__all__ = ["ABOUT", "CHECK_KEYS", "COMPARISONS", "LEVEL", "LOWER_IS_BETTER", "METRICS", "NEAR",
+           "RECORDED_BY", "VERSUS", "CheckSpec", "ClaimSpec", "Selector", "axis_members",
+           "axis_settings", "check_claims", "claims_digest", "leaves", "parse_claims",
+           "select", "select_one", "selector_text"]
