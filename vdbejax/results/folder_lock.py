@@ -31,7 +31,7 @@ from types import ModuleType
 from typing import Any, TypeVar
 
 from vdbejax import _interrupts as interrupts
-from vdbejax.validation import check_writable_dir
+from vdbejax.validation import check_writable_dir, missing_folders
 
 fcntl: ModuleType | None
 try:
@@ -49,9 +49,9 @@ _TEMPORARY = re.compile(r"^\..+\.(\d+)\.[^.]+\.tmp$")
 
 def output_folder(path: Any, name: str = "out") -> tuple[Path, FolderLock]:
     """A command's output folder, made writable (``check_writable_dir``), and its lock
-    (not yet taken), which removes the folder again if this call made it and the lock
-    cannot be taken (a full disk)."""
-    made = isinstance(path, (str, os.PathLike)) and not os.path.lexists(path)
+    (not yet taken), which removes the folder and the parents this call made again if
+    the lock cannot be taken (a full disk)."""
+    made = tuple(missing_folders(path)) if isinstance(path, (str, os.PathLike)) else ()
     out = check_writable_dir(name, path)
     return out, FolderLock(out, name, created=made)
 
@@ -62,8 +62,8 @@ class FolderLock:
     Args:
       folder: the result folder.
       name: its parameter name in error messages.
-      created: the caller made ``folder`` for this run: a lock that cannot be taken (a
-        full disk) removes it again.
+      created: the folders the caller made for this run, ``folder`` first, then the
+        parents it made: a lock that cannot be taken (a full disk) removes them again.
 
     Raises (on entry):
       ValueError: another process (or another writer of this one) holds the folder, or
@@ -76,7 +76,7 @@ class FolderLock:
     """
 
     def __init__(self, folder: str | os.PathLike, name: str = "out", *,
-                 created: bool = False) -> None:
+                 created: tuple[Path, ...] = ()) -> None:
         self.folder = Path(folder)
         self.name = name
         self.created = created
@@ -156,11 +156,11 @@ class FolderLock:
                                          or _same_file(self.folder / LOCK_FILE, self._fd))
 
     def _undo_failed_lock(self, path: Path, existed: bool) -> dict[Path, str]:
-        """Remove the lock file (unless it was there before) and the folder (if the caller
-        made it); returns what could not be removed, with why."""
+        """Remove the lock file (unless it was there before) and the folders the caller
+        made, deepest first; returns what could not be removed, with why."""
         not_removed: dict[Path, str] = {}
         for target, remove in ((path, None if existed else path.unlink),
-                               (self.folder, self.folder.rmdir if self.created else None)):
+                               *((made, made.rmdir) for made in self.created)):
             if remove is None:
                 continue
             try:
@@ -169,6 +169,8 @@ class FolderLock:
                 pass
             except OSError as error:
                 not_removed[target] = error.strerror or str(error)
+                if target != path:
+                    break  # a folder left: its parents are not empty
         return not_removed
 
     def release(self) -> dict[Path, str]:
