@@ -202,7 +202,8 @@ def test_the_checkpoint_checksum_hashes_each_arrays_bytes_without_copying_them()
 
     arrays = {"a": np.arange(12, dtype=np.float32).reshape(3, 4)[:, ::2],
               "fingerprint": np.asarray("x" * 16), "version": np.asarray(6),
-              "flags": np.zeros(3, bool)}
+              "flags": np.zeros(3, bool), "state_rows": np.zeros(0, np.int64),
+              "empty_q": np.zeros((0, 2, 3), np.float32)}
     reference = hashlib.sha256()
     for name in sorted(arrays):
         value = np.ascontiguousarray(arrays[name])

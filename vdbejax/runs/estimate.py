@@ -36,11 +36,13 @@ import sys
 from typing import TYPE_CHECKING
 
 from vdbejax.engine import available_cpus
+from vdbejax.engine.state import state_bytes
 from vdbejax.envs.solvers import shortest_episode
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.methods.agents import table_layout
 from vdbejax.results.bootstrap import NUM_RESAMPLES
 from vdbejax.runs.batching import (
+    SCALAR_BYTES,
     _size,
     bytes_per_agent,
     instance_bytes,
@@ -72,6 +74,11 @@ EVALUATION_OPS_PER_SECOND = 2.5e8
 STATISTICS_BYTES_PER_SETTING_EPISODE = 64
 #: A run whose estimate exceeds this is announced before it starts.
 LONG_SECONDS = 60.0
+#: Host copies of the agents' states a checkpointed run holds at a chunk's end: the work
+#: items' copies, the gathered state, the run's stored state, the checkpoint's buffer, and
+#: one more passing (100,000 table-cleaning agents × 20 episodes: 2.5 GiB at the peak,
+#: 1.1 GiB without checkpoints, 2-core machine, 2026-12-06).
+CHECKPOINT_STATE_COPIES = 5
 #: A run whose estimated memory reaches this is announced before it starts too.
 LARGE_MEMORY_BYTES = 1 << 30
 #: Seconds to prepare one setting before training (its agent made, checked and stacked
@@ -96,7 +103,8 @@ class RunEstimate:
       task_bytes: the task instances' share of it
         (:func:`~vdbejax.runs.batching.instances_host_bytes`; 0: a shared task).
       agents_bytes: the agents' share of it, a batch's states as the engine holds them
-        (:func:`~vdbejax.runs.batching.bytes_per_agent`; 0: not counted).
+        (:func:`~vdbejax.runs.batching.bytes_per_agent`) and their copies at a checkpoint
+        (:data:`CHECKPOINT_STATE_COPIES`); 0: not counted.
       disk_bytes: the checkpoint's episode log at its largest.
       training_seconds: a lower bound of the training's wall time.
       statistics_seconds: a forecast of the statistics' and figures' (0 without them).
@@ -315,10 +323,13 @@ def estimate_prepared(prepared: PreparedGrid, *, statistics: bool = True) -> Run
         own = instance_bytes(prepared.instances, prepared.run.record_optimal)
         estimate = dataclasses.replace(estimate, task_bytes=tasks,
                                        memory_bytes=estimate.memory_bytes + tasks)
-    plan = prepared.plan  # a batch of agents at once, as the engine holds them
-    agents = min(plan.batch_size, len(plan.rows)) * bytes_per_agent(
-        prepared.mdp, min(plan.chunk_episodes, prepared.num_episodes),
-        table_layout(prepared.params), own)
+    plan, layout = prepared.plan, table_layout(prepared.params)
+    # A batch of agents at once, as the engine holds them, and the host's copies of their
+    # states at a checkpoint.
+    agents = min(plan.batch_size, len(plan.rows)) * (
+        bytes_per_agent(prepared.mdp, min(plan.chunk_episodes, prepared.num_episodes),
+                        layout, own)
+        + CHECKPOINT_STATE_COPIES * (state_bytes(prepared.mdp, layout) + SCALAR_BYTES))
     estimate = dataclasses.replace(estimate, agents_bytes=agents,
                                    memory_bytes=estimate.memory_bytes + agents)
     every = prepared.run.evaluate_every
