@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from vdbejax import _pytree, _xla_flags
-from vdbejax.engine.chunks import ChunkSchedule
+from vdbejax.engine.chunks import ChunkSchedule, RunCancelled
 from vdbejax.engine.kinds import KindSwitch, can_switch, switch_block_size
 from vdbejax.engine.lanes import UNROLLED_LANES_MAX, at_lane
 from vdbejax.engine.packing import pack, unpack
@@ -62,10 +62,6 @@ _CPU_COMPILER_OPTIONS = {"xla_cpu_copy_insertion_use_region_analysis": True}
 #: it stands — mid-episode if need be —, so that a stop waits for one call, not for the
 #: chunk (≈ 0.2 s for the paper's agents). The results do not depend on it.
 CHUNK_STEPS = 1 << 20
-
-
-class RunCancelled(Exception):
-    """A work item's chunk stopped between two native calls: the run is stopping."""
 
 
 #: Sequential executables checked by :func:`_check_native`: compiled natively? (An entry
