@@ -201,4 +201,29 @@ def test_the_printed_plan_states_the_settings_memory(tmp_path, capsys, monkeypat
     assert first.startswith("a sweep of 2 settings (4 agents × 10 episodes): preparing them ≈")
     assert "(the settings ≈ 8.0 KiB)" in first
     assert second.startswith("a long run: 4 agents × 10 episodes")
-    assert "(the 2 settings ≈ 8.0 KiB)" in second
+    assert "(the 2 settings ≈ 8.0 KiB, the agents' states ≈" in second
+
+
+def test_a_run_that_needs_much_memory_is_announced_with_its_agents_states(
+        tmp_path, capsys, monkeypatch) -> None:
+    from vdbejax.engine.agent_state import state_bytes
+    from vdbejax.envs.table_cleaning import make_mdp
+    from vdbejax.methods.agents import Setting, table_layout
+    from vdbejax.runs import prepare_grid
+    from vdbejax.runs.batching import SCALAR_BYTES, bytes_per_agent
+
+    prepared = prepare_grid(make_mdp(), [Setting("qlearning", "egreedy")], num_seeds=100_000,
+                            num_episodes=20)
+    run = estimate.estimate_prepared(prepared)
+    plan = prepared.plan  # the states of a batch, as the engine holds them
+    layout = table_layout(prepared.params)
+    per_agent = bytes_per_agent(prepared.mdp, min(plan.chunk_episodes, 20), layout) + (
+        estimate.CHECKPOINT_STATE_COPIES * (state_bytes(prepared.mdp, layout) + SCALAR_BYTES))
+    assert run.agents_bytes == min(plan.batch_size, 100_000) * per_agent > 0
+    assert run.memory_bytes >= run.agents_bytes > 2 * 2**30  # the CLI peaked at 2.5 GiB
+    monkeypatch.setattr(estimate, "LARGE_MEMORY_BYTES", 1)  # every run is large, then
+    assert cli.main(["run", "--out", str(tmp_path / "r"), "--learners", "qlearning",
+                     "--explorers", "egreedy", "--seeds", "2", "--episodes", "10"]) == 0
+    first = capsys.readouterr().err.strip().splitlines()[0]
+    assert first.startswith("a run: 2 agents × 10 episodes: training ≥"), first
+    assert "the agents' states ≈" in first

@@ -161,7 +161,8 @@ def test_a_full_disk_is_one_line_and_leaves_no_folder_and_no_lock(tmp_path, monk
     line = one_line(capsys)
     assert line == (f"error: out={str(out)!r} cannot be locked for writing: No space left on"
                     " device")
-    assert not out.exists()  # the folder this run made is gone again
+    assert not out.exists()  # the folder this run made is gone again, and its parent
+    assert not (tmp_path / "new").exists()
     kept = tmp_path / "kept"  # a folder the user made stays, without a lock file
     kept.mkdir()
     with pytest.raises(ValueError, match="cannot be locked for writing: No space left"):
@@ -181,7 +182,8 @@ def test_every_study_on_a_full_disk_leaves_no_folder(tmp_path, monkeypatch, caps
     assert cli.main([command[0], "--out", str(out), *command[1:]]) == 2
     assert one_line(capsys) == (f"error: out={str(out)!r} cannot be locked for writing: No"
                                 " space left on device")
-    assert not out.exists()  # the folder this command made is gone again
+    assert not out.exists()  # the folder this command made is gone again, its parent too
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_full_disk_while_probing_the_folder_leaves_no_folder(tmp_path, monkeypatch,
@@ -197,3 +199,44 @@ def test_a_full_disk_while_probing_the_folder_leaves_no_folder(tmp_path, monkeyp
     assert run(tmp_path / "a" / "b") == 2
     assert "No space left on device" in one_line(capsys)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_folder_that_existed_stays_when_the_lock_fails(tmp_path, monkeypatch, capsys):
+    (tmp_path / "mine").mkdir()
+    no_space_for_the_lock(monkeypatch)
+    assert run(tmp_path / "mine" / "a" / "out") == 2
+    one_line(capsys)
+    assert [p.name for p in tmp_path.iterdir()] == ["mine"]  # only what the run made went
+    assert list((tmp_path / "mine").iterdir()) == []
+
+
+_CHECKPOINT_FAILS = """
+import errno, sys
+from pathlib import Path
+from vdbejax.results import io
+
+real = io.atomic_write_bytes
+
+def full(path, data):
+    if Path(path).name == "checkpoint.npz":
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+    real(path, data)
+
+io.atomic_write_bytes = full
+from vdbejax._console import main
+sys.argv = ["vdbejax", "run", "--out", sys.argv[1], *sys.argv[2:]]
+sys.exit(main())
+"""
+
+
+def test_a_checkpoint_that_cannot_be_written_is_one_warning_line(tmp_path):
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", _CHECKPOINT_FAILS, str(tmp_path / "out"), *RUN],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, lines  # no file:line prefix, no source line
+    assert lines[0].startswith("warning: checkpoint ") and "No space left on device" in lines[0]
+    assert "RuntimeWarning" not in done.stderr

@@ -194,6 +194,22 @@ def sweep_args(out):
             "--no-figures"]
 
 
+def test_a_stop_before_the_first_checkpoint_says_there_is_nothing_to_resume(
+        tmp_path, monkeypatch, capsys):
+    from vdbejax.runs import grid
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(grid, "drive", stopped)
+    out = tmp_path / "sweep"
+    assert cli.main(sweep_args(out)) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "interrupted: no checkpoint was written yet, a rerun starts from the" \
+        " beginning", err
+    assert not (out / "checkpoint.npz").exists()
+
+
 def test_run_resumes_from_its_checkpoint(tmp_path, monkeypatch, capsys):
     out = tmp_path / "sweep"
     assert cli.main(sweep_args(tmp_path / "whole")) == 0

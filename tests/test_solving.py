@@ -293,3 +293,20 @@ def test_convergence_of_a_wide_run_is_found_block_by_block(monkeypatch):
     whole = summarize(grid, window=5)
     monkeypatch.setattr(analysis, "CONVERGENCE_BLOCK", 2 * 60)  # two agents at a time
     assert summarize(grid, window=5) == whole
+
+
+def test_the_median_interval_of_many_agents_is_computed_in_blocks_with_the_same_bits(
+        monkeypatch):
+    import math
+
+    from vdbejax.results import bootstrap, solving
+
+    rng = np.random.default_rng(3)
+    episodes = rng.integers(1, 500, size=3001)
+    solved = rng.random(3001) < 0.7
+    values = np.where(solved, episodes, np.inf)
+    whole = np.sort(solving._medians(values[bootstrap.bootstrap_indices(values.size, 2000)]))
+    monkeypatch.setattr(bootstrap, "BLOCK_BYTES", 8 * 3001 * 7)  # blocks of 7 resamples
+    s = summarize_solving(episodes, solved)
+    assert s.median_low == whole[math.floor(1999 * 0.025)]
+    assert s.median_high == whole[math.ceil(1999 * 0.975)]

@@ -152,11 +152,12 @@ class Watchdog:
     (see the module docstring). Start it in the main thread; :meth:`stop` undoes it.
 
     Args:
-      message: printed to stderr before the exit.
+      message: printed to stderr before the exit (or a function that says it then: what
+        is true when the process ends).
       grace: seconds the main thread has to stop on its own.
     """
 
-    def __init__(self, message: str, grace: float = 1.0) -> None:
+    def __init__(self, message: str | Callable[[], str], grace: float = 1.0) -> None:
         self.message, self.grace = message, grace
         self._done = threading.Event()
         self._exiting = threading.Lock()  # the exit, or the main thread's own stop: one
@@ -190,7 +191,13 @@ class Watchdog:
             with contextlib.suppress(Exception):  # the exit goes on
                 release()
         try:
-            sys.stderr.write(self.message + "\n")
+            message = self.message
+            if callable(message):
+                try:
+                    message = message()
+                except Exception:  # the exit goes on: what it says is secondary
+                    message = "interrupted"
+            sys.stderr.write(message + "\n")
             sys.stderr.flush()
             sys.stdout.flush()
         finally:

@@ -157,6 +157,13 @@ def json_plain(value: Any) -> Any:
     raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
 
 
+def missing_folders(path: str | os.PathLike) -> list[Path]:
+    """``path`` and its parents that do not exist yet, deepest first (what creating the
+    folder makes, and what to remove again if the run fails before writing)."""
+    folder = Path(path)
+    return list(itertools.takewhile(lambda p: not os.path.lexists(p), (folder, *folder.parents)))
+
+
 def check_writable_dir(name: str, path: Any) -> Path:
     """Create folder ``path`` if needed and check files can be written into it.
 
@@ -168,7 +175,7 @@ def check_writable_dir(name: str, path: Any) -> Path:
         _fail(name, path, "must be a folder path")
     _interrupts.raise_pending()  # a stop the command line recorded: before any folder exists
     folder = Path(path)
-    made = list(itertools.takewhile(lambda p: not p.exists(), (folder, *folder.parents)))
+    made = missing_folders(folder)
     try:
         folder.mkdir(parents=True, exist_ok=True)
         probe = folder / f".write-test-{os.getpid()}"

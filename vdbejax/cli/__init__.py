@@ -10,7 +10,9 @@ import os
 import signal
 import sys
 import threading
+import warnings
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from vdbejax import __version__
@@ -43,6 +45,8 @@ from vdbejax.cli.study_commands import (
     scale_command,
     sweep_file_command,
 )
+from vdbejax.results.io import RETURNS_FILE
+from vdbejax.studies import CHECKPOINT_FILE
 
 #: ``vdbejax --help``'s description (plain text: argparse prints it as is).
 DESCRIPTION = ("Exploration strategies in tabular RL: 'vdbejax reproduce --out DIR' reproduces"
@@ -100,16 +104,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     handled = args.own_process and threading.current_thread() is threading.main_thread()
     if not handled:  # a stop recorded before this command belongs to no command of it
         interrupts.clear()
-    hint = (": rerun with --resume to continue from the last checkpoint"
-            if args.command in ("reproduce", "run", "scale", "ablate", "bench", "depth")
-            else "")
     previous: dict[signal.Signals, Any] = {}
     watchdog = None
+    shown = warnings.formatwarning
+    warnings.formatwarning = _one_line_warning  # a warning is one line, as an error is
     try:  # from here on a stop is this command's: one line, exit 130 or 143
         if handled:
             # A stop during a long native call (a compilation, a chunk) would wait for it
             # to end: the watchdog ends the process a second after the signal instead.
-            watchdog = interrupts.Watchdog(f"interrupted{hint}")
+            watchdog = interrupts.Watchdog(lambda: f"interrupted{_stop_hint(args)}")
             for number in (signal.SIGINT, signal.SIGTERM):
                 if signal.getsignal(number) is not signal.SIG_IGN:  # ignored: kept so
                     previous[number] = signal.signal(number, _stop)
@@ -122,7 +125,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (KeyboardInterrupt, interrupts.Terminated) as stop:
         if watchdog is not None:
             watchdog.disarm()
-        print(f"interrupted{hint}", file=sys.stderr)
+        print(f"interrupted{_stop_hint(args)}", file=sys.stderr)
         code = 143 if isinstance(stop, interrupts.Terminated) else 130
         if handled:  # XLA's threads may still compile: tearing the interpreter down under
             sys.stdout.flush()  # them crashed it (rc −11) after the message
@@ -132,10 +135,29 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if watchdog is not None:
             watchdog.stop()
+        warnings.formatwarning = shown
         interrupts.clear()
         for signum, handler in previous.items():
             signal.signal(signum, handler)
     return 0
+
+
+def _one_line_warning(message: Warning | str, category: type[Warning], filename: str,
+                      lineno: int, line: str | None = None) -> str:
+    """A warning as the command line prints it: ``warning: …``, one line (no source)."""
+    return f"warning: {' '.join(str(message).split())}\n"
+
+
+def _stop_hint(args: argparse.Namespace) -> str:
+    """What an interrupted command can still do (after "interrupted"): a rerun with
+    ``--resume`` where its folder holds a checkpoint or a saved result, else nothing to
+    resume."""
+    if args.command not in ("reproduce", "run", "scale", "ablate", "bench", "depth"):
+        return ""
+    out = Path(args.out)
+    if out.is_dir() and any(any(out.rglob(name)) for name in (CHECKPOINT_FILE, RETURNS_FILE)):
+        return ": rerun with --resume to continue from the last checkpoint"
+    return ": no checkpoint was written yet, a rerun starts from the beginning"
 
 
 def _stop(signum: int, frame: Any) -> None:

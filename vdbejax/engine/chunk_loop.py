@@ -26,7 +26,7 @@ from vdbejax.engine.programs import Programs
 from vdbejax.engine.programs import compile_seconds as _compile_seconds
 from vdbejax.engine.progress import ProgressCallback
 from vdbejax.engine.rules import auto_strategy, default_max_batch, mixes_kinds
-from vdbejax.engine.sequential import SequentialRun
+from vdbejax.engine.sequential import CHUNK_STEPS, SequentialRun
 from vdbejax.engine.work_items import created_in_items, next_power_of_two
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.envs.task_instances import TaskInstances
@@ -90,6 +90,11 @@ class EngineOptions:
       chunk_seconds: size chunks by time: about this many seconds each, every multiple
         of ``chunk_episodes`` still a chunk end (:mod:`~vdbejax.engine.chunks`; a stop
         waits for the chunk that runs). None: chunks of ``chunk_episodes``.
+      chunk_steps: the sequential strategy's native calls stop after this many loop
+        iterations (a loop runs a few agents side by side; the lockstep strategy's blocks
+        are ``block_iterations``), so that a stop waits for one call, not for a chunk of
+        very long episodes: a work item's chunk then takes several calls, each ending
+        where it stands, mid-episode if need be (the results do not depend on it).
       compact: between blocks of ``block_iterations`` lockstep iterations, gather the
         still-active agents into a smaller power-of-two batch (at least ``min_batch``
         lanes) once at most half the lanes are active, so finished agents stop costing
@@ -119,6 +124,7 @@ class EngineOptions:
     threads: int | None = None
     chunk_episodes: int = 100
     chunk_seconds: float | None = None
+    chunk_steps: int = CHUNK_STEPS
     compact: bool = True
     block_iterations: int = 256
     unroll: int = DEFAULT_UNROLL
@@ -132,6 +138,7 @@ class EngineOptions:
     def __post_init__(self) -> None:
         check_int("chunk_episodes", self.chunk_episodes, 1)
         check_int("block_iterations", self.block_iterations, 1)
+        check_int("chunk_steps", self.chunk_steps, 1, 2**31 - 1)
         check_int("unroll", self.unroll, 1)
         check_int("min_batch", self.min_batch, 1)
         if self.max_batch is not None:
@@ -237,7 +244,8 @@ def run_agents(
     # the state only while the lockstep strategy runs.
     sequential = None
     if strategy == "sequential":
-        sequential = SequentialRun(mdp, params, agents, keys, threads, programs)
+        sequential = SequentialRun(mdp, params, agents, keys, threads, programs,
+                                   options.chunk_steps)
 
     def current_agents() -> AgentState:
         if sequential is not None:

@@ -30,6 +30,11 @@ GROWTH = 4
 OVERHEAD_RATIO = 4
 
 
+class RunCancelled(Exception):
+    """A chunk's work stopped between two native calls: the run is stopping (a stop in
+    the main thread; the workers' chunks end at their next call)."""
+
+
 class ChunkSchedule:
     """The bounds ``(first, end)`` of an engine call's chunks (module docstring).
 

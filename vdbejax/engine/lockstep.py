@@ -20,6 +20,7 @@ batch advance together, one vectorised step per loop iteration.
 from __future__ import annotations
 
 import dataclasses
+import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
@@ -30,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from vdbejax.engine.agent_state import AgentState
+from vdbejax.engine.chunks import RunCancelled
 from vdbejax.engine.kinds import KindSwitch, can_switch, is_whole_kind, switch_block_size
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.step import (
@@ -361,6 +363,8 @@ def run_chunk_lockstep(
                         fixed_iterations=block_iterations if options.fixed_blocks else None)
     block_programs: dict[tuple, Any] = {}
 
+    stopping = threading.Event()  # the run stops: the other groups stop at their next block
+
     def run_group(group: tuple[Agent | KindSwitch, np.ndarray]) -> tuple[Any, int, int]:
         agent, rows = group
         first, count = int(rows[0]), rows.size
@@ -373,6 +377,8 @@ def run_chunk_lockstep(
             part = partial(_row_gather, rows=rows)
         if compact:
             def block(args: tuple) -> Any:  # one lookup per kind, batch size and placement
+                if stopping.is_set():
+                    raise RunCancelled
                 episode = args[2].episode
                 key = (id(agent), episode.shape, getattr(episode, "sharding", None),
                        getattr(jax.tree.leaves(args[1])[0], "sharding", None))
@@ -398,7 +404,11 @@ def run_chunk_lockstep(
     # other program's collective (seen with two processes × 2 devices).
     if threads > 1 and len(groups) > 1 and _on_one_device(agents):
         with ThreadPoolExecutor(max_workers=min(threads, len(groups))) as pool:
-            done = list(pool.map(run_group, groups))
+            try:
+                done = list(pool.map(run_group, groups))
+            except BaseException:  # a stop (Ctrl-C): the pool waits for one block a group
+                stopping.set()
+                raise
     else:
         done = [run_group(group) for group in groups]
     pieces = [piece for piece, _, _ in done]

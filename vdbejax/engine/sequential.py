@@ -32,7 +32,7 @@ import numpy as np
 
 from vdbejax import _pytree, _xla_flags
 from vdbejax.engine.agent_state import AgentState, init_agents
-from vdbejax.engine.chunks import ChunkSchedule
+from vdbejax.engine.chunks import ChunkSchedule, RunCancelled
 from vdbejax.engine.kinds import KindSwitch, can_switch, switch_block_size
 from vdbejax.engine.lanes import UNROLLED_LANES_MAX, at_lane
 from vdbejax.engine.packing import pack, unpack
@@ -55,6 +55,14 @@ Array = jax.Array
 #: Per-compilation XLA options of the CPU engine: with region analysis, copy insertion
 #: proves that an agent's Q-table update can happen in place (no copy of Q per step).
 _CPU_COMPILER_OPTIONS = {"xla_cpu_copy_insertion_use_region_analysis": True}
+
+
+#: Loop iterations of one native call of a work item (:class:`SequentialRun`): a chunk
+#: whose agents need more (very long episodes) is run in several calls, each ending where
+#: it stands — mid-episode if need be —, so that a stop waits for one call, not for the
+#: chunk (one Q-learning agent on a one-state task: a stop 0.27 s after Ctrl-C, 2-core
+#: machine, 2026-12-06). The results do not depend on it.
+CHUNK_STEPS = 1 << 20
 
 
 #: Sequential executables checked by :func:`_check_native`: compiled natively? (An entry
@@ -119,9 +127,13 @@ class SequentialRun:
     """
 
     def __init__(self, mdp: TabularMDP, params: AgentParams, agents: AgentState | None,
-                 keys: Any, threads: int, programs: Programs) -> None:
-        """``agents=None``: fresh agents, created in their work items (large agents)."""
+                 keys: Any, threads: int, programs: Programs,
+                 chunk_steps: int = CHUNK_STEPS) -> None:
+        """``agents=None``: fresh agents, created in their work items (large agents);
+        ``chunk_steps``: the most loop iterations of one native call (:meth:`_run_item`)."""
         self.mdp, self.threads, self.run_programs = mdp, threads, programs
+        self.chunk_steps = chunk_steps
+        self.cancelled = False  # the run stops: items stop at their next native call
         self.params = jax.tree.map(np.asarray, params)
         self.keys = np.asarray(keys, np.uint32)
         self.host = agents  # the full state while host_current (numpy or device arrays)
@@ -187,7 +199,7 @@ class SequentialRun:
         """The positional arguments of :func:`_run_sequential` for an item."""
         params, kind = agent
         return (self.mdp, params, agents, np.int32(chunk[0]), np.int32(chunk[1]),
-                np.int32(index.size), self.support,
+                np.int32(index.size), np.int32(self.chunk_steps), self.support,
                 np.int32(kind % self.block) if self.switch else None)
 
     def _group(self, chunk: tuple[int, int, int]) -> bool:
@@ -247,14 +259,24 @@ class SequentialRun:
         assert items is not None  # formed by prepare()
         index, state = items[k]
         executable, agent = self.item_programs[k]
-        new_state, returns, lengths, iterations, lanes, optimal = executable(  # state donated
-            *self._arguments(agent, state, index, chunk))
-        items[k] = (index, new_state)
-        copy = (jax.tree.map(lambda leaf: np.array(np.asarray(leaf)[: index.size]), new_state)
+        outputs: list[Any] = []  # returns, lengths, optimal: merged over the native calls
+        iterations = lanes = 0
+        while True:  # native calls of at most chunk_steps loop iterations each: a stop
+            if self.cancelled:  # waits for one of them, not for the chunk
+                raise RunCancelled
+            state, *piece, piece_iterations, piece_lanes, optimal = executable(  # donated
+                *self._arguments(agent, state, index, chunk))
+            items[k] = (index, state)
+            iterations += int(piece_iterations)
+            lanes += int(piece_lanes)
+            piece = [np.asarray(x)[: index.size] for x in (*piece, optimal) if x is not None]
+            outputs = piece if not outputs else _merged(outputs, piece)
+            if int(np.asarray(state.episode)[: index.size].min(initial=chunk[1])) >= chunk[1]:
+                break  # every agent of the item has finished the chunk
+        copy = (jax.tree.map(lambda leaf: np.array(np.asarray(leaf)[: index.size]), state)
                 if snapshot else None)
-        return (np.asarray(returns)[: index.size], np.asarray(lengths)[: index.size],
-                None if optimal is None else np.asarray(optimal)[: index.size],
-                int(iterations), int(lanes), copy)
+        return (outputs[0], outputs[1], outputs[2] if len(outputs) > 2 else None,
+                iterations, lanes, copy)
 
     def run_chunks(self, bounds: ChunkSchedule, chunk_length: int, ahead: int,
                    snapshots: bool = False
@@ -323,8 +345,10 @@ class SequentialRun:
                 yield returns, lengths, optimal, iterations, lane_iterations
                 c += 1
         finally:
+            self.cancelled = True  # a running item stops at its next native call
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=True)
+            self.cancelled = False
 
 
 assert LANES <= UNROLLED_LANES_MAX  # wider loops would use scatters: not native
@@ -336,14 +360,25 @@ def _row(table: Array, row: Array) -> Array:
                                  allow_negative_indices=False)
 
 
+def _merged(outputs: list[np.ndarray], piece: list[np.ndarray]) -> list[np.ndarray]:
+    """Two native calls' records of one chunk in one: an episode's return and length
+    where the later call finished it, the counts of optimal actions added (an episode
+    that spans both calls counts its steps in each)."""
+    finished = piece[1] > 0  # an episode's length is at least 1
+    merged = [np.where(finished, piece[0], outputs[0]), np.where(finished, piece[1], outputs[1])]
+    if len(piece) > 2:
+        merged.append(outputs[2] + piece[2])
+    return merged
+
+
 def lanes_for(rows: int) -> int:
     """The loop width for a work item of ``rows`` (padded, power-of-two) rows."""
     return min(LANES, rows)
 
 
 def _run_sequential(mdp: TabularMDP, agent: Any, agents: AgentState, chunk_start: Array,
-                    chunk_end: Array, count: Array, support: Any, kind: Array | None = None,
-                    *, chunk_length: int, lanes: int
+                    chunk_end: Array, count: Array, budget: Array, support: Any,
+                    kind: Array | None = None, *, chunk_length: int, lanes: int
                     ) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
     """:func:`_chunk_loops` as one native call: its whole body inside a ``while`` loop of
     one trip, which XLA's CPU backend compiles into one function (the loop's contents are
@@ -358,15 +393,15 @@ def _run_sequential(mdp: TabularMDP, agent: Any, agents: AgentState, chunk_start
     def once(carry: tuple) -> tuple:
         _, agents, returns, lengths, _, _, optimal = carry
         return (jnp.asarray(True), *_chunk_loops(
-            mdp, agent, agents, returns, lengths, chunk_start, chunk_end, count, support,
-            lanes=lanes, kind=kind, optimal=optimal))
+            mdp, agent, agents, returns, lengths, ChunkBounds(start=chunk_start, end=chunk_end),
+            (count, budget), support, lanes=lanes, kind=kind, optimal=optimal))
 
     return jax.lax.while_loop(lambda carry: ~carry[0], once,
                               (jnp.asarray(False), *outputs))[1:]
 
 
 def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array,
-                 lengths: Array, chunk_start: Array, chunk_end: Array, count: Array,
+                 lengths: Array, chunk: ChunkBounds, work: tuple[Array, Array],
                  support: Any, *, lanes: int, kind: Array | None = None,
                  optimal: Array | None = None
                  ) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
@@ -381,6 +416,10 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
     sets) instead of dispatching ~30 kernels per step. When a lane's agent has finished
     the chunk, the loop stops, the lane's agent is written back and the next waiting agent
     takes the lane; once none waits, the lanes run until their agents have all finished.
+    ``work`` is ``(count, budget)``: the loops stop after ``budget`` iterations, each
+    lane's agent written back where it stands (mid-episode, or waiting): a next call
+    continues the chunk, its lanes taking the first agents that have not finished it, with
+    the same results as one call.
     ``agent`` holds the work item's hyperparameters, all of one kind: the kind's types
     fix the program, so XLA keeps only the work that kind needs — or, with ``kind``,
     ``agent`` holds every kind's (a tuple) and one program serves them all
@@ -394,7 +433,8 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
       iterations × ``lanes``.
     """
     num_agents = agents.episode.shape[0]
-    big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
+    chunk_start, chunk_end = chunk.start, chunk.end
+    count, budget = work
 
     def scalars(state: AgentState) -> AgentState:
         # The state without its tables (a tree of the scalar fields): None is no leaf.
@@ -414,7 +454,7 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
     def refill(carry: tuple) -> tuple:
         """Run the lanes until one finishes; hand finished lanes the next agents."""
         (tables, packed, lane_packed, lane_agent, rows, waiting_from, returns, lengths,
-         optimal, trips) = carry
+         optimal, trips, used) = carry
         real = rows < count
         lane_state = dataclasses.replace(unpack(lane_packed, fields_layout), q=tables[0],
                                          tables=tables[1])
@@ -425,7 +465,7 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
             mdp, lane_params, lane_state,
             ChunkBuffers(returns=returns, lengths=lengths, optimal=optimal),
             ChunkBounds(start=chunk_start, end=jnp.where(real, chunk_end, 0)),
-            LoopLimits(max_iterations=big, stop_at_first_finish=waiting_from < count),
+            LoopLimits(max_iterations=budget - used, stop_at_first_finish=waiting_from < count),
             support, table_rows=rows,
         )
         returns, lengths, optimal = buffers.returns, buffers.lengths, buffers.optimal
@@ -445,20 +485,31 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
         lane_packed = jnp.where(finished[:, None], lane_rows(packed, rows), lane_packed)
         lane_agent = jnp.where(finished[:, None], lane_rows(agent_packed, rows), lane_agent)
         return (tables, packed, lane_packed, lane_agent, rows, waiting_from, returns, lengths,
-                optimal, trips + loop_trips * lanes)
+                optimal, trips + loop_trips * lanes, used + loop_trips)
 
     def any_lane_busy(carry: tuple) -> Array:
-        return jnp.any(carry[4] < count)
+        return jnp.any(carry[4] < count) & (carry[10] < budget)
 
-    lane = jnp.arange(lanes, dtype=jnp.int32)
-    rows = jnp.where(lane < count, lane, num_agents)
+    # The lanes start with the first agents that have not finished the chunk (a call that
+    # continues one), the others wait in row order (any agent past the last one taken has
+    # not started the chunk); the first call of a chunk takes rows 0, 1, ….
+    unfinished = (agents.episode < chunk_end) & (jnp.arange(num_agents) < count)
+    rows = jnp.nonzero(unfinished, size=lanes, fill_value=num_agents)[0].astype(jnp.int32)
+    waiting = jnp.where(jnp.sum(unfinished) > lanes, rows[lanes - 1] + 1, count).astype(
+        jnp.int32)
     zero = jnp.asarray(0, jnp.int32)
     started = agents.counter
-    tables, packed, *_, returns, lengths, optimal, lane_iterations = jax.lax.while_loop(
+    (tables, packed, lane_packed, _, rows, _, returns, lengths, optimal, lane_iterations,
+     _) = jax.lax.while_loop(
         any_lane_busy, refill,
         ((agents.q, agents.tables), packed, lane_rows(packed, rows),
-         lane_rows(agent_packed, rows), rows, jnp.asarray(lanes, jnp.int32), returns,
-         lengths, optimal, zero))
+         lane_rows(agent_packed, rows), rows, waiting, returns, lengths, optimal, zero, zero))
+    for k in range(lanes):  # out of budget: the lanes' agents written back where they stand
+        row = at_lane(rows, k)
+        clipped = jnp.clip(row, 0, num_agents - 1)
+        packed = jax.lax.dynamic_update_slice(
+            packed, jnp.where(row < count, lane_packed[k:k + 1], _row(packed, clipped)),
+            (clipped, 0), allow_negative_indices=False)
     agents = dataclasses.replace(unpack(packed, fields_layout), q=tables[0], tables=tables[1])
     real_rows = jnp.arange(num_agents) < count
     iterations = jnp.sum(jnp.where(real_rows, agents.counter - started, 0)).astype(jnp.int32)

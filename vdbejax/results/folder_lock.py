@@ -32,7 +32,7 @@ from typing import Any, TypeVar
 
 from vdbejax import _interrupts as interrupts
 from vdbejax.results import io
-from vdbejax.validation import check_writable_dir
+from vdbejax.validation import check_writable_dir, missing_folders
 
 fcntl: ModuleType | None
 try:
@@ -51,8 +51,8 @@ _TEMPORARY = re.compile(r"^\..+\.(\d+)\.[^.]+\.tmp$")
 def output_folder(path: Any, name: str = "out", *, own: Sequence[str] = (),
                   overwrite: bool = False) -> tuple[Path, FolderLock]:
     """A command's output folder, made writable (``check_writable_dir``), and its lock
-    (not yet taken), which removes the folder again if this call made it and the lock
-    cannot be taken (a full disk).
+    (not yet taken), which removes the folder and the parents this call made again if
+    the lock cannot be taken (a full disk).
 
     An existing folder that holds entries must be a vdbejax folder: one of its entries is
     named in ``own`` (what the command writes there) or is a run's ``meta.json``, lock,
@@ -60,7 +60,7 @@ def output_folder(path: Any, name: str = "out", *, own: Sequence[str] = (),
     (nothing created) unless ``overwrite``, so that a run's outputs never mix with a
     user's files without a word.
     """
-    made = isinstance(path, (str, os.PathLike)) and not os.path.lexists(path)
+    made = tuple(missing_folders(path)) if isinstance(path, (str, os.PathLike)) else ()
     if not made and not overwrite and isinstance(path, (str, os.PathLike)) \
             and os.path.isdir(path):
         check_own_folder(Path(path), own, name)
@@ -95,8 +95,8 @@ class FolderLock:
     Args:
       folder: the result folder.
       name: its parameter name in error messages.
-      created: the caller made ``folder`` for this run: a lock that cannot be taken (a
-        full disk) removes it again.
+      created: the folders the caller made for this run, ``folder`` first, then the
+        parents it made: a lock that cannot be taken (a full disk) removes them again.
 
     Raises (on entry):
       ValueError: another process (or another writer of this one) holds the folder, or
@@ -109,7 +109,7 @@ class FolderLock:
     """
 
     def __init__(self, folder: str | os.PathLike, name: str = "out", *,
-                 created: bool = False) -> None:
+                 created: tuple[Path, ...] = ()) -> None:
         self.folder = Path(folder)
         self.name = name
         self.created = created
@@ -189,11 +189,11 @@ class FolderLock:
                                          or _same_file(self.folder / LOCK_FILE, self._fd))
 
     def _undo_failed_lock(self, path: Path, existed: bool) -> dict[Path, str]:
-        """Remove the lock file (unless it was there before) and the folder (if the caller
-        made it); returns what could not be removed, with why."""
+        """Remove the lock file (unless it was there before) and the folders the caller
+        made, deepest first; returns what could not be removed, with why."""
         not_removed: dict[Path, str] = {}
         for target, remove in ((path, None if existed else path.unlink),
-                               (self.folder, self.folder.rmdir if self.created else None)):
+                               *((made, made.rmdir) for made in self.created)):
             if remove is None:
                 continue
             try:
@@ -202,6 +202,8 @@ class FolderLock:
                 pass
             except OSError as error:
                 not_removed[target] = error.strerror or str(error)
+                if target != path:
+                    break  # a folder left: its parents are not empty
         return not_removed
 
     def release(self) -> dict[Path, str]:

@@ -27,7 +27,7 @@ META_FILE = "meta.json"
 RESULT_FILES = (RETURNS_FILE, CONFIGS_FILE, META_FILE)
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+def atomic_write_bytes(path: str | os.PathLike, data: bytes | memoryview) -> None:
     """Write ``data`` to ``path`` atomically (temporary file + rename)."""
     with atomic_file(path) as f:
         f.write(data)
@@ -90,7 +90,7 @@ def atomic_savez(path: str | os.PathLike, *, compressed: bool = True, **arrays: 
     """
     buffer = io.BytesIO()
     (np.savez_compressed if compressed else np.savez)(buffer, **arrays)
-    atomic_write_bytes(path, buffer.getvalue())
+    atomic_write_bytes(path, buffer.getbuffer())  # a view: no second copy of a checkpoint
 
 
 def save_figure(fig: Any, path: str | os.PathLike) -> None:

@@ -276,8 +276,11 @@ def summarize_solving(
     seed = check_int("seed", seed, 0)
     counts, solved = _check_sample(episodes, solved)
     values = np.where(solved, counts, np.inf)
-    resamples = bootstrap.bootstrap_indices(values.size, num_resamples, seed)
-    medians = np.sort(_medians(values[resamples]))
+    # Resample block by resample block (the same indices as bootstrap_indices): 2000
+    # resamples of 10⁵ agents at once were 3 GiB (the indices and their values).
+    medians = np.sort(np.concatenate([_medians(values[block]) for block in
+                                      bootstrap.resample_blocks(values.size, num_resamples,
+                                                                seed)]))
     alpha = (1.0 - level) / 2.0
     low = medians[math.floor((num_resamples - 1) * alpha)]
     high = medians[math.ceil((num_resamples - 1) * (1.0 - alpha))]

@@ -63,7 +63,8 @@ def contents_digest(arrays: dict[str, np.ndarray]) -> str:
             continue
         value = np.ascontiguousarray(arrays[name])
         digest.update(f"{name}|{value.dtype.str}|{value.shape}|".encode())
-        digest.update(value.tobytes())
+        if value.size:  # its bytes, without a copy (a view cannot cast an empty array)
+            digest.update(value.data.cast("B"))
     return digest.hexdigest()
 
 

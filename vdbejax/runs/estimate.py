@@ -23,7 +23,8 @@ Time has two parts:
 A run that evaluates its agents' greedy policies (``evaluate_every``) adds a forecast of
 the evaluations (:data:`EVALUATION_OPS_PER_SECOND`). The result-folder pipeline
 (:func:`vdbejax.studies.train_in_folder`) announces a run whose estimate exceeds
-:data:`LONG_SECONDS`, or that evaluates its policies, in one line before it starts. A
+:data:`LONG_SECONDS`, that evaluates its policies, or that needs at least
+:data:`LARGE_MEMORY_BYTES`, in one line before it starts. A
 study of several result folders (``scale``, ``bench``, ``depth``) adds its runs'
 estimates into one :class:`StudyEstimate`, always announced (unless quiet) before its
 folder is made.
@@ -35,10 +36,15 @@ import sys
 from typing import TYPE_CHECKING
 
 from vdbejax.engine import available_cpus
+from vdbejax.engine.agent_state import state_bytes
 from vdbejax.envs.solvers import shortest_episode
 from vdbejax.envs.tabular import TabularMDP
+from vdbejax.methods.agents import table_layout
 from vdbejax.results.bootstrap import NUM_RESAMPLES
 from vdbejax.runs.batching import (
+    SCALAR_BYTES,
+    bytes_per_agent,
+    instance_bytes,
     instances_host_bytes,
     log_bytes,
     result_bytes,
@@ -68,6 +74,13 @@ EVALUATION_OPS_PER_SECOND = 2.5e8
 STATISTICS_BYTES_PER_SETTING_EPISODE = 64
 #: A run whose estimate exceeds this is announced before it starts.
 LONG_SECONDS = 60.0
+#: Host copies of the agents' states a checkpointed run holds at a chunk's end: the work
+#: items' copies, the gathered state, the run's stored state, the checkpoint's buffer, and
+#: one more passing (100,000 table-cleaning agents × 20 episodes: 2.5 GiB at the peak,
+#: 1.1 GiB without checkpoints, 2-core machine, 2026-12-06).
+CHECKPOINT_STATE_COPIES = 5
+#: A run whose estimated memory reaches this is announced before it starts too.
+LARGE_MEMORY_BYTES = 1 << 30
 #: Seconds to prepare one setting before training (its agent made, checked and stacked
 #: with the others: 10⁵ settings took 150 s on a busy 2-core machine, 2026-12-05).
 PREPARE_SECONDS_PER_SETTING = 1.5e-3
@@ -83,11 +96,15 @@ class RunEstimate:
     Attributes:
       agents, episodes, settings: the work's size (``episodes``: the budget).
       memory_bytes: host memory of the settings, the results and their statistics (and
-        of the task instances, with an instance per agent).
+        of the task instances, with an instance per agent, and of the agents' states,
+        from :func:`estimate_prepared`).
       settings_bytes: the settings' share of it (:data:`~vdbejax.runs.batching.SETTING_BYTES`
         each: a sweep of 10⁶ settings takes gigabytes before any agent trains).
       task_bytes: the task instances' share of it
         (:func:`~vdbejax.runs.batching.instances_host_bytes`; 0: a shared task).
+      agents_bytes: the agents' share of it, a batch's states as the engine holds them
+        (:func:`~vdbejax.runs.batching.bytes_per_agent`) and their copies at a checkpoint
+        (:data:`CHECKPOINT_STATE_COPIES`); 0: not counted.
       disk_bytes: the checkpoint's episode log at its largest.
       training_seconds: a lower bound of the training's wall time.
       statistics_seconds: a forecast of the statistics' and figures' (0 without them).
@@ -109,6 +126,7 @@ class RunEstimate:
     evaluation_operations: int = 0
     settings_bytes: int = 0
     task_bytes: int = 0
+    agents_bytes: int = 0
 
     @property
     def evaluation_seconds(self) -> float:
@@ -122,9 +140,11 @@ class RunEstimate:
 
     @property
     def long(self) -> bool:
-        """Whether the run is announced: its estimate exceeds :data:`LONG_SECONDS`, or it
-        evaluates its policies (work the user asked for, whose cost it states)."""
-        return self.seconds > LONG_SECONDS or self.evaluations > 0
+        """Whether the run is announced: its estimate exceeds :data:`LONG_SECONDS`, it
+        evaluates its policies (work the user asked for, whose cost it states), or it
+        needs at least :data:`LARGE_MEMORY_BYTES` of memory."""
+        return (self.seconds > LONG_SECONDS or self.evaluations > 0
+                or self.memory_bytes >= LARGE_MEMORY_BYTES)
 
     def describe(self) -> str:
         """One line: ``training ≥ 2 min (…), statistics and figures ≈ 3 min, …``."""
@@ -133,6 +153,8 @@ class RunEstimate:
                       f" ≤ {count(self.evaluation_operations)} multiply-adds)"
                       if self.evaluations else "")
         tasks = f", the task instances ≈ {size_text(self.task_bytes)}" if self.task_bytes else ""
+        if self.agents_bytes:
+            tasks += f", the agents' states ≈ {size_text(self.agents_bytes)}"
         return (f"{self.agents:,} agents × {self.episodes:,} episodes: {_common(self)}"
                 f"{evaluation}, memory ≈ {size_text(self.memory_bytes)} (the {self.settings:,}"
                 f" settings ≈ {size_text(self.settings_bytes)}{tasks}), checkpoint ≈"
@@ -294,11 +316,22 @@ def estimate_prepared(prepared: PreparedGrid, *, statistics: bool = True) -> Run
                              prepared.num_episodes, statistics=statistics,
                              fewest_episodes=prepared.stop.fewest_episodes(
                                  prepared.num_episodes))
+    own = 0
     if prepared.instances is not None:  # prepared.mdp is agent 0's: shaped as every one
         tasks = instances_host_bytes(prepared.mdp, prepared.num_agents,
                                      prepared.run.record_optimal)
+        own = instance_bytes(prepared.instances, prepared.run.record_optimal)
         estimate = dataclasses.replace(estimate, task_bytes=tasks,
                                        memory_bytes=estimate.memory_bytes + tasks)
+    plan, layout = prepared.plan, table_layout(prepared.params)
+    # A batch of agents at once, as the engine holds them, and the host's copies of their
+    # states at a checkpoint.
+    agents = min(plan.batch_size, len(plan.rows)) * (
+        bytes_per_agent(prepared.mdp, min(plan.chunk_episodes, prepared.num_episodes),
+                        layout, own)
+        + CHECKPOINT_STATE_COPIES * (state_bytes(prepared.mdp, layout) + SCALAR_BYTES))
+    estimate = dataclasses.replace(estimate, agents_bytes=agents,
+                                   memory_bytes=estimate.memory_bytes + agents)
     every = prepared.run.evaluate_every
     if every is None:
         return estimate
