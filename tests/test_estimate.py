@@ -57,7 +57,8 @@ def test_a_long_run_is_announced_before_it_starts(tmp_path, capsys, monkeypatch)
             "egreedy", "--axis", "epsilon=0.1", "--seeds", "2", "--episodes", "10"]
     assert cli.main(args) == 0
     err = capsys.readouterr().err
-    first = err.strip().splitlines()[0]
+    defaults, first = err.strip().splitlines()[:2]  # the learner values, then the plan
+    assert defaults.startswith("learner defaults: "), err
     assert first.startswith("a long run: 2 agents × 10 episodes: training ≥"), err
     assert "Ctrl-C keeps its checkpoint, --resume continues" in first
     assert cli.main([*args[:2], str(tmp_path / "q"), *args[3:], "--quiet"]) == 0
@@ -197,7 +198,8 @@ def test_the_printed_plan_states_the_settings_memory(tmp_path, capsys, monkeypat
     args = ["run", "--out", str(tmp_path / "r"), "--learners", "qlearning", "--explorers",
             "egreedy", "--axis", "epsilon=0.1,0.2", "--seeds", "2", "--episodes", "10"]
     assert cli.main(args) == 0
-    first, second = capsys.readouterr().err.strip().splitlines()[:2]
+    first, defaults, second = capsys.readouterr().err.strip().splitlines()[:3]
+    assert defaults.startswith("learner defaults: ")
     assert first.startswith("a sweep of 2 settings (4 agents × 10 episodes): preparing them ≈")
     assert "(the settings ≈ 8.0 KiB)" in first
     assert second.startswith("a long run: 4 agents × 10 episodes")
@@ -224,6 +226,7 @@ def test_a_run_that_needs_much_memory_is_announced_with_its_agents_states(
     monkeypatch.setattr(estimate, "LARGE_MEMORY_BYTES", 1)  # every run is large, then
     assert cli.main(["run", "--out", str(tmp_path / "r"), "--learners", "qlearning",
                      "--explorers", "egreedy", "--seeds", "2", "--episodes", "10"]) == 0
-    first = capsys.readouterr().err.strip().splitlines()[0]
+    defaults, first = capsys.readouterr().err.strip().splitlines()[:2]
+    assert defaults.startswith("learner defaults: ")
     assert first.startswith("a run: 2 agents × 10 episodes: training ≥"), first
     assert "the agents' states ≈" in first

@@ -508,7 +508,7 @@ def test_a_folder_of_other_files_is_refused_unless_overwrite(tmp_path, capsys, m
     assert f"out={str(mine)!r} is not a vdbejax result folder and holds files (thesis.tex)" \
         in line and "--overwrite" in line
     assert sorted(p.name for p in mine.iterdir()) == ["thesis.tex"]  # nothing created
-    for study, kwargs in ((scaling.run_scaling, {"quick": True}),
+    for study, kwargs in ((scaling.run_scaling, {"size": scaling.QUICK}),
                           (depth.run_depth, {"quick": True})):
         with pytest.raises(ValueError, match="is not a vdbejax result folder"):
             study(mine, run=QUIET, **kwargs)
