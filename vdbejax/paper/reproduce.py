@@ -31,7 +31,6 @@ from vdbejax.results.stats import CurveStatistics
 from vdbejax.results.summary import SummaryRow
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.runs.options import SPEED_FIELDS, study_run
-from vdbejax.studies import CHECKPOINT_FILE as CHECKPOINT_FILE
 from vdbejax.studies import sweeps, train_in_folder
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, check_writable_dir
 

@@ -22,6 +22,8 @@ __all__ = [
     "checkpoint_files",
     "depth",
     "scaling",
+    "scaling_adaptive",
+    "scaling_report",
     "snapshots",
     "sweep_file",
     "sweeps",

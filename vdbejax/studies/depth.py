@@ -54,8 +54,8 @@ from vdbejax.studies.depth_report import (
     write_reports,
 )
 from vdbejax.studies.folder import StudyOutputs
+from vdbejax.studies.scaling import auto_chunk
 from vdbejax.studies.scaling_adaptive import AdaptiveRun, train_until_solved
-from vdbejax.studies.scaling_study import auto_chunk
 from vdbejax.validation import INT32_MAX, UINT32_MAX, check_bool, check_instance, check_int
 
 FAMILIES = ("deepsea", "chain")
