@@ -4,7 +4,10 @@
   whatever the depth of the import (function-level imports included);
 * no import circle anywhere, between layers or within one;
 * no underscore *name* is imported from another module (a private module such as
-  ``vdbejax._interrupts`` is importable: its name says the whole module is internal).
+  ``vdbejax._interrupts`` is importable: its name says the whole module is internal);
+* one import path per name: a module's ``__all__`` lists only what it defines, and no
+  module re-exports a name (``from x import a as a``); a package's ``__init__`` is its
+  public surface and lists what its modules define.
 """
 from __future__ import annotations
 
@@ -185,6 +188,44 @@ def test_the_private_name_check_reads_relative_and_function_level_imports() -> N
     node = next(n for n in ast.walk(tree) if isinstance(n, ast.ImportFrom))
     assert resolve("vdbejax.engine.rules", node) == "vdbejax.engine.lockstep"
     assert node.names[0].name == "_helper"
+
+
+def reexports(module: str, tree: ast.Module) -> list[str]:
+    """The names ``module`` re-exports: imported as themselves (``import a as a``) or, in a
+    module that is no package, listed in its ``__all__`` without being defined there."""
+    defined, found = set(), []
+    listed: list[str] = []
+    for node in tree.body:
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            found += [f"{module} re-exports {alias.name}" for alias in node.names
+                      if alias.asname and alias.asname == alias.name.rpartition(".")[2]]
+        elif isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            defined.add(node.name)
+        elif isinstance(node, ast.Assign | ast.AnnAssign):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names = {n.id for target in targets for n in ast.walk(target)
+                     if isinstance(n, ast.Name)}
+            defined |= names
+            if "__all__" in names and isinstance(node.value, ast.List | ast.Tuple):
+                listed = [e.value for e in node.value.elts if isinstance(e, ast.Constant)]
+    is_package = (PACKAGE / Path(*module.split(".")[1:]) / "__init__.py").exists()
+    if not is_package:
+        found += [f"{module}.__all__ lists {name}, defined elsewhere" for name in listed
+                  if name not in defined]
+    return found
+
+
+def test_one_import_path_per_name() -> None:
+    found = [line for module, tree in modules().items() for line in reexports(module, tree)]
+    assert not found, "import each name from its home: " + "; ".join(found)
+
+
+def test_the_reexport_check_finds_both_kinds() -> None:
+    tree = ast.parse("from vdbejax.a import b as b\nfrom vdbejax.a import c\n"
+                     "def d():\n    pass\n__all__ = ['c', 'd']\n")
+    assert reexports("vdbejax.studies.x", tree) == [
+        "vdbejax.studies.x re-exports b", "vdbejax.studies.x.__all__ lists c, defined elsewhere"]
+    assert reexports("vdbejax.studies", tree) == ["vdbejax.studies re-exports b"]
 
 
 def test_the_architecture_page_states_the_same_order() -> None:
