@@ -138,8 +138,7 @@ def run_command(args: argparse.Namespace) -> None:
     sweep = Sweep(**{key: spec.pop(key) for key in SPEC_KEYS if key in spec})
     result = run_sweep(args.out, sweep, figures=not args.no_figures,
                        run=run_options(args, progress=not args.quiet, **mechanics), **spec)
-    from vdbejax.results.summary import read_summary
-    from vdbejax.studies.sweeps import SUMMARY_FILE
+    from vdbejax.results.summary import SUMMARY_FILE, read_summary
 
     # summary.csv: one row per setting of this result, written by run_sweep above.
     rows = read_summary(Path(args.out) / SUMMARY_FILE)

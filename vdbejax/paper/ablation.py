@@ -36,11 +36,12 @@ from vdbejax.paper.ablation_variants import (
     VariantResult,
     mode_variants,
 )
-from vdbejax.paper.reproduce import FIGURE_FILE, SENSITIVITY_FILE, reproduce
+from vdbejax.paper.reproduce import reproduce
 from vdbejax.results import io
 from vdbejax.results.replicates import REPLICATE_FILES, check_replicates
 from vdbejax.runs import RunOptions
 from vdbejax.runs.options import SPEED_FIELDS, study_run
+from vdbejax.studies.sweeps import FIGURE_FILE, SENSITIVITY_FILE
 from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int, check_writable_dir
 
 

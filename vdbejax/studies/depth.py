@@ -38,9 +38,10 @@ from typing import Any
 import numpy as np
 
 from vdbejax.results import io
+from vdbejax.results.curves import WINDOW
 from vdbejax.results.folder_lock import check_output_paths, mark, output_folder, unmark
 from vdbejax.results.policy import POLICY_COLUMNS
-from vdbejax.results.solving import WINDOW, summarize_solving
+from vdbejax.results.solving import summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task

@@ -8,7 +8,7 @@ variants :data:`SIZES` (``NxK``: :func:`parse_sizes`), the study's size
 
 Its runner: :func:`run_scaling` runs every method of :data:`METHODS` with both learners on
 a family of generated table-cleaning variants of growing size (``variant:NxK``,
-:func:`vdbejax.studies.sweeps.make_task`), each agent until it has solved the variant or its
+:func:`vdbejax.studies.task_names.make_task`), each agent until it has solved the variant or its
 budget is spent (:func:`~vdbejax.run_grid` with the stop policy
 :class:`~vdbejax.runs.UntilSolved`, as
 :func:`~vdbejax.studies.scaling_adaptive.run_until_solved`: up to its stop, an agent's
@@ -283,7 +283,7 @@ def run_scaling(
       seed: root seed.
       learners: learner names.
       methods: explorer names of :data:`METHODS` (default all).
-      max_steps: episode truncation (default 100, :func:`vdbejax.studies.sweeps.make_task`).
+      max_steps: episode truncation (default 100, :func:`vdbejax.studies.task_names.make_task`).
       drop_unsolved: skip settings on larger variants once none of their agents solved
         (off by default: SARSA + VDBE fails 3×1 and solves 4×1 within the same budget).
       outputs: what it writes besides ``scaling.csv``, ``scaling.md`` and ``meta.json``
@@ -316,7 +316,7 @@ def run_scaling(
         uniform_random_return,
     )
     from vdbejax.runs.provenance import version_info
-    from vdbejax.studies.sweeps import make_task
+    from vdbejax.studies.task_names import make_task
 
     knobs = study_run(run, "run_scaling", SCALING_RUN_FIELDS)
     progress, chunk_episodes = knobs.progress, knobs.chunk_episodes

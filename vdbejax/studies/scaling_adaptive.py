@@ -21,9 +21,10 @@ from typing import Any
 import numpy as np
 
 from vdbejax.methods.agents import AgentOptions, Setting
+from vdbejax.results.curves import WINDOW
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.policy import policy_summary
-from vdbejax.results.solving import FRACTION, WINDOW, SolveTimes, episodes_to_converge
+from vdbejax.results.solving import FRACTION, SolveTimes, episodes_to_converge
 from vdbejax.runs.options import RunOptions, study_run
 
 
