@@ -8,7 +8,7 @@ from vdbejax.envs import solvers
 from vdbejax.envs.cruz2018 import ACTION_NAMES, STEP_CAP, make_authors_mdp, table
 from vdbejax.methods import Setting
 from vdbejax.runs import run_grid
-from vdbejax.studies.sweeps import make_task
+from vdbejax.studies.task_names import make_task
 
 
 @pytest.fixture(scope="module")

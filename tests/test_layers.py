@@ -4,7 +4,11 @@
   whatever the depth of the import (function-level imports included);
 * no import circle anywhere, between layers or within one;
 * no underscore *name* is imported from another module (a private module such as
-  ``vdbejax._interrupts`` is importable: its name says the whole module is internal).
+  ``vdbejax._interrupts`` is importable: its name says the whole module is internal);
+* one import path per name: a module's ``__all__`` lists only what it defines, no module
+  re-exports a name (``from x import a as a``, ``A = x.A``), and a name is imported from
+  the module that defines it; a package's ``__init__`` is its public surface and lists what
+  its modules define.
 """
 from __future__ import annotations
 
@@ -185,6 +189,83 @@ def test_the_private_name_check_reads_relative_and_function_level_imports() -> N
     node = next(n for n in ast.walk(tree) if isinstance(n, ast.ImportFrom))
     assert resolve("vdbejax.engine.rules", node) == "vdbejax.engine.lockstep"
     assert node.names[0].name == "_helper"
+
+
+def is_package(module: str) -> bool:
+    return (PACKAGE / Path(*module.split(".")[1:]) / "__init__.py").exists()
+
+
+def defined(tree: ast.Module) -> set[str]:
+    """The names a module's top level defines (functions, classes, assignments)."""
+    names = set()
+    for node in tree.body:
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            names.add(node.name)
+        elif isinstance(node, ast.Assign | ast.AnnAssign):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names |= {n.id for target in targets for n in ast.walk(target)
+                      if isinstance(n, ast.Name)}
+    return names
+
+
+def reexports(module: str, tree: ast.Module) -> list[str]:
+    """The names ``module`` re-exports: imported as themselves (``import a as a``), bound to
+    a package module's name of the same name (``A = m.A``) or, in a module that is no
+    package, listed in its ``__all__`` without being defined there."""
+    found, package_names = [], set()
+    for node in tree.body:
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            found += [f"{module} re-exports {alias.name}" for alias in node.names
+                      if alias.asname and alias.asname == alias.name.rpartition(".")[2]]
+            package_names |= {alias.asname or alias.name for alias in node.names
+                              if (alias.name if isinstance(node, ast.Import)
+                                  else resolve(module, node)).startswith("vdbejax")}
+        elif isinstance(node, ast.Assign):
+            pairs = [(target, node.value) for target in node.targets]
+            pairs += [pair for target, value in pairs if isinstance(target, ast.Tuple)
+                      and isinstance(value, ast.Tuple)
+                      for pair in zip(target.elts, value.elts, strict=False)]
+            found += [f"{module} re-exports {target.id}" for target, value in pairs
+                      if isinstance(target, ast.Name) and isinstance(value, ast.Attribute)
+                      and value.attr == target.id and isinstance(value.value, ast.Name)
+                      and value.value.id in package_names]
+            if [n.id for n in node.targets if isinstance(n, ast.Name)] == ["__all__"] \
+                    and isinstance(node.value, ast.List | ast.Tuple) and not is_package(module):
+                found += [f"{module}.__all__ lists {e.value}, defined elsewhere"
+                          for e in node.value.elts if isinstance(e, ast.Constant)
+                          and e.value not in defined(tree)]
+    return found
+
+
+def imports_not_from_home() -> list[str]:
+    """``from vdbejax.m import N`` where ``m`` is a module (no package) that does not define
+    ``N``: the name has a home elsewhere."""
+    found = []
+    for module in modules():
+        for target, name in imported(module):
+            if (name and target in modules() and not is_package(target)
+                    and f"{target}.{name}" not in modules()
+                    and name not in defined(modules()[target])):
+                found.append(f"{module} imports {name} from {target}")
+    return found
+
+
+def test_one_import_path_per_name() -> None:
+    found = [line for module, tree in modules().items() for line in reexports(module, tree)]
+    found += imports_not_from_home()
+    assert not found, "import each name from its home: " + "; ".join(found)
+
+
+def test_the_reexport_check_finds_each_kind() -> None:
+    tree = ast.parse("import jax\nfrom vdbejax.a import b as b\nfrom vdbejax.a import c, m\n"
+                     "E, F = m.E, m.G\nArray = jax.Array\ndef d():\n    pass\n"
+                     "__all__ = ['c', 'd']\n")
+    assert reexports("vdbejax.studies.x", tree) == [
+        "vdbejax.studies.x re-exports b", "vdbejax.studies.x re-exports E",
+        "vdbejax.studies.x.__all__ lists c, defined elsewhere"]
+    assert reexports("vdbejax.studies", tree) == ["vdbejax.studies re-exports b",
+                                                  "vdbejax.studies re-exports E"]
+    assert "WINDOW" in defined(modules()["vdbejax.results.curves"])
 
 
 def test_the_architecture_page_states_the_same_order() -> None:

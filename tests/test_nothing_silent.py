@@ -13,7 +13,7 @@ from vdbejax.methods.agents import AgentOptions
 from vdbejax.paper.reproduce import reproduce
 from vdbejax.results.folder_lock import MARKER_FILE, FolderLock, mark
 from vdbejax.runs import RunOptions, run_grid
-from vdbejax.studies import scaling
+from vdbejax.studies import scaling, scaling_report
 from vdbejax.validation import check_int
 
 
@@ -63,7 +63,7 @@ def test_scale_locks_its_folder_and_a_half_written_study_is_refused(tmp_path):
     (out / "meta.json").write_text("{}")
     mark(out, "results")
     with pytest.raises(ValueError, match=f"half-written.*{MARKER_FILE}"):
-        scaling.load_scaling(out)
+        scaling_report.load_scaling(out)
 
 
 def test_a_plug_in_cannot_take_a_built_ins_name():

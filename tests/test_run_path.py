@@ -252,7 +252,7 @@ def test_run_resumes_from_its_checkpoint(tmp_path, monkeypatch, capsys):
 
 def test_run_flags_reach_the_run(tmp_path):
     out = tmp_path / "sweep"
-    from vdbejax.studies.sweeps import make_task
+    from vdbejax.studies.task_names import make_task
 
     budget = budget_for(make_task("table_cleaning"), 2, chunk_episodes=10)
     assert cli.main([*sweep_args(out), "--memory-budget", str(budget), "--devices", "1"]) == 0

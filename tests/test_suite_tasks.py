@@ -389,7 +389,7 @@ def test_toy_text_without_gymnasium_names_the_extra(monkeypatch):
 
 # ------------------------------------------------------------------ the registry
 def test_table_cleaning_entries_are_the_existing_builders_mdps(built):
-    """The registry's table-cleaning family is what vdbejax.studies.sweeps.make_task has
+    """The registry's table-cleaning family is what vdbejax.studies.task_names.make_task has
     always built: the same arrays, horizons and names."""
     for name, theirs in (("table_cleaning", make_mdp()),
                          ("cruz2018", make_authors_mdp(STEP_CAP)),
@@ -408,9 +408,9 @@ def test_table_cleaning_entries_are_the_existing_builders_mdps(built):
 
 
 def test_sweep_files_take_every_task_of_the_suite():
-    """sweeps.make_task (a sweep file's task key, vdbejax run --task) is the registry:
+    """task_names.make_task (a sweep file's task key, vdbejax run --task) is the registry:
     suite names build there, and its errors name the parameter task."""
-    from vdbejax.studies.sweeps import make_task
+    from vdbejax.studies.task_names import make_task
 
     for name in ("deepsea:6", "chain:7", "cliff_walking"):
         ours, theirs = make_task(name), make_suite_task(name)

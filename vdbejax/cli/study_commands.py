@@ -149,8 +149,7 @@ def run_command(args: argparse.Namespace) -> None:
                        run=run_options(args, progress=not args.quiet, **mechanics), **spec)
     from vdbejax.results.claim_report import CLAIMS_FILE
     from vdbejax.results.io import read_csv
-    from vdbejax.results.summary import read_summary
-    from vdbejax.studies.sweeps import SUMMARY_FILE
+    from vdbejax.results.summary import SUMMARY_FILE, read_summary
 
     # summary.csv: one row per setting of this result, written by run_sweep above.
     rows = read_summary(Path(args.out) / SUMMARY_FILE)

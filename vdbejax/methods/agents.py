@@ -17,7 +17,7 @@ import jax
 import numpy as np
 
 from vdbejax._pytree import pytree_dataclass
-from vdbejax.methods.contract import Explorer, Learner, Table
+from vdbejax.methods.contract import Explorer, Learner
 from vdbejax.methods.explorers import PAPER_EXPLORERS, explorer_class
 from vdbejax.methods.learners import PAPER_ALPHA, PAPER_GAMMA, PAPER_LEARNERS, learner_class
 from vdbejax.methods.model import MODEL_PREFIX, MODEL_TABLES
@@ -370,7 +370,6 @@ __all__ = [
     "AgentOptions",
     "AgentParams",
     "Setting",
-    "Table",
     "agent_hyperparameters",
     "horizon_discount",
     "make_agent",

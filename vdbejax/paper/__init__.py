@@ -4,4 +4,4 @@
 (:mod:`~vdbejax.paper.ablation`). Everything else in vdbejax is generic."""
 
 #: The public names: the modules (each imported when first named).
-__all__ = ["ablation", "claims", "report", "reproduce"]
+__all__ = ["ablation", "ablation_document", "ablation_variants", "claims", "report", "reproduce"]

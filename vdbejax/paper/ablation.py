@@ -2,8 +2,9 @@
 
 The paper does not say what an invalid action does, how greedy ties are broken, when an
 episode is cut off, or how Q is initialised; the spec fixes defaults and makes each an
-option. :func:`ablate` reruns the full grid once per :class:`Variant` (one factor at a
-time from the spec defaults, plus a combination), scores the six claims for each, and
+option. :func:`ablate` reruns the full grid once per
+:class:`~vdbejax.paper.ablation_variants.Variant` (one factor at a time from the spec
+defaults, plus a combination), scores the six claims for each, and
 writes ``ablation_scorecard.md``: the claims × variants table, per-variant numbers and figures,
 and (if given) a hand-written discussion.
 
@@ -27,22 +28,20 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from vdbejax.paper.ablation_document import claims_table, render_document
+from vdbejax.paper.ablation_document import render_document
 from vdbejax.paper.ablation_variants import (
-    ATTRIBUTION_VARIANTS,
-    FACTORIAL_VARIANTS,
     MODES,
     VARIANTS,
     Variant,
     VariantResult,
     mode_variants,
-    select_variants,
 )
-from vdbejax.paper.reproduce import FIGURE_FILE, SENSITIVITY_FILE, reproduce
+from vdbejax.paper.reproduce import reproduce
 from vdbejax.results import io
 from vdbejax.results.replicates import REPLICATE_FILES, check_replicates
 from vdbejax.runs import RunOptions
 from vdbejax.runs.options import SPEED_FIELDS, study_run
+from vdbejax.studies.sweeps import FIGURE_FILE, SENSITIVITY_FILE
 from vdbejax.validation import INT32_MAX, UINT32_MAX, check_int, check_writable_dir
 
 
@@ -86,7 +85,7 @@ def run_variant(
         FOLDER`` draws them).
 
     Returns:
-      :class:`VariantResult`.
+      :class:`~vdbejax.paper.ablation_variants.VariantResult`.
     """
     run = RunOptions() if run is None else run
     folder = Path(results_dir)
@@ -151,9 +150,10 @@ def ablate(
       notes: a hand-written markdown file appended as the discussion.
       reuse: reuse saved results of the same variant and size.
       mode: ``"options"`` (the two readings and the spec's open details),
-        ``"attribution"`` (the authors' details one at a time, :data:`ATTRIBUTION_VARIANTS`)
-        or ``"factorial"`` (:data:`FACTORIAL_VARIANTS`): the document's name and figure
-        folder (:data:`MODES`).
+        ``"attribution"`` (the authors' details one at a time,
+        :data:`~vdbejax.paper.ablation_variants.ATTRIBUTION_VARIANTS`) or ``"factorial"``
+        (:data:`~vdbejax.paper.ablation_variants.FACTORIAL_VARIANTS`): the document's name
+        and figure folder (:data:`~vdbejax.paper.ablation_variants.MODES`).
       sections: (mode ``options``) also run the attribution and factorial variants and
         add their claims tables to the document, so that ``ablation_scorecard.md`` shows which
         detail of which reading decides each claim (results in ``results_dir``'s
@@ -324,6 +324,4 @@ def _command(out: Path, raw: Path, figures: Path, variants: Sequence[Variant],
     return " ".join(parts)
 
 
-__all__ = ["ATTRIBUTION_VARIANTS", "FACTORIAL_VARIANTS", "MODES", "VARIANTS", "Variant",
-           "VariantResult", "ablate", "claims_table", "render_document", "run_variant",
-           "select_variants"]
+__all__ = ["ablate", "run_variant"]

@@ -11,7 +11,6 @@ from typing import Any
 from vdbejax.methods.explorers import PAPER_EXPLORERS as EXPLORERS
 from vdbejax.paper.ablation_variants import VariantResult
 from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimTable
-from vdbejax.paper.reproduce import FIGURE_FILE, SENSITIVITY_FILE
 from vdbejax.results import io
 from vdbejax.results.markdown import table_lines
 from vdbejax.results.replicates import POOLED_SUMMARY_FILE
@@ -19,6 +18,7 @@ from vdbejax.results.solving import CONVERGENCE_TEXT
 from vdbejax.results.stats import wilson_interval
 from vdbejax.results.summary import SummaryRow, episode_text, read_summary
 from vdbejax.results.verdicts import stable_count
+from vdbejax.studies.sweeps import FIGURE_FILE, SENSITIVITY_FILE
 
 VERDICT_MARKS = {"reproduced": "✅ reproduced", "partly": "◐ partly", "not reproduced": "❌ not",
                  "unstable": "⚠ unstable", "undecided": "? undecided"}

@@ -31,17 +31,15 @@ from vdbejax.results.replicates import (
     replicate_count,
 )
 from vdbejax.results.stats import CurveStatistics
-from vdbejax.results.summary import SummaryRow
+from vdbejax.results.summary import SUMMARY_FILE, SummaryRow
 from vdbejax.results.verdicts import ClaimResult
 from vdbejax.runs import RunOptions, prepare_grid
 from vdbejax.runs.options import SPEED_FIELDS, study_run
-from vdbejax.studies import CHECKPOINT_FILE as CHECKPOINT_FILE
 from vdbejax.studies import sweeps, train_in_folder
 from vdbejax.studies.sweep_file import read_claims_file
+from vdbejax.studies.sweeps import FIGURE_FILE, SENSITIVITY_FILE
 from vdbejax.validation import INT32_MAX, check_bool, check_choice, check_int, check_writable_dir
 
-SUMMARY_FILE, FIGURE_FILE, SENSITIVITY_FILE = (sweeps.SUMMARY_FILE, sweeps.FIGURE_FILE,
-                                               sweeps.SENSITIVITY_FILE)
 REPORT_FILE = "report.md"
 #: Figure 3 smoothed and cut as the authors plot it (the authors' reading only).
 AUTHORS_FIGURE_FILE = "fig3_authors.png"

@@ -45,13 +45,12 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from vdbejax.results import bootstrap, curves
+from vdbejax.results.curves import WINDOW
 from vdbejax.results.regret import Scale, normalised_returns
 from vdbejax.validation import check_in_range, check_int
 
 #: Default normalised score that counts as solved (0 = random policy, 1 = the exact best).
 FRACTION = 0.9
-#: Default moving-average window (the paper's smoothing, :data:`vdbejax.results.curves.WINDOW`).
-WINDOW = curves.WINDOW
 #: Slack of the threshold comparison: returns are float32 sums of float32 rewards.
 TOLERANCE = 1e-6
 
@@ -343,7 +342,6 @@ __all__ = [
     "CONVERGENCE_TEXT",
     "FRACTION",
     "TOLERANCE",
-    "WINDOW",
     "SolveSummary",
     "SolveTimes",
     "censored_values",

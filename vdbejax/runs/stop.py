@@ -17,8 +17,9 @@ from typing import Any
 
 import numpy as np
 
+from vdbejax.results.curves import WINDOW
 from vdbejax.results.regret import normalised_returns
-from vdbejax.results.solving import FRACTION, TOLERANCE, WINDOW, episodes_to_converge
+from vdbejax.results.solving import FRACTION, TOLERANCE, episodes_to_converge
 from vdbejax.validation import check_in_range, check_int, check_positive
 
 

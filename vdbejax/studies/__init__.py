@@ -23,6 +23,8 @@ __all__ = [
     "depth",
     "learner_defaults",
     "scaling",
+    "scaling_adaptive",
+    "scaling_report",
     "snapshots",
     "sweep_file",
     "sweeps",

@@ -38,9 +38,10 @@ from typing import Any
 import numpy as np
 
 from vdbejax.results import io
+from vdbejax.results.curves import WINDOW
 from vdbejax.results.folder_lock import check_output_paths, mark, output_folder, unmark
 from vdbejax.results.policy import POLICY_COLUMNS
-from vdbejax.results.solving import WINDOW, summarize_solving
+from vdbejax.results.solving import summarize_solving
 from vdbejax.runs import RunOptions, UntilSolved
 from vdbejax.runs.batching import check_run_size
 from vdbejax.runs.estimate import StudyEstimate, announce, estimate_task
@@ -54,8 +55,8 @@ from vdbejax.studies.depth_report import (
     write_reports,
 )
 from vdbejax.studies.folder import StudyOutputs
+from vdbejax.studies.scaling import auto_chunk
 from vdbejax.studies.scaling_adaptive import AdaptiveRun, train_until_solved
-from vdbejax.studies.scaling_study import auto_chunk
 from vdbejax.validation import INT32_MAX, UINT32_MAX, check_bool, check_instance, check_int
 
 FAMILIES = ("deepsea", "chain")

@@ -9,7 +9,7 @@ leave the batch — they cost no more compute — and the others continue from t
 Every agent draws from its own random stream, so an agent's returns do not depend on when
 the others stop: up to its stop episode they equal, bit for bit, those of a fixed-budget
 :func:`~vdbejax.run_grid` with the same settings, seeds and root seed
-(``tests/test_scaling.py``). Every name here is also importable from :mod:`vdbejax.studies.scaling`.
+(``tests/test_scaling.py``).
 """
 from __future__ import annotations
 
@@ -21,9 +21,10 @@ from typing import Any
 import numpy as np
 
 from vdbejax.methods.agents import AgentOptions, Setting
+from vdbejax.results.curves import WINDOW
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.policy import policy_summary
-from vdbejax.results.solving import FRACTION, WINDOW, SolveTimes, episodes_to_converge
+from vdbejax.results.solving import FRACTION, SolveTimes, episodes_to_converge
 from vdbejax.runs.options import RunOptions, study_run
 
 

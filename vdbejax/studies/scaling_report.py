@@ -8,7 +8,7 @@ and what this module draws from the rows: ``scaling.md`` (:func:`scaling_markdow
 :func:`load_scaling` reads a folder back, so the report redraws without training.
 
 It takes the rows as they are and imports nothing of the runner (the data flow one way:
-runner → results → report); every name here is also importable from :mod:`vdbejax.studies.scaling`.
+runner → results → report).
 """
 from __future__ import annotations
 
@@ -298,6 +298,7 @@ __all__ = [
     "growth_exponents",
     "load_scaling",
     "method_label",
+    "param_text",
     "scaling_figure",
     "scaling_markdown",
     "write_reports",

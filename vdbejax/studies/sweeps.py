@@ -43,12 +43,7 @@ from vdbejax.runs.estimate import announce_settings
 from vdbejax.runs.options import study_run
 from vdbejax.studies import train_in_folder
 from vdbejax.studies.learner_defaults import learner_defaults
-from vdbejax.studies.sweep_file import (  # noqa: F401 (the sweep file's names, here since 0.1)
-    SWEEP_KEYS,
-    absolute_files,
-    read_sweep_file,
-    sweep_settings,
-)
+from vdbejax.studies.sweep_file import absolute_files, sweep_settings
 from vdbejax.studies.task_names import (
     load_plugins,
     make_task,

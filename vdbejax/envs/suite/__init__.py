@@ -20,7 +20,7 @@ gives the families with a generator of instances, and
 :data:`DEFAULT_SUITE` / :func:`suite_tasks` are the default benchmark. Each MDP is named
 by its registry name, except ``variant:NxK``, which keeps its builder's name
 ``table_cleaning_nN_kK`` so that it is the very MDP that
-``vdbejax.studies.sweeps.make_task`` has always built (the name enters run
+``vdbejax.studies.task_names.make_task`` has always built (the name enters run
 fingerprints). Exact optima: :func:`vdbejax.envs.solvers.best_return`.
 """
 from __future__ import annotations
@@ -115,7 +115,7 @@ DEFAULT_SUITE = ("riverswim", "riverswim_normalised", "sixarms", "chain", "deeps
 #: Families whose name may carry a size (``family:N``), with their default size.
 DEFAULT_SIZES = {"riverswim": 6, "riverswim_normalised": 6, "chain": 5, "deepsea": 10,
                  "gaussian_bandit": 10, "bernoulli_bandit": 10, "testbed": 10}
-#: The table-cleaning tasks' default truncation (``vdbejax.studies.sweeps.make_task``'s).
+#: The table-cleaning tasks' default truncation (``vdbejax.studies.task_names.make_task``'s).
 TABLE_CLEANING_HORIZON = 100
 #: The families (:func:`parse_name`) with a generator of instances.
 FAMILY_NAMES = (*bandits.FAMILIES, "garnet", "variant")
@@ -141,7 +141,7 @@ def parse_name(name: object) -> tuple[str, tuple[int, ...]]:
     family, colon, size = name.partition(":")
     if family == "variant" and colon:
         sections, x, goblets = size.partition("x")
-        if x and sections.isdigit() and goblets.isdigit():  # as sweeps.make_task reads it
+        if x and sections.isdigit() and goblets.isdigit():  # as task_names.make_task reads it
             return family, (int(sections), int(goblets))
         raise _invalid(name)
     if family == "garnet" and colon:
