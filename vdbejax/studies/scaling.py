@@ -54,6 +54,8 @@ from vdbejax.studies.folder import StudyOutputs
 from vdbejax.studies.scaling_adaptive import AdaptiveRun, train_until_solved
 from vdbejax.studies.scaling_report import (
     CSV_FILE,
+    FIGURE_FILE,
+    MARKDOWN_FILE,
     META_FILE,
     ROW_COLUMNS,
     RUNS_FOLDER,
