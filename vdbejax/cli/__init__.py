@@ -45,8 +45,7 @@ from vdbejax.cli.study_commands import (
     scale_command,
     sweep_file_command,
 )
-from vdbejax.results.io import RETURNS_FILE
-from vdbejax.studies import CHECKPOINT_FILE
+from vdbejax.results.io import CHECKPOINT_FILE, RETURNS_FILE
 
 #: ``vdbejax --help``'s description (plain text: argparse prints it as is).
 DESCRIPTION = ("Exploration strategies in tabular RL: 'vdbejax reproduce --out DIR' reproduces"

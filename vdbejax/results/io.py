@@ -13,14 +13,18 @@ import os
 import secrets
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 
-from vdbejax.methods.agents import Setting
 from vdbejax.validation import json_plain
 
+if TYPE_CHECKING:  # read at run time only where settings are loaded: importing this module
+    from vdbejax.methods.agents import Setting  # (the CLI does) does not import JAX
+
 RETURNS_FILE = "returns.npz"
+#: A command's checkpoint in its result folder (``--resume`` continues from it).
+CHECKPOINT_FILE = "checkpoint.npz"
 CONFIGS_FILE = "configs.csv"
 META_FILE = "meta.json"
 #: The raw result files of a run (GridResult.save).
@@ -150,6 +154,8 @@ def load_settings(path: str | os.PathLike) -> list[Setting]:
     Raises:
       ValueError: a missing column, or config indices that are not 0, 1, … once each.
     """
+    from vdbejax.methods.agents import Setting
+
     rows = read_csv(path)
     try:
         indices = [int(r["config"]) for r in rows]

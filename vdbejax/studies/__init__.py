@@ -6,8 +6,8 @@
   :class:`StudyOutputs`: what ``vdbejax scale``, ``bench`` and ``depth`` write besides
   their tables.
 """
+from vdbejax.results.io import CHECKPOINT_FILE
 from vdbejax.studies.folder import (
-    CHECKPOINT_FILE,
     StudyOutputs,
     checkpoint_files,
     train_in_folder,

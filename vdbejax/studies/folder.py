@@ -42,13 +42,13 @@ from vdbejax.results.folder_lock import (
     save_run,
 )
 from vdbejax.results.grid_result import GridResult
+from vdbejax.results.io import CHECKPOINT_FILE
 from vdbejax.runs.checkpoint import log_path, remove_checkpoint
 from vdbejax.runs.estimate import announce, estimate_prepared
 from vdbejax.runs.grid import PreparedGrid, run_prepared
 from vdbejax.validation import check_bool
 
 T = TypeVar("T")
-CHECKPOINT_FILE = "checkpoint.npz"
 
 
 @dataclasses.dataclass(frozen=True)
