@@ -97,6 +97,39 @@ def test_replicates_count_and_headline():
     assert claim.checks[0].replicates_passed == 3
 
 
+def test_claims_csv_gives_estimates_intervals_and_bounds_their_own_columns(tmp_path):
+    from vdbejax.results import io
+    from vdbejax.results.claim_report import CLAIMS_COLUMNS, write_claims
+
+    result = grid([0.2, 0.5, 0.9], seeds=30, replicates=2)
+    scores = score_claims(result, claims(
+        {"setting": G1, "above": 0.8}, {"setting": G1, "higher_than": G0},
+        {"setting": G1, "beats": G0, "probability_above": 0.9},
+        {"setting": G1, "near_best": True, "near": 0.2},
+        {"not": {"setting": G0, "above": 0.8}}))
+    write_claims(tmp_path, scores, result.meta, "")
+    rows = io.read_csv(tmp_path / "claims.csv")
+    assert list(rows[0]) == CLAIMS_COLUMNS and len(rows) == 5 * 3
+    assert [r["replicate"] for r in rows[::5]] == ["", "0", "1"]
+    above, versus, beats, near, combined = rows[:5]
+    finals = result.returns[:, :, -1]
+    assert (above["metric"], above["setting"], float(above["bound"])) == (
+        "final_return", G1, 0.8)
+    assert float(above["estimate"]) == pytest.approx(finals[2].mean(), abs=1e-5)
+    assert float(above["low"]) < float(above["estimate"]) < float(above["high"])
+    assert above["other_setting"] == above["other_estimate"] == ""
+    assert (versus["other_setting"], versus["bound"]) == (G0, "")
+    assert float(versus["other_estimate"]) == pytest.approx(finals[0].mean(), abs=1e-5)
+    assert float(versus["other_low"]) < float(versus["other_high"]) < float(versus["low"])
+    assert (beats["metric"], beats["other_setting"], beats["bound"]) == (
+        "probability_of_improvement", G0, "0.9")
+    assert float(beats["estimate"]) == 1.0
+    assert float(near["bound"]) == pytest.approx(0.8)  # the best return 1 less near 0.2
+    assert combined["metric"] == combined["estimate"] == "" and combined["outcome"] == "holds"
+    # A replicate's row reads that replicate's agents.
+    assert float(rows[5]["estimate"]) == pytest.approx(finals[2, :30].mean(), abs=1e-5)
+
+
 @pytest.mark.parametrize("check, message", [
     ({"setting": "qlearning/egreedy/epsilon=0.5", "above": 1},
      r"claims\[0\]\.checks\[0\]: setting=qlearning/egreedy/epsilon=0.5 is invalid: it names"
@@ -160,6 +193,11 @@ def test_a_study_scores_its_claims_where_its_results_are(tmp_path, capsys):
     rows = io.read_csv(out / "claims.csv")
     assert [(r["check"], r["agents"], r["outcome"]) for r in rows] == [
         ("1", "all agents", "holds"), ("2", "all agents", "holds")]
+    assert [(r["metric"], r["setting"], r["bound"]) for r in rows] == [
+        ("optimal_actions", "sample_average/egreedy/epsilon=0.1", "1.01"),
+        ("optimal_actions", "sample_average/egreedy/epsilon=0", "1.01")]
+    assert all(float(r["low"]) <= float(r["estimate"]) <= float(r["high"]) < 1.01
+               for r in rows)
     meta = io.load_json(out / "meta.json")
     assert meta["claims_digest"] and meta["sweep"]["claims"][0]["claim"].startswith("both")
     # Claims written after the run: scored without training, and said so.
@@ -170,7 +208,9 @@ def test_a_study_scores_its_claims_where_its_results_are(tmp_path, capsys):
     report = (out / "claims.md").read_text()
     assert "written after the run" in report and "## Claim 1: partly" in report
     assert cli.main(["export", str(out), "--tables", "claims"]) == 0
-    assert "partly" in (out / "claims_long.csv").read_text()
+    exported = io.read_csv(out / "claims_long.csv")
+    assert "partly" in {r["claim_verdict"] for r in exported}
+    assert exported[0]["metric"] == "optimal_actions" and exported[0]["bound"] == "2"
 
 
 @pytest.mark.parametrize("claim, message", [

@@ -34,6 +34,7 @@ from vdbejax.results.verdicts import (
     ClaimResult,
     Estimate,
     Outcome,
+    Reading,
     all_of,
     any_of,
     at_most,
@@ -43,6 +44,10 @@ from vdbejax.results.verdicts import (
     negate,
     point,
 )
+
+#: The ``metric`` a ``beats`` check reads (``claims.csv``): the probability of improvement
+#: ``P(A > B)`` of the agents' final returns.
+PROBABILITY = "probability_of_improvement"
 
 
 def _row_estimate(row: SummaryRow, metric: str) -> Estimate:
@@ -99,7 +104,7 @@ def _better(reader: _Reader, a: int, b: int, metric: str) -> Outcome:
     return less(x, y) if metric in LOWER_IS_BETTER else less(y, x)
 
 
-def _leaf(check: CheckSpec, reader: _Reader) -> tuple[str, Outcome]:
+def _leaf(check: CheckSpec, reader: _Reader) -> Check:
     settings = reader.result.settings
     if check.kind in ("best", "rank"):
         values = axis_settings(check, settings)
@@ -110,18 +115,21 @@ def _leaf(check: CheckSpec, reader: _Reader) -> tuple[str, Outcome]:
         name = f"{check.axis} among {settings[chosen[0]].learner}/{settings[chosen[0]].explorer}"
         if check.kind == "best":
             outcome = all_of(_better(reader, c, o, check.metric) for c in chosen for o in others)
-            return (f"{check.metric}: the best {check.axis} are"
-                    f" {', '.join(map(str, check.values))} ({name}: their intervals above"
-                    " every other value's)", outcome)
+            return Check(f"{check.metric}: the best {check.axis} are"
+                         f" {', '.join(map(str, check.values))} ({name}: their intervals"
+                         " above every other value's)", outcome,
+                         reading=Reading(check.metric))
         (mine,) = chosen
         above = sum(_better(reader, o, mine, check.metric) is True for o in others)
         below = sum(_better(reader, mine, o, check.metric) is True for o in others)
         outcome = (False if above > check.rank - 1 or below > len(values) - check.rank else
                    True if above == check.rank - 1 and below == len(values) - check.rank
                    else None)
-        return (f"{check.metric}: {check.axis} = {check.values[0]} ranks {check.rank} of"
-                f" {len(values)} ({name}: {above} apart above it, {below} apart below)",
-                outcome)
+        return Check(f"{check.metric}: {check.axis} = {check.values[0]} ranks {check.rank} of"
+                     f" {len(values)} ({name}: {above} apart above it, {below} apart below)",
+                     outcome, reading=Reading(check.metric, settings[mine].label,
+                                              reader.estimate(mine, check.metric),
+                                              bound=check.rank))
     assert check.setting is not None
     mine = select_one(check.setting, settings, check.where, "setting")
     label = settings[mine].label
@@ -132,7 +140,8 @@ def _leaf(check: CheckSpec, reader: _Reader) -> tuple[str, Outcome]:
         text = (f"P({label} > {settings[other].label}) {p.value:.3g} [{p.low:.3g},"
                 f" {p.high:.3g}] above {check.bound:g}")
         reader.shown[text] = None
-        return text, less(point(check.bound), p)
+        return Check(text, less(point(check.bound), p), reading=Reading(
+            PROBABILITY, label, p, settings[other].label, bound=check.bound))
     x = reader.estimate(mine, check.metric)
     shown = reader.text(mine, check.metric)
     if check.other is not None:
@@ -142,29 +151,35 @@ def _leaf(check: CheckSpec, reader: _Reader) -> tuple[str, Outcome]:
             "higher_than": lambda: less(y, x), "lower_than": lambda: less(x, y),
             "earlier_than": lambda: less(x, y), "no_later_than": lambda: at_most(x, y)}
         word = check.kind.replace("_", " ")
-        return f"{shown} {word} {reader.text(other, check.metric)}", decide[check.kind]()
+        return Check(f"{shown} {word} {reader.text(other, check.metric)}",
+                     decide[check.kind](), reading=Reading(
+                         check.metric, label, x, settings[other].label, y))
     if check.kind == "above":
-        return f"{shown} above {check.bound:g}", less(point(check.bound), x)
+        return Check(f"{shown} above {check.bound:g}", less(point(check.bound), x),
+                     reading=Reading(check.metric, label, x, bound=check.bound))
     if check.kind == "below":
-        return f"{shown} below {check.bound:g}", less(x, point(check.bound))
+        return Check(f"{shown} below {check.bound:g}", less(x, point(check.bound)),
+                     reading=Reading(check.metric, label, x, bound=check.bound))
     if check.kind == "about":
         low, high = (1 - check.tolerance) * check.bound, (1 + check.tolerance) * check.bound
-        return (f"{shown} about {check.bound:g} (±{check.tolerance:.0%}: {low:.4g}–{high:.4g})",
-                inside(x, min(low, high), max(low, high)))
+        return Check(f"{shown} about {check.bound:g} (±{check.tolerance:.0%}:"
+                     f" {low:.4g}–{high:.4g})", inside(x, min(low, high), max(low, high)),
+                     reading=Reading(check.metric, label, x, bound=check.bound))
     best = float(reader.result.meta["best_return"])
-    return (f"{shown} within {check.bound:g} of the best return {best:.4g}",
-            at_most(point(best - check.bound), x))
+    return Check(f"{shown} within {check.bound:g} of the best return {best:.4g}",
+                 at_most(point(best - check.bound), x),
+                 reading=Reading(check.metric, label, x, bound=best - check.bound))
 
 
-def _check(check: CheckSpec, reader: _Reader) -> tuple[str, Outcome]:
+def _check(check: CheckSpec, reader: _Reader) -> Check:
     if not check.parts:
         return _leaf(check, reader)
     parts = [_check(part, reader) for part in check.parts]
     if check.kind == "not":
-        return f"not ({parts[0][0]})", negate(parts[0][1])
+        return Check(f"not ({parts[0].description})", negate(parts[0].passed))
     combine = all_of if check.kind == "all" else any_of
-    return (f"{check.kind} of: " + "; ".join(f"({text})" for text, _ in parts),
-            combine(outcome for _, outcome in parts))
+    return Check(f"{check.kind} of: " + "; ".join(f"({part.description})" for part in parts),
+                 combine(part.passed for part in parts))
 
 
 def _score(result: GridResult, rows: list[SummaryRow],
@@ -172,7 +187,7 @@ def _score(result: GridResult, rows: list[SummaryRow],
     scored = []
     for number, claim in enumerate(claims, 1):
         reader = _Reader(result, rows)
-        checks = [Check(*_check(check, reader)) for check in claim.checks]
+        checks = [_check(check, reader) for check in claim.checks]
         scored.append(ClaimResult(number, claim.claim, claim.stated, "; ".join(reader.shown),
                                   checks))
     return scored
@@ -226,4 +241,4 @@ def score_claims(result: GridResult, claims: Sequence[ClaimSpec],
     return ClaimScores(pooled, scored)
 
 
-__all__ = ["ClaimScores", "recorded_metrics", "score_claims"]
+__all__ = ["PROBABILITY", "ClaimScores", "recorded_metrics", "score_claims"]
