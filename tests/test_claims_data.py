@@ -130,6 +130,61 @@ def test_claims_csv_gives_estimates_intervals_and_bounds_their_own_columns(tmp_p
     assert float(rows[5]["estimate"]) == pytest.approx(finals[2, :30].mean(), abs=1e-5)
 
 
+def late(result, config, until):
+    """``result`` with setting ``config``'s agents at 0 before episode ``until``."""
+    result.returns[config, :, :until] = 0.0
+    return result
+
+
+def test_a_ranked_selector_picks_the_best_or_worst_setting_by_its_results():
+    result = grid([0.2, 0.9, 0.95])
+    egreedy = {"explorer": "egreedy"}
+    scores = score_claims(result, claims(
+        {"setting": {"best": egreedy}, "above": 0.5},
+        {"setting": {"worst": egreedy, "by": "final_return"}, "below": 0.5},
+        {"setting": {"best": {"epsilon": 0.01}}, "lower_than": {"best": {"epsilon": 0.1}}}))
+    assert [c.reading.setting for c in scores.claims[0].checks] == [G1, G0, G01]
+    assert scores.claims[0].verdict == "reproduced"
+    # Within TIE (0.01) of the best IQM, the setting that converges first is the best.
+    tied = late(grid([0.2, 0.9, 0.905], episodes=300), 2, 60)
+    picked = score_claims(tied, claims({"setting": {"best": egreedy}, "above": 0.5}))
+    assert picked.claims[0].checks[0].reading.setting == G01
+    apart = late(grid([0.2, 0.9, 0.95], episodes=300), 2, 60)
+    picked = score_claims(apart, claims({"setting": {"best": egreedy}, "above": 0.5}))
+    assert picked.claims[0].checks[0].reading.setting == G1
+
+
+def test_a_factor_scales_the_other_settings_estimate():
+    # ε = 0 converges about 10 episodes after ε = 0.01 (59 and 49, intervals apart).
+    result = late(late(grid([0.99, 0.99], episodes=200, spread=0.005), 0, 40), 1, 30)
+    earlier = {"setting": G0, "no_later_than": G01}
+    assert verdicts(result, earlier)[0] == [False]
+    scored = score_claims(result, claims({**earlier, "factor": 2})).claims[0].checks[0]
+    assert scored.passed is True and "no later than 2 ×" in scored.description
+    assert scored.reading.other_estimate.value == 2 * score_claims(
+        result, claims(earlier)).claims[0].checks[0].reading.other_estimate.value
+
+
+@pytest.mark.parametrize("check, message", [
+    ({"setting": {"best": {"explorer": "softmax"}}, "above": 1},
+     r"setting.best=\{explorer = 'softmax'\} is invalid: it names no setting"),
+    ({"setting": {"best": {"explorer": "egreedy"}, "by": "speed"}, "above": 1},
+     "setting.by='speed' is invalid: allowed are final_return"),
+    ({"setting": {"best": G0, "worst": G1}, "above": 1}, "a ranked selector is"),
+    ({"setting": {"best": {"explorer": "egreedy"}}, "higher_than": G0},
+     "higher_than=.* is invalid: it may be the setting checked"),
+    ({"setting": {"worst": {"explorer": "egreedy"}, "by": "optimal_actions"}, "above": 1},
+     "setting.by='optimal_actions' is invalid: the run does not record it"),
+    ({"setting": G0, "higher_than": G1, "factor": 0}, "factor=0 is invalid: must be a number > 0"),
+    ({"setting": G0, "above": 1, "factor": 2}, "'factor' is invalid with above"),
+])
+def test_bad_ranked_selectors_and_factors_are_one_line(check, message):
+    result = grid([0.2, 0.5, 0.9], seeds=4, episodes=3)
+    with pytest.raises(ValueError, match=message) as error:
+        check_claims(claims(check, sentence="s"), result.settings, ())
+    assert "\n" not in str(error.value)
+
+
 @pytest.mark.parametrize("check, message", [
     ({"setting": "qlearning/egreedy/epsilon=0.5", "above": 1},
      r"claims\[0\]\.checks\[0\]: setting=qlearning/egreedy/epsilon=0.5 is invalid: it names"

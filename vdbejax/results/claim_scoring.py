@@ -17,12 +17,15 @@ from vdbejax.results.analysis import config_scale, summarize, task_scale
 from vdbejax.results.bootstrap import interquartile_mean_ci, probability_of_improvement_ci
 from vdbejax.results.claim_spec import (
     LOWER_IS_BETTER,
+    TIE,
     CheckSpec,
     ClaimSpec,
+    Ranked,
+    Selector,
     axis_members,
     axis_settings,
+    candidates,
     check_claims,
-    select_one,
 )
 from vdbejax.results.curves import LAST, final_return
 from vdbejax.results.grid_result import GridResult
@@ -88,6 +91,20 @@ class _Reader:
             self.shown[self.text(config, metric)] = None
         return self.cache[key]
 
+    def pick(self, selector: Selector, where: str, key: str) -> int:
+        """The setting a selector names (a :class:`Ranked` one: chosen by this result's
+        estimates)."""
+        found = candidates(selector, self.result.settings, where, key)
+        if not isinstance(selector, Ranked):
+            return found[0]
+        sign = -1.0 if selector.by in LOWER_IS_BETTER else 1.0
+        value = {c: sign * self.estimate(c, selector.by).value for c in found}
+        if selector.pick == "worst":
+            return min(found, key=lambda c: value[c])
+        top = max(value.values())
+        tied = [c for c in found if value[c] >= top - TIE]
+        return min(tied, key=lambda c: (self.rows[c].convergence_episode, -value[c]))
+
     def text(self, config: int, metric: str) -> str:
         x = self.cache[(config, metric)]
         label = self.result.settings[config].label
@@ -131,11 +148,11 @@ def _leaf(check: CheckSpec, reader: _Reader) -> Check:
                                               reader.estimate(mine, check.metric),
                                               bound=check.rank))
     assert check.setting is not None
-    mine = select_one(check.setting, settings, check.where, "setting")
+    mine = reader.pick(check.setting, check.where, "setting")
     label = settings[mine].label
     if check.kind == "beats":
         assert check.other is not None
-        other = select_one(check.other, settings, check.where, check.kind)
+        other = reader.pick(check.other, check.where, check.kind)
         p = Estimate(*probability_of_improvement_ci(reader.finals(mine), reader.finals(other)))
         text = (f"P({label} > {settings[other].label}) {p.value:.3g} [{p.low:.3g},"
                 f" {p.high:.3g}] above {check.bound:g}")
@@ -145,12 +162,13 @@ def _leaf(check: CheckSpec, reader: _Reader) -> Check:
     x = reader.estimate(mine, check.metric)
     shown = reader.text(mine, check.metric)
     if check.other is not None:
-        other = select_one(check.other, settings, check.where, check.kind)
-        y = reader.estimate(other, check.metric)
+        other = reader.pick(check.other, check.where, check.kind)
+        y = reader.estimate(other, check.metric).scaled(check.factor)
         decide: dict[str, Callable[[], Outcome]] = {
             "higher_than": lambda: less(y, x), "lower_than": lambda: less(x, y),
             "earlier_than": lambda: less(x, y), "no_later_than": lambda: at_most(x, y)}
-        word = check.kind.replace("_", " ")
+        word = check.kind.replace("_", " ") + (
+            f" {check.factor:g} ×" if check.factor != 1 else "")
         return Check(f"{shown} {word} {reader.text(other, check.metric)}",
                      decide[check.kind](), reading=Reading(
                          check.metric, label, x, settings[other].label, y))
