@@ -165,6 +165,27 @@ def test_a_factor_scales_the_other_settings_estimate():
         result, claims(earlier)).claims[0].checks[0].reading.other_estimate.value
 
 
+def test_optional_checks_are_left_out_where_their_settings_are_absent():
+    result = grid([0.2, 0.9])  # no ε = 0.1
+    absent = {"setting": G1, "above": 0.5}
+    stated = parse_claims([
+        {"claim": "one", "checks": [{**absent, "optional": True}]},
+        {"claim": "two", "checks": [{"setting": G01, "above": 0.5},
+                                    {"not": {**absent}, "optional": True},
+                                    {"setting": {"best": {"epsilon": 0.1}}, "above": 0.5,
+                                     "optional": True}]}])
+    scores = score_claims(result, stated)
+    assert [(c.number, len(c.checks), c.verdict) for c in scores.claims] == [
+        (2, 1, "reproduced")]
+    with pytest.raises(ValueError, match="names no setting"):
+        score_claims(result, claims(absent))
+    with pytest.raises(ValueError, match="'optional' is invalid inside a combination"):
+        claims({"not": {**absent, "optional": True}})
+    # Present, an optional check is scored as any other.
+    full = score_claims(grid([0.2, 0.9, 0.95]), stated)
+    assert [len(c.checks) for c in full.claims] == [1, 3]
+
+
 @pytest.mark.parametrize("check, message", [
     ({"setting": {"best": {"explorer": "softmax"}}, "above": 1},
      r"setting.best=\{explorer = 'softmax'\} is invalid: it names no setting"),

@@ -26,6 +26,7 @@ from vdbejax.results.claim_spec import (
     axis_settings,
     candidates,
     check_claims,
+    scored_checks,
 )
 from vdbejax.results.curves import LAST, final_return
 from vdbejax.results.grid_result import GridResult
@@ -205,7 +206,9 @@ def _score(result: GridResult, rows: list[SummaryRow],
     scored = []
     for number, claim in enumerate(claims, 1):
         reader = _Reader(result, rows)
-        checks = [_check(check, reader) for check in claim.checks]
+        checks = [_check(check, reader) for check in scored_checks(claim, result.settings)]
+        if not checks:  # every check optional, and their settings absent
+            continue
         scored.append(ClaimResult(number, claim.claim, claim.stated, "; ".join(reader.shown),
                                   checks))
     return scored
@@ -217,7 +220,9 @@ class ClaimScores:
 
     Attributes:
       claims: each claim's pooled result, with its replicates' counts and verdicts (its
-        headline: :attr:`~vdbejax.results.verdicts.ClaimResult.verdict`).
+        headline: :attr:`~vdbejax.results.verdicts.ClaimResult.verdict`); a claim whose
+        checks are all optional and absent from the run is left out (the others keep
+        their numbers).
       replicates: per replicate, the claims scored on its agents (empty for one).
     """
 

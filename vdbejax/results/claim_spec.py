@@ -127,6 +127,8 @@ class CheckSpec:
       axis, among, values, rank: an axis comparison's axis, settings, best values (or
         ``rank``'s one value) and rank.
       parts: the checks an ``all``, ``any`` or ``not`` combines.
+      optional: a claim's check left out where a setting it names is absent from the run
+        (:func:`present`), rather than refused.
     """
 
     kind: str
@@ -142,6 +144,7 @@ class CheckSpec:
     values: tuple[Any, ...] = ()
     rank: int = 0
     parts: tuple[CheckSpec, ...] = ()
+    optional: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,10 +188,24 @@ def _selector(value: Any, where: str, key: str) -> Selector:
     return Ranked(picks[0], _named(value[picks[0]], where, f"{key}.{picks[0]}"), by)
 
 
+def _top_check(data: Any, where: str) -> CheckSpec:
+    """A claim's check: :func:`_check`, with ``optional``."""
+    if not isinstance(data, Mapping) or "optional" not in data:
+        return _check(data, where)
+    if not isinstance(data["optional"], bool):
+        raise ValueError(f"{where}: optional={data['optional']!r} is invalid: must be true"
+                         " or false")
+    rest = {key: value for key, value in data.items() if key != "optional"}
+    return dataclasses.replace(_check(rest, where), optional=data["optional"])
+
+
 def _check(data: Any, where: str) -> CheckSpec:
     if not isinstance(data, Mapping):
         raise ValueError(f"{where}={data!r} is invalid: must be a table {{setting, metric,"
                          f" comparison}} (comparisons: {', '.join(COMPARISONS)})")
+    if "optional" in data:
+        raise ValueError(f"{where}: 'optional' is invalid inside a combination: give it on"
+                         " the claim's check")
     unknown = sorted(set(data) - set(CHECK_KEYS))
     if unknown:
         raise ValueError(f"{where}: unknown key {unknown[0]!r}: allowed are"
@@ -311,7 +328,8 @@ def parse_claims(data: Any) -> tuple[ClaimSpec, ...]:
             raise ValueError(f"{where} ({sentence!r}): checks={checks!r} is invalid: must be a"
                              " non-empty list of checks")
         claims.append(ClaimSpec(sentence, tuple(
-            _check(check, f"{where}.checks[{j}]") for j, check in enumerate(checks)), stated))
+            _top_check(check, f"{where}.checks[{j}]") for j, check in enumerate(checks)),
+            stated))
     return tuple(claims)
 
 
@@ -421,6 +439,21 @@ def axis_members(check: CheckSpec, settings: Sequence[Setting]) -> list[int]:
     return chosen
 
 
+def present(check: CheckSpec, settings: Sequence[Setting]) -> bool:
+    """Whether every setting a check names (however deep) is in the run: an ``optional``
+    check is scored only where it is, and left out otherwise."""
+    named = [selector.among if isinstance(selector, Ranked) else selector
+             for leaf in leaves(check) for selector in (leaf.setting, leaf.other, leaf.among)
+             if selector is not None]
+    return all(select(selector, settings) for selector in named)
+
+
+def scored_checks(claim: ClaimSpec, settings: Sequence[Setting]) -> list[CheckSpec]:
+    """A claim's checks scored on a run: all but the ``optional`` ones whose settings are
+    absent (:func:`present`)."""
+    return [check for check in claim.checks if not check.optional or present(check, settings)]
+
+
 def leaves(check: CheckSpec) -> list[CheckSpec]:
     """A check's comparisons (itself, or those it combines, however deep)."""
     return [leaf for part in check.parts for leaf in leaves(part)] if check.parts else [check]
@@ -443,7 +476,7 @@ def check_claims(claims: Sequence[ClaimSpec], settings: Sequence[Setting],
     """
     for i, claim in enumerate(claims):
         try:
-            for check in claim.checks:
+            for check in scored_checks(claim, settings):
                 for leaf in leaves(check):
                     _check_leaf(leaf, settings, recorded)
         except ValueError as error:
@@ -479,5 +512,5 @@ def _check_leaf(leaf: CheckSpec, settings: Sequence[Setting], recorded: Sequence
 __all__ = ["ABOUT", "CHECK_KEYS", "COMPARISONS", "LEVEL", "LOWER_IS_BETTER", "METRICS", "NEAR",
            "RANK_BY", "RECORDED_BY", "SCALED", "TIE", "VERSUS", "CheckSpec", "ClaimSpec",
            "Named", "Ranked", "Selector", "axis_members", "axis_settings", "candidates",
-           "check_claims", "claims_digest", "leaves", "parse_claims", "select", "select_one",
-           "selector_text"]
+           "check_claims", "claims_digest", "leaves", "parse_claims", "present", "scored_checks",
+           "select", "select_one", "selector_text"]
