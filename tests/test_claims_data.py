@@ -97,6 +97,115 @@ def test_replicates_count_and_headline():
     assert claim.checks[0].replicates_passed == 3
 
 
+def test_claims_csv_gives_estimates_intervals_and_bounds_their_own_columns(tmp_path):
+    from vdbejax.results import io
+    from vdbejax.results.claim_report import CLAIMS_COLUMNS, write_claims
+
+    result = grid([0.2, 0.5, 0.9], seeds=30, replicates=2)
+    scores = score_claims(result, claims(
+        {"setting": G1, "above": 0.8}, {"setting": G1, "higher_than": G0},
+        {"setting": G1, "beats": G0, "probability_above": 0.9},
+        {"setting": G1, "near_best": True, "near": 0.2},
+        {"not": {"setting": G0, "above": 0.8}}))
+    write_claims(tmp_path, scores, result.meta, "")
+    rows = io.read_csv(tmp_path / "claims.csv")
+    assert list(rows[0]) == CLAIMS_COLUMNS and len(rows) == 5 * 3
+    assert [r["replicate"] for r in rows[::5]] == ["", "0", "1"]
+    above, versus, beats, near, combined = rows[:5]
+    finals = result.returns[:, :, -1]
+    assert (above["metric"], above["setting"], float(above["bound"])) == (
+        "final_return", G1, 0.8)
+    assert float(above["estimate"]) == pytest.approx(finals[2].mean(), abs=1e-5)
+    assert float(above["low"]) < float(above["estimate"]) < float(above["high"])
+    assert above["other_setting"] == above["other_estimate"] == ""
+    assert (versus["other_setting"], versus["bound"]) == (G0, "")
+    assert float(versus["other_estimate"]) == pytest.approx(finals[0].mean(), abs=1e-5)
+    assert float(versus["other_low"]) < float(versus["other_high"]) < float(versus["low"])
+    assert (beats["metric"], beats["other_setting"], beats["bound"]) == (
+        "probability_of_improvement", G0, "0.9")
+    assert float(beats["estimate"]) == 1.0
+    assert float(near["bound"]) == pytest.approx(0.8)  # the best return 1 less near 0.2
+    assert combined["metric"] == combined["estimate"] == "" and combined["outcome"] == "holds"
+    # A replicate's row reads that replicate's agents.
+    assert float(rows[5]["estimate"]) == pytest.approx(finals[2, :30].mean(), abs=1e-5)
+
+
+def late(result, config, until):
+    """``result`` with setting ``config``'s agents at 0 before episode ``until``."""
+    result.returns[config, :, :until] = 0.0
+    return result
+
+
+def test_a_ranked_selector_picks_the_best_or_worst_setting_by_its_results():
+    result = grid([0.2, 0.9, 0.95])
+    egreedy = {"explorer": "egreedy"}
+    scores = score_claims(result, claims(
+        {"setting": {"best": egreedy}, "above": 0.5},
+        {"setting": {"worst": egreedy, "by": "final_return"}, "below": 0.5},
+        {"setting": {"best": {"epsilon": 0.01}}, "lower_than": {"best": {"epsilon": 0.1}}}))
+    assert [c.reading.setting for c in scores.claims[0].checks] == [G1, G0, G01]
+    assert scores.claims[0].verdict == "reproduced"
+    # Within TIE (0.01) of the best IQM, the setting that converges first is the best.
+    tied = late(grid([0.2, 0.9, 0.905], episodes=300), 2, 60)
+    picked = score_claims(tied, claims({"setting": {"best": egreedy}, "above": 0.5}))
+    assert picked.claims[0].checks[0].reading.setting == G01
+    apart = late(grid([0.2, 0.9, 0.95], episodes=300), 2, 60)
+    picked = score_claims(apart, claims({"setting": {"best": egreedy}, "above": 0.5}))
+    assert picked.claims[0].checks[0].reading.setting == G1
+
+
+def test_a_factor_scales_the_other_settings_estimate():
+    # ε = 0 converges about 10 episodes after ε = 0.01 (59 and 49, intervals apart).
+    result = late(late(grid([0.99, 0.99], episodes=200, spread=0.005), 0, 40), 1, 30)
+    earlier = {"setting": G0, "no_later_than": G01}
+    assert verdicts(result, earlier)[0] == [False]
+    scored = score_claims(result, claims({**earlier, "factor": 2})).claims[0].checks[0]
+    assert scored.passed is True and "no later than 2 ×" in scored.description
+    assert scored.reading.other_estimate.value == 2 * score_claims(
+        result, claims(earlier)).claims[0].checks[0].reading.other_estimate.value
+
+
+def test_optional_checks_are_left_out_where_their_settings_are_absent():
+    result = grid([0.2, 0.9])  # no ε = 0.1
+    absent = {"setting": G1, "above": 0.5}
+    stated = parse_claims([
+        {"claim": "one", "checks": [{**absent, "optional": True}]},
+        {"claim": "two", "checks": [{"setting": G01, "above": 0.5},
+                                    {"not": {**absent}, "optional": True},
+                                    {"setting": {"best": {"epsilon": 0.1}}, "above": 0.5,
+                                     "optional": True}]}])
+    scores = score_claims(result, stated)
+    assert [(c.number, len(c.checks), c.verdict) for c in scores.claims] == [
+        (2, 1, "reproduced")]
+    with pytest.raises(ValueError, match="names no setting"):
+        score_claims(result, claims(absent))
+    with pytest.raises(ValueError, match="'optional' is invalid inside a combination"):
+        claims({"not": {**absent, "optional": True}})
+    # Present, an optional check is scored as any other.
+    full = score_claims(grid([0.2, 0.9, 0.95]), stated)
+    assert [len(c.checks) for c in full.claims] == [1, 3]
+
+
+@pytest.mark.parametrize("check, message", [
+    ({"setting": {"best": {"explorer": "softmax"}}, "above": 1},
+     r"setting.best=\{explorer = 'softmax'\} is invalid: it names no setting"),
+    ({"setting": {"best": {"explorer": "egreedy"}, "by": "speed"}, "above": 1},
+     "setting.by='speed' is invalid: allowed are final_return"),
+    ({"setting": {"best": G0, "worst": G1}, "above": 1}, "a ranked selector is"),
+    ({"setting": {"best": {"explorer": "egreedy"}}, "higher_than": G0},
+     "higher_than=.* is invalid: it may be the setting checked"),
+    ({"setting": {"worst": {"explorer": "egreedy"}, "by": "optimal_actions"}, "above": 1},
+     "setting.by='optimal_actions' is invalid: the run does not record it"),
+    ({"setting": G0, "higher_than": G1, "factor": 0}, "factor=0 is invalid: must be a number > 0"),
+    ({"setting": G0, "above": 1, "factor": 2}, "'factor' is invalid with above"),
+])
+def test_bad_ranked_selectors_and_factors_are_one_line(check, message):
+    result = grid([0.2, 0.5, 0.9], seeds=4, episodes=3)
+    with pytest.raises(ValueError, match=message) as error:
+        check_claims(claims(check, sentence="s"), result.settings, ())
+    assert "\n" not in str(error.value)
+
+
 @pytest.mark.parametrize("check, message", [
     ({"setting": "qlearning/egreedy/epsilon=0.5", "above": 1},
      r"claims\[0\]\.checks\[0\]: setting=qlearning/egreedy/epsilon=0.5 is invalid: it names"
@@ -160,6 +269,11 @@ def test_a_study_scores_its_claims_where_its_results_are(tmp_path, capsys):
     rows = io.read_csv(out / "claims.csv")
     assert [(r["check"], r["agents"], r["outcome"]) for r in rows] == [
         ("1", "all agents", "holds"), ("2", "all agents", "holds")]
+    assert [(r["metric"], r["setting"], r["bound"]) for r in rows] == [
+        ("optimal_actions", "sample_average/egreedy/epsilon=0.1", "1.01"),
+        ("optimal_actions", "sample_average/egreedy/epsilon=0", "1.01")]
+    assert all(float(r["low"]) <= float(r["estimate"]) <= float(r["high"]) < 1.01
+               for r in rows)
     meta = io.load_json(out / "meta.json")
     assert meta["claims_digest"] and meta["sweep"]["claims"][0]["claim"].startswith("both")
     # Claims written after the run: scored without training, and said so.
@@ -170,7 +284,9 @@ def test_a_study_scores_its_claims_where_its_results_are(tmp_path, capsys):
     report = (out / "claims.md").read_text()
     assert "written after the run" in report and "## Claim 1: partly" in report
     assert cli.main(["export", str(out), "--tables", "claims"]) == 0
-    assert "partly" in (out / "claims_long.csv").read_text()
+    exported = io.read_csv(out / "claims_long.csv")
+    assert "partly" in {r["claim_verdict"] for r in exported}
+    assert exported[0]["metric"] == "optimal_actions" and exported[0]["bound"] == "2"
 
 
 @pytest.mark.parametrize("claim, message", [

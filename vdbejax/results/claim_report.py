@@ -13,14 +13,16 @@ from typing import Any
 from vdbejax.results import io
 from vdbejax.results.claim_scoring import ClaimScores
 from vdbejax.results.markdown import table_lines
-from vdbejax.results.verdicts import STABLE, Check, ClaimResult, mark, stable_count
+from vdbejax.results.verdicts import STABLE, Check, ClaimResult, Reading, mark, stable_count
 
 #: A study's claims report (markdown) and its tidy table, beside ``summary.csv``.
 CLAIMS_REPORT_FILE = "claims.md"
 CLAIMS_FILE = "claims.csv"
 #: ``claims.csv``'s columns: one row per claim × check × (pooled agents, each replicate).
-CLAIMS_COLUMNS = ["claim", "sentence", "check", "description", "agents", "outcome",
-                  "claim_verdict", "headline"]
+CLAIMS_COLUMNS = ["claim", "sentence", "check", "description", "metric", "setting",
+                  "estimate", "low", "high", "other_setting", "other_estimate", "other_low",
+                  "other_high", "bound", "agents", "replicate", "outcome", "claim_verdict",
+                  "headline"]
 OUTCOME_WORDS = {True: "holds", False: "fails", None: "undecided"}
 
 
@@ -106,18 +108,33 @@ def verdict_table(claims: Sequence[ClaimResult], replicates: int) -> list[str]:
                        rows)
 
 
+def reading_columns(reading: Reading) -> dict[str, Any]:
+    """A check's reading as ``claims.csv``'s columns (empty where it has none)."""
+    columns: dict[str, Any] = {"metric": reading.metric, "setting": reading.setting,
+                               "other_setting": reading.other_setting,
+                               "bound": "" if reading.bound is None else float(reading.bound)}
+    for prefix, x in (("", reading.estimate), ("other_", reading.other_estimate)):
+        columns.update({f"{prefix}estimate": "" if x is None else x.value,
+                        f"{prefix}low": "" if x is None else x.low,
+                        f"{prefix}high": "" if x is None else x.high})
+    return columns
+
+
 def claims_rows(scores: ClaimScores) -> list[dict[str, Any]]:
-    """``claims.csv``'s rows: each check's description (its estimates and intervals) and
-    outcome, and its claim's verdict, on all agents (``agents`` = ``all agents``) and on
-    each replicate (``replicate r``); ``headline`` is the claim's headline verdict."""
+    """``claims.csv``'s rows: each check's description and what it read (``metric``, the
+    ``setting`` and its ``estimate`` with its interval ``low``–``high``, the other setting's,
+    the ``bound``: :func:`reading_columns`) and outcome, and its claim's verdict, on all
+    agents (``agents`` = ``all agents``, ``replicate`` empty) and on each replicate
+    (``replicate r``, ``replicate`` = r); ``headline`` is the claim's headline verdict."""
     rows = []
-    scopes = [("all agents", scores.claims),
-              *((f"replicate {r}", claims) for r, claims in enumerate(scores.replicates))]
-    for agents, claims in scopes:
+    scopes: list[tuple[int | str, list[ClaimResult]]] = [
+        ("", scores.claims), *enumerate(scores.replicates)]
+    for r, claims in scopes:
         for claim, pooled in zip(claims, scores.claims, strict=True):
             rows += [{"claim": claim.number, "sentence": claim.claim, "check": j,
-                      "description": check.description, "agents": agents,
-                      "outcome": OUTCOME_WORDS[check.passed],
+                      "description": check.description, **reading_columns(check.reading),
+                      "agents": "all agents" if r == "" else f"replicate {r}",
+                      "replicate": r, "outcome": OUTCOME_WORDS[check.passed],
                       "claim_verdict": claim.pooled_verdict, "headline": pooled.verdict}
                      for j, check in enumerate(claim.checks, 1)]
     return rows
@@ -171,5 +188,5 @@ def write_claims(out_dir: str | os.PathLike, scores: ClaimScores, meta: dict[str
 
 
 __all__ = ["CLAIMS_COLUMNS", "CLAIMS_FILE", "CLAIMS_REPORT_FILE", "DECISION_RULE", "OUTCOME_WORDS",
-           "claims_rows", "flip_lines", "headline_rule", "render_claims", "replicate_outcomes",
-           "undecided_lines", "verdict_table", "write_claims"]
+           "claims_rows", "flip_lines", "headline_rule", "reading_columns", "render_claims",
+           "replicate_outcomes", "undecided_lines", "verdict_table", "write_claims"]

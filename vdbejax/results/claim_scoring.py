@@ -17,12 +17,16 @@ from vdbejax.results.analysis import config_scale, summarize, task_scale
 from vdbejax.results.bootstrap import interquartile_mean_ci, probability_of_improvement_ci
 from vdbejax.results.claim_spec import (
     LOWER_IS_BETTER,
+    TIE,
     CheckSpec,
     ClaimSpec,
+    Ranked,
+    Selector,
     axis_members,
     axis_settings,
+    candidates,
     check_claims,
-    select_one,
+    scored_checks,
 )
 from vdbejax.results.curves import LAST, final_return
 from vdbejax.results.grid_result import GridResult
@@ -34,6 +38,7 @@ from vdbejax.results.verdicts import (
     ClaimResult,
     Estimate,
     Outcome,
+    Reading,
     all_of,
     any_of,
     at_most,
@@ -43,6 +48,10 @@ from vdbejax.results.verdicts import (
     negate,
     point,
 )
+
+#: The ``metric`` a ``beats`` check reads (``claims.csv``): the probability of improvement
+#: ``P(A > B)`` of the agents' final returns.
+PROBABILITY = "probability_of_improvement"
 
 
 def _row_estimate(row: SummaryRow, metric: str) -> Estimate:
@@ -83,6 +92,20 @@ class _Reader:
             self.shown[self.text(config, metric)] = None
         return self.cache[key]
 
+    def pick(self, selector: Selector, where: str, key: str) -> int:
+        """The setting a selector names (a :class:`Ranked` one: chosen by this result's
+        estimates)."""
+        found = candidates(selector, self.result.settings, where, key)
+        if not isinstance(selector, Ranked):
+            return found[0]
+        sign = -1.0 if selector.by in LOWER_IS_BETTER else 1.0
+        value = {c: sign * self.estimate(c, selector.by).value for c in found}
+        if selector.pick == "worst":
+            return min(found, key=lambda c: value[c])
+        top = max(value.values())
+        tied = [c for c in found if value[c] >= top - TIE]
+        return min(tied, key=lambda c: (self.rows[c].convergence_episode, -value[c]))
+
     def text(self, config: int, metric: str) -> str:
         x = self.cache[(config, metric)]
         label = self.result.settings[config].label
@@ -99,7 +122,7 @@ def _better(reader: _Reader, a: int, b: int, metric: str) -> Outcome:
     return less(x, y) if metric in LOWER_IS_BETTER else less(y, x)
 
 
-def _leaf(check: CheckSpec, reader: _Reader) -> tuple[str, Outcome]:
+def _leaf(check: CheckSpec, reader: _Reader) -> Check:
     settings = reader.result.settings
     if check.kind in ("best", "rank"):
         values = axis_settings(check, settings)
@@ -110,61 +133,72 @@ def _leaf(check: CheckSpec, reader: _Reader) -> tuple[str, Outcome]:
         name = f"{check.axis} among {settings[chosen[0]].learner}/{settings[chosen[0]].explorer}"
         if check.kind == "best":
             outcome = all_of(_better(reader, c, o, check.metric) for c in chosen for o in others)
-            return (f"{check.metric}: the best {check.axis} are"
-                    f" {', '.join(map(str, check.values))} ({name}: their intervals above"
-                    " every other value's)", outcome)
+            return Check(f"{check.metric}: the best {check.axis} are"
+                         f" {', '.join(map(str, check.values))} ({name}: their intervals"
+                         " above every other value's)", outcome,
+                         reading=Reading(check.metric))
         (mine,) = chosen
         above = sum(_better(reader, o, mine, check.metric) is True for o in others)
         below = sum(_better(reader, mine, o, check.metric) is True for o in others)
         outcome = (False if above > check.rank - 1 or below > len(values) - check.rank else
                    True if above == check.rank - 1 and below == len(values) - check.rank
                    else None)
-        return (f"{check.metric}: {check.axis} = {check.values[0]} ranks {check.rank} of"
-                f" {len(values)} ({name}: {above} apart above it, {below} apart below)",
-                outcome)
+        return Check(f"{check.metric}: {check.axis} = {check.values[0]} ranks {check.rank} of"
+                     f" {len(values)} ({name}: {above} apart above it, {below} apart below)",
+                     outcome, reading=Reading(check.metric, settings[mine].label,
+                                              reader.estimate(mine, check.metric),
+                                              bound=check.rank))
     assert check.setting is not None
-    mine = select_one(check.setting, settings, check.where, "setting")
+    mine = reader.pick(check.setting, check.where, "setting")
     label = settings[mine].label
     if check.kind == "beats":
         assert check.other is not None
-        other = select_one(check.other, settings, check.where, check.kind)
+        other = reader.pick(check.other, check.where, check.kind)
         p = Estimate(*probability_of_improvement_ci(reader.finals(mine), reader.finals(other)))
         text = (f"P({label} > {settings[other].label}) {p.value:.3g} [{p.low:.3g},"
                 f" {p.high:.3g}] above {check.bound:g}")
         reader.shown[text] = None
-        return text, less(point(check.bound), p)
+        return Check(text, less(point(check.bound), p), reading=Reading(
+            PROBABILITY, label, p, settings[other].label, bound=check.bound))
     x = reader.estimate(mine, check.metric)
     shown = reader.text(mine, check.metric)
     if check.other is not None:
-        other = select_one(check.other, settings, check.where, check.kind)
-        y = reader.estimate(other, check.metric)
+        other = reader.pick(check.other, check.where, check.kind)
+        y = reader.estimate(other, check.metric).scaled(check.factor)
         decide: dict[str, Callable[[], Outcome]] = {
             "higher_than": lambda: less(y, x), "lower_than": lambda: less(x, y),
             "earlier_than": lambda: less(x, y), "no_later_than": lambda: at_most(x, y)}
-        word = check.kind.replace("_", " ")
-        return f"{shown} {word} {reader.text(other, check.metric)}", decide[check.kind]()
+        word = check.kind.replace("_", " ") + (
+            f" {check.factor:g} ×" if check.factor != 1 else "")
+        return Check(f"{shown} {word} {reader.text(other, check.metric)}",
+                     decide[check.kind](), reading=Reading(
+                         check.metric, label, x, settings[other].label, y))
     if check.kind == "above":
-        return f"{shown} above {check.bound:g}", less(point(check.bound), x)
+        return Check(f"{shown} above {check.bound:g}", less(point(check.bound), x),
+                     reading=Reading(check.metric, label, x, bound=check.bound))
     if check.kind == "below":
-        return f"{shown} below {check.bound:g}", less(x, point(check.bound))
+        return Check(f"{shown} below {check.bound:g}", less(x, point(check.bound)),
+                     reading=Reading(check.metric, label, x, bound=check.bound))
     if check.kind == "about":
         low, high = (1 - check.tolerance) * check.bound, (1 + check.tolerance) * check.bound
-        return (f"{shown} about {check.bound:g} (±{check.tolerance:.0%}: {low:.4g}–{high:.4g})",
-                inside(x, min(low, high), max(low, high)))
+        return Check(f"{shown} about {check.bound:g} (±{check.tolerance:.0%}:"
+                     f" {low:.4g}–{high:.4g})", inside(x, min(low, high), max(low, high)),
+                     reading=Reading(check.metric, label, x, bound=check.bound))
     best = float(reader.result.meta["best_return"])
-    return (f"{shown} within {check.bound:g} of the best return {best:.4g}",
-            at_most(point(best - check.bound), x))
+    return Check(f"{shown} within {check.bound:g} of the best return {best:.4g}",
+                 at_most(point(best - check.bound), x),
+                 reading=Reading(check.metric, label, x, bound=best - check.bound))
 
 
-def _check(check: CheckSpec, reader: _Reader) -> tuple[str, Outcome]:
+def _check(check: CheckSpec, reader: _Reader) -> Check:
     if not check.parts:
         return _leaf(check, reader)
     parts = [_check(part, reader) for part in check.parts]
     if check.kind == "not":
-        return f"not ({parts[0][0]})", negate(parts[0][1])
+        return Check(f"not ({parts[0].description})", negate(parts[0].passed))
     combine = all_of if check.kind == "all" else any_of
-    return (f"{check.kind} of: " + "; ".join(f"({text})" for text, _ in parts),
-            combine(outcome for _, outcome in parts))
+    return Check(f"{check.kind} of: " + "; ".join(f"({part.description})" for part in parts),
+                 combine(part.passed for part in parts))
 
 
 def _score(result: GridResult, rows: list[SummaryRow],
@@ -172,7 +206,9 @@ def _score(result: GridResult, rows: list[SummaryRow],
     scored = []
     for number, claim in enumerate(claims, 1):
         reader = _Reader(result, rows)
-        checks = [Check(*_check(check, reader)) for check in claim.checks]
+        checks = [_check(check, reader) for check in scored_checks(claim, result.settings)]
+        if not checks:  # every check optional, and their settings absent
+            continue
         scored.append(ClaimResult(number, claim.claim, claim.stated, "; ".join(reader.shown),
                                   checks))
     return scored
@@ -184,7 +220,9 @@ class ClaimScores:
 
     Attributes:
       claims: each claim's pooled result, with its replicates' counts and verdicts (its
-        headline: :attr:`~vdbejax.results.verdicts.ClaimResult.verdict`).
+        headline: :attr:`~vdbejax.results.verdicts.ClaimResult.verdict`); a claim whose
+        checks are all optional and absent from the run is left out (the others keep
+        their numbers).
       replicates: per replicate, the claims scored on its agents (empty for one).
     """
 
@@ -226,4 +264,4 @@ def score_claims(result: GridResult, claims: Sequence[ClaimSpec],
     return ClaimScores(pooled, scored)
 
 
-__all__ = ["ClaimScores", "recorded_metrics", "score_claims"]
+__all__ = ["PROBABILITY", "ClaimScores", "recorded_metrics", "score_claims"]

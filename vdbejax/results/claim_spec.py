@@ -20,7 +20,8 @@ with exactly one of :data:`COMPARISONS`:
   default :data:`ABOUT`), ``near_best = true`` (at least the task's best return less
   ``near``, default :data:`NEAR`);
 - another setting: ``higher_than``, ``lower_than``, ``earlier_than`` and ``no_later_than``
-  (the latter two read ``convergence_episode`` unless a metric is given), or ``beats``
+  (the latter two read ``convergence_episode`` unless a metric is given; ``factor``
+  multiplies the other setting's estimate), or ``beats``
   with ``probability_above`` (default 0.5): the probability of improvement
   ``P(A > B)`` of the agents' final returns with its interval;
 - an axis: ``best = [values]`` (the settings of ``among`` whose ``axis`` has these values
@@ -28,7 +29,8 @@ with exactly one of :data:`COMPARISONS`:
 
 Settings are named as the run names them (``"qlearning/egreedy/epsilon=0.1"``, the
 setting's label) or selected by a table of ``learner``, ``explorer`` and hyperparameter
-values. Checks combine: ``{all = [checks]}``, ``{any = [checks]}``, ``{not = check}``.
+values, or chosen by their results among those (``{best = …}``, ``{worst = …}``:
+:class:`Ranked`). Checks combine: ``{all = [checks]}``, ``{any = [checks]}``, ``{not = check}``.
 :func:`parse_claims` reads them (the format); :func:`check_claims` checks them against a
 run's settings and records (every reference resolved, each metric recorded) before
 anything is trained; :mod:`vdbejax.results.claim_scoring` scores them.
@@ -72,12 +74,40 @@ ABOUT = 0.25
 NEAR = 0.05
 #: Default level of ``beats``.
 LEVEL = 0.5
+#: The comparisons a ``factor`` may scale the other setting's estimate in.
+SCALED = ("higher_than", "lower_than", "earlier_than", "no_later_than")
 #: Every key a check may hold.
 CHECK_KEYS = (*COMPARISONS, "setting", "metric", "tolerance", "near", "probability_above",
-              "axis", "among", "value")
+              "axis", "among", "value", "factor")
+#: Settings whose ranking values are this close are tied when a ``best`` selector picks
+#: one (a choice, not a verdict: verdicts come from intervals).
+TIE = 0.01
+#: A ranked selector's default ranking metric (``by``).
+RANK_BY = "final_iqm"
 
-#: A setting as a claim names it: its label, or ``(key, value)`` pairs it must match.
-Selector = str | tuple[tuple[str, Any], ...]
+#: A setting named outright: its label, or ``(key, value)`` pairs it must match.
+Named = str | tuple[tuple[str, Any], ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class Ranked:
+    """A setting chosen by its results among those a selector names (``{best = …}`` or
+    ``{worst = …}``, with ``by`` the metric ranked, default :data:`RANK_BY`).
+
+    ``best``: the highest by ``by`` (the lowest for :data:`LOWER_IS_BETTER`); among the
+    settings within :data:`TIE` of it, the one that converges first (then the better
+    ranked, then the first in the run's order). ``worst``: the lowest by ``by`` (the
+    highest for :data:`LOWER_IS_BETTER`), the first in the run's order on ties. Each
+    replicate picks on its own agents.
+    """
+
+    pick: str
+    among: Named
+    by: str = RANK_BY
+
+
+#: A setting as a claim names it: outright (:data:`Named`) or by its results (:class:`Ranked`).
+Selector = Named | Ranked
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,10 +122,13 @@ class CheckSpec:
       other: the other setting (:data:`VERSUS`).
       bound: the number compared with (``above``, ``below``, ``about``; the level of
         ``beats``; the margin of ``near_best``).
+      factor: what the other setting's estimate is multiplied by (:data:`SCALED`).
       tolerance: ``about``'s relative tolerance.
       axis, among, values, rank: an axis comparison's axis, settings, best values (or
         ``rank``'s one value) and rank.
       parts: the checks an ``all``, ``any`` or ``not`` combines.
+      optional: a claim's check left out where a setting it names is absent from the run
+        (:func:`present`), rather than refused.
     """
 
     kind: str
@@ -105,11 +138,13 @@ class CheckSpec:
     other: Selector | None = None
     bound: float = math.nan
     tolerance: float = ABOUT
+    factor: float = 1.0
     axis: str | None = None
-    among: Selector | None = None
+    among: Named | None = None
     values: tuple[Any, ...] = ()
     rank: int = 0
     parts: tuple[CheckSpec, ...] = ()
+    optional: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,19 +163,49 @@ def _number(value: Any, where: str, key: str) -> float:
     return float(value)
 
 
-def _selector(value: Any, where: str, key: str) -> Selector:
+def _named(value: Any, where: str, key: str) -> Named:
     if isinstance(value, str) and value:
         return value
-    if isinstance(value, Mapping) and value and all(isinstance(k, str) for k in value):
+    if isinstance(value, Mapping) and value and all(isinstance(k, str) for k in value) \
+            and not {"best", "worst"} & set(value):
         return tuple(sorted(value.items()))
     raise ValueError(f"{where}: {key}={value!r} is invalid: must be a setting's name"
                      " (learner/explorer/name=value) or a table {learner, explorer, name = value}")
+
+
+def _selector(value: Any, where: str, key: str) -> Selector:
+    if not isinstance(value, Mapping) or not {"best", "worst"} & set(value):
+        return _named(value, where, key)
+    picks = [pick for pick in ("best", "worst") if pick in value]
+    unknown = sorted(set(value) - {"best", "worst", "by"})
+    if len(picks) != 1 or unknown:
+        raise ValueError(f"{where}: {key}={value!r} is invalid: a ranked selector is"
+                         " {best = S} or {worst = S}, with by = a metric")
+    by = value.get("by", RANK_BY)
+    if by not in METRICS:
+        raise ValueError(f"{where}: {key}.by={by!r} is invalid: allowed are"
+                         f" {', '.join(METRICS)}")
+    return Ranked(picks[0], _named(value[picks[0]], where, f"{key}.{picks[0]}"), by)
+
+
+def _top_check(data: Any, where: str) -> CheckSpec:
+    """A claim's check: :func:`_check`, with ``optional``."""
+    if not isinstance(data, Mapping) or "optional" not in data:
+        return _check(data, where)
+    if not isinstance(data["optional"], bool):
+        raise ValueError(f"{where}: optional={data['optional']!r} is invalid: must be true"
+                         " or false")
+    rest = {key: value for key, value in data.items() if key != "optional"}
+    return dataclasses.replace(_check(rest, where), optional=data["optional"])
 
 
 def _check(data: Any, where: str) -> CheckSpec:
     if not isinstance(data, Mapping):
         raise ValueError(f"{where}={data!r} is invalid: must be a table {{setting, metric,"
                          f" comparison}} (comparisons: {', '.join(COMPARISONS)})")
+    if "optional" in data:
+        raise ValueError(f"{where}: 'optional' is invalid inside a combination: give it on"
+                         " the claim's check")
     unknown = sorted(set(data) - set(CHECK_KEYS))
     if unknown:
         raise ValueError(f"{where}: unknown key {unknown[0]!r}: allowed are"
@@ -179,7 +244,7 @@ def _check(data: Any, where: str) -> CheckSpec:
         if not isinstance(data["axis"], str) or not data["axis"]:
             raise ValueError(f"{where}: axis={data['axis']!r} is invalid: must be a"
                              " hyperparameter's name")
-        fields.update(axis=data["axis"], among=_selector(data["among"], where, "among"))
+        fields.update(axis=data["axis"], among=_named(data["among"], where, "among"))
         if kind == "best":
             values = data["best"]
             if not isinstance(values, list) or not values:
@@ -207,6 +272,11 @@ def _check(data: Any, where: str) -> CheckSpec:
         if fields["tolerance"] < 0:
             raise ValueError(f"{where}: tolerance={data['tolerance']!r} is invalid: must be"
                              " a number ≥ 0 (a fraction of the figure)")
+    if kind in SCALED:
+        fields["factor"] = _number(data.get("factor", 1.0), where, "factor")
+        if fields["factor"] <= 0:
+            raise ValueError(f"{where}: factor={data['factor']!r} is invalid: must be a"
+                             " number > 0 (what the other setting's estimate is multiplied by)")
     if kind == "near_best":
         if data[kind] is not True:
             raise ValueError(f"{where}: near_best={data[kind]!r} is invalid: must be true")
@@ -221,7 +291,7 @@ def _check(data: Any, where: str) -> CheckSpec:
                                     ("probability_above", kind == "beats"),
                                     ("axis", kind in ("best", "rank")),
                                     ("among", kind in ("best", "rank")),
-                                    ("value", kind == "rank"),
+                                    ("value", kind == "rank"), ("factor", kind in SCALED),
                                     ("setting", kind not in ("best", "rank")))
               if key in data and not used]
     if unused:
@@ -258,7 +328,8 @@ def parse_claims(data: Any) -> tuple[ClaimSpec, ...]:
             raise ValueError(f"{where} ({sentence!r}): checks={checks!r} is invalid: must be a"
                              " non-empty list of checks")
         claims.append(ClaimSpec(sentence, tuple(
-            _check(check, f"{where}.checks[{j}]") for j, check in enumerate(checks)), stated))
+            _top_check(check, f"{where}.checks[{j}]") for j, check in enumerate(checks)),
+            stated))
     return tuple(claims)
 
 
@@ -270,22 +341,42 @@ def claims_digest(data: Any) -> str:
 
 
 def selector_text(selector: Selector) -> str:
-    """A selector as the claims file gives it (a label, or ``{key = value, …}``)."""
+    """A selector as the claims file gives it (a label, ``{key = value, …}``, or
+    ``{best = …, by = …}``)."""
+    if isinstance(selector, Ranked):
+        return (f"{{{selector.pick} = {selector_text(selector.among)}, by ="
+                f" {selector.by!r}}}")
     if isinstance(selector, str):
         return selector
     return "{" + ", ".join(f"{k} = {v!r}" for k, v in selector) + "}"
 
 
-def select(selector: Selector, settings: Sequence[Setting]) -> list[int]:
-    """The indices of the settings a selector names."""
+def select(selector: Named, settings: Sequence[Setting]) -> list[int]:
+    """The indices of the settings a selector names outright."""
     if isinstance(selector, str):
         return [c for c, s in enumerate(settings) if s.label == selector]
     rule = dict(selector)
     return [c for c, s in enumerate(settings) if setting_matches(s, rule)]
 
 
-def select_one(selector: Selector, settings: Sequence[Setting], where: str, key: str) -> int:
-    """The one setting a selector names.
+def candidates(selector: Selector, settings: Sequence[Setting], where: str,
+               key: str) -> list[int]:
+    """The settings a selector may name: the one it names outright (:func:`select_one`), or
+    every setting a :class:`Ranked` one chooses among (one or more).
+
+    Raises:
+      ValueError: it names none, or (outright) several.
+    """
+    if not isinstance(selector, Ranked):
+        return [select_one(selector, settings, where, key)]
+    found = select(selector.among, settings)
+    if not found:
+        select_one(selector.among, settings, where, f"{key}.{selector.pick}")
+    return found
+
+
+def select_one(selector: Named, settings: Sequence[Setting], where: str, key: str) -> int:
+    """The one setting a selector names outright.
 
     Raises:
       ValueError: it names none or several.
@@ -348,6 +439,21 @@ def axis_members(check: CheckSpec, settings: Sequence[Setting]) -> list[int]:
     return chosen
 
 
+def present(check: CheckSpec, settings: Sequence[Setting]) -> bool:
+    """Whether every setting a check names (however deep) is in the run: an ``optional``
+    check is scored only where it is, and left out otherwise."""
+    named = [selector.among if isinstance(selector, Ranked) else selector
+             for leaf in leaves(check) for selector in (leaf.setting, leaf.other, leaf.among)
+             if selector is not None]
+    return all(select(selector, settings) for selector in named)
+
+
+def scored_checks(claim: ClaimSpec, settings: Sequence[Setting]) -> list[CheckSpec]:
+    """A claim's checks scored on a run: all but the ``optional`` ones whose settings are
+    absent (:func:`present`)."""
+    return [check for check in claim.checks if not check.optional or present(check, settings)]
+
+
 def leaves(check: CheckSpec) -> list[CheckSpec]:
     """A check's comparisons (itself, or those it combines, however deep)."""
     return [leaf for part in check.parts for leaf in leaves(part)] if check.parts else [check]
@@ -370,7 +476,7 @@ def check_claims(claims: Sequence[ClaimSpec], settings: Sequence[Setting],
     """
     for i, claim in enumerate(claims):
         try:
-            for check in claim.checks:
+            for check in scored_checks(claim, settings):
                 for leaf in leaves(check):
                     _check_leaf(leaf, settings, recorded)
         except ValueError as error:
@@ -378,25 +484,33 @@ def check_claims(claims: Sequence[ClaimSpec], settings: Sequence[Setting],
 
 
 def _check_leaf(leaf: CheckSpec, settings: Sequence[Setting], recorded: Sequence[str]) -> None:
-    needs = RECORDED_BY.get(leaf.metric)
-    if needs is not None and needs not in recorded:
-        flag = needs.replace("_", "-")
-        raise ValueError(f"{leaf.where}: metric={leaf.metric!r} is invalid: the run does not"
-                         f" record it (needs {needs} = … in the sweep file, --{flag})")
+    metrics = [("metric", leaf.metric)] + [
+        (f"{key}.by", selector.by) for key, selector in (("setting", leaf.setting),
+                                                         (leaf.kind, leaf.other))
+        if isinstance(selector, Ranked)]
+    for key, metric in metrics:
+        needs = RECORDED_BY.get(metric)
+        if needs is not None and needs not in recorded:
+            flag = needs.replace("_", "-")
+            raise ValueError(f"{leaf.where}: {key}={metric!r} is invalid: the run does not"
+                             f" record it (needs {needs} = … in the sweep file, --{flag})")
     if leaf.kind in ("best", "rank"):
         axis_members(leaf, settings)
         return
     assert leaf.setting is not None
-    mine = select_one(leaf.setting, settings, leaf.where, "setting")
+    mine = candidates(leaf.setting, settings, leaf.where, "setting")
     if leaf.other is not None:
-        other = select_one(leaf.other, settings, leaf.where, leaf.kind)
-        if other == mine:
+        other = candidates(leaf.other, settings, leaf.where, leaf.kind)
+        if set(other) & set(mine):
+            same = settings[min(set(other) & set(mine))].label
+            verb = "is" if len(mine) == len(other) == 1 else "may be"
             raise ValueError(f"{leaf.where}: {leaf.kind}={selector_text(leaf.other)} is"
-                             f" invalid: it is the setting checked ({settings[mine].label});"
+                             f" invalid: it {verb} the setting checked ({same});"
                              " compare two settings")
 
 
 __all__ = ["ABOUT", "CHECK_KEYS", "COMPARISONS", "LEVEL", "LOWER_IS_BETTER", "METRICS", "NEAR",
-           "RECORDED_BY", "VERSUS", "CheckSpec", "ClaimSpec", "Selector", "axis_members",
-           "axis_settings", "check_claims", "claims_digest", "leaves", "parse_claims",
+           "RANK_BY", "RECORDED_BY", "SCALED", "TIE", "VERSUS", "CheckSpec", "ClaimSpec",
+           "Named", "Ranked", "Selector", "axis_members", "axis_settings", "candidates",
+           "check_claims", "claims_digest", "leaves", "parse_claims", "present", "scored_checks",
            "select", "select_one", "selector_text"]

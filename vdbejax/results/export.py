@@ -107,7 +107,8 @@ def claims_columns(folder: Path) -> Columns | None:
     if not (folder / CLAIMS_FILE).is_file():
         return None
     rows = io.read_csv(folder / CLAIMS_FILE)
-    return {name: _objects([_number(row[name]) for row in rows]) for name in CLAIMS_COLUMNS}
+    return {name: _objects([_number(row[name]) if row.get(name) else None for row in rows])
+            for name in CLAIMS_COLUMNS}
 
 
 def _number(text: str) -> Any:

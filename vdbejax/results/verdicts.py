@@ -112,17 +112,35 @@ def mark(outcome: Outcome) -> str:
     return "[?]" if outcome is None else "[x]" if outcome else "[ ]"
 
 
+@dataclasses.dataclass(frozen=True)
+class Reading:
+    """What a check read, as columns (``claims.csv``): the metric, the setting checked and
+    its estimate, the other setting's (a comparison of two settings) and the number it is
+    compared with (``bound``: ``above``'s, ``below``'s, ``about``'s figure, ``near_best``'s
+    lowest return, the level of ``P(A > B)``, an axis's rank), each absent where the check
+    has none (an axis's ``best``, a combination)."""
+
+    metric: str = ""
+    setting: str = ""
+    estimate: Estimate | None = None
+    other_setting: str = ""
+    other_estimate: Estimate | None = None
+    bound: float | None = None
+
+
 @dataclasses.dataclass
 class Check:
     """One check of a claim: what it compares, and its outcome on the pooled agents
     (``passed``: ``True``, ``False`` or ``None``, undecided) and in how many of the
-    ``replicates`` it holds and is undecided (``None`` for a single run)."""
+    ``replicates`` it holds and is undecided (``None`` for a single run); ``reading``: what
+    it read, as columns (a study's checks; the paper's give it in ``description``)."""
 
     description: str
     passed: Outcome
     replicates_passed: int | None = None
     replicates: int | None = None
     replicates_undecided: int | None = None
+    reading: Reading = Reading()
 
     @property
     def replicates_failed(self) -> int:
@@ -239,6 +257,7 @@ def count_replicates(pooled: list[ClaimResult], scored: Sequence[list[ClaimResul
             check.replicates_undecided = sum(o is None for o in outcomes)
 
 
-__all__ = ["STABLE", "Check", "ClaimResult", "Estimate", "Outcome", "all_of", "any_of", "at_most",
-           "claim_verdict", "convergence_estimate", "count_replicates", "estimate_text",
-           "final_estimate", "inside", "less", "mark", "negate", "point", "stable_count"]
+__all__ = ["STABLE", "Check", "ClaimResult", "Estimate", "Outcome", "Reading", "all_of", "any_of",
+           "at_most", "claim_verdict", "convergence_estimate", "count_replicates",
+           "estimate_text", "final_estimate", "inside", "less", "mark", "negate", "point",
+           "stable_count"]
