@@ -122,7 +122,22 @@ def test_version_falls_back_to_the_pyproject_value_when_not_installed():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                           env=dict(os.environ, VDBEJAX_CACHE_DIR="off"))
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == "0.1.0" == PYPROJECT["version"]
+    assert done.stdout.strip() == "0.2.0" == PYPROJECT["version"]
+
+
+def test_every_place_the_version_appears_agrees():
+    """The release's version: pyproject.toml, the source tree's fallback, CITATION.cff, the
+    CHANGELOG's newest released section (below an empty "Unreleased")."""
+    version = PYPROJECT["version"]
+    init = (ROOT / "vdbejax" / "__init__.py").read_text(encoding="utf-8")
+    assert f'__version__ = "{version}"' in init
+    citation = (ROOT / "CITATION.cff").read_text(encoding="utf-8")
+    assert re.search(rf'^version: "{re.escape(version)}"$', citation, re.M), citation
+    changelog = (ROOT / "CHANGELOG.md").read_text(encoding="utf-8")
+    sections = re.findall(r"^## (.+)$", changelog, re.M)
+    assert sections[0] == "Unreleased" and sections[1].startswith(f"{version} — "), sections
+    unreleased = changelog.split("## Unreleased\n", 1)[1].split("\n## ", 1)[0]
+    assert not unreleased.strip(), "the Unreleased section starts empty after a release"
 
 
 def test_cli_version(tmp_path):

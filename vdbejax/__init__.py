@@ -18,7 +18,7 @@ try:
     #: The installed distribution's version (pyproject.toml's ``version``).
     __version__ = _metadata.version("vdbejax")
 except _metadata.PackageNotFoundError:  # imported from a source tree that is not installed
-    __version__ = "0.1.0"
+    __version__ = "0.2.0"
 
 # The public names are imported on first use (PEP 562), so that ``import vdbejax``,
 # ``vdbejax --help`` and ``vdbejax --version`` do not pay for importing JAX.
