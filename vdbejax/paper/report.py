@@ -19,16 +19,16 @@ from vdbejax.paper.claims import ABOUT, NEAR, TIE
 from vdbejax.results.analysis import truncated_fraction
 from vdbejax.results.claim_report import (
     DECISION_RULE,
-    flip_lines,
+    claim_sections,
+    flips_block,
     headline_rule,
-    replicate_outcomes,
     undecided_lines,
     verdict_table,
 )
 from vdbejax.results.curves import LAST, final_return
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.solving import CONVERGENCE_TEXT
-from vdbejax.results.verdicts import ClaimResult, mark
+from vdbejax.results.verdicts import ClaimResult
 
 #: Where the docs explain a setting whose agents all end at one value (``report.md``
 #: names it; notebook 04 shows it).
@@ -177,24 +177,14 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
         lines += [f"**Safety cap.** The task has no step limit: {cap_message(meta)}"
                   + (f". Per setting: {'; '.join(where)}." if where else "."), ""]
     if replicates:
-        flips = flip_lines(claims)
         lines += [f"**Replicates.** Every claim is scored on the pooled agents and on each of"
                   f" the {replicates} replicates (agents {per}·r … {per}·r + {per} − 1 of each"
                   f" setting, r = 0 … {replicates - 1}; `summary.csv` and the figures are"
                   f" replicate 0's, `summary_pooled.csv` the pooled agents'); "
                   f"{headline_rule(replicates)}.", ""]
-        lines += (["**Flips between replicates.**", "", *flips, ""] if flips else
-                  ["**Flips between replicates.** None: every check holds in all replicates"
-                   " that decide it or in none.", ""])
+        lines += flips_block(claims)
     lines += _one_value_lines(one_value, meta)
     lines += undecided_lines(claims, agents)
     lines += verdict_table(claims, replicates)
-    for c in claims:
-        title = c.verdict if not replicates else (
-            f"{c.verdict} (pooled {c.pooled_verdict}; {c.agreeing} of {replicates} replicates"
-            " agree)")
-        lines += ["", f"## Claim {c.number}: {title}", "", f"> {c.claim}", "",
-                  f"- Paper: {c.paper}", f"- Measured: {c.measured}", "- Checks:"]
-        lines += [f"  - {mark(k.passed)} {k.description}" + replicate_outcomes(k)
-                  for k in c.checks]
+    lines += claim_sections(claims, replicates, "Paper")
     return "\n".join(lines) + "\n"

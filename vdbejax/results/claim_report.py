@@ -156,25 +156,39 @@ def render_claims(scores: ClaimScores, meta: dict[str, Any], provenance: str) ->
              f" {meta.get('num_episodes', '?')} episodes per setting, root seed"
              f" {meta.get('seed', '?')}. {provenance}", "", DECISION_RULE, ""]
     if replicates:
-        flips = flip_lines(claims)
         lines += [f"**Replicates.** {headline_rule(replicates)[0].upper()}"
                   f"{headline_rule(replicates)[1:]}.", ""]
-        lines += (["**Flips between replicates.**", "", *flips, ""] if flips else
-                  ["**Flips between replicates.** None: every check holds in all replicates"
-                   " that decide it or in none.", ""])
+        lines += flips_block(claims)
     lines += undecided_lines(claims, agents)
     lines += verdict_table(claims, replicates)
+    lines += claim_sections(claims, replicates, "Stated")
+    return "\n".join(lines) + "\n"
+
+
+def flips_block(claims: Sequence[ClaimResult]) -> list[str]:
+    """The paragraph on the claims and checks whose verdicts differ between replicates."""
+    flips = flip_lines(claims)
+    return (["**Flips between replicates.**", "", *flips, ""] if flips else
+            ["**Flips between replicates.** None: every check holds in all replicates"
+             " that decide it or in none.", ""])
+
+
+def claim_sections(claims: Sequence[ClaimResult], replicates: int, source: str) -> list[str]:
+    """Each claim's section: its verdict, its sentence, what its source states (the line
+    ``- {source}: …``, left out where the claim states nothing more), what was measured and
+    every check with its replicates' outcomes."""
+    lines: list[str] = []
     for c in claims:
         title = c.verdict if not replicates else (
             f"{c.verdict} (pooled {c.pooled_verdict}; {c.agreeing} of {replicates} replicates"
             " agree)")
         lines += ["", f"## Claim {c.number}: {title}", "", f"> {c.claim}", ""]
         if c.paper:
-            lines.append(f"- Stated: {c.paper}")
+            lines.append(f"- {source}: {c.paper}")
         lines += [f"- Measured: {c.measured}", "- Checks:"]
         lines += [f"  - {mark(k.passed)} {k.description}" + replicate_outcomes(k)
                   for k in c.checks]
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def write_claims(out_dir: str | os.PathLike, scores: ClaimScores, meta: dict[str, Any],
@@ -188,5 +202,5 @@ def write_claims(out_dir: str | os.PathLike, scores: ClaimScores, meta: dict[str
 
 
 __all__ = ["CLAIMS_COLUMNS", "CLAIMS_FILE", "CLAIMS_REPORT_FILE", "DECISION_RULE", "OUTCOME_WORDS",
-           "claims_rows", "flip_lines", "headline_rule", "reading_columns", "render_claims",
+           "claim_sections", "claims_rows", "flip_lines", "flips_block", "headline_rule", "reading_columns", "render_claims",
            "replicate_outcomes", "undecided_lines", "verdict_table", "write_claims"]
