@@ -201,6 +201,21 @@ def write_claims(out_dir: str | os.PathLike, scores: ClaimScores, meta: dict[str
     return [out / CLAIMS_REPORT_FILE, out / CLAIMS_FILE]
 
 
-__all__ = ["CLAIMS_COLUMNS", "CLAIMS_FILE", "CLAIMS_REPORT_FILE", "DECISION_RULE", "OUTCOME_WORDS",
-           "claim_sections", "claims_rows", "flip_lines", "flips_block", "headline_rule", "reading_columns", "render_claims",
-           "replicate_outcomes", "undecided_lines", "verdict_table", "write_claims"]
+__all__ = [
+    "CLAIMS_COLUMNS",
+    "CLAIMS_FILE",
+    "CLAIMS_REPORT_FILE",
+    "DECISION_RULE",
+    "OUTCOME_WORDS",
+    "claim_sections",
+    "claims_rows",
+    "flip_lines",
+    "flips_block",
+    "headline_rule",
+    "reading_columns",
+    "render_claims",
+    "replicate_outcomes",
+    "undecided_lines",
+    "verdict_table",
+    "write_claims",
+]
