@@ -720,7 +720,8 @@ def test_psrl_keeps_its_bits_across_strategies_with_a_prior_below_one():
     mdp = stochastic_chain()
     settings = [Setting("psrl", "greedy", None, {"horizon": 25, "prior": prior})
                 for prior in (0.1, 2.5)]
-    # 2 × 20 agents of 15 episodes: the layout of the test above, whose programs serve it.
+    # 2 × 20 agents of 15 episodes: the layout of the test above, whose sequential program
+    # serves it.
     ours = grid(mdp, settings, seeds=20, episodes=15)
     other = grid(mdp, settings, seeds=20, episodes=15, strategy="lockstep")
     np.testing.assert_array_equal(other.returns, ours.returns)
