@@ -1,6 +1,7 @@
 """The built-in explorers and learners beyond the paper's (UCB-1, decaying ε-greedy and
 softmax, Max-Boltzmann, Expected SARSA, Double Q-learning) against their formulas, under
 jit and vmap, inside the engine, and the one-line errors of broken plug-ins."""
+import dataclasses
 import functools
 
 import chex
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 from absl.testing import parameterized
 
-from vdbejax.engine import agent_keys, run_agents
+from vdbejax.engine import EngineOptions, agent_keys, broadcast_agents, run_agents
 from vdbejax.envs.table_cleaning import make_mdp as _make_mdp
 from vdbejax.methods import (
     EXPLORERS,
@@ -534,8 +535,16 @@ class MethodVariantsTest(parameterized.TestCase):
 
 # --------------------------------------------------------------------------- engine
 def run_alone(setting, episodes, mdp=None, seed=0):
+    """The agent of ``setting`` and seed index 0, run on its own: beside the agent of seed
+    index 1 (which changes none of its bits), in the layout of the one-kind grids of
+    :func:`test_all_builtin_kinds_in_one_grid_equal_each_alone` (2 agents, chunks of 5
+    episodes), whose programs it shares; the result of the first agent."""
     mdp = make_mdp(max_steps=40) if mdp is None else mdp
-    return run_agents(mdp, stack_agents([make_agent(setting)]), agent_keys(seed, 1), episodes)
+    both = run_agents(mdp, broadcast_agents(stack_agents([make_agent(setting)]), 2),
+                      agent_keys(seed, 2), episodes, EngineOptions(chunk_episodes=5))
+    return dataclasses.replace(both, returns=both.returns[:1], lengths=both.lengths[:1],
+                               nonfinite=both.nonfinite[:1],
+                               final_state=jax.tree.map(lambda leaf: leaf[:1], both.final_state))
 
 
 def test_expected_sarsa_with_greedy_first_equals_q_learning():

@@ -251,14 +251,22 @@ def test_trace_update_formula_under_jit_and_vmap():
 
 # --- equivalences and strategies --------------------------------------------------------
 
-def test_no_lambda_and_no_planning_are_the_one_step_methods():
-    mdp = chain()
-    settings = [Setting("sarsa", "egreedy", 0.2), Setting("sarsa_lambda", "egreedy", 0.2,
-                                                           {"lam": 0.0}),
-                Setting("qlearning", "egreedy", 0.2),
-                Setting("dyna_q", "egreedy", 0.2, {"planning_steps": 0}),
-                Setting("dyna_q_plus", "egreedy", 0.2, {"planning_steps": 0})]
-    r = grid(mdp, settings, seeds=3, episodes=40, options=AgentOptions()).returns
+#: Three one-step methods and canon twins of them (λ = 0, no planning) on the chain, ties
+#: broken at random: one grid, run once (:func:`one_step_grid`), which two tests read.
+ONE_STEP = [Setting("sarsa", "egreedy", 0.2), Setting("sarsa_lambda", "egreedy", 0.2,
+                                                     {"lam": 0.0}),
+            Setting("qlearning", "egreedy", 0.2),
+            Setting("dyna_q", "egreedy", 0.2, {"planning_steps": 0}),
+            Setting("dyna_q_plus", "egreedy", 0.2, {"planning_steps": 0})]
+
+
+@pytest.fixture(scope="module")
+def one_step_grid():
+    return grid(chain(), ONE_STEP, seeds=3, episodes=40, options=AgentOptions())
+
+
+def test_no_lambda_and_no_planning_are_the_one_step_methods(one_step_grid):
+    r = one_step_grid.returns
     np.testing.assert_array_equal(r[0], r[1])
     np.testing.assert_array_equal(r[2], r[3])
     np.testing.assert_array_equal(r[2], r[4])
@@ -274,7 +282,9 @@ CANON = [Setting("rmax", "greedy"), Setting("mbie_eb", "greedy"),
 def test_strategies_chunks_and_lane_widths_give_the_same_bits():
     mdp = stochastic_chain()
     base = grid(mdp, CANON, seeds=3, episodes=20, options=AgentOptions())
-    for run in ({"strategy": "lockstep"}, {"chunk_episodes": 7, "threads": 1}):
+    # Chunks of 17 episodes: a chunk ends mid-run, and a chunk's buffers keep the length
+    # of the run's one chunk (32 episodes), so the sequential programs are the base run's.
+    for run in ({"strategy": "lockstep"}, {"chunk_episodes": 17, "threads": 1}):
         other = grid(mdp, CANON, seeds=3, episodes=20, options=AgentOptions(), **run)
         np.testing.assert_array_equal(other.returns, base.returns, err_msg=str(run))
         np.testing.assert_array_equal(other.lengths, base.lengths, err_msg=str(run))
@@ -344,17 +354,16 @@ def test_dyna_q_agrees_with_numpy_statistically():
     assert first[0] < first[1], first
 
 
-def test_plain_plugins_keep_their_program():
+def test_plain_plugins_keep_their_program(one_step_grid):
     """A grid without the canon is the same program as before (the paper grid's bits are
-    checked elsewhere); a canon kind next to it changes nothing of the others."""
-    mdp = chain()
-    alone = grid(mdp, [Setting("qlearning", "egreedy", 0.1)], seeds=3).returns
-    beside = grid(mdp, [Setting("qlearning", "egreedy", 0.1), Setting("rmax", "greedy")],
-                  seeds=3).returns
-    np.testing.assert_array_equal(alone[0], beside[0])
+    checked elsewhere); canon kinds next to it (a model, traces) change nothing of the
+    others."""
+    qlearning = ONE_STEP[2]
+    alone = grid(chain(), [qlearning], seeds=3, options=AgentOptions()).returns
+    np.testing.assert_array_equal(alone[0], one_step_grid.returns[2])
     digest = hashlib.sha256(alone.tobytes()).hexdigest()
-    assert digest == hashlib.sha256(
-        grid(mdp, [Setting("qlearning", "egreedy", 0.1)], seeds=3).returns.tobytes()).hexdigest()
+    assert digest == hashlib.sha256(grid(chain(), [qlearning], seeds=3,
+                                         options=AgentOptions()).returns.tobytes()).hexdigest()
 
 
 # --- the plug-in check ------------------------------------------------------------------
@@ -531,7 +540,7 @@ def test_finite_horizon_methods_keep_their_bits_across_strategies():
                 Setting("ucbvi", "greedy", None, {"horizon": 25, "convention": "rlberry"}),
                 Setting("ucb_h", "egreedy", 0.1, {"horizon": 25, "bonus_scale": 0.01})]
     base = grid(mdp, settings, seeds=3, episodes=25, options=AgentOptions())
-    for run in ({"strategy": "lockstep"}, {"chunk_episodes": 6}):
+    for run in ({"strategy": "lockstep"}, {"chunk_episodes": 17}):  # the base run's programs
         other = grid(mdp, settings, seeds=3, episodes=25, options=AgentOptions(), **run)
         np.testing.assert_array_equal(other.returns, base.returns, err_msg=str(run))
     assert vdbejax.engine.native_step_loops() is True
@@ -711,8 +720,10 @@ def test_psrl_keeps_its_bits_across_strategies_with_a_prior_below_one():
     mdp = stochastic_chain()
     settings = [Setting("psrl", "greedy", None, {"horizon": 25, "prior": prior})
                 for prior in (0.1, 2.5)]
-    ours = grid(mdp, settings, seeds=6, episodes=8)
-    other = grid(mdp, settings, seeds=6, episodes=8, strategy="lockstep")
+    # 2 × 20 agents of 15 episodes: the layout of the test above, whose sequential program
+    # serves it.
+    ours = grid(mdp, settings, seeds=20, episodes=15)
+    other = grid(mdp, settings, seeds=20, episodes=15, strategy="lockstep")
     np.testing.assert_array_equal(other.returns, ours.returns)
     np.testing.assert_array_equal(other.lengths, ours.lengths)
 

@@ -98,13 +98,14 @@ def test_compaction_chunking_and_batch_position_do_not_change_results(mdp):
 def test_lockstep_groups_on_threads_give_the_same_bits(mdp):
     """Groups run on several threads, or one after another, or as one batch: same bits."""
     params, keys = _grid(3)
-    one = engine.run_agents(mdp, params, keys, 10,
+    # 3 seeds of 30 episodes: the lockstep programs of the strategy tests below serve them.
+    one = engine.run_agents(mdp, params, keys, 30,
                             engine.EngineOptions(max_batch=64, threads=1, strategy="lockstep"))
-    threaded = engine.run_agents(mdp, params, keys, 10,
+    threaded = engine.run_agents(mdp, params, keys, 30,
                                  engine.EngineOptions(max_batch=2, threads=3, strategy="lockstep"))
-    default = engine.run_agents(mdp, params, keys, 10, engine.EngineOptions(strategy="lockstep"))
+    default = engine.run_agents(mdp, params, keys, 30, engine.EngineOptions(strategy="lockstep"))
     # Blocks of a known trip count (the accelerators' default) overshoot harmlessly.
-    fixed = engine.run_agents(mdp, params, keys, 10,
+    fixed = engine.run_agents(mdp, params, keys, 30,
                               engine.EngineOptions(strategy="lockstep", block_iterations=7,
                                                    fixed_blocks=True))
     _assert_same_run(one, threaded)
@@ -135,7 +136,8 @@ def test_sequential_strategy_equals_lockstep(mdp, tie_break):
     lockstep = engine.run_agents(mdp, params, keys, 30,
                                  engine.EngineOptions(chunk_episodes=30, strategy="lockstep"))
     first = None
-    for threads, chunk in [(1, 30), (2, 7), (3, 11)]:
+    # Chunks of 30, 7 and 20 episodes: buffers of 32, 8 and 32 (the first run's program).
+    for threads, chunk in [(1, 30), (2, 7), (3, 20)]:
         sequential = engine.run_agents(mdp, params, keys, 30,
                                        engine.EngineOptions(chunk_episodes=chunk,
                                                             strategy="sequential", threads=threads))
@@ -182,10 +184,11 @@ def test_loop_width_changes_nothing(mdp, monkeypatch, lanes, seeds):
     monkeypatch.setattr(work_items, "LANES", lanes)
     monkeypatch.setattr(sequential, "LANES", lanes)
     params, keys = _grid(seeds)
-    lockstep = engine.run_agents(mdp, params, keys, 14,
-                                 engine.EngineOptions(chunk_episodes=5, strategy="lockstep"))
+    # 30 episodes, batches of 2 lanes: the lockstep programs of the groups test above.
+    lockstep = engine.run_agents(mdp, params, keys, 30,
+                                 engine.EngineOptions(max_batch=2, threads=3, strategy="lockstep"))
     for threads in (1, 3):
-        run = engine.run_agents(mdp, params, keys, 14,
+        run = engine.run_agents(mdp, params, keys, 30,
                                 engine.EngineOptions(chunk_episodes=5, threads=threads,
                                                      strategy="sequential"))
         _assert_same_run(run, lockstep)

@@ -91,8 +91,9 @@ def test_a_run_asks_for_mixed_kinds_and_its_plan_says_so(tmp_path):
 
     with pytest.raises(ValueError, match="mix_kinds='yes' is invalid"):
         RunOptions(mix_kinds="yes")
-    settings = SETTINGS[:3]
-    runs = {mix: run_grid(make_mdp(), settings, num_seeds=2, num_episodes=6,
+    # The layout of the test above (every kind, 3 seeds, 15 episodes): its kind-by-kind
+    # programs serve the run that does not mix.
+    runs = {mix: run_grid(make_mdp(), SETTINGS, num_seeds=SEEDS, num_episodes=15,
                           run=RunOptions(strategy="lockstep", mix_kinds=mix))
             for mix in (None, True)}
     assert runs[None].meta["plan"]["mix_kinds"] is False  # a CPU's default

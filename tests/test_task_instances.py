@@ -51,7 +51,8 @@ def test_every_agent_gets_the_bits_of_its_instance_alone(family):
     instances = stack_instances(mdps)
     runs = [engine.run_agents(instances, params, keys, EPISODES, engine.EngineOptions(**options))
             for options in ({"strategy": "sequential"},
-                            {"strategy": "sequential", "chunk_episodes": 5},
+                            # a chunk ends at 9; buffers of 16, the first run's program
+                            {"strategy": "sequential", "chunk_episodes": 9},
                             {"strategy": "lockstep"},
                             {"strategy": "lockstep", "max_batch": 2, "min_batch": 1,
                              "chunk_episodes": 7},
