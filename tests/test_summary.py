@@ -193,7 +193,6 @@ def test_a_setting_that_never_learns_is_censored_in_summary_claims_and_plot(grid
     assert "0.01→" in claim_3.measured and "(> 120)" in claim_3.measured
     swept = [r for r in censored if r.param is not None]
     fig = plotting.sensitivity(rows, best_return=BEST)
-    labels = [t.get_text() for ax in fig.axes[len(fig.axes) // 2:] if ax.get_legend()
-              for t in ax.get_legend().get_texts()]
+    labels = [t.get_text() for legend in fig.legends for t in legend.get_texts()]
     assert bool(swept) == any(plotting.CENSORED_LABEL in label for label in labels)
     plt.close(fig)

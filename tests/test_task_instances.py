@@ -355,7 +355,8 @@ def test_the_estimate_and_the_size_check_count_the_instances(monkeypatch):
         GARNET_ROW + GARNET_MASK)
     more, less = estimate_prepared(instanced), estimate_prepared(shared)
     assert (more.task_bytes, less.task_bytes) == (tasks, 0)
-    assert more.memory_bytes - less.memory_bytes == tasks
+    # the agents' states carry each agent's instance rows too (counted on their own)
+    assert more.memory_bytes - less.memory_bytes == tasks + more.agents_bytes - less.agents_bytes
     assert "the task instances ≈ 40.2 KiB" in more.describe()
     assert "task instances" not in less.describe()
     # The machine's check, before the instances are stacked: exactly what they need fits.
