@@ -49,6 +49,18 @@ def _header_value(lines: list[str], key: str) -> str:
     raise ValueError(f"benchmarks/RESULTS.md: no '{prefix.strip()}' line in its header")
 
 
+def _section(lines: list[str], heading: str) -> tuple[int, int]:
+    """Where the section whose heading starts with ``heading`` begins (its heading line)
+    and ends (the next ``## `` heading, or the end)."""
+    try:
+        start = next(i for i, line in enumerate(lines) if line.startswith(heading))
+    except StopIteration:
+        raise ValueError(f"benchmarks/RESULTS.md: no '{heading}' section") from None
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")),
+               len(lines))
+    return start, end
+
+
 def headline(results: str) -> str:
     """The README block's content (without the markers) from the text of RESULTS.md.
 
@@ -56,12 +68,7 @@ def headline(results: str) -> str:
     (no full-grid section, table, vdbejax warm row or ratio lines).
     """
     lines = results.splitlines()
-    try:
-        start = next(i for i, line in enumerate(lines) if line.startswith(_SECTION))
-    except StopIteration:
-        raise ValueError(f"benchmarks/RESULTS.md: no '{_SECTION}' section") from None
-    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")),
-               len(lines))
+    start, end = _section(lines, _SECTION)
     section = lines[start:end]
     title = section[0].removeprefix("## ").strip()
     date = _header_value(lines[:start], "Date")
@@ -108,12 +115,7 @@ def headline(results: str) -> str:
 
 def _par(lines: list[str]) -> list[str]:
     """The par section's table, after a line saying when, where and what it compares."""
-    try:
-        start = next(i for i, line in enumerate(lines) if line.startswith(_PAR))
-    except StopIteration:
-        raise ValueError(f"benchmarks/RESULTS.md: no '{_PAR}' section") from None
-    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")),
-               len(lines))
+    start, end = _section(lines, _PAR)
     section = lines[start + 1:end]
     table = []
     for line in section:
