@@ -304,14 +304,20 @@ class Faulty(Explorer):
     ("faulty_array_init", "np.zeros(3)", "not an array of shape (3,)")])
 def test_a_table_start_value_that_is_no_number_is_one_line(tmp_path, trainings, capsys,
                                                            name, init, shown):
-    plugin = tmp_path / f"{name}.py"
-    plugin.write_text(PLUGIN.format(name=name, init=init))
-    out = tmp_path / "out"
-    assert cli.main(["run", "--plugin", str(plugin), "--learners", "qlearning", "--explorers",
-                     name, "--seeds", "2", "--episodes", "5", "--quiet", "--out", str(out)]) == 2
-    line = one_error_line(capsys)
+    line = refused_plugin_run(tmp_path, capsys, name, PLUGIN.format(name=name, init=init))
     assert f"explorer {name!r} table 'visits'" in line and shown in line, line
-    assert not trainings and not out.exists()
+    assert not trainings and not (tmp_path / "out").exists()
+
+
+def refused_plugin_run(tmp_path, capsys, name: str, source: str) -> str:
+    """``vdbejax run`` with the explorer ``name`` of a plug-in file holding ``source``:
+    exit 2, and its one error line."""
+    plugin = tmp_path / f"{name}.py"
+    plugin.write_text(source)
+    assert cli.main(["run", "--plugin", str(plugin), "--learners", "qlearning", "--explorers",
+                     name, "--seeds", "2", "--episodes", "5", "--quiet", "--out",
+                     str(tmp_path / "out")]) == 2
+    return one_error_line(capsys)
 
 
 def test_a_plug_in_that_exits_on_import_is_one_line(tmp_path, capsys):
@@ -354,14 +360,9 @@ def test_a_plug_in_mistake_in_select_is_one_line_that_says_what_to_change(
     """sys.exit in a plug-in method is the same one-line error as any exception (exit 2,
     not the plug-in's code); Python control flow on a traced value and a draw past
     num_uniforms say what to change."""
-    plugin = tmp_path / f"{name}.py"
-    plugin.write_text(SELECT_PLUGIN.format(name=name, body=body))
-    out = tmp_path / "out"
-    assert cli.main(["run", "--plugin", str(plugin), "--learners", "qlearning", "--explorers",
-                     name, "--seeds", "2", "--episodes", "5", "--quiet", "--out", str(out)]) == 2
-    line = one_error_line(capsys)
+    line = refused_plugin_run(tmp_path, capsys, name, SELECT_PLUGIN.format(name=name, body=body))
     assert f"explorer {name!r} select()" in line and shown in line, line
-    assert not trainings and not out.exists()
+    assert not trainings and not (tmp_path / "out").exists()
 
 
 # --------------------------------------------------------------- point 13: vdbejax compare
