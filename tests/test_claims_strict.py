@@ -4,8 +4,10 @@ import dataclasses
 import pytest
 from synthetic_grid import BEST, synthetic_grid
 
-from vdbejax.paper.claims import ABOUT, evaluate_claims
+from vdbejax.paper.claims import paper_claims
 from vdbejax.results.analysis import summarize
+from vdbejax.results.claim_scoring import score_rows
+from vdbejax.results.claim_spec import ABOUT
 
 
 def claim5(episodes: dict[str, int]):
@@ -16,7 +18,7 @@ def claim5(episodes: dict[str, int]):
                                 convergence_ci_low=float(episodes[row.explorer]),
                                 convergence_ci_high=float(episodes[row.explorer]))
             for row in summarize(synthetic_grid())]
-    return next(c for c in evaluate_claims(rows, BEST) if c.number == 5)
+    return next(c for c in score_rows(rows, paper_claims(), BEST).claims if c.number == 5)
 
 
 def test_the_papers_episodes_reproduce_claim_5():

@@ -6,8 +6,10 @@ import dataclasses
 import pytest
 
 from vdbejax.methods.agents import paper_settings
-from vdbejax.paper.claims import ABOUT, NEAR, TIE, evaluate_claims
+from vdbejax.paper.claims import paper_claims
 from vdbejax.paper.report import render_report
+from vdbejax.results.claim_scoring import score_rows
+from vdbejax.results.claim_spec import ABOUT, NEAR, TIE
 from vdbejax.results.summary import SummaryRow
 from vdbejax.results.verdicts import stable_count
 
@@ -16,6 +18,11 @@ SIGMAS = (0.001, 0.01, 0.1, 1.0, 10.0, 100.0)  # the paper's VDBE σ
 EPS = 0.002  # well inside TIE (0.01) and NEAR (0.05), well above float noise
 HALF = 0.005  # half the width of every final return's interval (unless a test sets it)
 CLEAR = HALF + EPS  # a value this far from a bound has its interval on one side of it
+
+
+def paper_scores(rows, best, replicates=None):
+    """The paper's claims file scored on summary rows (the pooled ones, with replicates')."""
+    return score_rows(rows, paper_claims(), best, replicates).claims
 
 
 def rows(values=None):
@@ -42,7 +49,7 @@ def egreedy(learner, finals):
 
 
 def check(table, number, text):
-    claim = next(c for c in evaluate_claims(table, BEST) if c.number == number)
+    claim = next(c for c in paper_scores(table, BEST) if c.number == number)
     (found,) = [c for c in claim.checks if text in c.description]
     return found.passed
 
@@ -246,7 +253,7 @@ def test_replicates_count_each_check_and_set_the_headline():
                                   for p in SIGMAS}})
     for n_bad, headline in ((0, None), (1, None), (2, "unstable")):
         replicates = [bad] * n_bad + [good] * (5 - n_bad)
-        claims = {c.number: c for c in evaluate_claims(pooled, BEST, replicates=replicates)}
+        claims = {c.number: c for c in paper_scores(pooled, BEST, replicates=replicates)}
         claim6 = claims[6]
         assert claim6.replicate_verdicts.count("partly") == n_bad
         assert claim6.agreeing == 5 - n_bad
@@ -261,7 +268,7 @@ def test_report_names_the_flips_and_states_the_rule():
     bad = rows({**LOW_EGREEDY, **{("sarsa", "vdbe", p): {"final": 0.0}
                                   for p in SIGMAS}})
     replicates = [bad] * 2 + [rows(LOW_EGREEDY)] * 3
-    claims = evaluate_claims(rows(LOW_EGREEDY), BEST, replicates=replicates)
+    claims = paper_scores(rows(LOW_EGREEDY), BEST, replicates=replicates)
     meta = {"num_seeds": 100, "agents_per_replicate": 20, "num_episodes": 1000, "seed": 0}
     report = render_report(claims, meta, BEST)
     assert "5 replicates × 20 agents (pooled 100)" in report
@@ -269,7 +276,7 @@ def test_report_names_the_flips_and_states_the_rule():
     assert "Claim 6: its verdict flips: partly in 2, reproduced in 3." in report
     assert "holds in 3 of 5: SARSA: best vdbe (" in report
     assert "## Claim 6: unstable (pooled reproduced; 3 of 5 replicates agree)" in report
-    steady = render_report(evaluate_claims(rows(), BEST, replicates=[rows()] * 5), meta, BEST)
+    steady = render_report(paper_scores(rows(), BEST, replicates=[rows()] * 5), meta, BEST)
     assert "None: every check holds in all replicates that decide it or in none." in steady
 
 
@@ -279,14 +286,14 @@ def test_undecided_checks_are_reported_and_do_not_make_a_claim_unstable():
     good = rows(LOW_EGREEDY)
     near = BEST - NEAR
     small = rows({**LOW_EGREEDY, **{("sarsa", "vdbe", p): {"final": near} for p in SIGMAS}})
-    claims = {c.number: c for c in evaluate_claims(good, BEST, replicates=[small] * 2 + [good] * 3)}
+    claims = {c.number: c for c in paper_scores(good, BEST, replicates=[small] * 2 + [good] * 3)}
     assert claims[6].replicate_verdicts.count("undecided") == 2
     assert claims[6].verdict == claims[6].pooled_verdict == "reproduced"
     check6 = next(k for k in claims[6].checks if "SARSA: best vdbe (" in k.description)
     assert (check6.replicates_passed, check6.replicates_undecided) == (3, 2)
     assert not check6.flips
     # Undecided on the pooled agents: the claim is undecided and the report says why.
-    pooled = evaluate_claims(small, BEST)
+    pooled = paper_scores(small, BEST)
     claim6 = next(c for c in pooled if c.number == 6)
     assert claim6.verdict == "undecided" and claim6.undecided_count == 1
     meta = {"num_seeds": 20, "num_episodes": 1000, "seed": 0}
@@ -300,4 +307,4 @@ def test_undecided_checks_are_reported_and_do_not_make_a_claim_unstable():
 def test_replicates_with_other_settings_are_refused():
     fewer = [r for r in rows() if r.explorer != "vdbe"]
     with pytest.raises(ValueError, match="replicates: replicate 1's rows give"):
-        evaluate_claims(rows(), BEST, replicates=[rows(), fewer])
+        paper_scores(rows(), BEST, replicates=[rows(), fewer])

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 from synthetic_grid import BEST, synthetic_grid
 
-from vdbejax.paper import claims
+from vdbejax.paper.claims import paper_claims
 from vdbejax.results import plotting
 from vdbejax.results.analysis import summarize, summary_columns
+from vdbejax.results.claim_scoring import score_claims, score_rows
 from vdbejax.results.summary import (
     SUMMARY_COLUMNS,
     SummaryRow,
@@ -131,30 +132,34 @@ def test_a_damaged_summary_file_is_named(tmp_path):
         read_summary(path)
 
 
-def test_claims_are_one_function_each(rows):
-    assert [f.__name__ for f in claims.CLAIMS] == [f"claim_{n}" for n in range(1, 7)]
-    table = claims.ClaimTable(rows, BEST)
-    results = [claim(table) for claim in claims.CLAIMS]
+def paper_scores(rows):
+    return score_rows(rows, paper_claims(), BEST).claims
+
+
+def test_the_papers_claims_score_alike_from_the_result_and_from_its_rows(grid, rows):
+    paper = paper_claims()
+    assert len(paper) == 6
+    results = paper_scores(rows)
     assert [r.number for r in results] == list(range(1, 7))
-    assert claims.evaluate_claims(rows, BEST) == [r for r in results if r.checks]
+    assert score_claims(grid, paper, rows, best_return=BEST).claims == results
     # summary.csv's strings score the same.
     strings = [{k: str(v) for k, v in r.items()} for r in rows]
-    assert claims.evaluate_claims(strings, BEST) == claims.evaluate_claims(rows, BEST)
+    assert paper_scores(strings) == results
 
 
 def test_claims_skip_absent_settings(rows):
     sarsa_softmax = [r for r in rows if r.learner == "sarsa" and r.explorer == "softmax"]
-    scored = claims.evaluate_claims(sarsa_softmax, BEST)
+    scored = paper_scores(sarsa_softmax)
     assert [c.number for c in scored] == [2, 6]
-    assert claims.evaluate_claims([], BEST) == []
+    assert paper_scores([]) == []
 
 
 def test_claim_5_falls_back_to_the_point_without_an_interval(rows):
     old = [dataclasses.replace(r, convergence_episode=150.0, convergence_ci_low=None,
                                convergence_ci_high=None) for r in rows]
-    claim = next(c for c in claims.evaluate_claims(old, BEST) if c.number == 5)
+    claim = next(c for c in paper_scores(old) if c.number == 5)
     first = claim.checks[0].description
-    assert "converges (150 [150, 150])" in first
+    assert "convergence_episode 150 [150, 150] ends within" in first
 
 
 def test_sensitivity_without_convergence_intervals(rows):
@@ -189,8 +194,9 @@ def test_a_setting_that_never_learns_is_censored_in_summary_claims_and_plot(grid
         r.config for r in censored]
     never = [dataclasses.replace(r, convergence_episode=math.inf)
              if r.explorer == "vdbe" and r.learner == "qlearning" else r for r in rows]
-    claim_3 = next(c for c in claims.evaluate_claims(never, BEST) if c.number == 3)
-    assert "0.01→" in claim_3.measured and "(> 120)" in claim_3.measured
+    claim_3 = next(c for c in paper_scores(never) if c.number == 3)
+    assert "qlearning/vdbe/sigma=0.01 final_return" in claim_3.measured
+    assert "qlearning/vdbe/sigma=0.01 convergence_episode > 120" in claim_3.measured
     swept = [r for r in censored if r.param is not None]
     fig = plotting.sensitivity(rows, best_return=BEST)
     labels = [t.get_text() for legend in fig.legends for t in legend.get_texts()]

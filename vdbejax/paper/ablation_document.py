@@ -8,10 +8,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from vdbejax.methods import learner_title
 from vdbejax.methods.explorers import PAPER_EXPLORERS as EXPLORERS
+from vdbejax.methods.learners import PAPER_LEARNERS
 from vdbejax.paper.ablation_variants import VariantResult
-from vdbejax.paper.claims import LEARNER_NAMES, NEAR, ClaimTable
 from vdbejax.results import io
+from vdbejax.results.claim_scoring import best_row
+from vdbejax.results.claim_spec import NEAR
 from vdbejax.results.markdown import table_lines
 from vdbejax.results.replicates import POOLED_SUMMARY_FILE
 from vdbejax.results.solving import CONVERGENCE_TEXT
@@ -20,6 +23,8 @@ from vdbejax.results.summary import SummaryRow, episode_text, read_summary
 from vdbejax.results.verdicts import stable_count
 from vdbejax.studies.sweeps import FIGURE_FILE, SENSITIVITY_FILE
 
+#: The paper's learners, with their display names (the plug-ins' titles).
+LEARNER_NAMES = {name: learner_title(name) for name in PAPER_LEARNERS}
 VERDICT_MARKS = {"reproduced": "✅ reproduced", "partly": "◐ partly", "not reproduced": "❌ not",
                  "unstable": "⚠ unstable", "undecided": "? undecided"}
 
@@ -129,18 +134,16 @@ def render_document(
     key_rows = []
     for r, rows in zip(results, pooled, strict=True):
         near = r.best_return - NEAR
-        table = ClaimTable(rows)
         cells = [f"`{r.variant.name}`"]
         for learner in LEARNER_NAMES:
             for explorer in EXPLORERS:
-                rows = table.get(learner, explorer)
-                b = table.best(learner, explorer)
-                assert b is not None  # every variant runs the paper's whole grid
-                near_count = sum(x.final_return >= near for x in rows)
+                family = _family(rows, learner, explorer)
+                b = best_row(family)  # every variant runs the paper's whole grid
+                near_count = sum(x.final_return >= near for x in family)
                 cells.append(f"{b.final_return:.2f} [{b.final_ci_low:.2f}, "
                              f"{b.final_ci_high:.2f}] @{b.swept_param():g}; "
-                             f"{near_count}/{len(rows)} near")
-        stuck = [x.truncated_fraction for x in table.rows
+                             f"{near_count}/{len(family)} near")
+        stuck = [x.truncated_fraction for x in rows
                  if x.learner == "sarsa" and x.explorer == "vdbe" and x.swept_param() >= 0.1
                  and x.truncated_fraction is not None]
         cells.append(f"{sum(stuck) / len(stuck):.2f}" if stuck else "—")
@@ -166,6 +169,12 @@ def render_document(
     return "\n".join(lines) + "\n"
 
 
+def _family(rows: Sequence[SummaryRow], learner: str, explorer: str) -> list[SummaryRow]:
+    """The rows of one learner × explorer, by increasing parameter."""
+    return sorted((x for x in rows if x.learner == learner and x.explorer == explorer),
+                  key=SummaryRow.swept_param)
+
+
 def _convergence_table(results: Sequence[VariantResult],
                        pooled: Sequence[list[SummaryRow]]) -> list[str]:
     """Convergence episodes per method family: the range over each learner × explorer's
@@ -177,12 +186,11 @@ def _convergence_table(results: Sequence[VariantResult],
              " settings that is); — none ends near it.", ""]
     cells_per_variant = []
     for r, rows in zip(results, pooled, strict=True):
-        table = ClaimTable(rows, r.best_return)
         cells = [f"`{r.variant.name}`"]
         for learner in LEARNER_NAMES:
             for explorer in EXPLORERS:
-                good = [x.convergence_episode for x in table.get(learner, explorer)
-                        if x.final_return >= table.near]
+                good = [x.convergence_episode for x in _family(rows, learner, explorer)
+                        if x.final_return >= r.best_return - NEAR]
                 cells.append(f"{episode_text(min(good))}–{episode_text(max(good))}"
                              f" ({len(good)})" if good else "—")
         cells_per_variant.append(cells)

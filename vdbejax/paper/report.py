@@ -1,4 +1,4 @@
-"""``report.md``: the scored claims (:mod:`vdbejax.paper.claims`) as a document.
+"""``report.md``: the paper's scored claims (:mod:`vdbejax.paper.claims`) as a document.
 
 One run's report lists each claim's verdict and checks, and names the settings whose
 agents all end at one value (with where the docs explain it). A run with replicates
@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 
 from vdbejax.methods.registry import explorer_title, learner_title
-from vdbejax.paper.claims import ABOUT, NEAR, TIE
 from vdbejax.results.analysis import truncated_fraction
 from vdbejax.results.claim_report import (
     DECISION_RULE,
@@ -25,6 +24,7 @@ from vdbejax.results.claim_report import (
     undecided_lines,
     verdict_table,
 )
+from vdbejax.results.claim_spec import ABOUT, NEAR, TIE
 from vdbejax.results.curves import LAST, final_return
 from vdbejax.results.grid_result import GridResult
 from vdbejax.results.solving import CONVERGENCE_TEXT
@@ -133,7 +133,8 @@ def render_report(claims: Sequence[ClaimResult], meta: dict[str, Any], best_retu
     """``report.md``: each claim with the paper's and our numbers, checks and verdict.
 
     Args:
-      claims: the scored claims (:func:`~vdbejax.paper.claims.evaluate_claims`).
+      claims: the scored claims (:func:`~vdbejax.results.claim_scoring.score_claims` of
+        :func:`~vdbejax.paper.claims.paper_claims`).
       meta: the run's metadata (task, run size, seed, options; missing keys print ``?``;
         ``replicates`` and ``agents_per_replicate`` for a run with replicates).
       best_return: the task's best possible return.

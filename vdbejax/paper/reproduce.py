@@ -15,11 +15,11 @@ from vdbejax.envs.cruz2018 import STEP_CAP, make_authors_mdp
 from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import AgentOptions, Setting, owners, paper_settings
-from vdbejax.paper.claims import evaluate_claims
+from vdbejax.paper.claims import paper_claims
 from vdbejax.paper.report import cap_message, one_value_settings, render_report
 from vdbejax.results import io
 from vdbejax.results.claim_report import CLAIMS_FILE, CLAIMS_REPORT_FILE
-from vdbejax.results.claim_scoring import recorded_metrics
+from vdbejax.results.claim_scoring import recorded_metrics, score_claims
 from vdbejax.results.claim_spec import check_claims, parse_claims
 from vdbejax.results.folder_lock import FolderLock, check_output_paths, describe_os_error, unmark
 from vdbejax.results.grid_result import GridResult
@@ -74,7 +74,8 @@ def write_outputs(
         :func:`vdbejax.studies.sweeps.write_outputs`).
 
     With replicates (:mod:`vdbejax.results.replicates`) the claims are scored on the pooled
-    agents and on each replicate (:func:`~vdbejax.paper.claims.evaluate_claims`).
+    agents and on each replicate (:func:`~vdbejax.results.claim_scoring.score_claims` of
+    :func:`~vdbejax.paper.claims.paper_claims`).
 
     Returns:
       the summary rows (:class:`~vdbejax.results.summary.SummaryRow`; replicate 0's) and
@@ -90,8 +91,8 @@ def write_outputs(
         io.save_figure(figure3(result, best_return=best, smoothing="authors"),
                        out / AUTHORS_FIGURE_FILE)
     several = replicate_count(result) > 1
-    claims = evaluate_claims(summaries.pooled, best,
-                             replicates=summaries.replicates if several else None)
+    claims = score_claims(result, paper_claims(), summaries.pooled,
+                          summaries.replicates if several else None, best).claims
     io.atomic_write_text(out / REPORT_FILE, render_report(claims, result.meta, best,
                                                           one_value_settings(result, best)))
     return summaries.replicates[0], claims

@@ -24,8 +24,15 @@ with exactly one of :data:`COMPARISONS`:
   multiplies the other setting's estimate), or ``beats``
   with ``probability_above`` (default 0.5): the probability of improvement
   ``P(A > B)`` of the agents' final returns with its interval;
+- another setting: ``no_higher_than`` (the interval at or below the other's), ``worse_than``
+  (ends lower or converges later), ``converges_first = [settings]`` (ends near the best
+  return and converges no later than each listed setting that ends near it);
 - an axis: ``best = [values]`` (the settings of ``among`` whose ``axis`` has these values
   lie above every other value's) or ``rank = k`` with ``value`` (that value's rank).
+
+A selector table may give a hyperparameter a range (``sigma = {at_least = 0.1}``:
+:class:`Bounds`) or a list of values (one of them); ``{every = S}`` (:class:`Every`) checks
+every setting ``S`` names. A check's ``text`` is its wording in reports.
 
 Settings are named as the run names them (``"qlearning/egreedy/epsilon=0.1"``, the
 setting's label) or selected by a table of ``learner``, ``explorer`` and hyperparameter
@@ -65,9 +72,11 @@ RECORDED_BY = {"optimal_actions": "record_optimal", "reward_per_step": "record_o
 LOWER_IS_BETTER = frozenset({"convergence_episode", "policy_gap"})
 #: A check's comparison keys: exactly one per check.
 COMPARISONS = ("above", "below", "about", "near_best", "higher_than", "lower_than",
-               "earlier_than", "no_later_than", "beats", "best", "rank", "all", "any", "not")
+               "no_higher_than", "earlier_than", "no_later_than", "worse_than",
+               "converges_first", "beats", "best", "rank", "all", "any", "not")
 #: The comparisons with another setting.
-VERSUS = ("higher_than", "lower_than", "earlier_than", "no_later_than", "beats")
+VERSUS = ("higher_than", "lower_than", "no_higher_than", "earlier_than", "no_later_than",
+          "worse_than", "beats")
 #: Default relative tolerance of ``about``.
 ABOUT = 0.25
 #: Default margin of ``near_best``.
@@ -75,17 +84,50 @@ NEAR = 0.05
 #: Default level of ``beats``.
 LEVEL = 0.5
 #: The comparisons a ``factor`` may scale the other setting's estimate in.
-SCALED = ("higher_than", "lower_than", "earlier_than", "no_later_than")
+SCALED = ("higher_than", "lower_than", "no_higher_than", "earlier_than", "no_later_than")
+#: The comparisons that read two metrics of their own (``metric`` is refused with them).
+TWO_METRICS = ("worse_than", "converges_first")
 #: Every key a check may hold.
 CHECK_KEYS = (*COMPARISONS, "setting", "metric", "tolerance", "near", "probability_above",
-              "axis", "among", "value", "factor")
+              "axis", "among", "value", "factor", "text")
+#: The ends a range of a hyperparameter's values may give (:class:`Bounds`).
+RANGE_KEYS = ("at_least", "at_most", "above", "below")
 #: Settings whose ranking values are this close are tied when a ``best`` selector picks
 #: one (a choice, not a verdict: verdicts come from intervals).
 TIE = 0.01
 #: A ranked selector's default ranking metric (``by``).
 RANK_BY = "final_iqm"
 
-#: A setting named outright: its label, or ``(key, value)`` pairs it must match.
+
+
+@dataclasses.dataclass(frozen=True)
+class Bounds:
+    """A range of a hyperparameter's values in a selector table (``sigma = {at_least =
+    0.1}``, ``sigma = {above = 0.01, below = 1}``): a setting matches when its value is a
+    number and every end given holds."""
+
+    at_least: float | None = None
+    at_most: float | None = None
+    above: float | None = None
+    below: float | None = None
+
+    def holds(self, value: Any) -> bool:
+        """Whether ``value`` lies in the range."""
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return False
+        return ((self.at_least is None or value >= self.at_least)
+                and (self.at_most is None or value <= self.at_most)
+                and (self.above is None or value > self.above)
+                and (self.below is None or value < self.below))
+
+    def text(self) -> str:
+        """The range as the claims file gives it (``{at_least = 0.1}``)."""
+        return "{" + ", ".join(f"{key} = {getattr(self, key):g}" for key in RANGE_KEYS
+                               if getattr(self, key) is not None) + "}"
+
+
+#: A setting named outright: its label, or ``(key, value)`` pairs it must match (a value,
+#: a :class:`Bounds` range, or a tuple of values, one of which it must have).
 Named = str | tuple[tuple[str, Any], ...]
 
 
@@ -106,8 +148,17 @@ class Ranked:
     by: str = RANK_BY
 
 
-#: A setting as a claim names it: outright (:data:`Named`) or by its results (:class:`Ranked`).
-Selector = Named | Ranked
+@dataclasses.dataclass(frozen=True)
+class Every:
+    """Every setting a selector names (``{every = S}``): the check holds for each of them
+    (Kleene's and); as the other setting of a comparison, against each of them."""
+
+    among: Named
+
+
+#: A setting as a claim names it: outright (:data:`Named`), by its results
+#: (:class:`Ranked`), or all those a selector names (:class:`Every`).
+Selector = Named | Ranked | Every
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,6 +171,7 @@ class CheckSpec:
       metric: the metric read.
       setting: the setting checked (number and setting comparisons).
       other: the other setting (:data:`VERSUS`).
+      others: ``converges_first``'s rivals.
       bound: the number compared with (``above``, ``below``, ``about``; the level of
         ``beats``; the margin of ``near_best``).
       factor: what the other setting's estimate is multiplied by (:data:`SCALED`).
@@ -129,6 +181,8 @@ class CheckSpec:
       parts: the checks an ``all``, ``any`` or ``not`` combines.
       optional: a claim's check left out where a setting it names is absent from the run
         (:func:`present`), rather than refused.
+      text: the check in words (reports print it before what the check read).
+      requires: settings an ``optional`` check also needs in the run (else it is left out).
     """
 
     kind: str
@@ -136,6 +190,7 @@ class CheckSpec:
     metric: str = "final_return"
     setting: Selector | None = None
     other: Selector | None = None
+    others: tuple[Selector, ...] = ()
     bound: float = math.nan
     tolerance: float = ABOUT
     factor: float = 1.0
@@ -145,6 +200,8 @@ class CheckSpec:
     rank: int = 0
     parts: tuple[CheckSpec, ...] = ()
     optional: bool = False
+    text: str = ""
+    requires: tuple[Named, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -163,17 +220,43 @@ def _number(value: Any, where: str, key: str) -> float:
     return float(value)
 
 
+def _bounds(value: Mapping[str, Any], where: str, key: str) -> Bounds:
+    unknown = sorted(set(value) - set(RANGE_KEYS))
+    if unknown or not value:
+        raise ValueError(f"{where}: {key}={dict(value)!r} is invalid: a range gives one or more"
+                         f" of {', '.join(RANGE_KEYS)}")
+    return Bounds(**{end: _number(bound, where, f"{key}.{end}") for end, bound in value.items()})
+
+
+def _rule_value(value: Any, where: str, key: str) -> Any:
+    """A selector table's value: a :class:`Bounds` range, a tuple of values (one of), or
+    the value."""
+    if isinstance(value, Mapping):
+        return _bounds(value, where, key)
+    if isinstance(value, list):
+        if not value or any(isinstance(v, (list, Mapping)) for v in value):
+            raise ValueError(f"{where}: {key}={value!r} is invalid: a list of values must be"
+                             " non-empty, of plain values")
+        return tuple(value)
+    return value
+
+
 def _named(value: Any, where: str, key: str) -> Named:
     if isinstance(value, str) and value:
         return value
     if isinstance(value, Mapping) and value and all(isinstance(k, str) for k in value) \
-            and not {"best", "worst"} & set(value):
-        return tuple(sorted(value.items()))
+            and not {"best", "worst", "every"} & set(value):
+        return tuple(sorted((k, _rule_value(v, where, f"{key}.{k}")) for k, v in value.items()))
     raise ValueError(f"{where}: {key}={value!r} is invalid: must be a setting's name"
                      " (learner/explorer/name=value) or a table {learner, explorer, name = value}")
 
 
 def _selector(value: Any, where: str, key: str) -> Selector:
+    if isinstance(value, Mapping) and "every" in value:
+        if set(value) != {"every"}:
+            raise ValueError(f"{where}: {key}={value!r} is invalid: {{every = S}} takes no"
+                             " other key")
+        return Every(_named(value["every"], where, f"{key}.every"))
     if not isinstance(value, Mapping) or not {"best", "worst"} & set(value):
         return _named(value, where, key)
     picks = [pick for pick in ("best", "worst") if pick in value]
@@ -188,24 +271,37 @@ def _selector(value: Any, where: str, key: str) -> Selector:
     return Ranked(picks[0], _named(value[picks[0]], where, f"{key}.{picks[0]}"), by)
 
 
+#: The keys only a claim's check (not a combined one) may hold.
+TOP_KEYS = ("optional", "requires", "text")
+
+
 def _top_check(data: Any, where: str) -> CheckSpec:
-    """A claim's check: :func:`_check`, with ``optional``."""
-    if not isinstance(data, Mapping) or "optional" not in data:
+    """A claim's check: :func:`_check`, with ``optional``, ``requires`` and ``text``."""
+    if not isinstance(data, Mapping) or not set(TOP_KEYS) & set(data):
         return _check(data, where)
-    if not isinstance(data["optional"], bool):
-        raise ValueError(f"{where}: optional={data['optional']!r} is invalid: must be true"
-                         " or false")
-    rest = {key: value for key, value in data.items() if key != "optional"}
-    return dataclasses.replace(_check(rest, where), optional=data["optional"])
+    optional, text = data.get("optional", False), data.get("text", "")
+    if not isinstance(optional, bool):
+        raise ValueError(f"{where}: optional={optional!r} is invalid: must be true or false")
+    if "text" in data and (not isinstance(text, str) or not text.strip()):
+        raise ValueError(f"{where}: text={text!r} is invalid: must be the check in words")
+    requires = data.get("requires", [])
+    if "requires" in data and (not optional or not isinstance(requires, list) or not requires):
+        raise ValueError(f"{where}: requires={requires!r} is invalid: must be a non-empty list"
+                         " of settings, with optional = true")
+    rest = {key: value for key, value in data.items() if key not in TOP_KEYS}
+    return dataclasses.replace(_check(rest, where), optional=optional, text=text,
+                               requires=tuple(_named(value, where, f"requires[{i}]")
+                                              for i, value in enumerate(requires)))
 
 
 def _check(data: Any, where: str) -> CheckSpec:
     if not isinstance(data, Mapping):
         raise ValueError(f"{where}={data!r} is invalid: must be a table {{setting, metric,"
                          f" comparison}} (comparisons: {', '.join(COMPARISONS)})")
-    if "optional" in data:
-        raise ValueError(f"{where}: 'optional' is invalid inside a combination: give it on"
-                         " the claim's check")
+    for key in TOP_KEYS:
+        if key in data:
+            raise ValueError(f"{where}: {key!r} is invalid inside a combination: give it on"
+                             " the claim's check")
     unknown = sorted(set(data) - set(CHECK_KEYS))
     if unknown:
         raise ValueError(f"{where}: unknown key {unknown[0]!r}: allowed are"
@@ -227,8 +323,11 @@ def _check(data: Any, where: str) -> CheckSpec:
         return CheckSpec(kind, where, parts=tuple(
             _check(part, f"{where}.{kind}" + ("" if kind == "not" else f"[{i}]"))
             for i, part in enumerate(parts)))
-    default = "convergence_episode" if kind in ("earlier_than", "no_later_than") else \
-        "final_return"
+    default = "convergence_episode" if kind in ("earlier_than", "no_later_than",
+                                                "converges_first") else "final_return"
+    if kind in TWO_METRICS and "metric" in data:
+        raise ValueError(f"{where}: metric={data['metric']!r} is invalid with {kind}: it reads"
+                         " final_return and convergence_episode")
     metric = data.get("metric", default)
     if metric not in METRICS:
         raise ValueError(f"{where}: metric={metric!r} is invalid: allowed are"
@@ -263,8 +362,20 @@ def _check(data: Any, where: str) -> CheckSpec:
         if "setting" not in data:
             raise ValueError(f"{where}: {kind} needs setting = … (the setting checked)")
         fields["setting"] = _selector(data["setting"], where, "setting")
+        if kind == "beats" and isinstance(fields["setting"], Every):
+            raise ValueError(f"{where}: setting={data['setting']!r} is invalid with beats:"
+                             " name one setting")
     if kind in VERSUS:
         fields["other"] = _selector(data[kind], where, kind)
+        if kind == "beats" and isinstance(fields["other"], Every):
+            raise ValueError(f"{where}: beats={data[kind]!r} is invalid: name one setting")
+    if kind == "converges_first":
+        rivals = data[kind]
+        if not isinstance(rivals, list) or not rivals:
+            raise ValueError(f"{where}: converges_first={rivals!r} is invalid: must be a"
+                             " non-empty list of settings")
+        fields["others"] = tuple(_selector(rival, where, f"{kind}[{i}]")
+                                 for i, rival in enumerate(rivals))
     if kind in ("above", "below", "about"):
         fields["bound"] = _number(data[kind], where, kind)
     if kind == "about":
@@ -277,9 +388,9 @@ def _check(data: Any, where: str) -> CheckSpec:
         if fields["factor"] <= 0:
             raise ValueError(f"{where}: factor={data['factor']!r} is invalid: must be a"
                              " number > 0 (what the other setting's estimate is multiplied by)")
-    if kind == "near_best":
-        if data[kind] is not True:
-            raise ValueError(f"{where}: near_best={data[kind]!r} is invalid: must be true")
+    if kind == "near_best" and data[kind] is not True:
+        raise ValueError(f"{where}: near_best={data[kind]!r} is invalid: must be true")
+    if kind in ("near_best", "converges_first"):
         fields["bound"] = _number(data.get("near", NEAR), where, "near")
     if kind == "beats":
         level = _number(data.get("probability_above", LEVEL), where, "probability_above")
@@ -287,7 +398,8 @@ def _check(data: Any, where: str) -> CheckSpec:
             raise ValueError(f"{where}: probability_above={level!r} is invalid: must be in"
                              " [0, 1)")
         fields["bound"] = level
-    unused = [key for key, used in (("tolerance", kind == "about"), ("near", kind == "near_best"),
+    unused = [key for key, used in (("tolerance", kind == "about"),
+                                    ("near", kind in ("near_best", "converges_first")),
                                     ("probability_above", kind == "beats"),
                                     ("axis", kind in ("best", "rank")),
                                     ("among", kind in ("best", "rank")),
@@ -346,27 +458,44 @@ def selector_text(selector: Selector) -> str:
     if isinstance(selector, Ranked):
         return (f"{{{selector.pick} = {selector_text(selector.among)}, by ="
                 f" {selector.by!r}}}")
+    if isinstance(selector, Every):
+        return f"{{every = {selector_text(selector.among)}}}"
     if isinstance(selector, str):
         return selector
-    return "{" + ", ".join(f"{k} = {v!r}" for k, v in selector) + "}"
+    return "{" + ", ".join(f"{k} = {v.text() if isinstance(v, Bounds) else repr(v)}"
+                           for k, v in selector) + "}"
+
+
+def _matches(setting: Setting, key: str, value: Any) -> bool:
+    if isinstance(value, Bounds):
+        return value.holds(setting.values.get(key))
+    if isinstance(value, tuple):
+        return any(setting_matches(setting, {key: v}) for v in value)
+    return setting_matches(setting, {key: value})
 
 
 def select(selector: Named, settings: Sequence[Setting]) -> list[int]:
     """The indices of the settings a selector names outright."""
     if isinstance(selector, str):
         return [c for c, s in enumerate(settings) if s.label == selector]
-    rule = dict(selector)
-    return [c for c, s in enumerate(settings) if setting_matches(s, rule)]
+    return [c for c, s in enumerate(settings)
+            if all(_matches(s, key, value) for key, value in selector)]
 
 
 def candidates(selector: Selector, settings: Sequence[Setting], where: str,
                key: str) -> list[int]:
     """The settings a selector may name: the one it names outright (:func:`select_one`), or
-    every setting a :class:`Ranked` one chooses among (one or more).
+    every setting a :class:`Ranked` one chooses among or an :class:`Every` one names (one
+    or more).
 
     Raises:
       ValueError: it names none, or (outright) several.
     """
+    if isinstance(selector, Every):
+        found = select(selector.among, settings)
+        if not found:
+            select_one(selector.among, settings, where, f"{key}.every")
+        return found
     if not isinstance(selector, Ranked):
         return [select_one(selector, settings, where, key)]
     found = select(selector.among, settings)
@@ -440,11 +569,12 @@ def axis_members(check: CheckSpec, settings: Sequence[Setting]) -> list[int]:
 
 
 def present(check: CheckSpec, settings: Sequence[Setting]) -> bool:
-    """Whether every setting a check names (however deep) is in the run: an ``optional``
-    check is scored only where it is, and left out otherwise."""
-    named = [selector.among if isinstance(selector, Ranked) else selector
-             for leaf in leaves(check) for selector in (leaf.setting, leaf.other, leaf.among)
-             if selector is not None]
+    """Whether every setting a check names (however deep) or ``requires`` is in the run: an
+    ``optional`` check is scored only where it is, and left out otherwise."""
+    named = [selector.among if isinstance(selector, (Ranked, Every)) else selector
+             for leaf in leaves(check)
+             for selector in (leaf.setting, leaf.other, *leaf.others, leaf.among)
+             if selector is not None] + list(check.requires)
     return all(select(selector, settings) for selector in named)
 
 
@@ -486,7 +616,8 @@ def check_claims(claims: Sequence[ClaimSpec], settings: Sequence[Setting],
 def _check_leaf(leaf: CheckSpec, settings: Sequence[Setting], recorded: Sequence[str]) -> None:
     metrics = [("metric", leaf.metric)] + [
         (f"{key}.by", selector.by) for key, selector in (("setting", leaf.setting),
-                                                         (leaf.kind, leaf.other))
+                                                         (leaf.kind, leaf.other),
+                                                         *((leaf.kind, o) for o in leaf.others))
         if isinstance(selector, Ranked)]
     for key, metric in metrics:
         needs = RECORDED_BY.get(metric)
@@ -499,18 +630,22 @@ def _check_leaf(leaf: CheckSpec, settings: Sequence[Setting], recorded: Sequence
         return
     assert leaf.setting is not None
     mine = candidates(leaf.setting, settings, leaf.where, "setting")
-    if leaf.other is not None:
-        other = candidates(leaf.other, settings, leaf.where, leaf.kind)
+    for rival in (leaf.other, *leaf.others):
+        if rival is None:
+            continue
+        other = candidates(rival, settings, leaf.where, leaf.kind)
         if set(other) & set(mine):
             same = settings[min(set(other) & set(mine))].label
             verb = "is" if len(mine) == len(other) == 1 else "may be"
-            raise ValueError(f"{leaf.where}: {leaf.kind}={selector_text(leaf.other)} is"
+            raise ValueError(f"{leaf.where}: {leaf.kind}={selector_text(rival)} is"
                              f" invalid: it {verb} the setting checked ({same});"
                              " compare two settings")
 
 
 __all__ = ["ABOUT", "CHECK_KEYS", "COMPARISONS", "LEVEL", "LOWER_IS_BETTER", "METRICS", "NEAR",
-           "RANK_BY", "RECORDED_BY", "SCALED", "TIE", "VERSUS", "CheckSpec", "ClaimSpec",
-           "Named", "Ranked", "Selector", "axis_members", "axis_settings", "candidates",
+           "RANGE_KEYS", "RANK_BY", "RECORDED_BY", "SCALED", "TIE", "TOP_KEYS", "TWO_METRICS",
+           "VERSUS",
+           "Bounds", "CheckSpec", "ClaimSpec", "Every", "Named", "Ranked", "Selector",
+           "axis_members", "axis_settings", "candidates",
            "check_claims", "claims_digest", "leaves", "parse_claims", "present", "scored_checks",
            "select", "select_one", "selector_text"]
