@@ -145,7 +145,7 @@ def ablate(
       variants: the variants (the first is the baseline).
       seeds, episodes, seed: run size of every variant.
       replicates: independent groups of ``seeds`` agents per variant (default 5): every
-        verdict is the headline of :mod:`vdbejax.paper.claims` (the pooled verdict when at
+        verdict is the headline of :mod:`vdbejax.results.verdicts` (the pooled verdict when at
         least 4 of 5 replicates agree, else *unstable*).
       notes: a hand-written markdown file appended as the discussion.
       reuse: reuse saved results of the same variant and size.
