@@ -25,7 +25,8 @@ Each peer runs in a fresh subprocess (clean timings and peak memory):
 
 Every peer must reproduce vdbejax's learning curves (per-setting mean return over the
 first 300 and the last 100 episodes, bootstrap CI of the difference), otherwise its speed
-would mean nothing. ``--scaling`` adds throughput and memory against the number of agents
+would mean nothing (the verdicts in ``--out``, each setting's differences in
+``AGREEMENT.md`` beside it). ``--scaling`` adds throughput and memory against the number of agents
 (``--mdp-factory module:function`` swaps the task, e.g. for generated variants).
 """
 from __future__ import annotations
@@ -50,6 +51,8 @@ ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_FACTORY = "vdbejax.envs.table_cleaning:make_mdp"
 #: A RESULTS.md section from this heading on is hand-written and kept across reruns.
 ANALYSIS_HEADING = "## Analysis"
+#: The page beside ``--out`` with the peers' per-setting differences to vdbejax.
+AGREEMENT = "AGREEMENT.md"
 
 
 def _peak_rss_mb() -> float:
@@ -305,7 +308,20 @@ def _machine() -> list[str]:
         f"numba {numba.__version__}, numpy {np.__version__}, "
         f"mushroom-rl {mushroom or 'not installed'}.",
         f"- Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M UTC}.",
+        f"- Commit: {_commit()}.",
     ]
+
+
+def _commit() -> str:
+    """The repository's commit (short hash), with a note when the work tree differs."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, check=True,
+                              capture_output=True, text=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=ROOT, check=True, capture_output=True, text=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown (not a git checkout)"
+    return f"`{head}`" + (" with uncommitted changes" if dirty.strip() else "")
 
 
 def _fmt_row(name, r, ref=None, note="", *, threads="1", agree=""):
@@ -473,9 +489,10 @@ def main(argv=None) -> int:
 
     lines = ["# Benchmarks: vdbejax against Numba (1 and N threads), MushroomRL and a pure-Python "
              "per-agent loop", ""]
-    lines += _machine()
+    header = [*_machine(),
+              f"- Command: `{command}` (from the repository root, in the project venv)."]
+    lines += header
     lines += [
-        f"- Command: `{command}` (from the repository root, in the project venv).",
         f"- Load average (1/5/15 min) before: {load_before[0]:.1f}/{load_before[1]:.1f}/"
         f"{load_before[2]:.1f}, after: {load_after[0]:.1f}/{load_after[1]:.1f}/"
         f"{load_after[2]:.1f}. The machine is shared; a load above the core count inflates "
@@ -639,16 +656,19 @@ def main(argv=None) -> int:
                 f"agent-lane iterations for {steps:,} real steps (lane efficiency "
                 f"{steps / max(r['lane_iterations'], 1):.0%}).")
 
-    # agreement
+    # agreement: the verdicts here, the per-setting differences on a page of their own
+    out_path = Path(args.out)
+    agreement_path = out_path.with_name(AGREEMENT)
+    check = ("Per setting, the mean over agents of the return averaged over episodes 1–300 "
+             "(*early*, learning speed) and 901–1000 (*final*); a peer agrees when the "
+             "difference to vdbejax lies in the 99.9 % acceptance interval of a bootstrap "
+             "test of equal means (agents of both resampled from the pooled agents; valid "
+             "for the Python and MushroomRL peers' few seeds) or |difference| ≤ 0.02. "
+             "Different random streams, so only distributions can agree; with 46 settings × "
+             "2 windows a few rejections at 99.9 % would still be chance only rarely. "
+             "MushroomRL is checked on the 22 settings it covers (– elsewhere).")
     lines += ["", "## Do the peers learn the same? (statistical check)", "",
-              "Per setting, the mean over agents of the return averaged over episodes 1–300 "
-              "(*early*, learning speed) and 901–1000 (*final*); a peer agrees when the "
-              "difference to vdbejax lies in the 99.9 % acceptance interval of a bootstrap "
-              "test of equal means (agents of both resampled from the pooled agents; valid "
-              "for the Python and MushroomRL peers' few seeds) or |difference| ≤ 0.02. "
-              "Different random streams, so only distributions can agree; with 46 settings × "
-              "2 windows a few rejections at 99.9 % would still be chance only rarely. "
-              "MushroomRL is checked on the 22 settings it covers (– elsewhere).", ""]
+              f"The check and each setting's differences: [`{AGREEMENT}`]({AGREEMENT}).", ""]
     for n, _, subset, _ in checks:
         lines.append(f"- {n}: {summary[n]} settings agree on both windows"
                      + (" (the ε-greedy and softmax settings)" if n == "mushroom" else "") + ".")
@@ -669,9 +689,10 @@ def main(argv=None) -> int:
                 d, lo, hi, good = row[w]
                 cells.append(f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]{'' if good else ' ✗'}")
         detail.append(f"| {setting.label} | " + " | ".join(cells) + " |")
-    lines += ["", "<details><summary>per-setting differences (peer − vdbejax, 99.9 % "
-              "acceptance interval under equal means)</summary>",
-              "", *detail, "", "</details>"]
+    agreement_path.write_text("\n".join([
+        "# Do the peers learn the same? Per-setting differences", "", *header, "", check, "",
+        "Each cell: peer − vdbejax, then the 99.9 % acceptance interval under equal means"
+        " (✗: outside it and |difference| > 0.02).", "", *detail]) + "\n")
 
     # scaling
     counts = [int(c) for c in args.scaling.split(",") if c.strip()]
@@ -704,7 +725,6 @@ def main(argv=None) -> int:
             png = Path(args.out).with_name("scaling.png")
             _plot_scaling(scale_rows, png)
             lines += ["", f"![throughput and memory against agents]({png.name})"]
-    out_path = Path(args.out)
     analysis = ""
     if out_path.exists() and ANALYSIS_HEADING in out_path.read_text():
         text = out_path.read_text()

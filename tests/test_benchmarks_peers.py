@@ -218,6 +218,11 @@ def test_harness_end_to_end_writes_every_peer_row(tmp_path):
     assert "MushroomRL (`mushroom`) measured: 22 of the 46 settings" in text
     assert text.rstrip().endswith("hand-written text kept")  # the Analysis section is kept
     assert text.count("## Analysis") == 1
+    assert "\n- Commit: `" in text and "<details>" not in text
+    # each setting's differences on the page beside it, under the same header lines
+    agreement = (tmp_path / "AGREEMENT.md").read_text()
+    assert "| qlearning/egreedy/epsilon=0.01 |" in agreement and "- Commit: `" in agreement
+    assert "[`AGREEMENT.md`](AGREEMENT.md)" in text
 
 
 @pytest.mark.parametrize("flag, value", [("--warm-runs", "0"), ("--scaling", "10,0"),

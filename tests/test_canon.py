@@ -291,11 +291,17 @@ def test_strategies_chunks_and_lane_widths_give_the_same_bits():
     assert vdbejax.engine.native_step_loops() is True
 
 
-def _np_step(mdp, s, a, rng):
+def _np_task(mdp):
+    """The task's tables as numpy arrays, for :func:`_np_step`."""
+    return tuple(np.asarray(table) for table in (mdp.probability, mdp.next_state,
+                                                  mdp.reward, mdp.terminal))
+
+
+def _np_step(task, s, a, rng):
     """One outcome of (s, a) drawn with numpy's ``rng``: ``(s′, r, terminal)``."""
-    k = rng.choice(mdp.probability.shape[2], p=np.asarray(mdp.probability)[s, a])
-    return (int(mdp.next_state[s, a, k]), float(mdp.reward[s, a, k]),
-            bool(mdp.terminal[s, a, k]))
+    probability, next_state, reward, terminal = task
+    k = rng.choice(probability.shape[2], p=probability[s, a])
+    return int(next_state[s, a, k]), float(reward[s, a, k]), bool(terminal[s, a, k])
 
 
 def _assert_same_mean(ours, theirs):
@@ -307,6 +313,7 @@ def _assert_same_mean(ours, theirs):
 def _np_dyna(mdp, episodes, rng, n=5, alpha=0.5, gamma=0.9, epsilon=0.1):
     """Dyna-Q (Sutton & Barto Fig. 8.2) with a count model, ε-greedy, random ties."""
     S, A = mdp.num_states, mdp.num_actions
+    task = _np_task(mdp)
     q = np.zeros((S, A))
     outcomes: dict = {}
     out = []
@@ -321,7 +328,7 @@ def _np_dyna(mdp, episodes, rng, n=5, alpha=0.5, gamma=0.9, epsilon=0.1):
         s, total, length = 0, 0.0, 0
         while True:
             a = act(s)
-            s2, r, done = _np_step(mdp, s, a, rng)
+            s2, r, done = _np_step(task, s, a, rng)
             total, length = total + r, length + 1
             q[s, a] += alpha * (r + (0 if done else gamma * q[s2].max()) - q[s, a])
             outcomes.setdefault((s, a), []).append((s2, r, done))
@@ -670,19 +677,21 @@ def test_gamma_variates_have_the_gamma_distribution_under_jit_and_vmap(alpha):
 
 
 def test_gamma_variates_take_a_shape_per_entry():
-    from vdbejax.methods.posterior import gamma_variates
-
-    alpha = jnp.tile(jnp.array([0.2, 1.0, 7.0]), 50_000)
-    draws = np.asarray(gamma_variates(jax.random.key(5), alpha)).reshape(-1, 3)
+    # 100,000 entries: the program of the test above (one program for every shape vector).
+    alpha = jnp.tile(jnp.array([0.2, 1.0, 7.0], jnp.float32), 33_334)[:100_000]
+    draws = np.asarray(_gamma_draw(jax.random.key(5), alpha))[:99_999].reshape(-1, 3)
     np.testing.assert_allclose(draws.mean(0), [0.2, 1.0, 7.0], rtol=0.03)
 
 
 def _np_psrl(mdp, episodes, rng, horizon, prior=1.0):
     S, A = mdp.num_states, mdp.num_actions
     counts, visits, rsum = np.zeros((S, A, S + 1)), np.zeros((S, A)), np.zeros((S, A))
+    task = _np_task(mdp)
     out = []
     for _ in range(episodes):
-        p = np.apply_along_axis(rng.dirichlet, -1, prior + counts)
+        # Dirichlet(prior + counts) per (s, a): independent Gamma variates, normalised
+        gammas = rng.standard_gamma(prior + counts)
+        p = gammas / gammas.sum(axis=-1, keepdims=True)
         r = (rsum / (1 + visits)) + rng.normal(size=(S, A)) / np.sqrt(1 + visits)
         q, v = np.zeros((horizon, S, A)), np.zeros(S)
         for h in range(horizon - 1, -1, -1):
@@ -691,7 +700,7 @@ def _np_psrl(mdp, episodes, rng, horizon, prior=1.0):
         s, total = 0, 0.0
         for h in range(int(mdp.max_steps)):
             a = int(np.argmax(q[min(h, horizon - 1), s]))
-            s2, reward, done = _np_step(mdp, s, a, rng)
+            s2, reward, done = _np_step(task, s, a, rng)
             total += reward
             visits[s, a] += 1
             rsum[s, a] += reward
@@ -703,29 +712,39 @@ def _np_psrl(mdp, episodes, rng, horizon, prior=1.0):
     return np.array(out)
 
 
-def test_psrl_agrees_with_numpy_statistically_and_keeps_its_bits():
+#: PSRL with the default prior (1), then priors below and above one: the posterior's Gamma
+#: draws take the α < 1 boost. One grid per strategy (:func:`psrl_grids`), which the two
+#: tests below read.
+PSRL = [Setting("psrl", "greedy", None, {"horizon": 25, "gamma": 1.0})] + [
+    Setting("psrl", "greedy", None, {"horizon": 25, "prior": prior}) for prior in (0.1, 2.5)]
+
+
+@pytest.fixture(scope="module")
+def psrl_grids():
+    """``(sequential, lockstep)``: the PSRL settings, 40 agents × 15 episodes each."""
     mdp = stochastic_chain()
-    agents, episodes = 40, 15
-    setting = Setting("psrl", "greedy", None, {"horizon": 25, "gamma": 1.0})
-    ours = grid(mdp, [setting], seeds=agents, episodes=episodes)
+    return tuple(grid(mdp, PSRL, seeds=40, episodes=15, strategy=strategy)
+                 for strategy in ("sequential", "lockstep"))
+
+
+def test_psrl_agrees_with_numpy_statistically_and_keeps_its_bits(psrl_grids):
+    mdp = stochastic_chain()
+    ours, other = psrl_grids
+    agents, episodes = ours.returns.shape[1:]
     rng = np.random.default_rng(11)
     theirs = np.array([_np_psrl(mdp, episodes, rng, 25).mean() for _ in range(agents)])
     _assert_same_mean(ours.returns[0].mean(axis=1), theirs)
-    other = grid(mdp, [setting], seeds=agents, episodes=episodes, strategy="lockstep")
-    np.testing.assert_array_equal(other.returns, ours.returns)
+    np.testing.assert_array_equal(other.returns[0], ours.returns[0])
 
 
-def test_psrl_keeps_its_bits_across_strategies_with_a_prior_below_one():
+def test_psrl_keeps_its_bits_across_strategies_with_a_prior_below_one(psrl_grids):
     """The posterior's Gamma draws take the α < 1 boost: the same bits in both engines."""
-    mdp = stochastic_chain()
-    settings = [Setting("psrl", "greedy", None, {"horizon": 25, "prior": prior})
-                for prior in (0.1, 2.5)]
-    # 2 × 20 agents of 15 episodes: the layout of the test above, whose sequential program
-    # serves it.
-    ours = grid(mdp, settings, seeds=20, episodes=15)
-    other = grid(mdp, settings, seeds=20, episodes=15, strategy="lockstep")
+    ours, other = psrl_grids
+    assert [dict(s.hyperparameters)["prior"] for s in ours.settings[1:]] == [0.1, 2.5]
     np.testing.assert_array_equal(other.returns, ours.returns)
     np.testing.assert_array_equal(other.lengths, ours.lengths)
+    # not a vacuous comparison: the priors change what the agents do
+    assert not np.array_equal(ours.returns[1], ours.returns[2])
 
 
 # --- Delayed Q-learning -------------------------------------------------------------------

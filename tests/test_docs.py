@@ -179,6 +179,15 @@ def test_results_sections_state_date_commit_machine_and_command():
     """Each hand-written section of benchmarks/RESULTS.md (after its harness tables) opens
     with its date, commit, machine and command; the archive has an index of its files."""
     text = readme_table.RESULTS.read_text(encoding="utf-8")
+    assert len(text.splitlines()) <= 300, "benchmarks/RESULTS.md: over 300 lines (archive/)"
+    header = text[:text.index("\n## ")]
+    for key in ("Date", "Commit", "Machine", "Command"):
+        assert f"\n- {key}: " in header, f"RESULTS.md's header: no '- {key}:' line"
+    # the peers' per-setting differences: the page beside it, from the same run
+    agreement = (ROOT / "benchmarks" / "AGREEMENT.md").read_text(encoding="utf-8")
+    assert "[`AGREEMENT.md`](AGREEMENT.md)" in text
+    assert [line for line in agreement.splitlines() if line.startswith("- Date: ")] == [
+        line for line in header.splitlines() if line.startswith("- Date: ")]
     hand = text[text.index("## Analysis"):].split("\n## ")[1:]
     assert len(hand) >= 5
     for section in hand:

@@ -28,6 +28,20 @@ PAGES = [p for p in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
          if page_script(p)]
 
 
+def covering_page(page: Path) -> Path | None:
+    """The first other page whose script begins with the whole of ``page``'s script (the
+    site's home page repeats the README's first block): run in a fresh process and an empty
+    folder, that script runs ``page``'s code exactly as ``page``'s own script would, then
+    goes on, so ``page`` is run there and not twice."""
+    script = page_script(page)
+    return next((other for other in PAGES
+                 if other != page and page_script(other).startswith(script)), None)
+
+
+#: The pages run as a script of their own (every other page: :func:`covering_page`).
+RUN_PAGES = [page for page in PAGES if covering_page(page) is None]
+
+
 def docstring_examples() -> list[tuple[str, str]]:
     """``(where, code)`` of every literal block (``::``) of a docstring of the package that
     begins with an import: a complete example, not a fragment."""
@@ -53,7 +67,7 @@ def run_script(code: str, folder: Path) -> subprocess.CompletedProcess:
                           cwd=folder, timeout=900, env={**os.environ, "MPLBACKEND": "Agg"})
 
 
-@pytest.mark.parametrize("page", PAGES, ids=lambda page: page.name)
+@pytest.mark.parametrize("page", RUN_PAGES, ids=lambda page: page.name)
 def test_the_python_examples_of_every_page_run_as_written(tmp_path, page):
     done = run_script(page_script(page), tmp_path)
     assert done.returncode == 0, f"{page.name}: {done.stderr[-3000:]}"
@@ -62,6 +76,16 @@ def test_the_python_examples_of_every_page_run_as_written(tmp_path, page):
         assert ROOT / "docs" / "tutorial.md" in PAGES
     if page.name == "tutorial.md":  # the tutorial's figure and its table with intervals
         assert (tmp_path / "my_study.png").exists() and "| halving_epsilon | " in done.stdout
+
+
+def test_a_page_whose_script_begins_another_runs_there():
+    """The home page's block is the README's first: run by the README's script, which
+    begins with it."""
+    index, readme = ROOT / "docs" / "index.md", ROOT / "README.md"
+    assert covering_page(index) == readme and index not in RUN_PAGES
+    assert covering_page(readme) is None and readme in RUN_PAGES
+    assert all(covering_page(page) in RUN_PAGES for page in PAGES if page not in RUN_PAGES)
+    assert len(RUN_PAGES) >= len(PAGES) - 1  # only the home page repeats another page
 
 
 def test_the_docstring_examples_are_found():

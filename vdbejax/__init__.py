@@ -3,8 +3,8 @@
 Quick start::
 
     import vdbejax
-    rep = vdbejax.reproduce("out/paper")          # the paper's full grid
-    print(rep.claims[0].verdict)
+    rep = vdbejax.reproduce("out/small", seeds=2, replicates=1, episodes=100)  # small
+    print(rep.claims[0].verdict)   # defaults: the paper's full grid ("out/paper")
 """
 from importlib import metadata as _metadata
 from typing import Any as _Any
