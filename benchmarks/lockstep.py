@@ -85,6 +85,7 @@ def block_program_hlo(settings: list[Any], lanes: int, chunk_length: int = 64) -
     lanes = len(keys)
     buffers = ChunkBuffers(returns=jax.ShapeDtypeStruct((lanes, chunk_length), jnp.float32),
                            lengths=jax.ShapeDtypeStruct((lanes, chunk_length), jnp.int32),
+                           cut=jax.ShapeDtypeStruct((lanes, chunk_length), jnp.bool_),
                            optimal=None)  # no optimal record
     args = (mdp, agent, agents, buffers, ChunkBounds(start=jnp.int32(0), end=jnp.int32(1)),
             LoopLimits(max_iterations=jnp.int32(1), unroll=1), lockstep.start_support(mdp))

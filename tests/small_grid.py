@@ -36,12 +36,13 @@ def run_small(**overrides: Any) -> GridResult:
 
 
 def assert_same_curves(a: GridResult, b: GridResult) -> None:
-    """Bit-identical returns, lengths and NaN flags."""
+    """Bit-identical returns, lengths, cut flags and NaN flags."""
     import numpy as np
 
     assert a.returns.dtype == b.returns.dtype
     np.testing.assert_array_equal(a.returns, b.returns)
     np.testing.assert_array_equal(a.lengths, b.lengths)
+    np.testing.assert_array_equal(a.truncated, b.truncated)
     np.testing.assert_array_equal(a.nonfinite, b.nonfinite)
 
 

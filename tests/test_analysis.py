@@ -7,6 +7,7 @@ from synthetic_grid import synthetic_grid
 from vdbejax.envs.table_cleaning import make_mdp
 from vdbejax.methods.agents import Setting
 from vdbejax.results import analysis
+from vdbejax.results.grid_result import GridResult
 from vdbejax.results.summary import SUMMARY_COLUMNS
 from vdbejax.studies import snapshots
 
@@ -30,31 +31,21 @@ def test_action_probabilities_by_hand():
                                [0.0, 0.5, 0.5, 0.0], atol=1e-12)
 
 
-def test_truncated_fraction():
-    lengths = np.array([[100, 15, 100, 20], [15, 15, 15, 15]])
-    np.testing.assert_allclose(analysis.truncated_fraction(lengths, 100, last=2), [0.5, 0.0])
-    assert np.isnan(analysis.truncated_fraction(lengths, None)).all()
-    # a task whose last allowed step always ends the episode on its own: nothing was cut
-    np.testing.assert_allclose(analysis.truncated_fraction(lengths, 100, 2, "never"), [0, 0])
-    with pytest.raises(ValueError, match="cuts='sometime' is invalid"):
-        analysis.truncated_episodes(lengths, 100, "sometime")
-
-
-def test_step_limit_cuts_follows_the_states_an_episode_can_be_in_at_its_last_step():
-    from vdbejax.envs.solvers import step_limit_cuts
-    from vdbejax.envs.suite import make_suite_task
-    from vdbejax.envs.suite.bandits import bandit_family
-    from vdbejax.envs.table_cleaning import make_mdp
-
-    assert step_limit_cuts(make_suite_task("testbed:10")) == "never"  # one pull, terminal
-    assert step_limit_cuts(make_suite_task("testbed:10", max_steps=5)) == "always"
-    assert step_limit_cuts(make_suite_task("deepsea:6")) == "never"  # ends at depth 6
-    assert step_limit_cuts(make_suite_task("deepsea:6", max_steps=4)) == "always"
-    assert step_limit_cuts(make_suite_task("riverswim")) == "always"  # no terminal state
-    assert step_limit_cuts(make_mdp()) == "sometimes"  # the paper's task: either
-    assert step_limit_cuts(make_mdp(), max_steps=10**9) == "sometimes"  # layers repeat
-    family = bandit_family("testbed", 4, name="testbed:4").instances(0, 3)  # per agent
-    assert step_limit_cuts(family.tables) == "never"
+def test_truncated_fraction_reads_the_record_and_falls_back_to_lengths_without_it():
+    lengths = np.array([[[100, 15, 100, 20], [15, 15, 15, 15]]])
+    grid = GridResult([Setting("qlearning", "egreedy", 0.1)], np.zeros(lengths.shape, np.float32),
+                      lengths, np.zeros(lengths.shape[:2], bool), {"max_steps": 100})
+    grid.truncated = np.zeros(lengths.shape, bool)
+    grid.truncated[0, 0, 2] = True  # the episode at 0 ended on its own at its last step
+    np.testing.assert_allclose(analysis.truncated_fraction(grid, last=2), [[0.5, 0.0]])
+    np.testing.assert_array_equal(analysis.truncated_episodes(grid), grid.truncated)
+    grid.truncated = None  # a folder of an older version: every episode of max_steps steps
+    np.testing.assert_allclose(analysis.truncated_fraction(grid, last=4), [[0.5, 0.0]])
+    grid.meta["step_limit_cuts"] = "never"  # that version's word on a one-pull task
+    np.testing.assert_allclose(analysis.truncated_fraction(grid), [[0.0, 0.0]])
+    grid.meta = {}
+    assert analysis.truncated_episodes(grid) is None
+    assert np.isnan(analysis.truncated_fraction(grid)).all()
 
 
 def test_markdown_table():

@@ -112,11 +112,11 @@ def test_a_one_pull_bandit_has_no_truncated_episodes_and_more_pulls_are_all_cut(
 
     setting = [Setting("sample_average", "egreedy", 0.1)]
     one = vdbejax.run_grid(make_suite_task("testbed:4"), setting, num_seeds=3, num_episodes=20)
-    assert one.meta["step_limit_cuts"] == "never" and one.meta["truncated_episodes"] == 0
+    assert not one.truncated.any() and one.meta["truncated_episodes"] == 0
     assert one.meta["agents_truncated"] == 0 and summarize(one)[0].truncated_fraction == 0.0
     three = vdbejax.run_grid(make_suite_task("testbed:4", max_steps=3), setting, num_seeds=3,
                              num_episodes=20)  # three pulls, then the limit cuts it
-    assert three.meta["step_limit_cuts"] == "always" and three.meta["truncated_episodes"] == 60
+    assert three.truncated.all() and three.meta["truncated_episodes"] == 60
     assert summarize(three)[0].truncated_fraction == 1.0
 
 

@@ -26,8 +26,8 @@ from vdbejax.validation import parse_bytes
 def test_bytes_per_agent_counts_tables_and_chunk_buffers():
     mdp = small_mdp()
     tables = 4 * 108 * 7 + 4 * 108
-    # buffers of 16 episodes against 8 (float32 return + int32 length each), 3 copies
-    assert bytes_per_agent(mdp, 16) - bytes_per_agent(mdp, 8) == 3 * 8 * 8
+    # buffers of 16 episodes against 8 (float32 return, int32 length, bool cut each), 3 copies
+    assert bytes_per_agent(mdp, 16) - bytes_per_agent(mdp, 8) == 3 * 8 * 9
     assert bytes_per_agent(mdp, 10) == bytes_per_agent(mdp, 16)  # the programs' buffers
     assert bytes_per_agent(mdp, 0) > tables
     assert mdp_bytes(mdp) > 108 * 7 * 4

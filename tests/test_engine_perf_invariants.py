@@ -337,7 +337,7 @@ def test_agents_kept_in_their_work_items_equal_lockstep_and_checkpoint_the_same(
     seen = {"sequential": [], "lockstep": []}
 
     def recorder(name):
-        def record(done, agents, returns, lengths):
+        def record(done, agents, returns, lengths, cut):
             seen[name].append((done, jax.tree.map(np.array, agents), returns.copy()))
         return record
 

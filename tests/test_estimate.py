@@ -17,7 +17,7 @@ def test_ten_million_episodes_of_two_seeds_are_a_long_run() -> None:
     assert long.training_seconds >= 10_000_000 / estimate.MAX_LANE_STEPS_PER_SECOND
     text = long.describe()
     assert "2 agents × 10,000,000 episodes: training ≥" in text
-    assert "statistics and figures ≈" in text and "checkpoint ≈ 152.6 MiB" in text
+    assert "statistics and figures ≈" in text and "checkpoint ≈ 171.7 MiB" in text
     one_seed = estimate.estimate_run(1, 1, 10_000_000)
     assert one_seed.statistics_seconds < 1.0 and not one_seed.long
 
@@ -192,7 +192,7 @@ def test_the_cli_refuses_it_in_one_line(tmp_path, capsys, monkeypatch):
 
 def test_the_printed_plan_states_the_settings_memory(tmp_path, capsys, monkeypatch) -> None:
     text = estimate.estimate_run(10**6, 1, 10).describe()
-    assert "memory ≈ 5.0 GiB (the 1,000,000 settings ≈ 3.8 GiB)" in text
+    assert "memory ≈ 5.1 GiB (the 1,000,000 settings ≈ 3.8 GiB)" in text
     monkeypatch.setattr(estimate, "LONG_SECONDS", 0.0)
     monkeypatch.setattr(estimate, "LARGE_SWEEP_SETTINGS", 2)  # a large sweep: announced first
     args = ["run", "--out", str(tmp_path / "r"), "--learners", "qlearning", "--explorers",

@@ -371,8 +371,8 @@ def test_checkpoint_writes_grow_with_the_chunk_not_with_the_run(tmp_path):
     assert len(sizes) >= 10
     # The rewritten file does not grow with the episodes (the last holds no agent state).
     assert len(set(small[:-1])) == 1 and small[-1] <= small[0]
-    # Each chunk appends its own episodes only: 12 agents × 8 episodes × 8 bytes + headers.
-    assert growth.min() == growth.max() and 12 * 8 * 8 <= growth.max() <= 12 * 8 * 8 + 200
+    # Each chunk appends its own episodes only: 12 agents × 8 episodes × 9 bytes + headers.
+    assert growth.min() == growth.max() and 12 * 8 * 9 <= growth.max() <= 12 * 8 * 9 + 200
 
 
 def test_a_resumed_run_ignores_what_a_killed_run_appended_to_the_log(tmp_path):
@@ -418,11 +418,11 @@ def test_the_size_estimate_counts_results_and_the_checkpoint_log(tmp_path, monke
     from vdbejax.runs import batching
 
     needed = batching.check_run_size(10, 1000, available_bytes=10**9)
-    assert needed == 10 * (1000 * 16 + 512)
-    with pytest.raises(ValueError, match="need ≈ 161.2 KiB of memory.*100.0 KiB are free"):
+    assert needed == 10 * (1000 * 18 + 512)
+    with pytest.raises(ValueError, match="need ≈ 180.8 KiB of memory.*100.0 KiB are free"):
         batching.check_run_size(10, 1000, available_bytes=100 * 1024)
     monkeypatch.setattr(batching.shutil, "disk_usage", lambda path: type("U", (), {"free": 1000})())
-    with pytest.raises(ValueError, match="episode log would need ≈ 78.1 KiB of disk"):
+    with pytest.raises(ValueError, match="episode log would need ≈ 87.9 KiB of disk"):
         batching.check_run_size(10, 1000, tmp_path / "ckpt.npz", available_bytes=10**9)
 
 

@@ -47,6 +47,9 @@ class RunResult:
     Attributes:
       returns: float32 ``[agents, episodes]`` undiscounted episode returns.
       lengths: int32 ``[agents, episodes]`` episode lengths (steps).
+      cut: bool ``[agents, episodes]``: the step limit ended the episode (its
+        ``max_steps``-th step was not terminal; an episode whose last allowed step ended
+        it on its own is not cut).
       nonfinite: bool ``[agents]``: a NaN or inf appeared in the agent's Q or ε.
       iterations: lockstep iterations executed; for the sequential strategy, the agents'
         own iterations (steps, plus one per episode start after a truncation).
@@ -62,6 +65,7 @@ class RunResult:
 
     returns: np.ndarray
     lengths: np.ndarray
+    cut: np.ndarray
     nonfinite: np.ndarray
     iterations: int
     final_state: AgentState | None
@@ -155,9 +159,10 @@ class ChunkHooks:
     Attributes:
       progress: called as ``progress(done_agent_episodes, total, elapsed_seconds)`` at the
         start and after each chunk.
-      on_chunk: called after each chunk with ``(episodes_done, agents, returns, lengths)``
-        (numpy arrays covering episodes ``[0, episodes_done)``), and ``optimal`` after
-        them with ``optimal_action``; used for checkpoints.
+      on_chunk: called after each chunk with ``(episodes_done, agents, returns, lengths,
+        cut)`` (numpy arrays covering episodes ``[0, episodes_done)``, see
+        :class:`RunResult`), and ``optimal`` after them with ``optimal_action``; used for
+        checkpoints.
       chunk_states: ``False`` hands ``on_chunk`` ``None`` for the agents (no copy of
         every agent's tables after each chunk, when only the episodes are wanted).
     """
@@ -190,7 +195,7 @@ def run_agents(
       options: how the agents run (:class:`EngineOptions`: strategy, threads, chunks,
         batches; none changes a result).
       hooks: what is called between chunks (:class:`ChunkHooks`: progress, checkpoints).
-      initial: resume from ``(episodes_done, agents, returns, lengths)`` (and
+      initial: resume from ``(episodes_done, agents, returns, lengths, cut)`` (and
         ``optimal`` after them with ``optimal_action``).
       optimal_action: bool ``[S, A]`` (``[agents, S, A]`` with instances), the actions
         that count as optimal: each episode's steps taking one are counted
@@ -222,6 +227,7 @@ def run_agents(
     buffer = chunk_buffer_length(chunk)
     returns = np.zeros((num_agents, num_episodes), np.float32)
     lengths = np.zeros((num_agents, num_episodes), np.int32)
+    cut = np.zeros((num_agents, num_episodes), bool)
     optimal = None if optimal_action is None else np.zeros_like(lengths)
     programs = Programs() if options.programs is None else options.programs
     agents: AgentState | None
@@ -231,9 +237,10 @@ def run_agents(
         if strategy != "sequential" or not created_in_items(mdp, params):
             agents = programs.get(init_agents, (mdp, params, keys))(mdp, params, keys)
     else:
-        done, agents, returns[:, : initial[0]], lengths[:, : initial[0]] = initial[:4]
+        done, agents = initial[:2]
+        returns[:, :done], lengths[:, :done], cut[:, :done] = initial[2:5]
         if optimal is not None:
-            optimal[:, :done] = initial[4]
+            optimal[:, :done] = initial[5]
         agents = jax.tree.map(jnp.asarray, agents)
     iterations = lane_iterations = 0
     started = time.perf_counter()
@@ -279,11 +286,13 @@ def run_agents(
     try:
         # strict=False: zip stops at the last bound without asking ``chunks`` for more (a
         # strict zip would resume the generator once past its last chunk).
-        for c, ((first, end), (chunk_returns, chunk_lengths, chunk_optimal, chunk_iterations,
-                               chunk_lanes)) in enumerate(zip(bounds, chunks, strict=False)):
+        for c, ((first, end), (chunk_returns, chunk_lengths, chunk_cut, chunk_optimal,
+                               chunk_iterations, chunk_lanes)) in enumerate(
+                zip(bounds, chunks, strict=False)):
             bounds.received(c)
             returns[:, first:end] = np.asarray(chunk_returns)[:, : end - first]
             lengths[:, first:end] = np.asarray(chunk_lengths)[:, : end - first]
+            cut[:, first:end] = np.asarray(chunk_cut)[:, : end - first]
             if optimal is not None:
                 optimal[:, first:end] = np.asarray(chunk_optimal)[:, : end - first]
             iterations += chunk_iterations
@@ -291,7 +300,8 @@ def run_agents(
             done = end
             if on_chunk:
                 on_chunk(done, current_agents() if states else None, returns[:, :done],
-                         lengths[:, :done], *(() if optimal is None else (optimal[:, :done],)))
+                         lengths[:, :done], cut[:, :done],
+                         *(() if optimal is None else (optimal[:, :done],)))
             if progress:
                 progress(done * num_agents, num_episodes * num_agents,
                          time.perf_counter() - started)
@@ -308,8 +318,8 @@ def run_agents(
             nonfinite = np.asarray(agents.nonfinite)
         else:
             nonfinite = sequential.nonfinite_flags()
-    return RunResult(returns, lengths, nonfinite, iterations, final, lane_iterations, strategy,
-                     optimal)
+    return RunResult(returns, lengths, cut, nonfinite, iterations, final, lane_iterations,
+                     strategy, optimal)
 
 
 def _lockstep_options(options: EngineOptions, threads: int, agents: AgentState,

@@ -68,7 +68,7 @@ def run_chunk(
     chunk_length: int,
     unroll: int = DEFAULT_UNROLL,
     programs: Programs | None = None,
-) -> tuple[AgentState, Array, Array, Array, Array | None]:
+) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
     """Advance a batch of agents until each has completed ``chunk_end`` episodes.
 
     One jitted program, no compaction (see :func:`run_agents` for the compacting
@@ -89,8 +89,9 @@ def run_chunk(
     batch (:func:`run_agents` splits larger ones into groups).
 
     Returns:
-      ``(agents, returns, lengths, iterations, optimal)``: returns/lengths are
-      ``[agents, chunk_length]`` (episodes past ``chunk_end`` stay 0), ``iterations``
+      ``(agents, returns, lengths, cut, iterations, optimal)``: returns, lengths and cut
+      (the step limit ended the episode) are ``[agents, chunk_length]`` (episodes past
+      ``chunk_end`` stay 0), ``iterations``
       the number of lockstep iterations executed (a multiple of ``unroll``), ``optimal``
       the episodes' counts of optimal actions where ``mdp.optimal_action`` is set (else
       ``None``).
@@ -109,17 +110,19 @@ def run_chunk(
 
 def _run_chunk(mdp: TabularMDP, params: Agent | KindSwitch, agents: AgentState, chunk_start: Array,
                chunk_end: Array, start_support: Any, *, chunk_length: int,
-               unroll: int) -> tuple[AgentState, Array, Array, Array, Array | None]:
+               unroll: int) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
     num_agents = agents.episode.shape[0]
     returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
     lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
     big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
     buffers = ChunkBuffers(returns=returns, lengths=lengths,
+                           cut=jnp.zeros((num_agents, chunk_length), jnp.bool_),
                            optimal=optimal_buffer(mdp, num_agents, chunk_length))
     agents, buffers, iterations = run_loop(
         mdp, params, agents, buffers, ChunkBounds(start=chunk_start, end=chunk_end),
         LoopLimits(max_iterations=big, unroll=unroll), start_support)
-    return agents, buffers.returns, buffers.lengths, iterations, buffers.optimal
+    return (agents, buffers.returns, buffers.lengths, buffers.cut, iterations,
+            buffers.optimal)
 
 
 def block_program(mdp: TabularMDP, params: Agent | KindSwitch, agents: AgentState,
@@ -193,7 +196,7 @@ def _run_stream(
     min_batch: int,
     support: Any,
     block: Callable[[tuple], Any],
-) -> tuple[AgentState, Array, Array, Array | None, int, int]:
+) -> tuple[AgentState, Array, Array, Array, Array | None, int, int]:
     """:func:`run_chunk` of a stream of agents of one kind through a batch of at most
     ``lanes`` lanes, refilled and compacted between blocks.
 
@@ -208,12 +211,13 @@ def _run_stream(
     ``block(args)`` gets the block program for ``args`` (one per batch size).
 
     Returns:
-      ``(agents, returns, lengths, optimal, iterations, lane_iterations)``.
+      ``(agents, returns, lengths, cut, optimal, iterations, lane_iterations)``.
     """
     num_agents = int(agents.episode.shape[0])
     zeros = np.zeros if isinstance(agents.episode, np.ndarray) else jnp.zeros
     full = (agents, ChunkBuffers(returns=zeros((num_agents, chunk_length), np.float32),
                                  lengths=zeros((num_agents, chunk_length), np.int32),
+                                 cut=zeros((num_agents, chunk_length), np.bool_),
                                  optimal=optimal_buffer(mdp, num_agents, chunk_length, zeros)))
     size = min(lanes, num_agents)
     waiting = size  # the next agent to take a lane
@@ -264,7 +268,7 @@ def _run_stream(
         cur_params, cur = _gather_rows((params, full), jnp.asarray(gather))
         size = target
     agents, buffers = written_back()
-    return (agents, buffers.returns, buffers.lengths, buffers.optimal, iterations,
+    return (agents, buffers.returns, buffers.lengths, buffers.cut, buffers.optimal, iterations,
             lane_iterations)
 
 
@@ -334,14 +338,14 @@ def run_chunk_lockstep(
     chunk_length: int,
     options: LockstepOptions,
     programs: Programs,
-) -> tuple[AgentState, Array, Array, Array | None, int, int]:
+) -> tuple[AgentState, Array, Array, Array, Array | None, int, int]:
     """One chunk of the lockstep strategy: kind by kind (or, with ``options.mix_kinds``,
     the kinds together where one program can serve them), in groups of at most
     ``options.max_batch`` lanes, the groups spread over ``options.threads`` threads
     (:class:`LockstepOptions`). Per-agent results do not depend on the grouping.
 
     Returns:
-      ``(agents, returns, lengths, optimal, iterations, lane_iterations)``.
+      ``(agents, returns, lengths, cut, optimal, iterations, lane_iterations)``.
     """
     compact, max_batch, unroll = options.compact, options.max_batch, options.unroll
     threads, block_iterations = options.threads, options.block_iterations
@@ -415,13 +419,13 @@ def run_chunk_lockstep(
     iterations = sum(group_iterations for _, group_iterations, _ in done)
     lane_iterations = sum(group_lanes for _, _, group_lanes in done)
     if len(pieces) == 1:
-        agents, returns, lengths, optimal = pieces[0]
+        agents, returns, lengths, cut, optimal = pieces[0]
     else:
-        agents, returns, lengths, optimal = jax.tree.map(
+        agents, returns, lengths, cut, optimal = jax.tree.map(
             lambda *leaves: jnp.concatenate(leaves), *pieces)
         rows_order = np.concatenate([rows for _, rows in groups])
         if not np.array_equal(rows_order, np.arange(num_agents)):
             inverse = jnp.asarray(np.argsort(rows_order), jnp.int32)
-            agents, returns, lengths, optimal = _gather_rows(
-                (agents, returns, lengths, optimal), inverse)
-    return agents, returns, lengths, optimal, iterations, lane_iterations
+            agents, returns, lengths, cut, optimal = _gather_rows(
+                (agents, returns, lengths, cut, optimal), inverse)
+    return agents, returns, lengths, cut, optimal, iterations, lane_iterations

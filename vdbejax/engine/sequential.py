@@ -259,7 +259,7 @@ class SequentialRun:
         assert items is not None  # formed by prepare()
         index, state = items[k]
         executable, agent = self.item_programs[k]
-        outputs: list[Any] = []  # returns, lengths, optimal: merged over the native calls
+        outputs: list[Any] = []  # returns, lengths, cut, optimal: merged over the native calls
         iterations = lanes = 0
         while True:  # native calls of at most chunk_steps loop iterations each: a stop
             if self.cancelled:  # waits for one of them, not for the chunk
@@ -275,15 +275,15 @@ class SequentialRun:
                 break  # every agent of the item has finished the chunk
         copy = (jax.tree.map(lambda leaf: np.array(np.asarray(leaf)[: index.size]), state)
                 if snapshot else None)
-        return (outputs[0], outputs[1], outputs[2] if len(outputs) > 2 else None,
+        return (outputs[0], outputs[1], outputs[2], outputs[3] if len(outputs) > 3 else None,
                 iterations, lanes, copy)
 
     def run_chunks(self, bounds: ChunkSchedule, chunk_length: int, ahead: int,
                    snapshots: bool = False
-                   ) -> Generator[tuple[np.ndarray, np.ndarray, np.ndarray | None, int, int],
-                                  None, None]:
+                   ) -> Generator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None,
+                                        int, int], None, None]:
         """Advance every agent chunk by chunk (after :meth:`prepare`); yields each chunk's
-        ``(returns, lengths, optimal, iterations, lane_iterations)``: numpy ``[agents,
+        ``(returns, lengths, cut, optimal, iterations, lane_iterations)``: numpy ``[agents,
         chunk_length]`` buffers (``optimal`` ``None`` unless the task's ``optimal_action``
         mask is set), Σ agent iterations (steps, plus one per episode start
         after a truncation) and Σ loop iterations × lanes (idle lanes included).
@@ -325,15 +325,17 @@ class SequentialRun:
                     queued += 1
                 returns = np.zeros((num_agents, chunk_length), np.float32)
                 lengths = np.zeros((num_agents, chunk_length), np.int32)
+                cut = np.zeros((num_agents, chunk_length), bool)
                 optimal = (None if self.mdp.optimal_action is None
                            else np.zeros((num_agents, chunk_length), np.int32))
                 iterations = lane_iterations = 0
                 copies = []
                 for k, (index, _) in enumerate(items):
                     output = pending.pop((c, k))
-                    (item_returns, item_lengths, item_optimal, item_iterations, item_lanes,
-                     copy) = output if pool is None else output.result()
+                    (item_returns, item_lengths, item_cut, item_optimal, item_iterations,
+                     item_lanes, copy) = output if pool is None else output.result()
                     returns[index], lengths[index] = item_returns, item_lengths
+                    cut[index] = item_cut
                     if optimal is not None:
                         optimal[index] = item_optimal
                     iterations += item_iterations
@@ -342,7 +344,7 @@ class SequentialRun:
                 if snapshots:
                     self._hold(copies)
                 costs = lengths.sum(axis=1)
-                yield returns, lengths, optimal, iterations, lane_iterations
+                yield returns, lengths, cut, optimal, iterations, lane_iterations
                 c += 1
         finally:
             self.cancelled = True  # a running item stops at its next native call
@@ -361,13 +363,14 @@ def _row(table: Array, row: Array) -> Array:
 
 
 def _merged(outputs: list[np.ndarray], piece: list[np.ndarray]) -> list[np.ndarray]:
-    """Two native calls' records of one chunk in one: an episode's return and length
+    """Two native calls' records of one chunk in one: an episode's return, length and cut
     where the later call finished it, the counts of optimal actions added (an episode
     that spans both calls counts its steps in each)."""
     finished = piece[1] > 0  # an episode's length is at least 1
-    merged = [np.where(finished, piece[0], outputs[0]), np.where(finished, piece[1], outputs[1])]
-    if len(piece) > 2:
-        merged.append(outputs[2] + piece[2])
+    merged = [np.where(finished, new, old) for new, old in zip(piece[:3], outputs[:3],
+                                                                strict=True)]
+    if len(piece) > 3:
+        merged.append(outputs[3] + piece[3])
     return merged
 
 
@@ -379,7 +382,7 @@ def lanes_for(rows: int) -> int:
 def _run_sequential(mdp: TabularMDP, agent: Any, agents: AgentState, chunk_start: Array,
                     chunk_end: Array, count: Array, budget: Array, support: Any,
                     kind: Array | None = None, *, chunk_length: int, lanes: int
-                    ) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
+                    ) -> tuple[AgentState, Array, Array, Array, Array, Array, Array | None]:
     """:func:`_chunk_loops` as one native call: its whole body inside a ``while`` loop of
     one trip, which XLA's CPU backend compiles into one function (the loop's contents are
     not dispatched operation by operation, and none waits for a thread of the pool that
@@ -387,28 +390,31 @@ def _run_sequential(mdp: TabularMDP, agent: Any, agents: AgentState, chunk_start
     num_agents = agents.episode.shape[0]
     zero = jnp.asarray(0, jnp.int32)
     outputs = (agents, jnp.zeros((num_agents, chunk_length), jnp.float32),
-               jnp.zeros((num_agents, chunk_length), jnp.int32), zero, zero,
+               jnp.zeros((num_agents, chunk_length), jnp.int32),
+               jnp.zeros((num_agents, chunk_length), jnp.bool_), zero, zero,
                optimal_buffer(mdp, num_agents, chunk_length))
 
     def once(carry: tuple) -> tuple:
-        _, agents, returns, lengths, _, _, optimal = carry
+        _, agents, returns, lengths, cut, _, _, optimal = carry
         return (jnp.asarray(True), *_chunk_loops(
-            mdp, agent, agents, returns, lengths, ChunkBounds(start=chunk_start, end=chunk_end),
-            (count, budget), support, lanes=lanes, kind=kind, optimal=optimal))
+            mdp, agent, agents, ChunkBuffers(returns=returns, lengths=lengths, cut=cut,
+                                             optimal=optimal),
+            ChunkBounds(start=chunk_start, end=chunk_end),
+            (count, budget), support, lanes=lanes, kind=kind))
 
     return jax.lax.while_loop(lambda carry: ~carry[0], once,
                               (jnp.asarray(False), *outputs))[1:]
 
 
-def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array,
-                 lengths: Array, chunk: ChunkBounds, work: tuple[Array, Array],
+def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, buffers: ChunkBuffers,
+                 chunk: ChunkBounds, work: tuple[Array, Array],
                  support: Any, *, lanes: int, kind: Array | None = None,
-                 optimal: Array | None = None
-                 ) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
+                 ) -> tuple[AgentState, Array, Array, Array, Array, Array, Array | None]:
     """Agents ``0 .. count-1`` of the batch run their own step loops to ``chunk_end``,
     ``lanes`` agents at a time side by side, writing their episodes into the zeroed
-    ``[agents, chunk_length]`` buffers ``returns`` and ``lengths`` (and ``optimal``, the
-    counts of optimal actions, where the task's ``optimal_action`` mask is set).
+    ``[agents, chunk_length]`` buffers (:class:`~vdbejax.engine.step.ChunkBuffers`:
+    returns, lengths, cut and, where the task's ``optimal_action`` mask is set, the
+    counts of optimal actions).
 
     The step is :func:`lockstep_iteration` on a batch of ``lanes`` lanes, whose table
     accesses are unrolled dynamic slices, so XLA's CPU backend compiles the loop into one
@@ -428,7 +434,7 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
     donated): a loop indexes them at its agents' rows.
 
     Returns:
-      ``(agents, returns, lengths, iterations, lane_iterations, optimal)``: the agents' active
+      ``(agents, returns, lengths, cut, iterations, lane_iterations, optimal)``: the agents' active
       iterations (steps, plus one per episode start after a truncation) and the loops'
       iterations × ``lanes``.
     """
@@ -453,8 +459,8 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
 
     def refill(carry: tuple) -> tuple:
         """Run the lanes until one finishes; hand finished lanes the next agents."""
-        (tables, packed, lane_packed, lane_agent, rows, waiting_from, returns, lengths,
-         optimal, trips, used) = carry
+        (tables, packed, lane_packed, lane_agent, rows, waiting_from, buffers, trips,
+         used) = carry
         real = rows < count
         lane_state = dataclasses.replace(unpack(lane_packed, fields_layout), q=tables[0],
                                          tables=tables[1])
@@ -462,13 +468,11 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
         if kind is not None:
             lane_params = KindSwitch(kinds=lane_params, kind=kind)
         lane_state, buffers, loop_trips = run_loop(
-            mdp, lane_params, lane_state,
-            ChunkBuffers(returns=returns, lengths=lengths, optimal=optimal),
+            mdp, lane_params, lane_state, buffers,
             ChunkBounds(start=chunk_start, end=jnp.where(real, chunk_end, 0)),
             LoopLimits(max_iterations=budget - used, stop_at_first_finish=waiting_from < count),
             support, table_rows=rows,
         )
-        returns, lengths, optimal = buffers.returns, buffers.lengths, buffers.optimal
         tables = (lane_state.q, lane_state.tables)
         finished = real & (lane_state.episode >= chunk_end)
         lane_packed = pack(scalars(lane_state))
@@ -484,11 +488,11 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
             waiting_from = waiting_from + take_next.astype(jnp.int32)
         lane_packed = jnp.where(finished[:, None], lane_rows(packed, rows), lane_packed)
         lane_agent = jnp.where(finished[:, None], lane_rows(agent_packed, rows), lane_agent)
-        return (tables, packed, lane_packed, lane_agent, rows, waiting_from, returns, lengths,
-                optimal, trips + loop_trips * lanes, used + loop_trips)
+        return (tables, packed, lane_packed, lane_agent, rows, waiting_from, buffers,
+                trips + loop_trips * lanes, used + loop_trips)
 
     def any_lane_busy(carry: tuple) -> Array:
-        return jnp.any(carry[4] < count) & (carry[10] < budget)
+        return jnp.any(carry[4] < count) & (carry[8] < budget)
 
     # The lanes start with the first agents that have not finished the chunk (a call that
     # continues one), the others wait in row order (any agent past the last one taken has
@@ -499,11 +503,11 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
         jnp.int32)
     zero = jnp.asarray(0, jnp.int32)
     started = agents.counter
-    (tables, packed, lane_packed, _, rows, _, returns, lengths, optimal, lane_iterations,
+    (tables, packed, lane_packed, _, rows, _, buffers, lane_iterations,
      _) = jax.lax.while_loop(
         any_lane_busy, refill,
         ((agents.q, agents.tables), packed, lane_rows(packed, rows),
-         lane_rows(agent_packed, rows), rows, waiting, returns, lengths, optimal, zero, zero))
+         lane_rows(agent_packed, rows), rows, waiting, buffers, zero, zero))
     for k in range(lanes):  # out of budget: the lanes' agents written back where they stand
         row = at_lane(rows, k)
         clipped = jnp.clip(row, 0, num_agents - 1)
@@ -513,4 +517,5 @@ def _chunk_loops(mdp: TabularMDP, agent: Any, agents: AgentState, returns: Array
     agents = dataclasses.replace(unpack(packed, fields_layout), q=tables[0], tables=tables[1])
     real_rows = jnp.arange(num_agents) < count
     iterations = jnp.sum(jnp.where(real_rows, agents.counter - started, 0)).astype(jnp.int32)
-    return agents, returns, lengths, iterations, lane_iterations, optimal
+    return (agents, buffers.returns, buffers.lengths, buffers.cut, iterations, lane_iterations,
+            buffers.optimal)

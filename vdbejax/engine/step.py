@@ -82,12 +82,14 @@ def _transition(mdp: TabularMDP, s: Array, a: Array, u: Array, noise_u: Array | 
 @_pytree.pytree_dataclass
 class ChunkBuffers:
     """A chunk's records of each agent's episodes (``[agents, L]``, flat ``[B·L]`` inside
-    an iteration): ``returns`` (float32), ``lengths`` (int32) and ``optimal`` (int32,
+    an iteration): ``returns`` (float32), ``lengths`` (int32), ``cut`` (bool: the step
+    limit ended the episode, its last step not terminal) and ``optimal`` (int32,
     each episode's steps whose action is one of ``mdp.optimal_action``; ``None`` for a
     task without that mask: no record, the same program as without it)."""
 
     returns: Array
     lengths: Array
+    cut: Array
     optimal: Array | None = None
 
 
@@ -357,8 +359,8 @@ def _learn_switch(mdp: TabularMDP, switch: KindSwitch, agents: AgentState, move:
 
 def _record(mdp: TabularMDP, agents: AgentState, move: Move, at: LaneOffsets,
             bounds: ChunkBounds, buffers: ChunkBuffers) -> tuple[ChunkBuffers, Array]:
-    """Step 4: a finished episode's return and length written to its slot (and the
-    running episode's count of optimal actions).
+    """Step 4: a finished episode's return, length and whether the step limit cut it
+    written to its slot (and the running episode's count of optimal actions).
 
     Returns:
       ``(buffers, episode_return)``, the running episode's return with this step's reward.
@@ -369,6 +371,7 @@ def _record(mdp: TabularMDP, agents: AgentState, move: Move, at: LaneOffsets,
     out = at.table_lane * at.chunk_length + slot
     returns = put_where(buffers.returns, out, episode_return, move.done)
     lengths = put_where(buffers.lengths, out, move.length, move.done)
+    cut = put_where(buffers.cut, out, move.truncated, move.done)
     optimal = buffers.optimal
     if optimal is not None:  # the running episode's slot (only a learning lane's is real)
         assert mdp.optimal_action is not None  # (the run hands the mask with the buffer)
@@ -376,7 +379,8 @@ def _record(mdp: TabularMDP, agents: AgentState, move: Move, at: LaneOffsets,
                else lane_optimal(move.own, at.lane, move.s, move.a))
         counted = take(optimal, jnp.clip(out, 0, optimal.shape[0] - 1))
         optimal = put_where(optimal, out, counted + 1, move.learn & hit)
-    return ChunkBuffers(returns=returns, lengths=lengths, optimal=optimal), episode_return
+    return (ChunkBuffers(returns=returns, lengths=lengths, cut=cut, optimal=optimal),
+            episode_return)
 
 
 def _advance(agents: AgentState, move: Move, learned: tuple[Array, dict, Array, Array],
@@ -508,7 +512,8 @@ def run_loop(
     zero = jnp.asarray(0, jnp.int32)
     flat_optimal = None if buffers.optimal is None else buffers.optimal.reshape(-1)
     flat = ChunkBuffers(returns=buffers.returns.reshape(-1),
-                        lengths=buffers.lengths.reshape(-1), optimal=flat_optimal)
+                        lengths=buffers.lengths.reshape(-1), cut=buffers.cut.reshape(-1),
+                        optimal=flat_optimal)
     start = (agents, flat, zero, draw_base(agents.key, agents.counter))
     if limits.fixed_iterations is None:
         agents, flat, iterations, _ = jax.lax.while_loop(cond, body, start)
@@ -522,7 +527,8 @@ def run_loop(
     )
     optimal = None if flat.optimal is None else flat.optimal.reshape(out_shape)
     return (agents, ChunkBuffers(returns=flat.returns.reshape(out_shape),
-                                 lengths=flat.lengths.reshape(out_shape), optimal=optimal),
+                                 lengths=flat.lengths.reshape(out_shape),
+                                 cut=flat.cut.reshape(out_shape), optimal=optimal),
             iterations)
 
 

@@ -63,8 +63,7 @@ def one_value_settings(result: GridResult, best_return: float, last: int = LAST
     one fixed point short of the goal (the SARSA trap of the textbook reading). Agents that
     all end at the best return learned the task; they are not listed."""
     finals = final_return(result.returns, min(last, result.num_episodes))
-    cuts = truncated_fraction(result.lengths, result.meta.get("max_steps"), last,
-                              result.meta.get("step_limit_cuts", "sometimes"))
+    cuts = truncated_fraction(result, last)
     groups: dict[tuple[str, str, float], list[int]] = {}
     for c, setting in enumerate(result.settings):
         values = finals[c]

@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 
-from vdbejax.envs.solvers import LIMIT_CUTS
 from vdbejax.results.bootstrap import probability_of_improvement_ci
 from vdbejax.results.curves import LAST, WINDOW, final_return
 from vdbejax.results.grid_result import GridResult
@@ -25,52 +24,40 @@ from vdbejax.results.regret import Scale, as_scale
 from vdbejax.results.solving import episodes_to_converge, summarize_solving
 from vdbejax.results.stats import CurveStatistics, curve_statistics
 from vdbejax.results.summary import SUMMARY_COLUMNS, SummaryRow
-from vdbejax.validation import check_choice
 
 
-def truncated_episodes(lengths: np.ndarray, max_steps: int, cuts: str = "sometimes"
-                       ) -> np.ndarray:
-    """bool, the shape of ``lengths``: the episodes the step limit cut.
+def truncated_episodes(result: GridResult) -> np.ndarray | None:
+    """bool ``[configs, seeds, episodes]``: the episodes the step limit cut (their
+    ``max_steps``-th step was not terminal).
 
-    An episode that ran ``max_steps`` steps was cut unless its last step ended it on its
-    own; ``cuts`` is the task's :func:`~vdbejax.envs.solvers.step_limit_cuts` (a run's
-    ``meta["step_limit_cuts"]``): ``"never"`` counts none (a one-pull bandit, whose every
-    episode ends with its pull), ``"always"`` and ``"sometimes"`` every episode of
-    ``max_steps`` steps (for ``"sometimes"``, an upper bound: an episode that ended on its
-    own exactly at the limit is counted as well).
-
-    Raises:
-      ValueError: ``cuts`` is not one of :data:`~vdbejax.envs.solvers.LIMIT_CUTS`.
+    The run's own record (:attr:`GridResult.truncated`, which the engine sets where a step
+    is truncated). A folder written before that record: every episode of ``max_steps``
+    steps (an upper bound where an episode can also end on its own at its last allowed
+    step), none where its ``meta.json`` says the step limit never cuts
+    (``"step_limit_cuts": "never"``, a one-pull bandit); ``None`` where ``meta.json``
+    lacks ``max_steps``.
     """
-    check_choice("cuts", cuts, LIMIT_CUTS)
-    lengths = np.asarray(lengths)
-    if cuts == "never":
-        return np.zeros(lengths.shape, bool)
-    return lengths >= max_steps
+    if result.truncated is not None:
+        return np.asarray(result.truncated, bool)
+    max_steps = result.meta.get("max_steps")
+    if max_steps is None:
+        return None
+    if result.meta.get("step_limit_cuts") == "never":
+        return np.zeros(result.lengths.shape, bool)
+    return np.asarray(result.lengths) >= int(max_steps)
 
 
-def truncated_fraction(lengths: np.ndarray, max_steps: int | None, last: int = LAST,
-                       cuts: str = "sometimes") -> np.ndarray:
-    """Fraction of the last ``last`` episodes the step limit cut (per leading index:
-    :func:`truncated_episodes`).
+def truncated_fraction(result: GridResult, last: int = LAST) -> np.ndarray:
+    """float64 ``[configs, seeds]``: the fraction of each agent's last ``last`` episodes
+    the step limit cut (:func:`truncated_episodes`; NaN where that is unknown).
 
     An agent stuck in a loop (e.g. SARSA + VDBE with all actions valued ≈ −0.1) shows up
-    as a fraction near 1. ``max_steps=None`` (unknown) gives NaN.
-
-    Args:
-      lengths: ``[..., episodes]`` episode lengths.
-      max_steps: the truncation length, or ``None`` if unknown.
-      last: number of final episodes considered.
-      cuts: the task's :func:`~vdbejax.envs.solvers.step_limit_cuts` (``meta.json``'s
-        ``step_limit_cuts``; results without it: ``"sometimes"``).
-
-    Returns:
-      float64 ``[...]`` fractions in [0, 1] (NaN when ``max_steps`` is None).
+    as a fraction near 1.
     """
-    lengths = np.asarray(lengths)[..., -last:]
-    if max_steps is None:
-        return np.full(lengths.shape[:-1], np.nan)
-    return truncated_episodes(lengths, max_steps, cuts).mean((-1,))
+    cut = truncated_episodes(result)
+    if cut is None:
+        return np.full(result.lengths.shape[:2], np.nan)
+    return cut[..., -last:].mean(-1)
 
 
 def task_scale(result: GridResult, best: Scale | None = None,
@@ -146,8 +133,8 @@ def summarize(
                          f"{len(statistics.final)} settings) do not match window={window}, "
                          f"last={last} and the grid's {len(result.settings)} settings")
     best, baseline = task_scale(result, best, baseline)
-    max_steps = result.meta.get("max_steps")
-    cuts = result.meta.get("step_limit_cuts", "sometimes")
+    cut = truncated_episodes(result)
+    fractions = truncated_fraction(result, last)
     policy = (policy_summary(result) if result.policy_values is not None
               else [{}] * len(result.settings))
     optimal = (optimal_action_summary(result, last) if result.optimal_actions is not None
@@ -158,9 +145,8 @@ def summarize(
                                               config_scale(baseline, c), window)
         convergence = summarize_solving(episodes, solved)
         episodes_cut = agents_cut = None
-        if result.meta.get("step_cap"):  # a task without step limit: cuts at its cap
-            cut = truncated_episodes(result.lengths[c], int(result.meta["max_steps"]), cuts)
-            episodes_cut, agents_cut = int(cut.sum()), int(cut.any(-1).sum())
+        if result.meta.get("step_cap") and cut is not None:  # no step limit: cut at its cap
+            episodes_cut, agents_cut = int(cut[c].sum()), int(cut[c].any(-1).sum())
         rows.append(SummaryRow(
             config=c,
             learner=setting.learner,
@@ -178,8 +164,7 @@ def summarize(
             convergence_budget=(convergence.budget if convergence.solved < convergence.agents
                                 else result.num_episodes),
             # Fraction over all seeds of the last episodes the step limit cut.
-            truncated_fraction=float(
-                truncated_fraction(result.lengths[c], max_steps, last, cuts).mean()),
+            truncated_fraction=float(fractions[c].mean()),
             mean_length=float(result.lengths[c].mean()),
             nonfinite_agents=int(result.nonfinite[c].sum()),
             episodes_cut=episodes_cut,

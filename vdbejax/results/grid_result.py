@@ -21,7 +21,11 @@ from vdbejax.methods.agents import (
     with_parameter_names,
 )
 from vdbejax.results import io, manifest
-from vdbejax.results.record_checks import check_optimal_actions, check_policy_values
+from vdbejax.results.record_checks import (
+    check_optimal_actions,
+    check_policy_values,
+    check_truncated,
+)
 from vdbejax.validation import check_writable_dir
 
 
@@ -47,6 +51,11 @@ class GridResult:
       optimal_actions: float32 ``[configs, seeds, episodes]``, the fraction of each
         episode's steps whose action is optimal (NaN for an episode not run;
         :mod:`vdbejax.runs.optimal_record`). ``None``: a run without ``record_optimal``.
+      truncated: bool ``[configs, seeds, episodes]``: the step limit cut the episode (its
+        ``max_steps``-th step was not terminal; an episode whose last allowed step ended
+        it on its own is not cut). ``None``: a folder written before the engine recorded
+        it (:func:`~vdbejax.results.analysis.truncated_episodes` then falls back to its
+        length).
     """
 
     settings: list[Setting]
@@ -57,6 +66,7 @@ class GridResult:
     episodes_run: np.ndarray | None = None
     policy_values: np.ndarray | None = None
     optimal_actions: np.ndarray | None = None
+    truncated: np.ndarray | None = None
 
     @property
     def evaluation_episodes(self) -> np.ndarray:
@@ -176,7 +186,7 @@ class GridResult:
                                   "nonfinite": self.nonfinite}
         if self.episodes_run is not None:
             arrays["episodes_run"] = self.episodes_run
-        for name in ("policy_values", "optimal_actions"):  # the records a run kept
+        for name in ("policy_values", "optimal_actions", "truncated"):  # the records kept
             if getattr(self, name) is not None:
                 arrays[name] = getattr(self, name)
         meta = dict(self.meta, **{manifest.META_KEY: manifest.MANIFEST_FILE})
@@ -219,6 +229,7 @@ class GridResult:
                 episodes_run = data.get("episodes_run")
                 policy_values = data.get("policy_values")
                 optimal_actions = data.get("optimal_actions")
+                truncated = data.get("truncated")  # absent from folders of older versions
         except Exception as error:
             raise ValueError(f"results file {str(returns_path)!r} is unreadable:"
                              f" {type(error).__name__}: {error}") from None
@@ -239,8 +250,9 @@ class GridResult:
         _check_against_meta(out, meta, settings, returns, lengths, nonfinite, episodes_run)
         check_policy_values(returns_path, meta, returns, policy_values)
         check_optimal_actions(returns_path, returns, lengths, optimal_actions)
+        check_truncated(returns_path, meta, lengths, truncated)
         return cls(settings, returns, lengths, nonfinite, meta, episodes_run, policy_values,
-                   optimal_actions)
+                   optimal_actions, truncated)
 
 
 #: A long table as ``{column: array}``, all of one length.

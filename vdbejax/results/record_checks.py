@@ -1,6 +1,7 @@
 """Checks, on loading, of the optional records a run keeps beside its returns in
-``returns.npz``: the policy evaluations (``policy_values``) and the fractions of optimal
-actions (``optimal_actions``). Each problem is one line naming the file."""
+``returns.npz``: the policy evaluations (``policy_values``), the fractions of optimal
+actions (``optimal_actions``) and the episodes the step limit cut (``truncated``). Each
+problem is one line naming the file."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -46,3 +47,20 @@ def check_optimal_actions(path: Path, returns: np.ndarray, lengths: np.ndarray,
             optimal_actions[~ran]).all():
         raise ValueError(f"results file {str(path)!r} is damaged: optimal_actions must lie in"
                          " [0, 1] for every episode run and be NaN for the others")
+
+
+def check_truncated(path: Path, meta: dict[str, Any], lengths: np.ndarray,
+                    truncated: np.ndarray | None) -> None:
+    """One-line errors for cut flags that cannot belong to the saved run: bool like
+    ``lengths``, set only on episodes of ``meta["max_steps"]`` steps (where recorded)."""
+    if truncated is None:
+        return
+    if truncated.shape != lengths.shape or truncated.dtype != np.bool_:
+        raise ValueError(f"results file {str(path)!r} is damaged: truncated must be bool"
+                         f" {list(lengths.shape)}, not {truncated.dtype} {list(truncated.shape)}")
+    max_steps = meta.get("max_steps")
+    limit = max_steps if isinstance(max_steps, int) else None
+    if truncated.any() and ((lengths[truncated] < 1).any() or (
+            limit is not None and (lengths[truncated] != limit).any())):
+        raise ValueError(f"results file {str(path)!r} is damaged: truncated marks an episode"
+                         f" that did not last max_steps={limit} steps")

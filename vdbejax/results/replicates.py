@@ -79,7 +79,8 @@ def replicate(result: GridResult, index: int) -> GridResult:
                       None if result.episodes_run is None else result.episodes_run[:, agents],
                       None if result.policy_values is None else result.policy_values[:, agents],
                       None if result.optimal_actions is None
-                      else result.optimal_actions[:, agents])
+                      else result.optimal_actions[:, agents],
+                      None if result.truncated is None else result.truncated[:, agents])
 
 
 @dataclasses.dataclass

@@ -49,8 +49,9 @@ def bytes_per_agent(mdp: TabularMDP, chunk_episodes: int,
       bytes, for :data:`STATE_COPIES` working copies.
     """
     tables = state_bytes(mdp, {"epsilon": "state"} if layout is None else layout)
-    # float32 return + int32 length per episode of the chunk's (rounded up) buffers
-    chunk_buffers = 8 * chunk_buffer_length(chunk_episodes)
+    # float32 return + int32 length + bool cut per episode of the chunk's (rounded up)
+    # buffers
+    chunk_buffers = 9 * chunk_buffer_length(chunk_episodes)
     return STATE_COPIES * (tables + task_bytes + SCALAR_BYTES + chunk_buffers)
 
 
@@ -98,9 +99,9 @@ def _host_available_bytes() -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-#: Host bytes per agent-episode of a grid's results: float32 returns and int32 lengths,
-#: once as the run's records and once as the returned arrays.
-RESULT_BYTES_PER_EPISODE = 16
+#: Host bytes per agent-episode of a grid's results: float32 returns, int32 lengths and
+#: a bool cut flag, once as the run's records and once as the returned arrays.
+RESULT_BYTES_PER_EPISODE = 18
 #: Host bytes per agent besides its episodes (hyperparameters, key, progress, summary).
 RESULT_BYTES_PER_AGENT = 512
 #: Host bytes per setting of a grid, besides its agents' results: the :class:`Setting`,
@@ -111,8 +112,8 @@ RESULT_BYTES_PER_AGENT = 512
 #: each (its hyperparameter record, label and summary row). Its agents' hyperparameters
 #: and keys are in :data:`RESULT_BYTES_PER_AGENT`.
 SETTING_BYTES = 4096
-#: Bytes per agent-episode of a checkpoint's episode log (returns and lengths).
-LOG_BYTES_PER_EPISODE = 8
+#: Bytes per agent-episode of a checkpoint's episode log (returns, lengths, cut flag).
+LOG_BYTES_PER_EPISODE = 9
 
 
 def result_bytes(num_agents: int, num_episodes: int) -> int:

@@ -9,11 +9,11 @@ A checkpoint is two files:
   unfinished. Its size depends on the batch, not on how long the run is.
 * ``<name>.episodes``: an append-only log of episode returns and lengths. Each chunk
   appends only the episodes it ran (one record per group of agents: their rows, the
-  episode range, the returns and the lengths, and in a run that records them the counts
-  of optimal actions), so writing a checkpoint costs time
-  proportional to the chunk, however many episodes came before. The small file records
-  how many bytes of the log it covers: bytes a killed run appended after that are
-  ignored (and cut off) on resume.
+  episode range, the returns, the lengths, the episodes the step limit cut (a byte
+  each), and in a run that records them the counts of optimal actions), so writing a
+  checkpoint costs time proportional to the chunk, however many episodes came before.
+  The small file records how many bytes of the log it covers: bytes a killed run
+  appended after that are ignored (and cut off) on resume.
 
 Both carry checksums: the small file the sha256 of all its arrays (:func:`contents_digest`),
 every record of the log the CRC-32 of its bytes. On resume both are checked before anything
@@ -44,9 +44,9 @@ from vdbejax.results import io
 from vdbejax.runs.run_state import RunState
 
 #: Version of the checkpoint layout (a checkpoint of another version is refused).
-CHECKPOINT_VERSION = 6
+CHECKPOINT_VERSION = 7
 LOG_SUFFIX = ".episodes"
-_LOG_MAGIC = b"vdbejax-episode-log-6\n"
+_LOG_MAGIC = b"vdbejax-episode-log-7\n"
 _HEADER = struct.Struct("<16s16s")  # fingerprint, log id (ASCII)
 _RECORD = struct.Struct("<qqq")  # agents in the record, first episode, end episode
 _CRC = struct.Struct("<I")  # after each record: CRC-32 of its header and arrays
@@ -132,6 +132,7 @@ class CheckpointWriter:
                 _RECORD.pack(len(rows), int(start), int(stop)), rows.astype("<i8").tobytes(),
                 np.ascontiguousarray(sweep.returns[rows, start:stop], "<f4").tobytes(),
                 np.ascontiguousarray(sweep.lengths[rows, start:stop], "<i4").tobytes(),
+                np.ascontiguousarray(sweep.cut[rows, start:stop], np.uint8).tobytes(),
                 b"" if sweep.optimal is None else
                 np.ascontiguousarray(sweep.optimal[rows, start:stop], "<i4").tobytes()))
             log.write(record)
@@ -250,9 +251,9 @@ def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
             policy_values.shape != (shape[0], evaluations) or policy_values.dtype != np.float32)):
         raise ValueError(f"checkpoint {str(path)!r} is damaged: it does not hold the policy"
                          f" evaluations of this run (float32 [{shape[0]}, {evaluations}]); {HINT}")
-    returns, lengths, optimal = _read_log(path, fingerprint, log_id, log_bytes, episodes_done,
-                                          shape, record_optimal)
-    progress = RunState(returns=returns, lengths=lengths, episodes_done=episodes_done,
+    returns, lengths, cut, optimal = _read_log(path, fingerprint, log_id, log_bytes,
+                                               episodes_done, shape, record_optimal)
+    progress = RunState(returns=returns, lengths=lengths, cut=cut, episodes_done=episodes_done,
                         stopped=stopped, nonfinite=nonfinite, state_rows=state_rows,
                         state=state, policy_values=policy_values, optimal=optimal)
     return progress, log_bytes, log_id
@@ -260,9 +261,9 @@ def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
 
 def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
               episodes_done: np.ndarray, shape: tuple[int, int], record_optimal: bool = False
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Replay the episode log into ``[agents, episodes]`` returns and lengths (and, with
-    ``record_optimal``, the counts of optimal actions; else ``None``)."""
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Replay the episode log into ``[agents, episodes]`` returns, lengths and cut flags
+    (and, with ``record_optimal``, the counts of optimal actions; else ``None``)."""
     log = log_path(path)
 
     def damaged(what: str) -> ValueError:
@@ -285,8 +286,9 @@ def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
     agents, episodes = shape
     returns = np.zeros(shape, np.float32)
     lengths = np.zeros(shape, np.int32)
+    cut = np.zeros(shape, bool)
     optimal = np.zeros(shape, np.int32) if record_optimal else None
-    arrays = 3 if record_optimal else 2  # per agent-episode in a record
+    arrays = 3 if record_optimal else 2  # 4-byte values per agent-episode in a record
     covered = np.zeros(agents, np.int64)  # episodes written so far, per agent
     offset = head
     while offset < log_bytes:
@@ -294,7 +296,7 @@ def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
             raise damaged("a record is cut short")
         count, start, stop = _RECORD.unpack_from(data, offset)
         width = stop - start
-        size = count * 8 + arrays * count * max(width, 0) * 4
+        size = count * 8 + (arrays * 4 + 1) * count * max(width, 0)  # (+ the cut byte)
         if count < 1 or not 0 <= start < stop <= episodes or (
                 offset + _RECORD.size + size + _CRC.size > log_bytes):
             raise damaged(f"a record of {count} agents × episodes [{start}, {stop})"
@@ -314,6 +316,11 @@ def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
         offset += block * 4
         lengths[rows, start:stop] = np.frombuffer(data, "<i4", block, offset).reshape(count, width)
         offset += block * 4
+        flags = np.frombuffer(data, np.uint8, block, offset).reshape(count, width)
+        if flags.max(initial=0) > 1:
+            raise damaged("a record's cut flags are not 0 or 1")
+        cut[rows, start:stop] = flags.astype(bool)
+        offset += block
         if optimal is not None:
             optimal[rows, start:stop] = np.frombuffer(data, "<i4", block, offset).reshape(
                 count, width)
@@ -322,7 +329,7 @@ def _read_log(path: Path, fingerprint: str, log_id: str, log_bytes: int,
         covered[rows] = stop
     if not np.array_equal(covered, episodes_done):
         raise damaged("it does not cover exactly the episodes its checkpoint says were done")
-    return returns, lengths, optimal
+    return returns, lengths, cut, optimal
 
 
 def _check_progress(done: np.ndarray, stopped: np.ndarray, nonfinite: Any, rows: np.ndarray,

@@ -116,13 +116,11 @@ def drive(mdp: TabularMDP | TaskInstances, params: AgentParams, keys: np.ndarray
         end = min(start + plan.chunk_episodes, num_episodes) if per_chunk else num_episodes
         recorded = [start]
 
-        def after_chunk(done: int, agents: AgentState | None, returns: np.ndarray,
-                        lengths: np.ndarray, optimal: np.ndarray | None = None,
+        def after_chunk(done: int, agents: AgentState | None, *episodes: np.ndarray,
                         batch: np.ndarray = batch, recorded: list[int] = recorded) -> None:
-            first = recorded[0]
-            state.add_episodes(batch, first, done, returns[:, first:done],
-                               lengths[:, first:done],
-                               None if optimal is None else optimal[:, first:done])
+            first = recorded[0]  # episodes: returns, lengths, cut (and optimal-action counts)
+            state.add_episodes(batch, first, done,
+                               tuple(array[:, first:done] for array in episodes))
             recorded[0] = done
             evaluate(batch, done, agents)
             if agents is not None and checkpoint is not None:
@@ -140,9 +138,9 @@ def drive(mdp: TabularMDP | TaskInstances, params: AgentParams, keys: np.ndarray
         batches += 1
         strategy = result.strategy
         if per_chunk:
-            state.add_episodes(batch, start, end, result.returns[:, start:end],
-                               result.lengths[:, start:end], None if result.optimal is None
-                               else result.optimal[:, start:end])
+            state.add_episodes(batch, start, end, tuple(
+                array[:, start:end] for array in (result.returns, result.lengths, result.cut,
+                                                  result.optimal) if array is not None))
             evaluate(batch, end, result.final_state)
         state.set_agents(batch, result.final_state, nonfinite=result.nonfinite)
         if per_chunk:

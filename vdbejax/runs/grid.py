@@ -27,7 +27,7 @@ import numpy as np
 from vdbejax.engine import agent_keys, broadcast_agents, check_params, text_progress
 from vdbejax.engine.distributed import gather_agents, process_checkpoint_path, take_agents
 from vdbejax.engine.programs import Programs
-from vdbejax.envs.solvers import best_return, step_limit_cuts, uniform_random_return
+from vdbejax.envs.solvers import best_return, uniform_random_return
 from vdbejax.envs.tabular import TabularMDP
 from vdbejax.envs.task_instances import TaskFamily, TaskInstances
 from vdbejax.methods.agents import (
@@ -40,7 +40,6 @@ from vdbejax.methods.agents import (
     stack_agents,
     table_layout,
 )
-from vdbejax.results.analysis import truncated_episodes
 from vdbejax.results.folder_lock import describe_os_error, remove_stale_temporaries
 from vdbejax.results.grid_result import GridResult
 from vdbejax.runs.batching import check_run_size
@@ -327,9 +326,10 @@ def _collect(prepared: PreparedGrid, state: RunState, fingerprint: str, resumed_
     num_agents = prepared.num_agents
     shape = (len(settings), prepared.num_seeds, prepared.num_episodes)
     # [agents, episodes] → [configs, seeds, episodes]; per agent → [configs, seeds].
-    returns, lengths, nonfinite, episodes_run = (
+    returns, lengths, cut, nonfinite, episodes_run = (
         gather_agents(array, num_agents).reshape(shape[: array.ndim + 1])
-        for array in (state.returns, state.lengths, state.nonfinite, state.episodes_done))
+        for array in (state.returns, state.lengths, state.cut, state.nonfinite,
+                      state.episodes_done))
     stopped_early = bool((episodes_run < prepared.num_episodes).any())
     if stopped_early:
         past = np.arange(prepared.num_episodes) >= episodes_run[..., None]
@@ -349,12 +349,10 @@ def _collect(prepared: PreparedGrid, state: RunState, fingerprint: str, resumed_
     meta.pop("mdp_tables")
     ran = lengths[lengths > 0]
     meta["longest_episode"] = int(ran.max()) if ran.size else 0
-    # Episodes the step limit cut (on a task without a step limit: its safety cap); an
-    # episode whose last allowed step ended it on its own is not one.
-    limit_cuts = step_limit_cuts(mdp if prepared.instances is None else prepared.instances.tables)
-    cut = truncated_episodes(lengths, int(mdp.max_steps), limit_cuts)
+    # Episodes the step limit cut (on a task without a step limit: its safety cap), as the
+    # engine recorded them; an episode whose last allowed step ended it on its own is not one.
     # best and random returns: the references of the summary's convergence episode
-    meta.update(step_limit_cuts=limit_cuts, truncated_episodes=int(cut.sum()),
+    meta.update(truncated_episodes=int(cut.sum()),
                 agents_truncated=int(cut.any(axis=2).sum()),
                 truncated_episodes_by_config=cut.sum(axis=(1, 2)).tolist(),
                 hyperparameters=[agent_hyperparameters(make_agent(s, options)) for s in settings],
@@ -365,7 +363,7 @@ def _collect(prepared: PreparedGrid, state: RunState, fingerprint: str, resumed_
     policy_values = collect_evaluations(state, mdp, prepared.run, shape, meta)
     return GridResult(settings, returns, lengths, nonfinite, meta,
                       episodes_run.astype(np.int64) if stopped_early else None, policy_values,
-                      collect_optimal(state, shape))
+                      collect_optimal(state, shape), cut)
 
 
 def _fingerprint(description: dict[str, Any]) -> str:

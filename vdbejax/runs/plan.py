@@ -135,7 +135,7 @@ class RunPlan:
                 optimal_action = pad_agents(optimal_action, len(self.local))[0]
         params, keys = shard_agents((params, keys), mesh)
         if initial is not None:
-            done, agents, *episodes = initial  # returns, lengths (and optimal-action counts)
+            done, agents, *episodes = initial  # returns, lengths, cut (and optimal counts)
             (agents, *episodes), _ = pad_agents((agents, *episodes), len(self.local))
             initial = (done, shard_agents(agents, mesh), *episodes)
         if on_chunk is not None:
@@ -151,6 +151,7 @@ class RunPlan:
         final = result.final_state
         return dataclasses.replace(
             result, returns=result.returns[:count], lengths=result.lengths[:count],
+            cut=result.cut[:count],
             nonfinite=result.nonfinite[:count],
             optimal=None if result.optimal is None else result.optimal[:count],
             final_state=None if final is None else unpad_agents(final, count))

@@ -26,6 +26,8 @@ class RunState:
     Attributes:
       returns: float32 ``[agents, episodes]`` (zeros past each agent's ``episodes_done``).
       lengths: int32 ``[agents, episodes]``.
+      cut: bool ``[agents, episodes]``: the step limit ended the episode
+        (:attr:`~vdbejax.engine.RunResult.cut`).
       episodes_done: int64 ``[agents]`` completed episodes per agent.
       stopped: bool ``[agents]``: the agent stopped before ``episodes`` (stop policy).
       nonfinite: bool ``[agents]``: NaN/inf appeared (final for finished agents).
@@ -42,6 +44,7 @@ class RunState:
 
     returns: np.ndarray
     lengths: np.ndarray
+    cut: np.ndarray
     episodes_done: np.ndarray
     stopped: np.ndarray
     nonfinite: np.ndarray
@@ -58,6 +61,7 @@ class RunState:
         return cls(
             returns=np.zeros((num_agents, num_episodes), np.float32),
             lengths=np.zeros((num_agents, num_episodes), np.int32),
+            cut=np.zeros((num_agents, num_episodes), bool),
             episodes_done=np.zeros(num_agents, np.int64),
             stopped=np.zeros(num_agents, bool),
             nonfinite=np.zeros(num_agents, bool),
@@ -78,13 +82,16 @@ class RunState:
         """bool ``[agents]``: ran its budget or stopped early."""
         return self.stopped | (self.episodes_done >= self.num_episodes)
 
-    def add_episodes(self, rows: np.ndarray, start: int, done: int, returns: np.ndarray,
-                     lengths: np.ndarray, optimal: np.ndarray | None = None) -> None:
-        """Store episodes ``[start, done)`` of agents ``rows`` (``returns``, ``lengths``
-        and, in a run that records them, ``optimal`` are ``[rows, done - start]``): they
-        have done ``done`` episodes."""
+    def add_episodes(self, rows: np.ndarray, start: int, done: int,
+                     episodes: tuple[np.ndarray, ...]) -> None:
+        """Store episodes ``[start, done)`` of agents ``rows``: ``episodes`` is
+        ``(returns, lengths, cut)`` and, in a run that records them, ``optimal`` after
+        them, each ``[rows, done - start]``; they have done ``done`` episodes."""
+        returns, lengths, cut, *optimal_part = episodes
+        optimal = optimal_part[0] if optimal_part else None
         self.returns[rows, start:done] = returns
         self.lengths[rows, start:done] = lengths
+        self.cut[rows, start:done] = cut
         if self.optimal is not None:
             assert optimal is not None  # the engine counts them in a run that records them
             self.optimal[rows, start:done] = optimal
@@ -146,7 +153,7 @@ class RunState:
         if done == 0:
             return None
         point = (done, self.states_of(rows), self.returns[rows, :done],
-                 self.lengths[rows, :done])
+                 self.lengths[rows, :done], self.cut[rows, :done])
         return point if self.optimal is None else (*point, self.optimal[rows, :done])
 
     def next_batch(self, batch_size: int) -> np.ndarray:

@@ -65,7 +65,7 @@ def table_snapshots(
     episodes, snapshots = [], []
 
     def record(done: int, agents: AgentState | None, returns: np.ndarray,
-               lengths: np.ndarray) -> None:
+               lengths: np.ndarray, cut: np.ndarray) -> None:
         assert agents is not None  # chunk states are on by default
         episodes.append(done)
         snapshots.append(np.array(agents.q if table == "q" else agents.tables[table]))
