@@ -20,7 +20,7 @@ import numpy as np
 
 from vdbejax.engine.agent_on_task import instance_template, with_instance_masks, with_instances
 from vdbejax.engine.agent_state import AgentState, for_task, init_agents
-from vdbejax.engine.chunks import ChunkSchedule
+from vdbejax.engine.chunks import ChunkSchedule, Piece
 from vdbejax.engine.lockstep import DEFAULT_UNROLL, LockstepOptions, run_chunk_lockstep
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.programs import compile_seconds as _compile_seconds
@@ -38,6 +38,12 @@ Array = jax.Array
 
 #: Engine strategies of :func:`run_agents`.
 STRATEGIES = ("sequential", "lockstep")
+
+#: A piece of a chunk that ends before its agents finished it (:attr:`EngineOptions.chunk_steps`)
+#: is handed to ``on_chunk`` (a checkpoint) once this many seconds have passed since the
+#: last hand-out: a stop then loses at most about this much work, and a piece of a few
+#: milliseconds (one agent: 10⁶ steps in ≈ 25 ms) does not pay a checkpoint each.
+PIECE_SECONDS = 1.0
 
 
 @dataclasses.dataclass
@@ -94,11 +100,14 @@ class EngineOptions:
       chunk_seconds: size chunks by time: about this many seconds each, every multiple
         of ``chunk_episodes`` still a chunk end (:mod:`~vdbejax.engine.chunks`; a stop
         waits for the chunk that runs). None: chunks of ``chunk_episodes``.
-      chunk_steps: the sequential strategy's native calls stop after this many loop
-        iterations (a loop runs a few agents side by side; the lockstep strategy's blocks
-        are ``block_iterations``), so that a stop waits for one call, not for a chunk of
-        very long episodes: a work item's chunk then takes several calls, each ending
-        where it stands, mid-episode if need be (the results do not depend on it).
+      chunk_steps: chunks are bounded by steps as well as episodes: the sequential
+        strategy's native calls stop after this many loop iterations (a loop runs a few
+        agents side by side), the lockstep strategy's groups after the block in which
+        they reach this many iterations (with ``compact``), each agent where it stands,
+        mid-episode if need be. A chunk that needs more (very long episodes) is run in
+        pieces: ``on_chunk`` gets each piece (:class:`ChunkHooks`), so a checkpoint may
+        fall mid-episode, and a stop waits for one call, not for the chunk. The results
+        do not depend on it.
       compact: between blocks of ``block_iterations`` lockstep iterations, gather the
         still-active agents into a smaller power-of-two batch (at least ``min_batch``
         lanes) once at most half the lanes are active, so finished agents stop costing
@@ -162,7 +171,12 @@ class ChunkHooks:
       on_chunk: called after each chunk with ``(episodes_done, agents, returns, lengths,
         cut)`` (numpy arrays covering episodes ``[0, episodes_done)``, see
         :class:`RunResult`), and ``optimal`` after them with ``optimal_action``; used for
-        checkpoints.
+        checkpoints. After a piece of a chunk that ended before its agents finished it
+        (:attr:`EngineOptions.chunk_steps`), ``episodes_done`` is each agent's (int64
+        ``[agents]``), the arrays cover the episodes up to the latest running one, and
+        ``agents`` are the agents where they stand (mid-episode: their state, step
+        count, partial return, random-stream position and pending reset; the running
+        episodes' counts of optimal actions so far are in ``optimal``).
       chunk_states: ``False`` hands ``on_chunk`` ``None`` for the agents (no copy of
         every agent's tables after each chunk, when only the episodes are wanted).
     """
@@ -196,7 +210,9 @@ def run_agents(
         batches; none changes a result).
       hooks: what is called between chunks (:class:`ChunkHooks`: progress, checkpoints).
       initial: resume from ``(episodes_done, agents, returns, lengths, cut)`` (and
-        ``optimal`` after them with ``optimal_action``).
+        ``optimal`` after them with ``optimal_action``): what ``on_chunk`` was given
+        (``episodes_done`` an int or one per agent; the arrays cover at least each
+        agent's episodes done).
       optimal_action: bool ``[S, A]`` (``[agents, S, A]`` with instances), the actions
         that count as optimal: each episode's steps taking one are counted
         (:attr:`RunResult.optimal`). ``None`` (default):
@@ -232,21 +248,21 @@ def run_agents(
     programs = Programs() if options.programs is None else options.programs
     agents: AgentState | None
     if initial is None:
-        done = 0
+        done = np.zeros(num_agents, np.int64)
         agents = None  # created by the sequential strategy in its work items
         if strategy != "sequential" or not created_in_items(mdp, params):
             agents = programs.get(init_agents, (mdp, params, keys))(mdp, params, keys)
     else:
-        done, agents = initial[:2]
-        returns[:, :done], lengths[:, :done], cut[:, :done] = initial[2:5]
-        if optimal is not None:
-            optimal[:, :done] = initial[5]
-        agents = jax.tree.map(jnp.asarray, agents)
+        agents = jax.tree.map(jnp.asarray, initial[1])
+        done = np.broadcast_to(np.asarray(initial[0], np.int64), (num_agents,)).copy()
+        for array, given in zip((returns, lengths, cut, optimal), initial[2:], strict=False):
+            if array is not None:
+                array[:, : given.shape[1]] = given
     iterations = lane_iterations = 0
     started = time.perf_counter()
     progress, on_chunk = hooks.progress, hooks.on_chunk
     if progress:
-        progress(done * num_agents, num_episodes * num_agents, 0.0)
+        progress(int(done.sum()), num_episodes * num_agents, 0.0)
     # The sequential strategy keeps the agents' state in its work items; ``agents`` is
     # the state only while the lockstep strategy runs.
     sequential = None
@@ -260,19 +276,30 @@ def run_agents(
         assert agents is not None  # created above unless the sequential strategy holds them
         return agents
 
-    bounds = ChunkSchedule(done, num_episodes, chunk, options.chunk_seconds)
+    # The first chunk starts at the agent that has done the fewest episodes (a run resumed
+    # from a checkpoint taken mid-chunk: the others wait, or go on, where they stand).
+    bounds = ChunkSchedule(int(done.min(initial=num_episodes)), num_episodes, chunk,
+                           options.chunk_seconds)
     if sequential is not None and bounds.exists(0) and not sequential.prepare(buffer):
         # not compiled natively: lockstep is faster
         strategy, agents, sequential = "lockstep", sequential.agents(), None
 
-    def lockstep_chunks() -> Generator[list[Any], None, None]:
+    def lockstep_chunks() -> Generator[Piece, None, None]:
         nonlocal agents
         assert agents is not None  # lockstep: the agents' state is here
         lockstep = _lockstep_options(options, threads, agents, params, buffer)
-        for first, end in bounds:
-            agents, *outputs = run_chunk_lockstep(
-                mdp, params, agents, first, end, buffer, lockstep, programs)
-            yield outputs
+        for c, (first, end) in enumerate(bounds):
+            finished = False
+            while not finished:  # pieces of about chunk_steps iterations a group
+                (agents, piece_returns, piece_lengths, piece_cut, piece_optimal,
+                 piece_iterations, piece_lanes) = run_chunk_lockstep(
+                    mdp, params, agents, first, end, buffer, lockstep, programs)
+                episodes = np.asarray(agents.episode).astype(np.int64)
+                finished = bool(episodes.min(initial=end) >= end)
+                yield Piece(c=c, first=first, end=end, returns=piece_returns,
+                            lengths=piece_lengths, cut=piece_cut, optimal=piece_optimal,
+                            iterations=piece_iterations, lanes=piece_lanes,
+                            episodes=episodes, finished=finished)
 
     # The sequential strategy runs the next chunk while this loop stores one; a checkpoint
     # then gets the copies each work item takes at the chunk's end, unless the agents are
@@ -283,29 +310,40 @@ def run_agents(
               sequential.run_chunks(bounds, buffer, ahead=0 if wait else 1,
                                     snapshots=states and not wait))
     bounds.start()
+    handed = time.perf_counter()  # when on_chunk was last called
     try:
-        # strict=False: zip stops at the last bound without asking ``chunks`` for more (a
-        # strict zip would resume the generator once past its last chunk).
-        for c, ((first, end), (chunk_returns, chunk_lengths, chunk_cut, chunk_optimal,
-                               chunk_iterations, chunk_lanes)) in enumerate(
-                zip(bounds, chunks, strict=False)):
-            bounds.received(c)
-            returns[:, first:end] = np.asarray(chunk_returns)[:, : end - first]
-            lengths[:, first:end] = np.asarray(chunk_lengths)[:, : end - first]
-            cut[:, first:end] = np.asarray(chunk_cut)[:, : end - first]
+        for piece in chunks:
+            first, end, width = piece.first, piece.end, piece.end - piece.first
+            # Each piece records the episodes its agents finished (length ≥ 1) and counts
+            # the optimal actions of its steps: an episode that spans pieces (or a resumed
+            # run's checkpoint) counts its steps in each.
+            ran = np.asarray(piece.lengths)[:, :width] > 0
+            for array, part in ((returns, piece.returns), (lengths, piece.lengths),
+                                (cut, piece.cut)):
+                array[:, first:end] = np.where(ran, np.asarray(part)[:, :width],
+                                               array[:, first:end])
             if optimal is not None:
-                optimal[:, first:end] = np.asarray(chunk_optimal)[:, : end - first]
-            iterations += chunk_iterations
-            lane_iterations += chunk_lanes
-            done = end
-            if on_chunk:
-                on_chunk(done, current_agents() if states else None, returns[:, :done],
-                         lengths[:, :done], cut[:, :done],
-                         *(() if optimal is None else (optimal[:, :done],)))
+                optimal[:, first:end] += np.asarray(piece.optimal)[:, :width]
+            iterations += piece.iterations
+            lane_iterations += piece.lanes
+            done = piece.episodes
+            if piece.finished:
+                bounds.received(piece.c)
+            if on_chunk and (piece.finished
+                             or time.perf_counter() - handed >= PIECE_SECONDS):
+                # A whole chunk: its end; a piece: each agent's episodes done, the records
+                # to the running episodes (their counts of optimal actions so far).
+                upto = end if piece.finished else min(int(done.max()) + 1, num_episodes)
+                on_chunk(end if piece.finished else done.copy(),
+                         current_agents() if states else None, returns[:, :upto],
+                         lengths[:, :upto], cut[:, :upto],
+                         *(() if optimal is None else (optimal[:, :upto],)))
+                handed = time.perf_counter()
             if progress:
-                progress(done * num_agents, num_episodes * num_agents,
+                progress(int(done.sum()), num_episodes * num_agents,
                          time.perf_counter() - started)
-            bounds.handled(c)
+            if piece.finished:
+                bounds.handled(piece.c)
     finally:  # the workers stop (and none is left running) whatever happens here
         chunks.close()
     if options.keep_final_state:
@@ -335,7 +373,8 @@ def _lockstep_options(options: EngineOptions, threads: int, agents: AgentState,
                    if options.max_batch is None else options.max_batch),
         threads=threads if on_cpu else 1,
         fixed_blocks=not on_cpu if options.fixed_blocks is None else options.fixed_blocks,
-        mix_kinds=mixes_kinds(backend) if options.mix_kinds is None else options.mix_kinds)
+        mix_kinds=mixes_kinds(backend) if options.mix_kinds is None else options.mix_kinds,
+        chunk_steps=options.chunk_steps)
 
 
 def with_optimal_action(mdp: TabularMDP, optimal_action: Any | None) -> TabularMDP:

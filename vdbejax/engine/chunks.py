@@ -19,8 +19,12 @@ whatever the chunk size), so a timed schedule changes no bit of a run.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
 
 #: A timed chunk is at most this many times the previous one (early episodes, the
 #: longest, measured first, make the first estimates cautious).
@@ -33,6 +37,29 @@ OVERHEAD_RATIO = 4
 class RunCancelled(Exception):
     """A chunk's work stopped between two native calls: the run is stopping (a stop in
     the main thread; the workers' chunks end at their next call)."""
+
+
+@dataclasses.dataclass
+class Piece:
+    """A piece of a chunk ``c`` of episodes ``[first, end)`` (a whole chunk, or what its
+    agents ran within ``chunk_steps`` when they had not finished it: mid-episode if need
+    be). ``returns``, ``lengths``, ``cut`` and ``optimal`` (``None`` without the mask of
+    optimal actions) are ``[agents, chunk_length]`` records of the episodes finished in
+    this piece, and the counts of optimal actions of its steps (zeros elsewhere);
+    ``iterations`` and ``lanes`` its work; ``episodes`` each agent's episodes done after
+    it; ``finished``: every agent has finished the chunk."""
+
+    c: int
+    first: int
+    end: int
+    returns: Any
+    lengths: Any
+    cut: Any
+    optimal: Any
+    iterations: int
+    lanes: int
+    episodes: np.ndarray
+    finished: bool
 
 
 class ChunkSchedule:

@@ -196,9 +196,13 @@ def _run_stream(
     min_batch: int,
     support: Any,
     block: Callable[[tuple], Any],
+    steps: int | None = None,
 ) -> tuple[AgentState, Array, Array, Array, Array | None, int, int]:
     """:func:`run_chunk` of a stream of agents of one kind through a batch of at most
-    ``lanes`` lanes, refilled and compacted between blocks.
+    ``lanes`` lanes, refilled and compacted between blocks; with ``steps``, only until
+    its iterations reach ``steps`` (checked between blocks): its agents are then
+    written back where they stand, mid-episode if need be, and a next call continues the
+    chunk with the same results.
 
     The batch holds the first ``lanes`` agents and runs a block of lockstep iterations
     (``limits``) at a time. Between blocks, a lane whose agent has finished the chunk takes
@@ -243,6 +247,8 @@ def _run_stream(
         active = np.array(active)
         if index is not None:
             active &= index < num_agents  # padding lanes do not count
+        if steps is not None and iterations >= steps:
+            break  # the agents where they stand (the finished and the waiting ones too)
         free = np.flatnonzero(~active)
         if index is not None and waiting < num_agents and free.size:
             # Refill: finished agents written back, the next ones in their lanes.
@@ -317,6 +323,9 @@ class LockstepOptions:
       mix_kinds: the kinds together in blocks of
         :func:`~vdbejax.engine.kinds.switch_block_size` where one program can serve them
         (:func:`~vdbejax.engine.kinds.can_switch`), instead of kind by kind.
+      chunk_steps: with ``compact``, a group stops after the block in which its
+        iterations reach this many, its agents where they stand (the call then ends
+        before the chunk does; ``None``: at the chunk's end).
     """
 
     compact: bool
@@ -327,6 +336,7 @@ class LockstepOptions:
     threads: int = 1
     fixed_blocks: bool = False
     mix_kinds: bool = False
+    chunk_steps: int | None = None
 
 
 def run_chunk_lockstep(
@@ -339,7 +349,9 @@ def run_chunk_lockstep(
     options: LockstepOptions,
     programs: Programs,
 ) -> tuple[AgentState, Array, Array, Array, Array | None, int, int]:
-    """One chunk of the lockstep strategy: kind by kind (or, with ``options.mix_kinds``,
+    """One chunk of the lockstep strategy (or with ``options.chunk_steps`` the part of it
+    each group runs within that many iterations: the agents' episode counters say
+    which have finished it): kind by kind (or, with ``options.mix_kinds``,
     the kinds together where one program can serve them), in groups of at most
     ``options.max_batch`` lanes, the groups spread over ``options.threads`` threads
     (:class:`LockstepOptions`). Per-agent results do not depend on the grouping.
@@ -394,7 +406,7 @@ def run_chunk_lockstep(
             *piece, group_iterations, group_lanes = _run_stream(
                 mdp, part(agent), part(agents), chunk_start, chunk_end, chunk_length,
                 lanes=max_batch, limits=limits, min_batch=options.min_batch,
-                support=support, block=block,
+                support=support, block=block, steps=options.chunk_steps,
             )
             return piece, group_iterations, group_lanes
         *piece, run_iterations, optimal = run_chunk(

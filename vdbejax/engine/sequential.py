@@ -32,7 +32,7 @@ import numpy as np
 
 from vdbejax import _pytree, _xla_flags
 from vdbejax.engine.agent_state import AgentState, init_agents
-from vdbejax.engine.chunks import ChunkSchedule, RunCancelled
+from vdbejax.engine.chunks import ChunkSchedule, Piece, RunCancelled
 from vdbejax.engine.kinds import KindSwitch, can_switch, switch_block_size
 from vdbejax.engine.lanes import UNROLLED_LANES_MAX, at_lane
 from vdbejax.engine.packing import pack, unpack
@@ -100,6 +100,26 @@ def _check_native(executable: Any) -> bool:
             )
         _NATIVE[executable] = native
     return native
+
+
+@dataclasses.dataclass
+class ItemPiece:
+    """What one native call of a work item gave (:meth:`SequentialRun._run_item`): its
+    agents' ``[agents, chunk_length]`` records of the episodes it finished (``returns``,
+    ``lengths``, ``cut``; ``optimal``, the steps of each episode it ran whose action is
+    optimal, or ``None``), its ``iterations`` and ``lanes`` (lane iterations), each
+    agent's ``episodes`` done after it, whether every agent ``finished`` the chunk, and
+    the item's state after it (``copy``, when a snapshot was asked for)."""
+
+    returns: np.ndarray
+    lengths: np.ndarray
+    cut: np.ndarray
+    optimal: np.ndarray | None
+    iterations: int
+    lanes: int
+    episodes: np.ndarray
+    finished: bool
+    copy: Any
 
 
 class SequentialRun:
@@ -249,53 +269,54 @@ class SequentialRun:
         return self.items is not None or self._group((0, chunk_length, chunk_length))
 
     def _run_item(self, k: int, chunk: tuple[int, int, int], before: Future | None,
-                  snapshot: bool) -> tuple:
-        """Item ``k``'s chunk, once its previous chunk (``before``) has finished; with
-        ``snapshot``, also a host copy of the item's state at the chunk's end (taken
-        before its next chunk updates the state in place)."""
-        if before is not None:
-            before.result()  # started earlier (the pool is FIFO), so this does not deadlock
+                  snapshot: bool) -> ItemPiece | None:
+        """One native call of item ``k`` in a chunk (at most ``chunk_steps`` loop
+        iterations: a stop waits for one call, not for the chunk), once its previous call
+        (``before``) has returned; with ``snapshot``, also a host copy of the item's state
+        after it (taken before its next call updates the state in place). ``None``: not
+        run, ``before`` left the item's previous chunk unfinished (its next call is that
+        chunk's)."""
+        if before is not None:  # started earlier (the pool is FIFO): this does not deadlock
+            previous = before.result()
+            if previous is None or not previous.finished:
+                return None
+        if self.cancelled:  # the run stops
+            raise RunCancelled
         items = self.items
         assert items is not None  # formed by prepare()
         index, state = items[k]
         executable, agent = self.item_programs[k]
-        outputs: list[Any] = []  # returns, lengths, cut, optimal: merged over the native calls
-        iterations = lanes = 0
-        while True:  # native calls of at most chunk_steps loop iterations each: a stop
-            if self.cancelled:  # waits for one of them, not for the chunk
-                raise RunCancelled
-            state, *piece, piece_iterations, piece_lanes, optimal = executable(  # donated
-                *self._arguments(agent, state, index, chunk))
-            items[k] = (index, state)
-            iterations += int(piece_iterations)
-            lanes += int(piece_lanes)
-            piece = [np.asarray(x)[: index.size] for x in (*piece, optimal) if x is not None]
-            outputs = piece if not outputs else _merged(outputs, piece)
-            if int(np.asarray(state.episode)[: index.size].min(initial=chunk[1])) >= chunk[1]:
-                break  # every agent of the item has finished the chunk
+        state, *piece, iterations, lanes, optimal = executable(  # donated
+            *self._arguments(agent, state, index, chunk))
+        items[k] = (index, state)
+        episodes = np.asarray(state.episode)[: index.size].copy()
         copy = (jax.tree.map(lambda leaf: np.array(np.asarray(leaf)[: index.size]), state)
                 if snapshot else None)
-        return (outputs[0], outputs[1], outputs[2], outputs[3] if len(outputs) > 3 else None,
-                iterations, lanes, copy)
+        returns, lengths, cut = (np.asarray(x)[: index.size] for x in piece)
+        return ItemPiece(returns=returns, lengths=lengths, cut=cut,
+                         optimal=None if optimal is None else np.asarray(optimal)[: index.size],
+                         iterations=int(iterations), lanes=int(lanes), episodes=episodes,
+                         finished=bool(episodes.min(initial=chunk[1]) >= chunk[1]), copy=copy)
 
     def run_chunks(self, bounds: ChunkSchedule, chunk_length: int, ahead: int,
-                   snapshots: bool = False
-                   ) -> Generator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None,
-                                        int, int], None, None]:
+                   snapshots: bool = False) -> Generator[Piece, None, None]:
         """Advance every agent chunk by chunk (after :meth:`prepare`); yields each chunk's
-        ``(returns, lengths, cut, optimal, iterations, lane_iterations)``: numpy ``[agents,
-        chunk_length]`` buffers (``optimal`` ``None`` unless the task's ``optimal_action``
-        mask is set), Σ agent iterations (steps, plus one per episode start
-        after a truncation) and Σ loop iterations × lanes (idle lanes included).
+        :class:`~vdbejax.engine.chunks.Piece` s (numpy buffers): one round of native
+        calls, one per work item that has not finished the chunk, each of at most
+        ``chunk_steps`` loop iterations — the whole chunk unless an item needs more (very
+        long episodes): then the chunk takes several pieces, the last one ``finished``.
+        ``iterations``: Σ agent iterations (steps, plus one per episode start after a
+        truncation); ``lanes``: Σ loop iterations × lanes (idle lanes included).
 
         ``bounds``: each chunk's ``(first, end)`` episodes (decided as each is queued).
         Up to ``ahead`` later chunks run while a chunk is handed out, so no thread waits
-        for the slowest item at each chunk's end. :meth:`agents` returns the state at the
-        end of the chunk just handed out with ``snapshots`` (from copies each item takes
-        at its chunk's end) or with ``ahead=0`` (every item waits there until the next
-        chunk is asked for); otherwise only once the last chunk is handed out. An item's
-        chunks run in order; items start most costly first by the steps of the latest
-        chunk known when they are queued (their order only affects the balance).
+        for the slowest item at each chunk's end (an item that has not finished a chunk
+        continues it first). :meth:`agents` returns the state at the end of the piece
+        just handed out with ``snapshots`` (from copies each item takes after each call)
+        or with ``ahead=0`` (every item waits there until the next piece is asked for);
+        otherwise only once the last chunk is handed out. An item's chunks run in order;
+        items start most costly first by the steps of the latest chunk known when they
+        are queued (their order only affects the balance).
         """
         num_agents = int(self.keys.shape[0])
         items = self.items  # formed by prepare(); the list itself is updated in place
@@ -304,18 +325,25 @@ class SequentialRun:
         pool = None if serial else ThreadPoolExecutor(max_workers=self.threads)
         pending: dict[tuple[int, int], Any] = {}  # (chunk, item) -> Future or output
         costs = None
+        copies: dict[int, Any] = {}  # each item's latest snapshot
+
+        def submit(c: int, k: int, before: Future | None) -> None:
+            chunk = (*bounds[c], chunk_length)
+            self.host_current = False  # the items move on
+            if pool is None:
+                pending[c, k] = self._run_item(k, chunk, None, snapshots)
+            else:
+                pending[c, k] = pool.submit(self._run_item, k, chunk, before, snapshots)
 
         def queue(c: int) -> None:
             order = sorted(range(len(items)), key=lambda k: -(
                 1.0 if costs is None else float(costs[items[k][0]].sum())))
-            chunk = (*bounds[c], chunk_length)
-            self.host_current = False  # the items move on
             for k in order:
-                if pool is None:
-                    pending[c, k] = self._run_item(k, chunk, None, snapshots)
-                else:
-                    pending[c, k] = pool.submit(self._run_item, k, chunk,
-                                                pending.get((c - 1, k)), snapshots)
+                submit(c, k, pending.get((c - 1, k)))
+
+        def result(c: int, k: int) -> ItemPiece | None:
+            output = pending.pop((c, k))
+            return output if pool is None else output.result()
 
         try:
             queued, c = 0, 0
@@ -323,28 +351,48 @@ class SequentialRun:
                 while queued < c + 1 + (0 if pool is None else ahead) and bounds.exists(queued):
                     queue(queued)
                     queued += 1
-                returns = np.zeros((num_agents, chunk_length), np.float32)
-                lengths = np.zeros((num_agents, chunk_length), np.int32)
-                cut = np.zeros((num_agents, chunk_length), bool)
-                optimal = (None if self.mdp.optimal_action is None
-                           else np.zeros((num_agents, chunk_length), np.int32))
-                iterations = lane_iterations = 0
-                copies = []
-                for k, (index, _) in enumerate(items):
-                    output = pending.pop((c, k))
-                    (item_returns, item_lengths, item_cut, item_optimal, item_iterations,
-                     item_lanes, copy) = output if pool is None else output.result()
-                    returns[index], lengths[index] = item_returns, item_lengths
-                    cut[index] = item_cut
-                    if optimal is not None:
-                        optimal[index] = item_optimal
-                    iterations += item_iterations
-                    lane_iterations += item_lanes
-                    copies.append((index, copy))
-                if snapshots:
-                    self._hold(copies)
-                costs = lengths.sum(axis=1)
-                yield returns, lengths, cut, optimal, iterations, lane_iterations
+                first, end = bounds[c]
+                steps = np.zeros(num_agents, np.int64)  # the chunk's steps, per agent
+                running = list(range(len(items)))  # items that have not finished chunk c
+                episodes = np.empty(num_agents, np.int64)  # each agent's, after each piece
+                while running:
+                    returns = np.zeros((num_agents, chunk_length), np.float32)
+                    lengths = np.zeros((num_agents, chunk_length), np.int32)
+                    cut = np.zeros((num_agents, chunk_length), bool)
+                    optimal = (None if self.mdp.optimal_action is None
+                               else np.zeros((num_agents, chunk_length), np.int32))
+                    iterations = lane_iterations = 0
+                    unfinished = []
+                    for k in range(len(items)):
+                        index = items[k][0]
+                        output = result(c, k) if k in running else None
+                        if output is None and k in running:  # queued behind an unfinished
+                            submit(c, k, None)               # call of the previous chunk
+                            output = result(c, k)
+                        if output is None:  # finished the chunk in an earlier piece
+                            continue
+                        returns[index], lengths[index] = output.returns, output.lengths
+                        cut[index] = output.cut
+                        if optimal is not None:
+                            assert output.optimal is not None  # (counted with the mask)
+                            optimal[index] = output.optimal
+                        iterations += output.iterations
+                        lane_iterations += output.lanes
+                        episodes[index] = output.episodes
+                        copies[k] = output.copy
+                        if not output.finished:
+                            unfinished.append(k)
+                    if snapshots:
+                        self._hold([(items[k][0], copies[k]) for k in range(len(items))])
+                    steps += lengths.sum(axis=1)
+                    yield Piece(c=c, first=first, end=end, returns=returns, lengths=lengths,
+                                cut=cut, optimal=optimal, iterations=iterations,
+                                lanes=lane_iterations, episodes=episodes.copy(),
+                                finished=not unfinished)
+                    for k in unfinished:  # the chunk continues where its agents stand
+                        submit(c, k, None)
+                    running = unfinished
+                costs = steps
                 c += 1
         finally:
             self.cancelled = True  # a running item stops at its next native call
@@ -360,18 +408,6 @@ def _row(table: Array, row: Array) -> Array:
     """Row ``row`` (not negative) of a 2-D table, ``[1, width]``."""
     return jax.lax.dynamic_slice(table, (row, 0), (1, table.shape[1]),
                                  allow_negative_indices=False)
-
-
-def _merged(outputs: list[np.ndarray], piece: list[np.ndarray]) -> list[np.ndarray]:
-    """Two native calls' records of one chunk in one: an episode's return, length and cut
-    where the later call finished it, the counts of optimal actions added (an episode
-    that spans both calls counts its steps in each)."""
-    finished = piece[1] > 0  # an episode's length is at least 1
-    merged = [np.where(finished, new, old) for new, old in zip(piece[:3], outputs[:3],
-                                                                strict=True)]
-    if len(piece) > 3:
-        merged.append(outputs[3] + piece[3])
-    return merged
 
 
 def lanes_for(rows: int) -> int:

@@ -156,6 +156,9 @@ class CheckpointWriter:
         )
         if sweep.policy_values is not None:  # a run that evaluates its greedy policies
             arrays["policy_values"] = np.asarray(sweep.policy_values, np.float32)
+        if sweep.optimal is not None:  # the running episodes' counts of optimal actions so far
+            rows = np.asarray(sweep.state_rows, np.int64)
+            arrays["running_optimal"] = np.asarray(sweep.optimal[rows, done[rows]], np.int32)
         io.atomic_savez(self.path, compressed=False, **arrays,
                         **{CHECKSUM_KEY: np.asarray(contents_digest(arrays))})
         self.written = done.copy()
@@ -235,6 +238,7 @@ def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
         log_bytes, log_id = int(stored["log_bytes"]), str(stored["log_id"])
         num_episodes = int(stored["num_episodes"])
         policy_values = stored.get("policy_values")
+        running_optimal = stored.get("running_optimal")
     except Exception as error:  # a damaged file: zip, pickle, EOF or key errors
         if isinstance(error, ValueError) and str(error).startswith(f"checkpoint {str(path)!r}"):
             raise  # ours: another run's or another layout's checkpoint
@@ -253,6 +257,13 @@ def load_checkpoint(path: Path, fingerprint: str, shape: tuple[int, int],
                          f" evaluations of this run (float32 [{shape[0]}, {evaluations}]); {HINT}")
     returns, lengths, cut, optimal = _read_log(path, fingerprint, log_id, log_bytes,
                                                episodes_done, shape, record_optimal)
+    if optimal is not None:  # a checkpoint may fall mid-episode: its count so far
+        if (running_optimal is None or running_optimal.shape != state_rows.shape
+                or running_optimal.dtype != np.int32 or (running_optimal < 0).any()):
+            raise ValueError(f"checkpoint {str(path)!r} is damaged: it does not hold the"
+                             f" running episodes' counts of optimal actions (int32"
+                             f" [{state_rows.size}], at least 0); {HINT}")
+        optimal[state_rows, episodes_done[state_rows]] = running_optimal
     progress = RunState(returns=returns, lengths=lengths, cut=cut, episodes_done=episodes_done,
                         stopped=stopped, nonfinite=nonfinite, state_rows=state_rows,
                         state=state, policy_values=policy_values, optimal=optimal)

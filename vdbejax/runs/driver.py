@@ -108,21 +108,24 @@ def drive(mdp: TabularMDP | TaskInstances, params: AgentParams, keys: np.ndarray
             mdp, take_agents(params, batch), agents.q, agents.tables, agents.episode)
 
     report()
-    while (batch := state.next_batch(plan.batch_size)).size:
-        start = int(state.episodes_done[batch[0]])
+    while (batch := state.next_batch(plan.batch_size, stop.checks_chunks)).size:
+        start = int(state.episodes_done[batch].min())  # (a stop policy: all the same)
         # A fixed budget runs the batch to its end in one call, the stages after every
         # chunk; a policy that checks chunks gets one call per chunk and the stages after it.
         per_chunk = stop.checks_chunks
         end = min(start + plan.chunk_episodes, num_episodes) if per_chunk else num_episodes
         recorded = [start]
 
-        def after_chunk(done: int, agents: AgentState | None, *episodes: np.ndarray,
-                        batch: np.ndarray = batch, recorded: list[int] = recorded) -> None:
-            first = recorded[0]  # episodes: returns, lengths, cut (and optimal-action counts)
-            state.add_episodes(batch, first, done,
-                               tuple(array[:, first:done] for array in episodes))
-            recorded[0] = done
-            evaluate(batch, done, agents)
+        def after_chunk(done: int | np.ndarray, agents: AgentState | None,
+                        *episodes: np.ndarray, batch: np.ndarray = batch,
+                        recorded: list[int] = recorded) -> None:
+            # episodes: returns, lengths, cut (and optimal-action counts) up to ``done``, or
+            # after a piece of a chunk (``done`` per agent) up to the latest running episode
+            first = recorded[0]
+            state.add_episodes(batch, first, done, tuple(array[:, first:] for array in episodes))
+            recorded[0] = int(np.min(done))
+            if np.ndim(done) == 0:  # a chunk's end (a piece ends mid-chunk: no evaluation)
+                evaluate(batch, int(done), agents)
             if agents is not None and checkpoint is not None:
                 state.set_agents(batch, agents)
             after_stop()  # a fixed budget stops no agent

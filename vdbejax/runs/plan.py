@@ -136,13 +136,17 @@ class RunPlan:
         params, keys = shard_agents((params, keys), mesh)
         if initial is not None:
             done, agents, *episodes = initial  # returns, lengths, cut (and optimal counts)
+            if np.ndim(done):  # one per agent
+                done = pad_agents(np.asarray(done), len(self.local))[0]
             (agents, *episodes), _ = pad_agents((agents, *episodes), len(self.local))
             initial = (done, shard_agents(agents, mesh), *episodes)
         if on_chunk is not None:
             real = on_chunk
 
-            def unpadded(done: int, agents: AgentState | None, *episodes: np.ndarray) -> None:
-                real(done, None if agents is None else unpad_agents(agents, count),
+            def unpadded(done: int | np.ndarray, agents: AgentState | None,
+                         *episodes: np.ndarray) -> None:
+                real(done if np.ndim(done) == 0 else np.asarray(done)[:count],
+                     None if agents is None else unpad_agents(agents, count),
                      *(array[:count] for array in episodes))
 
             hooks = dataclasses.replace(hooks, on_chunk=unpadded)

@@ -82,19 +82,22 @@ class RunState:
         """bool ``[agents]``: ran its budget or stopped early."""
         return self.stopped | (self.episodes_done >= self.num_episodes)
 
-    def add_episodes(self, rows: np.ndarray, start: int, done: int,
+    def add_episodes(self, rows: np.ndarray, start: int, done: int | np.ndarray,
                      episodes: tuple[np.ndarray, ...]) -> None:
-        """Store episodes ``[start, done)`` of agents ``rows``: ``episodes`` is
+        """Store the episodes of agents ``rows`` from ``start`` on: ``episodes`` is
         ``(returns, lengths, cut)`` and, in a run that records them, ``optimal`` after
-        them, each ``[rows, done - start]``; they have done ``done`` episodes."""
+        them, each ``[rows, width]`` (zeros past each agent's episodes done, but for the
+        running episode's count of optimal actions so far); they have done ``done``
+        episodes (one number, or one per agent)."""
         returns, lengths, cut, *optimal_part = episodes
         optimal = optimal_part[0] if optimal_part else None
-        self.returns[rows, start:done] = returns
-        self.lengths[rows, start:done] = lengths
-        self.cut[rows, start:done] = cut
+        stop = start + returns.shape[1]
+        self.returns[rows, start:stop] = returns
+        self.lengths[rows, start:stop] = lengths
+        self.cut[rows, start:stop] = cut
         if self.optimal is not None:
             assert optimal is not None  # the engine counts them in a run that records them
-            self.optimal[rows, start:done] = optimal
+            self.optimal[rows, start:stop] = optimal
         self.episodes_done[rows] = done
 
     def set_agents(self, rows: np.ndarray, agents: AgentState | None,
@@ -110,27 +113,30 @@ class RunState:
             nonfinite = np.asarray(agents.nonfinite)
         self.nonfinite[rows] = np.asarray(nonfinite)
         unfinished = self.episodes_done[rows] < self.num_episodes
+        kept = rows  # (the finished ones' states are dropped)
         if unfinished.any():
             assert agents is not None, "unfinished agents need their states"
             if not unfinished.all():
-                rows, agents = rows[unfinished], take_agents(agents, unfinished)
+                kept, agents = rows[unfinished], take_agents(agents, unfinished)
         else:
             agents = None
-        self._keep_states(rows, agents)
+        self._keep_states(rows, kept, agents)
 
     def stop(self, rows: np.ndarray) -> None:
         """Agents ``rows`` stop where they are (a stop policy): their states are dropped."""
         self.stopped[rows] = True
-        self._keep_states(rows, None)
+        self._keep_states(rows, rows, None)
 
-    def _keep_states(self, rows: np.ndarray, agents: AgentState | None) -> None:
+    def _keep_states(self, rows: np.ndarray, kept: np.ndarray,
+                     agents: AgentState | None) -> None:
+        """The states of agents ``rows`` replaced by ``agents``, those of ``kept``."""
         keep = ~np.isin(self.state_rows, rows)
         row_parts, state_parts = [], []
         if keep.any():
             row_parts.append(self.state_rows[keep])
             state_parts.append(take_agents(self.state, keep))
         if agents is not None:
-            row_parts.append(np.asarray(rows, np.int64))
+            row_parts.append(np.asarray(kept, np.int64))
             state_parts.append(jax.tree.map(np.asarray, agents))
         self.state_rows = np.concatenate(row_parts) if row_parts else np.zeros(0, np.int64)
         self.state = (jax.tree.map(lambda *leaves: np.concatenate(leaves), *state_parts)
@@ -147,24 +153,31 @@ class RunState:
         return take_agents(self.state, index)
 
     def resume_point(self, rows: np.ndarray) -> tuple | None:
-        """The engine's ``initial=`` for agents ``rows`` (all with the same episodes done),
-        or None when they have not started."""
-        done = int(self.episodes_done[rows[0]])
-        if done == 0:
+        """The engine's ``initial=`` for agents ``rows`` (all started, or none: then
+        None), with their records up to their latest running episode (its count of
+        optimal actions so far: a checkpoint may fall mid-episode)."""
+        if not np.isin(rows, self.state_rows).any():
             return None
-        point = (done, self.states_of(rows), self.returns[rows, :done],
-                 self.lengths[rows, :done], self.cut[rows, :done])
-        return point if self.optimal is None else (*point, self.optimal[rows, :done])
+        done = self.episodes_done[rows]
+        upto = min(int(done.max()) + 1, self.num_episodes)
+        point = (done, self.states_of(rows), self.returns[rows, :upto],
+                 self.lengths[rows, :upto], self.cut[rows, :upto])
+        return point if self.optimal is None else (*point, self.optimal[rows, :upto])
 
-    def next_batch(self, batch_size: int) -> np.ndarray:
-        """Agents of the next batch: up to ``batch_size`` unfinished agents that have all
-        done the same number of episodes (in-progress agents first, then fresh ones);
+    def next_batch(self, batch_size: int, same_progress: bool = True) -> np.ndarray:
+        """Agents of the next batch: up to ``batch_size`` unfinished agents, the started
+        ones (whose state is stored) first, then fresh ones; with ``same_progress`` only
+        agents that have done the same number of episodes (a stop policy's chunks);
         empty when every agent is finished."""
         pending = np.flatnonzero(~self.finished)
         if pending.size == 0:
             return pending
-        done = self.episodes_done[pending]
-        return pending[done == done.max()][:batch_size]
+        started = np.isin(pending, self.state_rows)
+        group = pending[started] if started.any() else pending
+        if same_progress:
+            done = self.episodes_done[group]
+            group = group[done == done.max()]
+        return group[:batch_size]
 
     def episodes_credited(self) -> int:
         """Agent-episodes done, a stopped agent credited with its whole budget (what a

@@ -64,8 +64,10 @@ def table_snapshots(
                          f" q and {', '.join(kept) or 'no tables of its own'}")
     episodes, snapshots = [], []
 
-    def record(done: int, agents: AgentState | None, returns: np.ndarray,
+    def record(done: int | np.ndarray, agents: AgentState | None, returns: np.ndarray,
                lengths: np.ndarray, cut: np.ndarray) -> None:
+        if np.ndim(done):  # a piece of a chunk of very long episodes: no snapshot there
+            return
         assert agents is not None  # chunk states are on by default
         episodes.append(done)
         snapshots.append(np.array(agents.q if table == "q" else agents.tables[table]))
