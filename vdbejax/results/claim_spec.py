@@ -264,11 +264,16 @@ def _selector(value: Any, where: str, key: str) -> Selector:
     if len(picks) != 1 or unknown:
         raise ValueError(f"{where}: {key}={value!r} is invalid: a ranked selector is"
                          " {best = S} or {worst = S}, with by = a metric")
-    by = value.get("by", RANK_BY)
-    if by not in METRICS:
-        raise ValueError(f"{where}: {key}.by={by!r} is invalid: allowed are"
-                         f" {', '.join(METRICS)}")
+    by = _metric(value.get("by", RANK_BY), where, f"{key}.by")
     return Ranked(picks[0], _named(value[picks[0]], where, f"{key}.{picks[0]}"), by)
+
+
+def _metric(value: Any, where: str, key: str) -> str:
+    """``value`` if it names one of :data:`METRICS`, else one line naming ``key``."""
+    if value not in METRICS:
+        raise ValueError(f"{where}: {key}={value!r} is invalid: allowed are"
+                         f" {', '.join(METRICS)}")
+    return value
 
 
 #: The keys only a claim's check (not a combined one) may hold.
@@ -328,10 +333,7 @@ def _check(data: Any, where: str) -> CheckSpec:
     if kind in TWO_METRICS and "metric" in data:
         raise ValueError(f"{where}: metric={data['metric']!r} is invalid with {kind}: it reads"
                          " final_return and convergence_episode")
-    metric = data.get("metric", default)
-    if metric not in METRICS:
-        raise ValueError(f"{where}: metric={metric!r} is invalid: allowed are"
-                         f" {', '.join(METRICS)}")
+    metric = _metric(data.get("metric", default), where, "metric")
     if kind == "beats" and metric != "final_return":
         raise ValueError(f"{where}: metric={metric!r} is invalid with beats: P(A > B) reads"
                          " the agents' final returns (metric = \"final_return\")")
