@@ -74,11 +74,23 @@ def test_next_batch_finishes_started_agents_first():
     np.testing.assert_array_equal(progress.next_batch(4), [0, 1, 2, 3])
     progress.episodes_done[[2, 3]] = 5
     progress.episodes_done[[0, 1]] = 10
+    progress.state_rows = np.array([2, 3])  # started, unfinished: their states are stored
     np.testing.assert_array_equal(progress.next_batch(4), [2, 3])
     progress.episodes_done[:4] = 10
     np.testing.assert_array_equal(progress.next_batch(4), [4, 5])
     progress.episodes_done[:] = 10
     assert progress.next_batch(4).size == 0
+
+
+def test_a_stop_policys_batch_is_the_chunk_of_its_least_advanced_agent():
+    progress = RunState.fresh(5, 10)
+    progress.episodes_done[:] = [2, 4, 4, 3, 0]  # a checkpoint taken in chunk [2, 4)
+    progress.state_rows = np.arange(4)
+    np.testing.assert_array_equal(progress.next_batch(8, chunk=2), [0, 1, 2, 3])
+    progress.episodes_done[0] = 4
+    progress.episodes_done[3] = 7  # (past the chunk [4, 6))
+    np.testing.assert_array_equal(progress.next_batch(8, chunk=2), [0, 1, 2])
+    np.testing.assert_array_equal(progress.next_batch(8), [0, 1, 2, 3])
 
 
 def test_stopped_agents_leave_the_batches():

@@ -37,13 +37,12 @@ FOUR_DEVICE_SCRIPT = textwrap.dedent(
     info["key_shards"] = len(keys.sharding.device_set)
     info["shard_rows"] = sorted(s.data.shape[0] for s in keys.addressable_shards)
     # The engine keeps the agent states split: each device advances its own agents.
-    import jax.numpy as jnp
     from vdbejax.methods.agents import make_agent, stack_agents
-    from vdbejax.engine import broadcast_agents, init_agent, run_chunk
+    from vdbejax.engine import ChunkBounds, broadcast_agents, init_agent, run_chunk
     params = broadcast_agents(stack_agents([make_agent(SETTINGS[0])]), 8)  # one kind
     params, keys = shard_agents((params, agent_keys(0, 8)), agent_mesh())
     agents = jax.vmap(init_agent, in_axes=(None, 0, 0))(small_mdp(), params, keys)
-    agents = run_chunk(small_mdp(), params, agents, jnp.int32(0), jnp.int32(2), 2)[0]
+    agents = run_chunk(small_mdp(), params, agents, ChunkBounds(start=np.int32(0), end=np.int32(2)), 2)[0]
     info["state_spec"] = str(agents.q.sharding.spec)
     info["state_shards"] = len(agents.q.sharding.device_set)
 

@@ -48,13 +48,14 @@ from vdbejax.engine.lockstep import DEFAULT_UNROLL, MAX_SAFE_BATCH, run_chunk
 from vdbejax.engine.progress import ProgressCallback, text_progress
 from vdbejax.engine.rules import auto_strategy, default_max_batch, mixes_kinds
 from vdbejax.engine.sequential import native_step_loops
-from vdbejax.engine.step import lockstep_iteration, start_support
+from vdbejax.engine.step import ChunkBounds, lockstep_iteration, start_support
 
 __all__ = [
     "DEFAULT_UNROLL",
     "MAX_SAFE_BATCH",
     "STRATEGIES",
     "AgentState",
+    "ChunkBounds",
     "ChunkHooks",
     "EngineOptions",
     "ProgressCallback",

@@ -102,12 +102,13 @@ class EngineOptions:
         waits for the chunk that runs). None: chunks of ``chunk_episodes``.
       chunk_steps: chunks are bounded by steps as well as episodes: the sequential
         strategy's native calls stop after this many loop iterations (a loop runs a few
-        agents side by side), the lockstep strategy's groups after the block in which
-        they reach this many iterations (with ``compact``), each agent where it stands,
-        mid-episode if need be. A chunk that needs more (very long episodes) is run in
-        pieces: ``on_chunk`` gets each piece (:class:`ChunkHooks`), so a checkpoint may
-        fall mid-episode, and a stop waits for one call, not for the chunk. The results
-        do not depend on it.
+        agents side by side), the lockstep strategy's groups after the block (without
+        ``compact``: the loop trip) in which they reach this many iterations, or on an
+        accelerator after the block that passes :data:`PIECE_SECONDS`, each agent where
+        it stands, mid-episode if need be. A chunk that needs more (very long episodes)
+        is run in pieces: ``on_chunk`` gets each piece (:class:`ChunkHooks`), so a
+        checkpoint may fall mid-episode, and a stop waits for one call, not for the
+        chunk. The results do not depend on it.
       compact: between blocks of ``block_iterations`` lockstep iterations, gather the
         still-active agents into a smaller power-of-two batch (at least ``min_batch``
         lanes) once at most half the lanes are active, so finished agents stop costing
@@ -179,11 +180,15 @@ class ChunkHooks:
         episodes' counts of optimal actions so far are in ``optimal``).
       chunk_states: ``False`` hands ``on_chunk`` ``None`` for the agents (no copy of
         every agent's tables after each chunk, when only the episodes are wanted).
+      pieces_only: ``on_chunk`` only after the pieces that end mid-chunk, not at a
+        chunk's end (a caller that takes each chunk's end from the result: one call
+        per chunk, as a stop policy's driver makes).
     """
 
     progress: ProgressCallback | None = None
     on_chunk: Callable[..., None] | None = None
     chunk_states: bool = True
+    pieces_only: bool = False
 
 
 def run_agents(
@@ -256,8 +261,9 @@ def run_agents(
         agents = jax.tree.map(jnp.asarray, initial[1])
         done = np.broadcast_to(np.asarray(initial[0], np.int64), (num_agents,)).copy()
         for array, given in zip((returns, lengths, cut, optimal), initial[2:], strict=False):
-            if array is not None:
-                array[:, : given.shape[1]] = given
+            if array is not None:  # (an agent may be past this call's episodes: a stop
+                # policy's chunk resumed from a checkpoint taken before its end)
+                array[:, : given.shape[1]] = given[:, :num_episodes]
     iterations = lane_iterations = 0
     started = time.perf_counter()
     progress, on_chunk = hooks.progress, hooks.on_chunk
@@ -304,8 +310,10 @@ def run_agents(
     # The sequential strategy runs the next chunk while this loop stores one; a checkpoint
     # then gets the copies each work item takes at the chunk's end, unless the agents are
     # large (a second copy of every table): those wait at each chunk's end instead.
+    # With ``pieces_only`` (one chunk a call, as a rule) no chunk waits to be handed out:
+    # the items wait at each piece's end instead of copying their states after each call.
     states = on_chunk is not None and hooks.chunk_states
-    wait = states and created_in_items(mdp, params)
+    wait = states and (created_in_items(mdp, params) or hooks.pieces_only)
     chunks = (lockstep_chunks() if sequential is None else
               sequential.run_chunks(bounds, buffer, ahead=0 if wait else 1,
                                     snapshots=states and not wait))
@@ -329,8 +337,8 @@ def run_agents(
             done = piece.episodes
             if piece.finished:
                 bounds.received(piece.c)
-            if on_chunk and (piece.finished
-                             or time.perf_counter() - handed >= PIECE_SECONDS):
+            if on_chunk and (not hooks.pieces_only if piece.finished
+                             else time.perf_counter() - handed >= PIECE_SECONDS):
                 # A whole chunk: its end; a piece: each agent's episodes done, the records
                 # to the running episodes (their counts of optimal actions so far).
                 upto = end if piece.finished else min(int(done.max()) + 1, num_episodes)
@@ -374,7 +382,11 @@ def _lockstep_options(options: EngineOptions, threads: int, agents: AgentState,
         threads=threads if on_cpu else 1,
         fixed_blocks=not on_cpu if options.fixed_blocks is None else options.fixed_blocks,
         mix_kinds=mixes_kinds(backend) if options.mix_kinds is None else options.mix_kinds,
-        chunk_steps=options.chunk_steps)
+        chunk_steps=options.chunk_steps,
+        # On a CPU a piece's iterations bound its time (and keep the iterations counted
+        # the same from run to run); on an accelerator an iteration of a large batch may
+        # take milliseconds, so a piece also ends after the block that passes a second.
+        piece_seconds=None if on_cpu else PIECE_SECONDS)
 
 
 def with_optimal_action(mdp: TabularMDP, optimal_action: Any | None) -> TabularMDP:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
@@ -63,13 +64,15 @@ def run_chunk(
     mdp: TabularMDP,
     params: Agent | AgentParams | KindSwitch,
     agents: AgentState,
-    chunk_start: Array,
-    chunk_end: Array,
+    bounds: ChunkBounds,
     chunk_length: int,
     unroll: int = DEFAULT_UNROLL,
     programs: Programs | None = None,
+    steps: int | None = None,
 ) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
-    """Advance a batch of agents until each has completed ``chunk_end`` episodes.
+    """Advance a batch of agents until each has completed ``bounds.end`` episodes (or with
+    ``steps``, for at least that many iterations at most: its agents then stand where
+    they are, mid-episode if need be, and a next call continues with the same results).
 
     One jitted program, no compaction (see :func:`run_agents` for the compacting
     driver; both give identical results).
@@ -78,12 +81,14 @@ def run_chunk(
       mdp: the task (shared by all agents).
       params: batched agent hyperparameters (leading axis = agents).
       agents: batched agent states.
-      chunk_start: episode index of the chunk's first episode.
-      chunk_end: episode count at which an agent stops (≤ ``chunk_start + chunk_length``).
+      bounds: the chunk: ``start``, the episode index of its first episode, and ``end``,
+        the episode count at which an agent stops (≤ ``start + chunk_length``).
       chunk_length: static buffer length.
       unroll: lockstep iterations per loop trip (static; results do not depend on it).
       programs: the run's programs (:class:`~vdbejax.engine.programs.Programs`; default:
         this call's own).
+      steps: stop after the loop trip in which the iterations reach this many (a value,
+        not a shape: one program for any); ``None``: at the chunk's end.
 
     Note: keep batches ≤ :data:`MAX_SAFE_BATCH` lanes for results independent of the
     batch (:func:`run_agents` splits larger ones into groups).
@@ -91,7 +96,7 @@ def run_chunk(
     Returns:
       ``(agents, returns, lengths, cut, iterations, optimal)``: returns, lengths and cut
       (the step limit ended the episode) are ``[agents, chunk_length]`` (episodes past
-      ``chunk_end`` stay 0), ``iterations``
+      ``bounds.end`` stay 0), ``iterations``
       the number of lockstep iterations executed (a multiple of ``unroll``), ``optimal``
       the episodes' counts of optimal actions where ``mdp.optimal_action`` is set (else
       ``None``).
@@ -101,26 +106,28 @@ def run_chunk(
             raise ValueError(f"params holds {len(params.kinds)} kinds of agent: run_chunk runs"
                              " one kind (use run_agents for several)")
         params = params.kinds[0]
-    args = (mdp, params, agents, jnp.asarray(chunk_start, jnp.int32),
-            jnp.asarray(chunk_end, jnp.int32), start_support(mdp))
+    limit = jnp.iinfo(jnp.int32).max if steps is None else steps
+    bounds = ChunkBounds(start=jnp.asarray(bounds.start, jnp.int32),
+                         end=jnp.asarray(bounds.end, jnp.int32))
+    args = (mdp, params, agents, bounds, jnp.asarray(limit, jnp.int32), start_support(mdp))
     program = (programs or Programs()).get(
         _run_chunk, args, {"chunk_length": chunk_length, "unroll": unroll})
     return program(*args)
 
 
-def _run_chunk(mdp: TabularMDP, params: Agent | KindSwitch, agents: AgentState, chunk_start: Array,
-               chunk_end: Array, start_support: Any, *, chunk_length: int,
+def _run_chunk(mdp: TabularMDP, params: Agent | KindSwitch, agents: AgentState,
+               bounds: ChunkBounds, max_iterations: Array, start_support: Any, *,
+               chunk_length: int,
                unroll: int) -> tuple[AgentState, Array, Array, Array, Array, Array | None]:
     num_agents = agents.episode.shape[0]
     returns = jnp.zeros((num_agents, chunk_length), jnp.float32)
     lengths = jnp.zeros((num_agents, chunk_length), jnp.int32)
-    big = jnp.asarray(jnp.iinfo(jnp.int32).max, jnp.int32)
     buffers = ChunkBuffers(returns=returns, lengths=lengths,
                            cut=jnp.zeros((num_agents, chunk_length), jnp.bool_),
                            optimal=optimal_buffer(mdp, num_agents, chunk_length))
     agents, buffers, iterations = run_loop(
-        mdp, params, agents, buffers, ChunkBounds(start=chunk_start, end=chunk_end),
-        LoopLimits(max_iterations=big, unroll=unroll), start_support)
+        mdp, params, agents, buffers, bounds,
+        LoopLimits(max_iterations=max_iterations, unroll=unroll), start_support)
     return (agents, buffers.returns, buffers.lengths, buffers.cut, iterations,
             buffers.optimal)
 
@@ -197,12 +204,13 @@ def _run_stream(
     support: Any,
     block: Callable[[tuple], Any],
     steps: int | None = None,
+    seconds: float | None = None,
 ) -> tuple[AgentState, Array, Array, Array, Array | None, int, int]:
     """:func:`run_chunk` of a stream of agents of one kind through a batch of at most
-    ``lanes`` lanes, refilled and compacted between blocks; with ``steps``, only until
-    its iterations reach ``steps`` (checked between blocks): its agents are then
-    written back where they stand, mid-episode if need be, and a next call continues the
-    chunk with the same results.
+    ``lanes`` lanes, refilled and compacted between blocks; with ``steps`` (or
+    ``seconds``), only until its iterations reach ``steps`` (or ``seconds`` have passed;
+    checked between blocks): its agents are then written back where they stand,
+    mid-episode if need be, and a next call continues the chunk with the same results.
 
     The batch holds the first ``lanes`` agents and runs a block of lockstep iterations
     (``limits``) at a time. Between blocks, a lane whose agent has finished the chunk takes
@@ -232,6 +240,7 @@ def _run_stream(
         cur_params, cur = _gather_rows((params, full), jnp.asarray(index))
     iterations = lane_iterations = 0
     bounds = ChunkBounds(start=np.int32(chunk_start), end=np.int32(chunk_end))
+    began = time.perf_counter()
 
     def written_back() -> tuple[AgentState, ChunkBuffers]:
         """The full batch with the current batch's rows written back (padding dropped)."""
@@ -247,7 +256,8 @@ def _run_stream(
         active = np.array(active)
         if index is not None:
             active &= index < num_agents  # padding lanes do not count
-        if steps is not None and iterations >= steps:
+        if ((steps is not None and iterations >= steps)
+                or (seconds is not None and time.perf_counter() - began >= seconds)):
             break  # the agents where they stand (the finished and the waiting ones too)
         free = np.flatnonzero(~active)
         if index is not None and waiting < num_agents and free.size:
@@ -323,9 +333,13 @@ class LockstepOptions:
       mix_kinds: the kinds together in blocks of
         :func:`~vdbejax.engine.kinds.switch_block_size` where one program can serve them
         (:func:`~vdbejax.engine.kinds.can_switch`), instead of kind by kind.
-      chunk_steps: with ``compact``, a group stops after the block in which its
-        iterations reach this many, its agents where they stand (the call then ends
-        before the chunk does; ``None``: at the chunk's end).
+      chunk_steps: a group stops after the block (with ``compact``; else the loop trip)
+        in which its iterations reach this many, its agents where they stand (the call
+        then ends before the chunk does; ``None``: at the chunk's end).
+      piece_seconds: with ``compact``, a group also stops after the block in which this
+        many seconds have passed since the call began (on an accelerator an iteration
+        of a large batch may take milliseconds: a piece of ``chunk_steps`` iterations
+        would be long); ``None``: no bound in time.
     """
 
     compact: bool
@@ -337,6 +351,7 @@ class LockstepOptions:
     fixed_blocks: bool = False
     mix_kinds: bool = False
     chunk_steps: int | None = None
+    piece_seconds: float | None = None
 
 
 def run_chunk_lockstep(
@@ -407,11 +422,13 @@ def run_chunk_lockstep(
                 mdp, part(agent), part(agents), chunk_start, chunk_end, chunk_length,
                 lanes=max_batch, limits=limits, min_batch=options.min_batch,
                 support=support, block=block, steps=options.chunk_steps,
+                seconds=options.piece_seconds,
             )
             return piece, group_iterations, group_lanes
         *piece, run_iterations, optimal = run_chunk(
-            mdp, part(agent), part(agents), jnp.int32(chunk_start), jnp.int32(chunk_end),
-            chunk_length, unroll, programs,
+            mdp, part(agent), part(agents), ChunkBounds(start=np.int32(chunk_start),
+                                                     end=np.int32(chunk_end)),
+            chunk_length, unroll, programs, options.chunk_steps,
         )
         return [*piece, optimal], int(run_iterations), int(run_iterations) * count
 

@@ -24,7 +24,7 @@ from collections.abc import Callable
 import numpy as np
 
 from vdbejax import _interrupts as interrupts
-from vdbejax.engine import AgentState
+from vdbejax.engine import AgentState, ChunkHooks
 from vdbejax.engine.distributed import take_agents
 from vdbejax.engine.programs import Programs
 from vdbejax.engine.progress import ProgressCallback
@@ -108,12 +108,17 @@ def drive(mdp: TabularMDP | TaskInstances, params: AgentParams, keys: np.ndarray
             mdp, take_agents(params, batch), agents.q, agents.tables, agents.episode)
 
     report()
-    while (batch := state.next_batch(plan.batch_size, stop.checks_chunks)).size:
-        start = int(state.episodes_done[batch].min())  # (a stop policy: all the same)
+    per_chunk = stop.checks_chunks
+    chunk = plan.chunk_episodes
+    while (batch := state.next_batch(plan.batch_size, chunk if per_chunk else None)).size:
+        start = int(state.episodes_done[batch].min())
         # A fixed budget runs the batch to its end in one call, the stages after every
-        # chunk; a policy that checks chunks gets one call per chunk and the stages after it.
-        per_chunk = stop.checks_chunks
-        end = min(start + plan.chunk_episodes, num_episodes) if per_chunk else num_episodes
+        # chunk; a policy that checks chunks gets one call per chunk (multiples of
+        # ``chunk`` end them; an agent resumed from a checkpoint taken mid-chunk finishes
+        # it with the others) and the stages after it.
+        if per_chunk:
+            start -= start % chunk
+        end = min(start + chunk, num_episodes) if per_chunk else num_episodes
         recorded = [start]
 
         def after_chunk(done: int | np.ndarray, agents: AgentState | None,
@@ -128,13 +133,14 @@ def drive(mdp: TabularMDP | TaskInstances, params: AgentParams, keys: np.ndarray
                 evaluate(batch, int(done), agents)
             if agents is not None and checkpoint is not None:
                 state.set_agents(batch, agents)
-            after_stop()  # a fixed budget stops no agent
+            after_stop()  # a fixed budget stops no agent; a piece ends before any stop
 
         result = plan.run_engine(
             mdp.take(batch) if isinstance(mdp, TaskInstances) else mdp,
             take_agents(params, batch), keys[batch], end,
-            initial=state.resume_point(batch), on_chunk=None if per_chunk else after_chunk,
-            chunk_states=checkpoint is not None or evaluate_every is not None,
+            initial=state.resume_point(batch),
+            hooks=ChunkHooks(on_chunk=after_chunk, pieces_only=per_chunk,
+                             chunk_states=checkpoint is not None or evaluate_every is not None),
             keep_final_state=end < num_episodes or (per_chunk and evaluate_every is not None),
             programs=programs, optimal_action=optimal_action if optimal_action is None
             or optimal_action.ndim == 2 else optimal_action[batch])

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -112,17 +111,16 @@ class RunPlan:
                 "memory_budget_bytes": int(self.memory_budget_bytes)}
 
     def run_engine(self, mdp: TabularMDP | TaskInstances, params: AgentParams, keys: np.ndarray,
-                   num_episodes: int, *, initial: tuple | None,
-                   on_chunk: Callable[..., None] | None, chunk_states: bool,
+                   num_episodes: int, *, initial: tuple | None, hooks: ChunkHooks,
                    keep_final_state: bool, programs: Programs,
                    optimal_action: np.ndarray | None = None) -> RunResult:
         """One engine call on a batch (sharded over :attr:`local` when there are several):
-        :func:`~vdbejax.engine.run_agents` to ``num_episodes`` episodes."""
+        :func:`~vdbejax.engine.run_agents` to ``num_episodes`` episodes, ``hooks`` called
+        between its chunks (with the padding agents of a sharded batch left out)."""
         options = EngineOptions(chunk_episodes=self.chunk_episodes, strategy=self.strategy,
                                 compact=self.compact, threads=self.threads,
                                 mix_kinds=self.mix_kinds, chunk_seconds=self.chunk_seconds,
                                 keep_final_state=keep_final_state, programs=programs)
-        hooks = ChunkHooks(on_chunk=on_chunk, chunk_states=chunk_states)
         if not self.sharded:
             return run_agents(mdp, params, keys, num_episodes, options, hooks, initial=initial,
                               optimal_action=optimal_action)
@@ -140,8 +138,8 @@ class RunPlan:
                 done = pad_agents(np.asarray(done), len(self.local))[0]
             (agents, *episodes), _ = pad_agents((agents, *episodes), len(self.local))
             initial = (done, shard_agents(agents, mesh), *episodes)
-        if on_chunk is not None:
-            real = on_chunk
+        if hooks.on_chunk is not None:
+            real = hooks.on_chunk
 
             def unpadded(done: int | np.ndarray, agents: AgentState | None,
                          *episodes: np.ndarray) -> None:

@@ -164,19 +164,20 @@ class RunState:
                  self.lengths[rows, :upto], self.cut[rows, :upto])
         return point if self.optimal is None else (*point, self.optimal[rows, :upto])
 
-    def next_batch(self, batch_size: int, same_progress: bool = True) -> np.ndarray:
+    def next_batch(self, batch_size: int, chunk: int | None = None) -> np.ndarray:
         """Agents of the next batch: up to ``batch_size`` unfinished agents, the started
-        ones (whose state is stored) first, then fresh ones; with ``same_progress`` only
-        agents that have done the same number of episodes (a stop policy's chunks);
-        empty when every agent is finished."""
+        ones (whose state is stored) first, then fresh ones; empty when every agent is
+        finished. With ``chunk`` (a stop policy's chunks, ended by its multiples), only
+        agents in the chunk of the least advanced one (its end included: an agent of a
+        checkpoint taken mid-chunk may have finished the chunk before the others)."""
         pending = np.flatnonzero(~self.finished)
         if pending.size == 0:
             return pending
         started = np.isin(pending, self.state_rows)
         group = pending[started] if started.any() else pending
-        if same_progress:
+        if chunk is not None:
             done = self.episodes_done[group]
-            group = group[done == done.max()]
+            group = group[done <= done.min() - done.min() % chunk + chunk]
         return group[:batch_size]
 
     def episodes_credited(self) -> int:
