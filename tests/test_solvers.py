@@ -46,6 +46,54 @@ def test_value_iteration_equals_textbook_backups(gamma, horizon):
                                naive_q(mdp, gamma, horizon), atol=1e-9)
 
 
+def growing_mdp(seed):
+    """No terminal outcome, integer rewards, outcomes of probability 1/2: values grow with
+    the horizon, and the best action may change late."""
+    rng = np.random.default_rng(seed)
+    shape = (6, 3, 2)
+    return make_tabular_mdp(rng.integers(0, 6, shape), rng.integers(-2, 4, shape).astype(float),
+                            np.zeros(shape, bool), np.full(6, 1 / 6), np.full(shape, 0.5),
+                            max_steps=60)
+
+
+def test_values_that_grow_steadily_are_extrapolated_exactly(monkeypatch):
+    """Once V grows by the same step twice and the maximal actions grow the most, the
+    rest of a long horizon is that step times the backups left: the same Q as every
+    backup made (against the textbook loop), and a fixed policy's values too."""
+    steady = []
+    check = solvers._steady_growth
+    monkeypatch.setattr(solvers, "_steady_growth",
+                        lambda *args: steady.append(check(*args)) or steady[-1])
+    # Staying in state 0 earns 1 a step; moving to state 1 costs 3, then earns 2 a step:
+    # V grows by 1 a few times before moving pays, so Q's growth must be checked too.
+    turn = make_tabular_mdp(next_state=[[0, 1], [1, 1]], reward=[[1.0, -3.0], [2.0, 2.0]],
+                            terminal=[[False, False], [False, False]],
+                            start_probability=[1.0, 0.0], max_steps=50)
+    np.testing.assert_array_equal(solvers.optimal_q_values(turn, 1.0, 50), naive_q(turn, 1.0, 50))
+    for seed in range(8):
+        mdp = growing_mdp(seed)
+        np.testing.assert_allclose(solvers.optimal_q_values(mdp, 1.0, 60),
+                                   naive_q(mdp, 1.0, 60), rtol=1e-14)
+        policy = np.arange(6) % 3
+        # (policy evaluation: the textbook loop on the policy's actions alone)
+        rows = np.arange(6), policy
+        one = make_tabular_mdp(np.asarray(mdp.next_state)[rows][:, None],
+                               np.asarray(mdp.reward)[rows][:, None], np.zeros((6, 1, 2), bool),
+                               np.full(6, 1 / 6), np.full((6, 1, 2), 0.5), max_steps=60)
+        np.testing.assert_allclose(solvers.policy_values(mdp, policy, horizon=60),
+                                   naive_q(one, 1.0, 60)[:, 0], rtol=1e-14)
+    assert sum(steady) >= 3  # extrapolated on several of the tasks
+
+
+def test_an_episode_of_two_billion_steps_costs_a_few_backups():
+    """One state, a reward of 1 a step: the best return is the horizon, at once."""
+    mdp = make_tabular_mdp(next_state=[[0, 0]], reward=[[0.0, 1.0]],
+                           terminal=[[False, False]], start_probability=[1.0],
+                           max_steps=2_000_000_000)
+    assert solvers.best_return(mdp) == 2_000_000_000
+    assert solvers.uniform_random_return(mdp) == 1_000_000_000
+
+
 def test_infinite_horizon_q_satisfies_bellman_optimality():
     mdp = random_mdp(2)
     q = solvers.optimal_q_values(mdp, gamma=0.9)

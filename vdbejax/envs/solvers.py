@@ -98,8 +98,12 @@ def _iterate(
     actions, or float ``[S, A]`` action probabilities); returns ``Q [S, A]``.
 
     With a ``horizon``: exactly ``horizon`` backups, stopping early once ``V`` is a fixed
-    point (every further backup then gives the same ``Q``, so the result is exact).
-    Otherwise: until the largest change of ``V`` is below ``tol``.
+    point (every further backup then gives the same ``Q``, so the result is exact), or
+    once it grows by the same step twice with the maximising actions keeping the largest
+    growth (:func:`_steady_growth`: every further backup then adds the same step, so the
+    rest is that step times the backups left; an episode of 2·10⁹ steps with a reward at
+    each costs two backups, not 2·10⁹). Otherwise: until the largest change of ``V`` is
+    below ``tol``.
     """
     if horizon is not None and horizon < 1:
         return np.zeros((mdp.num_states, mdp.num_actions))
@@ -119,11 +123,16 @@ def _iterate(
             return (q * policy).sum(axis=1)
         return q[rows, policy]
 
+    def growth(step: np.ndarray) -> np.ndarray:  # what a backup adds to Q given V's step
+        grown = np.take(step, next_state) * weight
+        return grown if deterministic else grown.sum(-1)
+
     q = expected_reward.copy()  # one backup from V = 0
     v = value(q)
+    step = None  # V's last change
     buffer = np.empty_like(weight)
     iterations = horizon if horizon is not None else 100_000
-    for _ in range(iterations - 1):
+    for done in range(2, iterations + 1):  # backups done after this one
         np.take(v, next_state, out=buffer)  # in place: no [S, A] temporaries
         buffer *= weight
         if not deterministic:
@@ -132,11 +141,30 @@ def _iterate(
         else:
             np.add(buffer, expected_reward, out=q)
         new_v = value(q)
-        change = np.abs(new_v - v).max()
+        new_step = new_v - v
+        change = np.abs(new_step).max()
         v = new_v
         if change == 0.0 or (horizon is None and change < tol):
             break
+        if horizon is not None and step is not None and np.array_equal(new_step, step):
+            q_step = growth(new_step)
+            if (_steady_growth(q, v, q_step, new_step) if policy is None
+                    else np.array_equal(value(q_step), new_step)):
+                return q + (iterations - done) * q_step
+        step = new_step
     return q
+
+
+def _steady_growth(q: np.ndarray, v: np.ndarray, q_step: np.ndarray,
+                   v_step: np.ndarray) -> bool:
+    """Whether every further backup of value iteration adds ``q_step`` to ``q`` (and
+    ``v_step`` to ``v = max q``): ``V`` grew by ``v_step`` in the last two backups, the next
+    adds ``q_step`` (:func:`_iterate`), and the actions maximal now grow the most, by
+    ``v_step`` (the argmax then never changes; under a fixed policy it suffices that the
+    policy's part of ``q_step`` is ``v_step``)."""
+    maximal = q == v[:, None]
+    on_max = np.where(maximal, q_step, -np.inf).max(axis=1)
+    return bool(np.array_equal(on_max, q_step.max(axis=1)) and np.array_equal(on_max, v_step))
 
 
 def optimal_values(mdp: TabularMDP, gamma: float = 1.0, horizon: int | None = None) -> np.ndarray:
