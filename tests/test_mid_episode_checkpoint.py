@@ -107,6 +107,20 @@ class Interrupted(Exception):
     pass
 
 
+def _interrupted_run(run, calls, **grid):
+    """``run_grid`` on the long episodes, stopped at the ``calls``-th call of its progress
+    (each follows a checkpoint)."""
+    seen = []
+
+    def interrupt(done, total, elapsed):
+        seen.append(done)
+        if len(seen) == calls:
+            raise Interrupted
+
+    with pytest.raises(Interrupted):
+        run_grid(long_episodes(), SETTINGS, run=run.replace(progress=interrupt), **grid)
+
+
 @pytest.mark.parametrize("strategy", ["sequential", "lockstep"])
 def test_a_run_stopped_mid_episode_resumes_from_its_checkpoint_bit_identically(
         tmp_path, monkeypatch, strategy):
@@ -117,16 +131,7 @@ def test_a_run_stopped_mid_episode_resumes_from_its_checkpoint_bit_identically(
     grid = dict(num_seeds=2, num_episodes=3, seed=1)
     whole = run_grid(long_episodes(), SETTINGS, run=run, **grid)
     checkpoint = tmp_path / "c.npz"
-    calls = []
-
-    def stop_at_the_twelfth(done, total, elapsed):
-        calls.append(done)
-        if len(calls) == 12:  # after the checkpoint of the 11th piece
-            raise Interrupted
-
-    with pytest.raises(Interrupted):
-        run_grid(long_episodes(), SETTINGS, run=run.replace(
-            checkpoint=checkpoint, progress=stop_at_the_twelfth), **grid)
+    _interrupted_run(run.replace(checkpoint=checkpoint), 12, **grid)  # after the 11th piece
     with np.load(checkpoint) as data:
         assert (data["agent_episode_length"] > 0).any()  # it fell mid-episode
         assert (data["episodes_done"] < 3).any()
@@ -156,16 +161,7 @@ def test_a_run_until_solved_checkpoints_mid_episode_and_resumes_bit_identically(
     # it and a third runs (its checkpoint holds agents at episodes 2, 4, 4).
     for stop_after in (5, 12):
         checkpoint.unlink(missing_ok=True)
-        calls = []
-
-        def interrupt(done, total, elapsed, calls=calls, stop_after=stop_after):
-            calls.append(done)
-            if len(calls) == stop_after:
-                raise Interrupted
-
-        with pytest.raises(Interrupted):
-            run_grid(long_episodes(), SETTINGS, run=run.replace(
-                checkpoint=checkpoint, progress=interrupt), **grid)
+        _interrupted_run(run.replace(checkpoint=checkpoint), stop_after, **grid)
         with np.load(checkpoint) as data:
             assert (data["agent_episode_length"] > 0).any()  # it fell mid-episode
             assert len(set(data["episodes_done"][~data["stopped"]])) > 1
