@@ -510,10 +510,7 @@ def run_loop(
         return agents, buffers, iterations + unroll, base
 
     zero = jnp.asarray(0, jnp.int32)
-    flat_optimal = None if buffers.optimal is None else buffers.optimal.reshape(-1)
-    flat = ChunkBuffers(returns=buffers.returns.reshape(-1),
-                        lengths=buffers.lengths.reshape(-1), cut=buffers.cut.reshape(-1),
-                        optimal=flat_optimal)
+    flat = jax.tree.map(lambda record: record.reshape(-1), buffers)  # (optimal may be None)
     start = (agents, flat, zero, draw_base(agents.key, agents.counter))
     if limits.fixed_iterations is None:
         agents, flat, iterations, _ = jax.lax.while_loop(cond, body, start)
@@ -525,11 +522,7 @@ def run_loop(
         agents, q=agents.q.reshape(q_shape),
         tables={name: table.reshape(table_shapes[name]) for name, table in agents.tables.items()},
     )
-    optimal = None if flat.optimal is None else flat.optimal.reshape(out_shape)
-    return (agents, ChunkBuffers(returns=flat.returns.reshape(out_shape),
-                                 lengths=flat.lengths.reshape(out_shape),
-                                 cut=flat.cut.reshape(out_shape), optimal=optimal),
-            iterations)
+    return agents, jax.tree.map(lambda record: record.reshape(out_shape), flat), iterations
 
 
 def optimal_buffer(mdp: TabularMDP, num_agents: int, chunk_length: int,

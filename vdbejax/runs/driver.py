@@ -111,14 +111,15 @@ def drive(mdp: TabularMDP | TaskInstances, params: AgentParams, keys: np.ndarray
     per_chunk = stop.checks_chunks
     chunk = plan.chunk_episodes
     while (batch := state.next_batch(plan.batch_size, chunk if per_chunk else None)).size:
-        start = int(state.episodes_done[batch].min())
         # A fixed budget runs the batch to its end in one call, the stages after every
         # chunk; a policy that checks chunks gets one call per chunk (multiples of
         # ``chunk`` end them; an agent resumed from a checkpoint taken mid-chunk finishes
         # it with the others) and the stages after it.
         if per_chunk:
-            start -= start % chunk
-        end = min(start + chunk, num_episodes) if per_chunk else num_episodes
+            start = state.chunk_start(batch, chunk)
+            end = min(start + chunk, num_episodes)
+        else:
+            start, end = int(state.episodes_done[batch].min()), num_episodes
         recorded = [start]
 
         def after_chunk(done: int | np.ndarray, agents: AgentState | None,

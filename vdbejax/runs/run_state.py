@@ -176,9 +176,14 @@ class RunState:
         started = np.isin(pending, self.state_rows)
         group = pending[started] if started.any() else pending
         if chunk is not None:
-            done = self.episodes_done[group]
-            group = group[done <= done.min() - done.min() % chunk + chunk]
+            group = group[self.episodes_done[group] <= self.chunk_start(group, chunk) + chunk]
         return group[:batch_size]
+
+    def chunk_start(self, rows: np.ndarray, chunk: int) -> int:
+        """The first episode of the chunk (of a stop policy's, ended by the multiples of
+        ``chunk``) that holds the least advanced of agents ``rows``."""
+        least = int(self.episodes_done[rows].min())
+        return least - least % chunk
 
     def episodes_credited(self) -> int:
         """Agent-episodes done, a stopped agent credited with its whole budget (what a
